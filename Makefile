@@ -1,0 +1,34 @@
+# Two entry points for a fresh machine: `make fit` and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+export JAX_COMPILATION_CACHE_DIR ?= $(CURDIR)/.jax_cache
+
+.PHONY: fit test install install-test report bench clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e .
+	touch $@
+
+$(VENV)/.installed-test: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $@ $(VENV)/.installed
+
+install: $(VENV)/.installed
+install-test: $(VENV)/.installed-test
+
+# The main job on a bundled measurement.
+fit: install
+	@mkdir -p out
+	$(BIN)/ctfit simulate configs/copper-vase.toml -o out/copper-vase-sim.csv --samples 4000 --seed 1 --noise 0.02
+	$(BIN)/ctfit eval configs/copper-vase.toml out/copper-vase-sim.csv -o out/copper-vase-eval.csv
+
+test: install-test
+	$(BIN)/python -m pytest -n 2 -q
+
+clean:
+	rm -rf $(VENV) out .jax_cache

@@ -1,0 +1,71 @@
+"""Facet-slope distributions D (Cook & Torrance 1982, eqs. 3 and 4 and §2.2).
+
+All functions take ``tan2`` = tan²α, α the angle between the surface normal N and the
+microfacet normal H, and the rms slope ``m`` > 0. They return the distribution *without* its
+factor 1/π, written D̂ here: the normalisation of ``../docs/conventions.md`` multiplies it in.
+
+- Beckmann (eq. 4): D̂ = exp(−tan²α/m²) / (m² cos⁴α) = exp(−tan²α/m²) (1 + tan²α)² / m².
+  The paper's literal D is D̂; the normalised D = D̂/π satisfies ∫ D cos α dω = 1.
+- Gaussian (eq. 3): D = c exp(−(α/m)²). ctfit picks c so that D̂ has the same meaning as for
+  Beckmann: c = 1/m² in the paper's convention ("cook-torrance-1982", the value of Beckmann's
+  D̂ at α = 0) and c = 1/(2π I(m)) with I(m) = ∫₀^{π/2} exp(−α²/m²) cos α sin α dα in the
+  normalised one, so that ∫ D cos α dω = 1 there too.
+
+tan²α is computed from the half-vector's components (no 1 − cos² cancellation near the peak)
+and clamped at 1e12, where both distributions are 0 to every precision for m ≤ 10³.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["beckmann", "gaussian", "gaussian_norm_integral"]
+
+_TAN2_MAX = 1e12
+# Gauss–Legendre nodes on [0, 1] for the Gaussian normalisation integral.
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(64)
+_GL_X = 0.5 * (_GL_X + 1.0)
+_GL_W = 0.5 * _GL_W
+
+
+def beckmann(tan2, m):
+    """Beckmann D̂(α; m) = exp(−tan²α/m²)(1 + tan²α)²/m² (paper eq. 4, without 1/π)."""
+    t = jnp.minimum(jnp.asarray(tan2), _TAN2_MAX)
+    m2 = jnp.asarray(m) ** 2
+    return jnp.exp(-t / m2) * ((1 + t) * (1 + t)) / m2
+
+
+def gaussian_norm_integral(m):
+    """J(m) = I(m)/m² with I(m) = ∫₀^{π/2} exp(−α²/m²) cos α sin α dα; J → ½ as m → 0.
+
+    Substituting α = m τ: J(m) = ∫₀^{T} exp(−τ²) sin(2 m τ)/(2 m) dτ with T = min(π/(2m), 9),
+    by 64-point Gauss–Legendre quadrature (exact to float64 rounding for all m > 0).
+    """
+    m = jnp.asarray(m)
+    upper = jnp.minimum(0.5 * jnp.pi / m, 9.0)
+    x = jnp.asarray(_GL_X, dtype=upper.dtype)
+    w = jnp.asarray(_GL_W, dtype=upper.dtype)
+    tau = upper[..., None] * x
+    integrand = jnp.exp(-tau * tau) * jnp.sin(2 * m[..., None] * tau) / (2 * m[..., None])
+    return upper * jnp.sum(w * integrand, axis=-1)
+
+
+def _alpha2(t):
+    """α² = (arctan √t)², written as t·(arctan(x)/x)² with x = √t so it is smooth at t = 0."""
+    small = t < 1e-8
+    ts = jnp.where(small, 1, t)
+    x = jnp.sqrt(ts)
+    ratio = jnp.where(small, 1 - t / 3, jnp.arctan(x) / x)
+    return t * ratio * ratio
+
+
+def gaussian(tan2, m, *, normalized: bool = True):
+    """Gaussian D̂(α; m) = exp(−(α/m)²)/(2 m² J(m)) (normalised) or exp(−(α/m)²)/m² (1982)."""
+    t = jnp.minimum(jnp.asarray(tan2), _TAN2_MAX)
+    m = jnp.asarray(m)
+    m2 = m * m
+    e = jnp.exp(-_alpha2(t) / m2)
+    if normalized:
+        return e / (2 * m2 * gaussian_norm_integral(m))
+    return e / m2

@@ -1,0 +1,109 @@
+"""Directions and the per-direction quantities the model needs, computed once per direction pair.
+
+Conventions (stated once here, and in ``docs/conventions.md``):
+
+- The local frame has the surface normal N = +z. θ is the polar angle from N, φ the azimuth
+  from +x towards +y. Angles in files and on the command line are in degrees; the functions
+  here that take angles say so in their names (``*_deg``).
+- L (light, "incident", ``i``) and V (viewer, "outgoing", ``o``) both point *away* from the
+  surface. The mirror direction of (θ_i, φ_i) is (θ_i, φ_i + 180°).
+- H = (L + V)/|L + V| is the microfacet normal that reflects L into V (paper, §2.2); α is the
+  angle between N and H.
+- Directions on or below the horizon (N·L ≤ 0 or N·V ≤ 0) have a BRDF of 0.
+
+Everything that depends on direction only (cosines, tan²α, sines for Smith's G) is collected in
+:class:`Geometry`, so the spectral part of the model touches each direction once.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+__all__ = ["Geometry", "geometry", "direction_from_angles_deg", "geometry_from_angles_deg"]
+
+
+class Geometry(eqx.Module):
+    """Per-direction-pair quantities (all broadcast to one batch shape).
+
+    Fields: ``cos_l`` = N·L, ``cos_v`` = N·V, ``sin_l``, ``sin_v``, ``cos_h`` = N·H,
+    ``tan2_h`` = tan²α, ``cos_vh`` = V·H (= L·H), and ``valid`` (both directions strictly
+    above the horizon). Invalid entries hold harmless stand-in values (a normal-incidence
+    configuration) so that no NaN is produced; the BRDF masks them to 0.
+    """
+
+    cos_l: Array
+    cos_v: Array
+    sin_l: Array
+    sin_v: Array
+    cos_h: Array
+    tan2_h: Array
+    cos_vh: Array
+    valid: Array
+
+
+def _norm(x):
+    return jnp.sqrt(jnp.sum(x * x, axis=-1))
+
+
+def _safe_sqrt(x):
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
+
+
+def _cross_norm2(a, b):
+    c = jnp.cross(a, b)
+    return jnp.sum(c * c, axis=-1)
+
+
+def geometry(l, v, n=None) -> Geometry:
+    """Geometry of unit vectors ``l`` (to the light) and ``v`` (to the viewer), shape (..., 3).
+
+    ``n`` is the unit surface normal (default +z). Sines and tan²α come from cross products,
+    not from 1 − cos², so they keep full relative precision near normal incidence and at the
+    specular peak.
+    """
+    l = jnp.asarray(l)
+    v = jnp.asarray(v)
+    n = jnp.asarray([0.0, 0.0, 1.0], dtype=l.dtype) if n is None else jnp.asarray(n)
+    cos_l = jnp.sum(n * l, axis=-1)
+    cos_v = jnp.sum(n * v, axis=-1)
+    valid = (cos_l > 0) & (cos_v > 0)
+    # Stand-ins for invalid pairs: L = V = N.
+    l = jnp.where(valid[..., None], l, n)
+    v = jnp.where(valid[..., None], v, n)
+    cos_l = jnp.where(valid, cos_l, 1)
+    cos_v = jnp.where(valid, cos_v, 1)
+    h = l + v
+    h_len = _norm(h)  # > 0: both directions are above the horizon
+    h_n = jnp.sum(n * h, axis=-1)
+    return Geometry(
+        cos_l=cos_l,
+        cos_v=cos_v,
+        sin_l=_safe_sqrt(_cross_norm2(n, l)),
+        sin_v=_safe_sqrt(_cross_norm2(n, v)),
+        cos_h=h_n / h_len,
+        tan2_h=_cross_norm2(n, h) / (h_n * h_n),
+        cos_vh=0.5 * h_len,
+        valid=valid,
+    )
+
+
+def direction_from_angles_deg(theta, phi):
+    """Unit vector(s) for polar angle θ and azimuth φ in degrees, shape (..., 3).
+
+    cos θ is computed as sin(90° − θ), so θ = 90° gives exactly 0 (on the horizon) in every
+    dtype, and θ = 0 gives exactly (0, 0, 1).
+    """
+    theta = jnp.asarray(theta)
+    phi = jnp.mod(jnp.asarray(phi), 360)
+    st = jnp.sin(jnp.deg2rad(theta))
+    ct = jnp.sin(jnp.deg2rad(90 - theta))
+    phi_r = jnp.deg2rad(phi)
+    return jnp.stack([st * jnp.cos(phi_r), st * jnp.sin(phi_r), ct], axis=-1)
+
+
+def geometry_from_angles_deg(theta_i, phi_i, theta_o, phi_o) -> Geometry:
+    """:func:`geometry` for angles in degrees (the measurement-CSV convention)."""
+    return geometry(direction_from_angles_deg(theta_i, phi_i), direction_from_angles_deg(theta_o, phi_o))

@@ -1,0 +1,91 @@
+"""BRDF samples in memory: what every reader returns and what fitting and evaluation consume.
+
+One sample per row, as in the measurement CSV (``docs/formats.md``): light direction
+(θ_i, φ_i), viewer direction (θ_o, φ_o) in degrees, a band (a wavelength in nm, or an RGB
+channel), the BRDF in sr⁻¹ and optionally its standard uncertainty.
+
+Samples sharing a direction pair share their geometry: :meth:`Measurement.directions` gives the
+unique direction pairs and, for each sample, the index of its pair, so the model computes D and
+G once per pair and F per (pair, band).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = ["Measurement"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Measurement:
+    """BRDF samples.
+
+    - ``theta_i, phi_i, theta_o, phi_o``: float arrays (N,), degrees (φ already taken modulo 360).
+    - ``band``: int array (N,), index into ``wavelength_nm`` (spectral) or ``channels`` (RGB).
+    - ``wavelength_nm``: float array (W,), ascending, or None; ``channels``: e.g. ("R", "G", "B")
+      or None. Exactly one of the two is set.
+    - ``brdf``: float array (N,) in sr⁻¹, or None (geometry only, e.g. for ``ctfit eval``).
+    - ``sigma``: float array (N,) in sr⁻¹, or None.
+    - ``meta``: ``# key: value`` metadata; ``source``: where it came from (a path), for messages.
+    """
+
+    theta_i: np.ndarray
+    phi_i: np.ndarray
+    theta_o: np.ndarray
+    phi_o: np.ndarray
+    band: np.ndarray
+    wavelength_nm: np.ndarray | None = None
+    channels: tuple[str, ...] | None = None
+    brdf: np.ndarray | None = None
+    sigma: np.ndarray | None = None
+    meta: dict = dataclasses.field(default_factory=dict)
+    source: str = "<memory>"
+
+    def __post_init__(self):
+        if (self.wavelength_nm is None) == (self.channels is None):
+            raise ValueError("a Measurement has either wavelength_nm or channels, not both or neither")
+        n = len(self.theta_i)
+        for name in ("phi_i", "theta_o", "phi_o", "band", "brdf", "sigma"):
+            a = getattr(self, name)
+            if a is not None and len(a) != n:
+                raise ValueError(f"{name} has {len(a)} entries, theta_i has {n}")
+
+    def __len__(self) -> int:
+        return len(self.theta_i)
+
+    @property
+    def n_bands(self) -> int:
+        return len(self.channels) if self.channels is not None else len(self.wavelength_nm)
+
+    @property
+    def band_labels(self) -> list[str]:
+        if self.channels is not None:
+            return list(self.channels)
+        return [f"{w:g} nm" for w in self.wavelength_nm]
+
+    def directions(self) -> tuple[np.ndarray, np.ndarray]:
+        """Unique direction pairs (D, 4) as (θ_i, φ_i, θ_o, φ_o) and each sample's pair index (N,)."""
+        angles = np.stack([self.theta_i, self.phi_i, self.theta_o, self.phi_o], axis=1)
+        unique, index = np.unique(angles, axis=0, return_inverse=True)
+        return unique, index.reshape(-1)
+
+    def grid(self):
+        """The samples as a dense (D, W) grid when every pair has every band exactly once.
+
+        Returns ``(pairs (D, 4), order (N,))`` with ``order`` such that
+        ``brdf[order].reshape(D, W)`` is the grid, or None when the data is not a full grid.
+        """
+        pairs, index = self.directions()
+        d, w = len(pairs), self.n_bands
+        if d * w != len(self):
+            return None
+        flat = index * w + self.band
+        if len(np.unique(flat)) != len(flat):
+            return None
+        order = np.argsort(flat, kind="stable")
+        return pairs, order
+
+    def replace(self, **changes) -> "Measurement":
+        return dataclasses.replace(self, **changes)
