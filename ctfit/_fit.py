@@ -1,0 +1,315 @@
+"""Least-squares fit of the Cook–Torrance parameters to BRDF samples, with optimistix.
+
+``fit(data, structure, ...)`` → :class:`FitResult`. Steps:
+
+1. Starting points: a grid over the rms slopes (one value per lobe, ascending), each scored
+   by the loss after the best per-band amplitude (a linear least-squares problem) — one
+   vmapped pass over the data. The best ``starts`` grid points seed the solver.
+2. optimistix least squares from every seed at once (vmapped); the lowest finite cost wins.
+   Levenberg–Marquardt by default (normal equations with Cholesky: the Jacobian is tall and
+   thin), Gauss–Newton, Dogleg or BFGS on request; float64 unless float32 is asked for.
+3. Standard errors from (JᵀJ)⁻¹ at the optimum (scaled by the residual variance unless the
+   loss is sigma-weighted), mapped to the constrained parameters by the delta method, reported
+   only where JᵀJ is well conditioned. Near-degenerate solutions are detected and reported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
+
+from ._brdf import normal_reflectance
+from ._fresnel import n_from_f0
+from ._material import Material, Params, Structure
+from ._measurement import Measurement
+from ._problem import LOSSES, Problem, from_params, make_problem, model_values, residual, to_params
+
+__all__ = ["fit", "FitResult", "SOLVERS", "select_structure"]
+
+SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
+
+
+def _solver(name: str, dtype):
+    rtol, atol = (1e-8, 1e-12) if dtype == jnp.float64 else (1e-5, 1e-8)
+    if name == "lm":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    if name == "gauss-newton":
+        return optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    if name == "dogleg":
+        return optx.Dogleg(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    if name == "bfgs":
+        return optx.BFGS(rtol=rtol, atol=atol)
+    raise ValueError(f"solver must be one of {SOLVERS}, got {name!r}")
+
+
+@dataclasses.dataclass
+class FitResult:
+    """A fitted material and how the fit went.
+
+    ``material`` is a full :class:`~ctfit.Material` (usable by every command); ``stats`` holds
+    converged, steps, cost, rmse, rel_rmse, time_s, n_samples, n_params, bic; ``stderr`` the
+    standard errors of s, m, weight, F0, n, k, R_d (None where not computed); ``warnings``
+    plain-language notes on degenerate or suspicious solutions.
+    """
+
+    material: Material
+    stats: dict
+    stderr: dict | None
+    warnings: list[str]
+    loss: str
+    solver: str
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.stats["converged"])
+
+
+def _default_start(structure: Structure, data: Measurement) -> Params:
+    nb = data.n_bands
+    j = structure.lobes
+    return Params(
+        s=np.asarray(0.5) if structure.has_s else None,
+        m=np.geomspace(0.1, 0.3, j) if j else None,
+        w=np.full(j, 1.0 / j) if j else None,
+        f0=np.full(nb, 0.5) if structure.fresnel == "f0" and structure.needs_fresnel_params else None,
+        n=np.full(nb, 1.5) if structure.fresnel != "f0" and structure.needs_fresnel_params else None,
+        k=np.full(nb, 2.0) if structure.fresnel == "conductor" and structure.needs_fresnel_params else None,
+        rd=(np.full(nb, 0.05) if structure.diffuse == "spectrum" else (np.asarray(0.05) if structure.diffuse == "constant" else None)),
+    )
+
+
+def _m_grid(lobes: int) -> np.ndarray:
+    if lobes == 1:
+        return np.geomspace(0.005, 1.0, 16)[:, None]
+    base = {2: np.geomspace(0.01, 0.8, 9), 3: np.geomspace(0.01, 0.8, 7)}.get(lobes, np.geomspace(0.01, 0.8, 5))
+    return np.array(list(itertools.combinations(base, lobes)))
+
+
+@eqx.filter_jit
+def _score_grid(problem: Problem, u0: dict, grid):
+    """Loss of each grid point of log m after the best per-band amplitude (weighted linear LS)."""
+
+    def score(log_m):
+        v = model_values(problem, dict(u0, m=log_m))
+        y = problem.y
+        wgt = problem.mask / jnp.maximum(jnp.abs(y), problem.floor) ** 2
+        if problem.spec.grid:
+            num, den = jnp.sum(wgt * v * y, axis=0), jnp.sum(wgt * v * v, axis=0)
+            scale = num / jnp.maximum(den, 1e-300)
+            cost = jnp.sum(wgt * (scale * v - y) ** 2)
+        else:
+            nb = problem.fixed_bands
+            num = jnp.zeros(nb, v.dtype).at[problem.band].add(wgt * v * y)
+            den = jnp.zeros(nb, v.dtype).at[problem.band].add(wgt * v * v)
+            scale = num / jnp.maximum(den, 1e-300)
+            cost = jnp.sum(wgt * (scale[problem.band] * v - y) ** 2)
+        return jnp.where(jnp.isfinite(cost), cost, jnp.inf), scale
+
+    return jax.vmap(score)(grid)
+
+
+def _seed_points(problem: Problem, u0: dict, k: int) -> dict:
+    """The ``k`` best starting points from a grid over m, each with its best per-band scale."""
+    st = problem.spec.structure
+    if "m" not in u0 or k < 1:
+        return jax.tree.map(lambda a: jnp.asarray(a)[None], u0)
+    grid = jnp.asarray(np.log(_m_grid(st.lobes)), dtype=problem.y.dtype)
+    costs, scales = _score_grid(problem, u0, grid)
+    order = np.argsort(np.asarray(costs))[: min(k, len(grid))]
+    seeds = []
+    for i in order:
+        u = dict(u0, m=np.asarray(grid[i]))
+        if "f0" in u:
+            f0 = np.clip(jax.nn.sigmoid(np.asarray(u0["f0"])) * np.asarray(scales[i]), 0.005, 0.995)
+            u["f0"] = np.log(f0) - np.log1p(-f0)
+        seeds.append(u)
+    return jax.tree.map(lambda *a: jnp.stack([jnp.asarray(x) for x in a]), *seeds)
+
+
+@eqx.filter_jit
+def _solve_batch(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
+    """optimistix from every seed at once; returns values, success flags, steps, final costs."""
+    solver = _solver(solver_name, problem.y.dtype)
+
+    def one(u0):
+        if solver_name == "bfgs":
+            fn = lambda u, a: 0.5 * jnp.sum(residual(u, a) ** 2)  # noqa: E731
+            sol = optx.minimise(fn, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
+        else:
+            sol = optx.least_squares(residual, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
+        r = residual(sol.value, (problem.y, problem))
+        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"], 0.5 * jnp.sum(r * r)
+
+    return jax.vmap(one)(seeds)
+
+
+@eqx.filter_jit
+def _jtj(problem: Problem, u: dict):
+    """JᵀJ at ``u`` (flattened free parameters), from the structured Jacobian–vector products."""
+    flat, unravel = ravel_pytree(u)
+    jac = jax.jacfwd(lambda f: residual(unravel(f), (problem.y, problem)))(flat)
+    return jac.T @ jac
+
+
+def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
+    if params.m is None:
+        return params, None
+    order = np.argsort(np.asarray(params.m))
+    return dataclasses.replace(params, m=np.asarray(params.m)[order], w=np.asarray(params.w)[order]), order
+
+
+def _stderr(problem: Problem, u: dict, scale2: float, order) -> dict | None:
+    flat, unravel = ravel_pytree(u)
+    if flat.size == 0:
+        return None
+    jtj = np.asarray(_jtj(problem, u))
+    try:
+        cond = np.linalg.cond(jtj)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.isfinite(cond) or cond > 1e12:
+        return None
+    cov_u = np.linalg.inv(jtj) * scale2
+    spec, fixed = problem.spec, problem.fixed
+
+    def constrained(f):
+        p = to_params(spec, unravel(f), fixed)
+        f0 = normal_reflectance(spec.structure, p) if spec.structure.needs_fresnel_params else None
+        out = {k: getattr(p, k) for k in ("s", "m", "w", "n", "k", "rd") if getattr(p, k) is not None}
+        if f0 is not None:
+            out["F0"] = f0
+            if spec.structure.fresnel == "f0":
+                out["n"] = n_from_f0(f0)
+        return out
+
+    jt = jax.jacfwd(constrained)(flat)
+    se = {}
+    for k, jk in jt.items():
+        jk = np.asarray(jk).reshape(-1, flat.size)
+        var = np.einsum("ij,jk,ik->i", jk, cov_u, jk)
+        v = np.sqrt(np.maximum(var, 0))
+        if k in ("m", "w") and order is not None:
+            v = v[order]
+        se[k] = v
+    return {("weight" if k == "w" else k): v for k, v in se.items()}
+
+
+def _warnings(structure: Structure, params: Params, stderr) -> list[str]:
+    out = []
+    if params.m is not None and len(params.m) > 1:
+        m = np.asarray(params.m)
+        for a, b in zip(m[:-1], m[1:]):
+            if abs(b - a) <= 0.02 * max(a, b):
+                out.append(f"degenerate: two lobes with nearly equal m ({a:.4g}, {b:.4g}); one lobe may suffice")
+        for j, w in enumerate(np.asarray(params.w)):
+            if w < 1e-3:
+                out.append(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} → 0; fewer lobes may suffice")
+    if params.s is not None:
+        s = float(params.s)
+        if s < 1e-4:
+            out.append(f"s = {s:.2g} is at its lower bound: the data shows no specular part")
+        elif s > 1 - 1e-4:
+            out.append(f"s = {s:.6g} is at its upper bound: the data shows no diffuse part")
+    if params.f0 is not None:
+        f0 = np.asarray(params.f0)
+        if np.any(f0 < 1e-6) or np.any(f0 > 1 - 1e-6):
+            out.append("F0 at a bound (0 or 1) in some bands: the effective index is at its limit there")
+    if stderr is None:
+        out.append("standard errors not computed: JᵀJ is singular or ill-conditioned (cond > 1e12)")
+    return out
+
+
+def fit(
+    data: Measurement,
+    structure: Structure | None = None,
+    *,
+    start: Params | None = None,
+    fixed: tuple[str, ...] = (),
+    loss: str = "auto",
+    solver: str = "lm",
+    dtype=jnp.float64,
+    starts: int = 3,
+    max_steps: int = 256,
+) -> FitResult:
+    """Fit ``structure`` (default: one Beckmann lobe, V-cavity G, effective index, R_d = F0/π).
+
+    ``start`` gives starting values (and the values of the ``fixed`` parameters); ``loss`` is
+    one of ``LOSSES`` or "auto" (sigma-weighted when the data has sigma, else relative).
+    Per-band parameters of ``start`` must already be on the data's bands.
+    """
+    t0 = time.perf_counter()
+    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
+        raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
+    structure = structure or Structure(lobes=1, diffuse="F0/pi")
+    if loss == "auto":
+        loss = "sigma" if data.sigma is not None else "relative"
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be 'auto' or one of {LOSSES}, got {loss!r}")
+    start = start if start is not None else _default_start(structure, data)
+    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype)
+    u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
+    seeds = _seed_points(problem, u0, starts if "m" in u0 else 1)
+    values, ok, steps, costs = _solve_batch(problem, seeds, solver, max_steps)
+    costs = np.asarray(costs)
+    finite = np.isfinite(costs)
+    best = int(np.argmin(np.where(finite, costs, np.inf))) if finite.any() else 0
+    u = jax.tree.map(lambda a: a[best], values)
+    params = jax.tree.map(np.asarray, to_params(problem.spec, u, problem.fixed))
+    pred = np.asarray(model_values(problem, u)).reshape(-1)
+    y = np.asarray(problem.y).reshape(-1)
+    mask = np.asarray(problem.mask).reshape(-1) > 0
+    err = (pred - y)[mask]
+    floor = float(problem.floor)
+    n, p = int(mask.sum()), int(sum(np.size(v) for v in u.values()))
+    cost = float(costs[best])
+    rss_like = 2 * cost
+    scale2 = 1.0 if loss == "sigma" else rss_like / max(n - p, 1)
+    params, order = _sorted_lobes(params)
+    stderr = _stderr(problem, u, scale2, order)
+    converged = bool(np.asarray(ok)[best]) and bool(np.all(np.isfinite(pred))) and np.isfinite(cost)
+    bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, 1e-300) / n)) + p * math.log(n)
+    stats = {
+        "converged": converged,
+        "steps": int(np.asarray(steps)[best]),
+        "cost": cost,
+        "rmse": float(np.sqrt(np.mean(err**2))),
+        "rel_rmse": float(np.sqrt(np.mean((err / np.maximum(np.abs(y[mask]), floor)) ** 2))),
+        "time_s": time.perf_counter() - t0,
+        "n_samples": n,
+        "n_params": p,
+        "bic": bic,
+        "loss": loss,
+        "solver": solver,
+        "dtype": jnp.dtype(dtype).name,
+        "starts": int(np.asarray(costs).size),
+        "relative_floor": floor,
+    }
+    full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
+    if structure.needs_fresnel_params and structure.fresnel == "f0":
+        full = dataclasses.replace(full, n=np.asarray(n_from_f0(full.f0)))
+    material = Material(
+        structure=structure,
+        params=full,
+        wavelength_nm=data.wavelength_nm,
+        channels=data.channels,
+        name=f"fit of {data.source}",
+    )
+    return FitResult(material=material, stats=stats, stderr=stderr, warnings=_warnings(structure, params, stderr), loss=loss, solver=solver)
+
+
+def select_structure(data: Measurement, candidates: list[Structure], **kwargs) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
+    """Fit each candidate structure and keep the one with the lowest BIC (Schwarz 1978)."""
+    results = [(st, fit(data, st, **kwargs)) for st in candidates]
+    ok = [(st, r) for st, r in results if np.isfinite(r.stats["bic"])]
+    best = min(ok or results, key=lambda sr: sr[1].stats["bic"])[1]
+    return best, results

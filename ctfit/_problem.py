@@ -1,0 +1,308 @@
+"""The least-squares problem: free parameters, their constraints, the data layout and the residual.
+
+Free parameters live in an unconstrained pytree ``u`` (a dict) and map to the model's
+:class:`~ctfit.Params` by
+
+- m_j = exp(u_m)                      (m > 0)
+- w = softmax(0, u_w)                 (weights on the simplex; J − 1 free values)
+- s = sigmoid(u_s)                    (s in [0, 1], d = 1 − s)
+- F0(λ) = sigmoid(u_F0)               (F0 in (0, 1): effective index n = (1+√F0)/(1−√F0) > 1)
+- n(λ) = softplus(u_n) (conductor), 1 + softplus(u_n) (real index); k(λ) = softplus(u_k)
+- R_d = softplus(u_rd)                (R_d ≥ 0, a spectrum or one constant)
+
+Parameters not free are taken from ``fixed`` (a :class:`~ctfit.Params`). Parameters the
+structure does not have are not in ``u`` at all.
+
+The residual's Jacobian has structure that a generic Jacobian ignores: R = s F(λ) S(m, w) +
+(1 − s) R_d(λ), where S (the D·G lobe sum) depends only on the direction and F only on V·H and
+the band. :func:`residual` therefore has a ``jax.custom_jvp`` that computes, once per
+evaluation, ∂S/∂(m, w) per *direction* and the derivative of each value with respect to its own
+band's parameters, and forms any Jacobian–vector product as a cheap contraction of these
+columns. ``jax.linearize`` (used by optimistix's Gauss–Newton family) then costs a few model
+passes instead of one per parameter.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._brdf import _combine, specular_geometric
+from ._geometry import Geometry, geometry_from_angles_deg
+from ._material import Params, Structure
+from ._measurement import Measurement
+
+__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "residual", "model_values"]
+
+LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
+_SHAPE = ("m", "w")  # parameters of S, the per-direction factor
+_BAND = ("f0", "n", "k")  # per-band parameters (rd too when it is a spectrum)
+
+
+@dataclasses.dataclass(frozen=True)
+class Spec:
+    """Static description of a fit: structure, which parameters are free, loss, data layout."""
+
+    structure: Structure
+    free: tuple[str, ...]
+    loss: str
+    grid: bool
+
+
+class Problem(eqx.Module):
+    """Data and static spec of one fit. Arrays are laid out as the model evaluates them:
+
+    grid layout: values (D, W) with a 0/1 ``mask`` for missing (pair, band) cells;
+    pairs layout: values (N,) with ``pair`` and ``band`` indices per sample.
+    """
+
+    spec: Spec = eqx.field(static=True)
+    geom: Geometry
+    y: jax.Array
+    sigma: jax.Array | None
+    cos_i: jax.Array
+    mask: jax.Array
+    pair: jax.Array | None
+    band: jax.Array | None
+    floor: jax.Array
+    fixed: Params
+    n_samples: int = eqx.field(static=True)
+    fixed_bands: int = eqx.field(static=True)
+
+
+def _softplus_inv(x):
+    x = np.asarray(x, dtype=float)
+    return np.where(x > 30, x, np.log(np.expm1(np.maximum(x, 1e-300))))
+
+
+def _logit(p):
+    p = np.clip(np.asarray(p, dtype=float), 1e-12, 1 - 1e-12)
+    return np.log(p) - np.log1p(-p)
+
+
+def to_params(spec: Spec, u: dict, fixed: Params) -> Params:
+    """Constrained model parameters from the unconstrained free values ``u``."""
+    st = spec.structure
+
+    def pick(name, transform):
+        return transform(u[name]) if name in u else getattr(fixed, name)
+
+    w = None
+    if st.has_specular:
+        if "w" in u:
+            w = jax.nn.softmax(jnp.concatenate([jnp.zeros((1,), u["w"].dtype), u["w"]]))
+        elif st.lobes == 1 and fixed.w is None:
+            w = jnp.ones((1,), u["m"].dtype if "m" in u else jnp.result_type(float))
+        else:
+            w = fixed.w
+    n_lower = 0.0 if st.fresnel == "conductor" else 1.0
+    return Params(
+        s=pick("s", jax.nn.sigmoid) if st.has_s else None,
+        m=pick("m", jnp.exp) if st.has_specular else None,
+        w=w,
+        f0=pick("f0", jax.nn.sigmoid) if st.fresnel == "f0" and st.needs_fresnel_params else None,
+        n=pick("n", lambda x: n_lower + jax.nn.softplus(x)) if st.fresnel != "f0" and st.needs_fresnel_params else None,
+        k=pick("k", jax.nn.softplus) if st.fresnel == "conductor" and st.needs_fresnel_params else None,
+        rd=pick("rd", jax.nn.softplus) if st.diffuse in ("spectrum", "constant") else None,
+    )
+
+
+def from_params(spec: Spec, params: Params) -> dict:
+    """Unconstrained values ``u`` for the free parameters of ``params`` (inverse of :func:`to_params`)."""
+    u = {}
+    for name in spec.free:
+        v = np.asarray(getattr(params, name), dtype=float)
+        if name == "m":
+            u[name] = np.log(v)
+        elif name == "w":
+            v = np.clip(v, 1e-12, None)
+            u[name] = np.log(v[1:]) - np.log(v[0])
+        elif name in ("s", "f0"):
+            u[name] = _logit(v)
+        elif name == "n":
+            u[name] = _softplus_inv(v - (0.0 if spec.structure.fresnel == "conductor" else 1.0))
+        else:
+            u[name] = _softplus_inv(v)
+    return u
+
+
+def free_names(structure: Structure, fixed: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """The parameters a structure has, minus those held fixed, in a canonical order."""
+    names = []
+    if structure.has_s:
+        names.append("s")
+    if structure.has_specular:
+        names.append("m")
+        if structure.lobes > 1:
+            names.append("w")
+    if structure.needs_fresnel_params:
+        names += ["f0"] if structure.fresnel == "f0" else (["n", "k"] if structure.fresnel == "conductor" else ["n"])
+    if structure.diffuse in ("spectrum", "constant"):
+        names.append("rd")
+    return tuple(n for n in names if n not in fixed)
+
+
+def make_problem(
+    structure: Structure,
+    data: Measurement,
+    *,
+    fixed_params: Params,
+    fixed: tuple[str, ...] = (),
+    loss: str = "relative",
+    dtype=jnp.float64,
+) -> Problem:
+    """Lay ``data`` out for the model (grid when dense, pairs otherwise) and fix the spec."""
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    if data.brdf is None:
+        raise ValueError(f"{data.source}: the data has no 'brdf' column to fit")
+    if loss == "sigma" and data.sigma is None:
+        raise ValueError(f"{data.source}: loss 'sigma' needs a 'sigma' column")
+    pairs, index = data.directions()
+    n_pairs, n_bands = len(pairs), data.n_bands
+    grid = n_pairs * n_bands <= 1.5 * len(data)
+    geom = geometry_from_angles_deg(*(jnp.asarray(pairs[:, j], dtype=dtype) for j in range(4)))
+    y_pos = data.brdf[data.brdf > 0]
+    floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
+    cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
+    if grid:
+        shape = (n_pairs, n_bands)
+        y = np.zeros(shape)
+        sig = np.ones(shape)
+        mask = np.zeros(shape)
+        y[index, data.band] = data.brdf
+        mask[index, data.band] = 1.0
+        if data.sigma is not None:
+            sig[index, data.band] = data.sigma
+        cos_i = np.broadcast_to(cos_pair[:, None], shape)
+        pair = band = None
+    else:
+        y, mask = data.brdf, np.ones(len(data))
+        sig = data.sigma if data.sigma is not None else np.ones(len(data))
+        cos_i = cos_pair[index]
+        pair, band = jnp.asarray(index), jnp.asarray(data.band)
+    spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid)
+    to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
+    return Problem(
+        spec=spec,
+        geom=geom,
+        y=to(y),
+        sigma=to(sig) if data.sigma is not None else None,
+        cos_i=to(cos_i),
+        mask=to(mask),
+        pair=pair,
+        band=band,
+        floor=jnp.asarray(floor, dtype=dtype),
+        fixed=jax.tree.map(to, fixed_params),
+        n_samples=len(data),
+        fixed_bands=n_bands,
+    )
+
+
+def _gather_bands(params: Params, band) -> Params:
+    def g(a):
+        return None if a is None or jnp.ndim(a) == 0 else a[band]
+
+    return Params(s=params.s, m=params.m, w=params.w, f0=g(params.f0), n=g(params.n), k=g(params.k), rd=g(params.rd))
+
+
+def _per_direction(problem: Problem, u_shape: dict, u_rest: dict):
+    """S per unique direction pair (everything in R_s but F)."""
+    params = to_params(problem.spec, {**u_shape, **u_rest}, problem.fixed)
+    return specular_geometric(problem.spec.structure, params, problem.geom)
+
+
+def _values_from_s(problem: Problem, s_dir, u_rest: dict, u_shape: dict):
+    """Model values in the problem's layout, given S per direction."""
+    spec = problem.spec
+    params = to_params(spec, {**u_shape, **u_rest}, problem.fixed)
+    geom = problem.geom
+    if spec.grid:
+        valid = geom.valid[:, None]
+        spec_v = None if s_dir is None else s_dir[:, None]
+        return _combine(spec.structure, params, valid, spec_v, geom.cos_vh[:, None])
+    p = _gather_bands(params, problem.band)
+    valid = geom.valid[problem.pair]
+    spec_v = None if s_dir is None else s_dir[problem.pair]
+    return _combine(spec.structure, p, valid, spec_v, geom.cos_vh[problem.pair])
+
+
+def model_values(problem: Problem, u: dict):
+    """The model at every sample (problem layout), from the free values ``u``."""
+    u_shape = {k: v for k, v in u.items() if k in _SHAPE}
+    u_rest = {k: v for k, v in u.items() if k not in _SHAPE}
+    s_dir = _per_direction(problem, u_shape, u_rest) if problem.spec.structure.has_specular else None
+    return _values_from_s(problem, s_dir, u_rest, u_shape)
+
+
+def _loss(problem: Problem, values, y):
+    """Residuals in the problem's layout for the selected weighting (missing cells give 0)."""
+    loss = problem.spec.loss
+    if loss == "absolute":
+        r = values - y
+    elif loss == "relative":
+        r = (values - y) / jnp.maximum(y, problem.floor)
+    elif loss == "sigma":
+        r = (values - y) / problem.sigma
+    elif loss == "cosine":
+        r = (values - y) * problem.cos_i
+    else:  # log: Low et al. 2012
+        r = jnp.log1p(values * problem.cos_i) - jnp.log1p(y * problem.cos_i)
+    return (r * problem.mask).reshape(-1)
+
+
+@jax.custom_jvp
+def _residual(u: dict, y, problem: Problem):
+    return _loss(problem, model_values(problem, u), y)
+
+
+@_residual.defjvp
+def _residual_jvp(primals, tangents):
+    u, y, problem = primals
+    tu, ty, _ = tangents  # the problem (geometry, weights) is data: no derivative through it
+    spec = problem.spec
+    u_shape = {k: v for k, v in u.items() if k in _SHAPE}
+    u_rest = {k: v for k, v in u.items() if k not in _SHAPE}
+    has_spec = spec.structure.has_specular
+    if has_spec:
+        s_dir = _per_direction(problem, u_shape, u_rest)
+        # ∂S/∂(m, w) per direction pair: a (D,) · n_shape Jacobian, cheap (no band axis).
+        if u_shape:
+            jac_s = jax.jacfwd(lambda us: _per_direction(problem, us, u_rest))(u_shape)
+    else:
+        s_dir = None
+
+    def f_rest(s, ur):
+        return _values_from_s(problem, s, ur, u_shape)
+
+    values = f_rest(s_dir, u_rest)
+    res, dres_dv = jax.jvp(lambda v: _loss(problem, v, y), (values,), (jnp.ones_like(values),))
+    dres_dv = dres_dv.reshape(values.shape)
+
+    dv = jnp.zeros_like(values)
+    # Per-band and scalar parameters: each value depends on one entry (its band) of each, so a
+    # JVP with an all-ones tangent gives every value's own derivative.
+    for name, t in tu.items():
+        if name in _SHAPE:
+            continue
+        ones = {k: (jnp.ones_like(v) if k == name else jnp.zeros_like(v)) for k, v in u_rest.items()}
+        _, col = jax.jvp(lambda ur: f_rest(s_dir, ur), (u_rest,), (ones,))
+        dv = dv + col * (t if jnp.ndim(t) == 0 or spec.grid else t[problem.band])
+    if has_spec and u_shape:
+        _, dv_ds = jax.jvp(lambda s: f_rest(s, u_rest), (s_dir,), (jnp.ones_like(s_dir),))
+        ds = sum(jnp.tensordot(jac_s[k], tu[k], axes=1) for k in u_shape)
+        dv = dv + dv_ds * (ds[:, None] if spec.grid else ds[problem.pair])
+    dres = dres_dv.reshape(-1) * dv.reshape(-1)
+    # Data tangent: ∂r/∂y.
+    _, dres_dy = jax.jvp(lambda yy: _loss(problem, values, yy), (y,), (ty,))
+    return res, dres + dres_dy
+
+
+def residual(u: dict, args):
+    """optimistix residual function: ``args = (y, problem)``; returns the flat residual vector."""
+    y, problem = args
+    return _residual(u, y, problem)

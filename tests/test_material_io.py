@@ -1,0 +1,476 @@
+"""Material files (TOML configs, fit-result JSON): key mapping, errors, round trips."""
+
+import json
+import math
+import os
+import pathlib
+import shutil
+
+import hypothesis.strategies as st
+import numpy as np
+import pytest
+import tomli_w
+from hypothesis import HealthCheck, given, settings
+
+from ctfit import Material, Params, Structure
+from ctfit._material_io import (
+    MaterialError,
+    load_material,
+    material_from_dict,
+    material_to_dict,
+    read_optical_constants,
+    save_material_json,
+)
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+CONFIGS = sorted((ROOT / "configs").glob("*.toml"))
+CU = ROOT / "measurements" / "Cu.csv"
+
+BASE = """
+s = 0.25
+d = 0.75
+lobes = [{ m = 0.3, weight = 1.0 }]
+wavelength_nm = [400, 500, 600]
+"""
+
+
+def write(tmp_path, text, name="m.toml"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def load_text(tmp_path, text, name="m.toml"):
+    return load_material(write(tmp_path, text, name))
+
+
+def assert_same_material(a: Material, b: Material):
+    assert a.structure == b.structure
+    for field in ("s", "m", "w", "f0", "n", "k", "rd"):
+        x, y = getattr(a.params, field), getattr(b.params, field)
+        assert (x is None) == (y is None), field
+        if x is not None:
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y), err_msg=field)
+    if a.wavelength_nm is None:
+        assert b.wavelength_nm is None
+    else:
+        np.testing.assert_array_equal(a.wavelength_nm, b.wavelength_nm)
+    assert a.channels == b.channels
+    assert a.name == b.name
+    assert a.meta == b.meta
+
+
+# --- key mapping ----------------------------------------------------------------------------------
+
+
+def test_base_material(tmp_path):
+    m = load_text(tmp_path, BASE + "n = [1.5, 1.5, 1.5]\n")
+    assert m.structure == Structure(lobes=1, fresnel="n", diffuse="F0/pi")
+    assert float(m.params.s) == 0.25
+    np.testing.assert_array_equal(m.params.m, [0.3])
+    np.testing.assert_array_equal(m.params.w, [1.0])
+    np.testing.assert_array_equal(m.params.n, [1.5, 1.5, 1.5])
+    assert m.params.f0 is None and m.params.k is None and m.params.rd is None
+    np.testing.assert_array_equal(m.wavelength_nm, [400, 500, 600])
+    assert m.wavelength_nm.dtype == np.float64
+    assert m.name == "m" and m.meta == {}
+
+
+@pytest.mark.parametrize(
+    "fresnel_keys, mode, fields",
+    [
+        ("F0 = [0.04, 0.05, 0.06]", "f0", {"f0"}),
+        ("n = 1.5", "n", {"n"}),
+        ("n = [0.2, 0.3, 0.4]\nk = [3.0, 3.5, 4.0]", "conductor", {"n", "k"}),
+        ('fresnel = "n"\nn = 1.5\nF0 = 0.04', "n", {"n"}),
+        ('fresnel = "f0"\nF0 = 0.04\nn = 1.5', "f0", {"f0"}),
+    ],
+)
+def test_fresnel_forms(tmp_path, fresnel_keys, mode, fields):
+    m = load_text(tmp_path, BASE + fresnel_keys + "\n")
+    assert m.structure.fresnel == mode
+    present = {f for f in ("f0", "n", "k") if getattr(m.params, f) is not None}
+    assert present == fields
+    for f in fields:
+        assert np.shape(getattr(m.params, f)) == (3,)
+
+
+def test_scalar_is_broadcast_to_bands(tmp_path):
+    m = load_text(tmp_path, BASE + "F0 = 0.04\n")
+    np.testing.assert_array_equal(m.params.f0, [0.04] * 3)
+
+
+@pytest.mark.parametrize(
+    "rd, diffuse, value",
+    [(None, "F0/pi", None), ('"F0/pi"', "F0/pi", None), ("0.1", "constant", 0.1), ("[0.1, 0.2, 0.3]", "spectrum", [0.1, 0.2, 0.3])],
+)
+def test_rd_forms(tmp_path, rd, diffuse, value):
+    m = load_text(tmp_path, BASE + "F0 = 0.04\n" + ("" if rd is None else f"Rd = {rd}\n"))
+    assert m.structure.diffuse == diffuse
+    if value is None:
+        assert m.params.rd is None
+    else:
+        np.testing.assert_array_equal(m.params.rd, value)
+        assert np.ndim(m.params.rd) == np.ndim(value)
+
+
+def test_d_zero_has_no_diffuse_part(tmp_path):
+    m = load_text(tmp_path, BASE.replace("s = 0.25\nd = 0.75", "s = 1\nd = 0") + "F0 = 0.9\n")
+    assert m.structure.diffuse is None and m.params.s is None and m.params.rd is None
+
+
+def test_s_zero_has_no_specular_part(tmp_path):
+    text = 's = 0\nd = 1\nwavelength_nm = [400, 500]\nRd = [0.1, 0.2]\n'
+    m = load_text(tmp_path, text)
+    assert m.structure.lobes == 0 and m.structure.diffuse == "spectrum"
+    assert m.params.m is None and m.params.w is None and m.params.s is None and m.params.f0 is None
+
+
+def test_s_zero_with_f0_over_pi_keeps_fresnel_data(tmp_path):
+    m = load_text(tmp_path, "s = 0\nd = 1\nlobes = []\nwavelength_nm = [500]\nF0 = [0.3]\n")
+    assert m.structure.lobes == 0 and m.structure.diffuse == "F0/pi"
+    np.testing.assert_array_equal(m.params.f0, [0.3])
+
+
+def test_only_one_fraction_given(tmp_path):
+    m = load_text(tmp_path, BASE.replace("d = 0.75\n", "") + "F0 = 0.04\n")
+    assert float(m.params.s) == 0.25
+    m = load_text(tmp_path, BASE.replace("s = 0.25\n", "") + "F0 = 0.04\n")
+    assert float(m.params.s) == 0.25
+
+
+def test_lobes_sorted_by_m(tmp_path):
+    text = BASE.replace(
+        "lobes = [{ m = 0.3, weight = 1.0 }]",
+        "lobes = [{ m = 0.4, weight = 0.4 }, { m = 0.2, weight = 0.6 }]",
+    )
+    m = load_text(tmp_path, text + "F0 = 0.9\n")
+    np.testing.assert_array_equal(m.params.m, [0.2, 0.4])
+    np.testing.assert_array_equal(m.params.w, [0.6, 0.4])
+
+
+def test_single_lobe_weight_defaults_to_one(tmp_path):
+    m = load_text(tmp_path, BASE.replace(", weight = 1.0", "") + "F0 = 0.04\n")
+    np.testing.assert_array_equal(m.params.w, [1.0])
+
+
+def test_structure_keys(tmp_path):
+    extra = 'distribution = "gaussian"\ngeometry = "smith"\nnormalization = "cook-torrance-1982"\n'
+    m = load_text(tmp_path, BASE + extra + "F0 = 0.04\n")
+    assert (m.structure.distribution, m.structure.geometry, m.structure.normalization) == (
+        "gaussian",
+        "smith",
+        "cook-torrance-1982",
+    )
+
+
+def test_channels(tmp_path):
+    text = BASE.replace("wavelength_nm = [400, 500, 600]", 'channels = ["R", "G", "B"]')
+    m = load_text(tmp_path, text + "F0 = [0.9, 0.6, 0.5]\nRd = [0.1, 0.05, 0.02]\n")
+    assert m.channels == ("R", "G", "B") and m.wavelength_nm is None and m.is_rgb
+    np.testing.assert_array_equal(m.params_at(channels=["B"]).f0, [0.5])
+
+
+def test_meta_keeps_unknown_keys(tmp_path):
+    m = load_text(tmp_path, BASE + "F0 = 0.04\nnote = \"hello\"\n[fit]\nconverged = true\nsteps = 3\n")
+    assert m.meta == {"note": "hello", "fit": {"converged": True, "steps": 3}}
+
+
+def test_name_key(tmp_path):
+    assert load_text(tmp_path, BASE + 'F0 = 0.04\nname = "vase"\n').name == "vase"
+
+
+# --- optical constants ------------------------------------------------------------------------------
+
+
+def test_optical_constants_relative_to_repo_root(tmp_path):
+    table = read_optical_constants(CU)
+    m = load_text(tmp_path, "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"measurements/Cu.csv\"\n")
+    assert m.structure.fresnel == "conductor"
+    np.testing.assert_array_equal(m.wavelength_nm, table["wavelength_nm"])
+    np.testing.assert_array_equal(m.params.n, table["n"])
+    np.testing.assert_array_equal(m.params.k, table["k"])
+
+
+def test_optical_constants_relative_to_file_first(tmp_path):
+    (tmp_path / "measurements").mkdir()
+    (tmp_path / "measurements" / "Cu.csv").write_text("wavelength_nm,n,k\n500,1.0,2.0\n600,1.5,3.0\n")
+    text = 's = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = "measurements/Cu.csv"\nfresnel = "f0"\n'
+    m = load_text(tmp_path, text)
+    np.testing.assert_array_equal(m.wavelength_nm, [500, 600])
+    np.testing.assert_allclose(m.params.f0, [(0 + 4) / (4 + 4), (0.25 + 9) / (6.25 + 9)])
+
+
+def test_read_optical_constants(tmp_path):
+    table = read_optical_constants(CU)
+    assert set(table) == {"wavelength_nm", "n", "k", "F0", "meta"}
+    assert table["meta"]["material"] == "Copper (Cu)"
+    assert "CC0" in table["meta"]["licence"]
+    path = write(tmp_path, "# a: b\n# free text\n\nwavelength_nm,n,k\n500,1,2\n", "t.csv")
+    t = read_optical_constants(path)
+    assert t["meta"] == {"a": "b"}
+    np.testing.assert_allclose(t["F0"], [0.5])
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ("wavelength_nm,n\n500,1\n", r"t\.csv:1: header lacks column\(s\) \['k'\]"),
+        ("wavelength_nm,n,k\n500,1\n", r"t\.csv:2: 2 values, header has 3"),
+        ("wavelength_nm,n,k\n500,1,x\n", r"t\.csv:2: not a number"),
+        ("wavelength_nm,n,k\n", r"t\.csv: no data rows"),
+        ("wavelength_nm,n,k\n600,1,2\n500,1,2\n", "strictly increasing"),
+        ("wavelength_nm,n,k\n600,nan,2\n", "finite"),
+    ],
+)
+def test_read_optical_constants_errors(tmp_path, text, match):
+    with pytest.raises(MaterialError, match=match):
+        read_optical_constants(write(tmp_path, text, "t.csv"))
+
+
+# --- errors -----------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        (BASE.replace("weight = 1.0", "weight = 0.9") + "F0 = 0.04\n", r"key 'lobes\[0\]\.weight': weights sum to 0\.9, must sum to 1"),
+        (
+            BASE.replace("{ m = 0.3, weight = 1.0 }", "{ m = 0.3, weight = 0.5 }, { m = 0.2, weight = 0.4 }") + "F0 = 0.04\n",
+            r"key 'lobes\[1\]\.weight': weights sum to 0\.9, must sum to 1",
+        ),
+        (BASE.replace("d = 0.75", "d = 0.7") + "F0 = 0.04\n", r"key 'd': s \+ d = 0\.95, must be 1"),
+        (BASE.replace("s = 0.25", "s = 1.5") + "F0 = 0.04\n", r"key 's': 1\.5 is outside \[0, 1\]"),
+        (BASE.replace("s = 0.25\nd = 0.75\n", "") + "F0 = 0.04\n", r"key 's': missing"),
+        (BASE.replace("m = 0.3", "m = 0") + "F0 = 0.04\n", r"key 'lobes\[0\]\.m': 0\.0 is outside \(0, inf\]"),
+        (BASE.replace("m = 0.3", "m = true") + "F0 = 0.04\n", r"key 'lobes\[0\]\.m': must be a number"),
+        (BASE.replace("weight", "wieght") + "F0 = 0.04\n", r"key 'lobes\[0\]\.wieght': unknown key"),
+        (BASE.replace("lobes = [{ m = 0.3, weight = 1.0 }]", "lobes = []") + "F0 = 0.04\n", r"key 'lobes': missing"),
+        (BASE.replace("lobes = [{ m = 0.3, weight = 1.0 }]", "lobes = 3") + "F0 = 0.04\n", r"key 'lobes': must be a list"),
+        ("s = 0\nd = 1\nlobes = [{ m = 0.3 }]\nwavelength_nm = [500]\nRd = 0.1\n", r"key 'lobes': must be absent or empty"),
+        ("s = 0\nd = 1\nwavelength_nm = [500]\nRd = 0.1\nn = 1.5\n", r"key 'n': not used"),
+        (BASE.replace("s = 0.25\nd = 0.75", "s = 1\nd = 0") + "F0 = 0.04\nRd = 0.1\n", r"key 'Rd': not used: d = 0"),
+        (BASE + 'F0 = 0.04\nRd = "F0"\n', r"key 'Rd': must be \"F0/pi\""),
+        (BASE + "F0 = 0.04\nRd = [0.1]\n", r"key 'Rd': has 1 values, wavelength_nm has 3"),
+        (BASE + 'F0 = 0.04\ndistribution = "ggx"\n', r"key 'distribution': must be one of \['beckmann', 'gaussian'\]"),
+        (BASE + 'F0 = 0.04\ngeometry = "x"\n', r"key 'geometry': must be one of"),
+        (BASE + 'F0 = 0.04\nnormalization = "x"\n', r"key 'normalization': must be one of"),
+        (BASE + 'F0 = 0.04\nfresnel = "x"\n', r"key 'fresnel': must be one of"),
+        (BASE, r"key 'F0': missing"),
+        (BASE + "F0 = [0.04, 1.2, 0.1]\n", r"key 'F0\[1\]': 1\.2 is outside \[0, 1\]"),
+        (BASE + "n = [1.5, -1, 1.5]\n", r"key 'n\[1\]': -1\.0 is outside \(0, inf\]"),
+        (BASE + "n = 1.5\nk = -1\n", r"key 'k': -1\.0 is outside \[0, inf\]"),
+        (BASE + 'fresnel = "conductor"\nn = 1.5\n', r"key 'k': missing: fresnel = \"conductor\" needs n and k"),
+        (BASE + 'fresnel = "n"\nn = 1.5\nk = 1\n', r"key 'k': only with fresnel = \"conductor\""),
+        (BASE + "F0 = 0.04\nn = 2.0\n", r"key 'n\[0\]': 2\.0 is inconsistent with fresnel = \"f0\""),
+        (BASE + "n = 1.5\nk = 1\nF0 = 0.5\n", r"key 'F0\[0\]': 0\.5 is inconsistent"),
+        (BASE.replace("[400, 500, 600]", "[400, 400, 600]") + "F0 = 0.04\n", r"key 'wavelength_nm': must be strictly increasing"),
+        (BASE.replace("[400, 500, 600]", "[]") + "F0 = 0.04\n", r"key 'wavelength_nm': must be a non-empty list"),
+        (BASE.replace("wavelength_nm = [400, 500, 600]", "") + "F0 = 0.04\n", r"key 'wavelength_nm': missing"),
+        (BASE + 'F0 = 0.04\nchannels = ["R"]\n', r"key 'channels': give only one of"),
+        (BASE.replace("wavelength_nm = [400, 500, 600]", 'channels = ["R", "R"]') + "F0 = 0.04\n", r"unique"),
+        (BASE + 'F0 = 0.04\ndistrbution = "beckmann"\n', r"key 'distrbution': unknown key; did you mean 'distribution'\?"),
+        (BASE + "F0 = 0.04\nrd = 0.1\n", r"key 'rd': unknown key; did you mean 'Rd'\?"),
+        (BASE + "F0 = 0.04\nname = 3\n", r"key 'name': must be a string"),
+        (
+            "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"measurements/none.csv\"\n",
+            r"key 'optical_constants': no file 'measurements/none.csv'",
+        ),
+        (
+            "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"measurements/Cu.csv\"\nF0 = 0.5\n",
+            r"key 'F0': give either optical_constants or F0/n/k",
+        ),
+        (
+            BASE.replace("lobes = [{ m = 0.3, weight = 1.0 }]", "lobes = [" + "{ m = 0.3, weight = 0.1 }, " * 9 + "]"),
+            r"key 'lobes': 9 lobes, at most 8",
+        ),
+    ],
+)
+def test_semantic_errors_name_file_and_key(tmp_path, text, match):
+    path = write(tmp_path, text)
+    with pytest.raises(MaterialError, match=match) as info:
+        load_material(path)
+    assert str(info.value).startswith(f"{path}: key '")
+    assert isinstance(info.value, ValueError)
+
+
+def test_toml_syntax_error_has_line_and_column(tmp_path):
+    path = write(tmp_path, "s = 1\nd = 0\nlobes = [{ m = 0.2 },, ]\n")
+    with pytest.raises(MaterialError, match=r"m\.toml:3:\d+: TOML syntax error: ") as info:
+        load_material(path)
+    assert "(at line" not in str(info.value)
+
+
+def test_toml_error_at_end_of_document(tmp_path):
+    with pytest.raises(MaterialError, match=r"m\.toml:2:\d+: TOML syntax error"):
+        load_material(write(tmp_path, "s = 1\nlobes = [\n"))
+
+
+def test_json_syntax_error_has_line_and_column(tmp_path):
+    path = write(tmp_path, '{\n  "s": 1,\n  "d": 0,,\n}\n', "m.json")
+    with pytest.raises(MaterialError, match=r"m\.json:3:\d+: JSON syntax error: "):
+        load_material(path)
+
+
+def test_json_top_level_must_be_object(tmp_path):
+    with pytest.raises(MaterialError, match=r"m\.json: the top level must be a JSON object"):
+        load_material(write(tmp_path, "[1, 2]", "m.json"))
+
+
+def test_missing_file_and_unknown_suffix(tmp_path):
+    with pytest.raises(MaterialError, match=r"none\.toml: no such file"):
+        load_material(tmp_path / "none.toml")
+    with pytest.raises(MaterialError, match=r"unknown material file type '\.yaml'"):
+        load_material(write(tmp_path, "s: 1", "m.yaml"))
+
+
+def test_material_from_dict_source_in_errors():
+    with pytest.raises(MaterialError, match=r"^<material>: key 's'"):
+        material_from_dict({"wavelength_nm": [500]})
+    with pytest.raises(MaterialError, match=r"^cli: a material is a table"):
+        material_from_dict([1], source="cli")
+
+
+# --- writing and round trips ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("config", CONFIGS, ids=lambda p: p.stem)
+def test_config_round_trip(tmp_path, config):
+    m = load_material(config)
+    path = save_material_json(m, tmp_path / "result.json", extra={"fit": {"converged": True, "steps": 7}})
+    again = load_material(path)
+    assert again.meta == {"fit": {"converged": True, "steps": 7}}
+    assert_same_material(m, Material(**{**m.__dict__, "meta": again.meta}))
+    assert_same_material(again, load_material(save_material_json(again, tmp_path / "again.json")))
+
+
+def test_result_json_carries_wavelengths_n_and_f0(tmp_path):
+    for config in ("copper-vase.toml", "copper.toml", "rubber.toml"):
+        d = json.loads(save_material_json(load_material(ROOT / "configs" / config), tmp_path / "r.json").read_text())
+        assert {"wavelength_nm", "n", "F0", "fresnel", "s", "d", "lobes"} <= set(d)
+        assert len(d["n"]) == len(d["F0"]) == len(d["wavelength_nm"])
+        assert ("k" in d) == (d["fresnel"] == "conductor")
+
+
+def test_result_lists_lobes_in_ascending_m():
+    m = Material(
+        Structure(lobes=2),
+        Params(m=np.array([0.4, 0.2]), w=np.array([0.3, 0.7]), f0=np.array([0.9])),
+        wavelength_nm=np.array([500.0]),
+    )
+    assert material_to_dict(m)["lobes"] == [{"m": 0.2, "weight": 0.7}, {"m": 0.4, "weight": 0.3}]
+
+
+def test_derived_n_of_f0_one_is_null(tmp_path):
+    m = Material(Structure(), Params(m=np.array([0.2]), w=np.array([1.0]), f0=np.array([0.5, 1.0])), np.array([400.0, 500.0]))
+    d = material_to_dict(m)
+    assert d["n"][1] is None and math.isfinite(d["n"][0])
+    assert_same_material(m, load_material(save_material_json(m, tmp_path / "r.json")))
+
+
+def test_meta_and_extra_are_json_ready(tmp_path):
+    import jax.numpy as jnp
+
+    m = load_material(ROOT / "configs" / "rubber.toml")
+    m = Material(**{**m.__dict__, "meta": {"fit": {"rmse": np.float32(0.5)}, "note": "x"}})
+    extra = {"fit": {"cost": np.float64(1.5), "se": jnp.array([1.0, 2.0]), "bad": float("nan"), "ok": np.bool_(True)}}
+    d = material_to_dict(m, extra)
+    assert d["fit"] == {"cost": 1.5, "se": [1.0, 2.0], "bad": None, "ok": True}  # extra replaces meta
+    assert d["note"] == "x"
+    json.dumps(d, allow_nan=False)
+    with pytest.raises(MaterialError, match="extra key 's' would replace a model key"):
+        material_to_dict(m, {"s": 1})
+    with pytest.raises(TypeError, match="cannot write a object"):
+        material_to_dict(m, {"x": object()})
+
+
+def test_material_to_dict_is_toml_ready(tmp_path):
+    m = load_material(ROOT / "configs" / "copper-plastic-vase.toml")
+    path = tmp_path / "m.toml"
+    path.write_text(tomli_w.dumps(material_to_dict(m)))
+    assert_same_material(m, load_material(path))
+
+
+def test_save_is_atomic(tmp_path, monkeypatch):
+    m = load_material(ROOT / "configs" / "rubber.toml")
+    path = save_material_json(m, tmp_path / "r.json")
+    before = path.read_bytes()
+    assert oct(path.stat().st_mode & 0o777) == "0o644"
+    with pytest.raises(TypeError):
+        save_material_json(m, path, extra={"x": object()})
+    monkeypatch.setattr(os, "replace", lambda *a: (_ for _ in ()).throw(OSError("disk full")))
+    with pytest.raises(OSError, match="disk full"):
+        save_material_json(m, path, extra={"y": 1})
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.json"]  # no temporary files left
+
+
+def test_save_overwrites(tmp_path):
+    m = load_material(ROOT / "configs" / "rubber.toml")
+    path = tmp_path / "r.json"
+    path.write_text("old")
+    save_material_json(m, path, extra={"fit": {"steps": 1}})
+    assert json.loads(path.read_text())["fit"] == {"steps": 1}
+
+
+def test_copied_config_still_finds_its_table(tmp_path):
+    shutil.copy(ROOT / "configs" / "copper.toml", tmp_path / "copper.toml")
+    assert load_material(tmp_path / "copper.toml").structure.fresnel == "conductor"
+
+
+# --- property: any valid material survives save → load ---------------------------------------------
+
+_pos = st.floats(0.01, 2.0)
+
+
+@st.composite
+def materials(draw):
+    lobes = draw(st.integers(0, 3))
+    diffuse = draw(st.sampled_from([None, "F0/pi", "spectrum", "constant"] if lobes else ["F0/pi", "spectrum", "constant"]))
+    fresnel = draw(st.sampled_from(["f0", "n", "conductor"]))
+    rgb = draw(st.booleans())
+    nb = 3 if rgb else draw(st.integers(1, 4))
+    bands = lambda el: np.asarray(draw(st.lists(el, min_size=nb, max_size=nb)))  # noqa: E731
+    structure = Structure(
+        lobes=lobes,
+        distribution=draw(st.sampled_from(["beckmann", "gaussian"])),
+        geometry=draw(st.sampled_from(["v-cavity", "smith"])),
+        fresnel=fresnel if (lobes or diffuse == "F0/pi") else "f0",
+        diffuse=diffuse,
+        normalization=draw(st.sampled_from(["normalized", "cook-torrance-1982"])),
+    )
+    fields = {}
+    if lobes:
+        w = np.asarray(draw(st.lists(st.floats(0.05, 1.0), min_size=lobes, max_size=lobes)))
+        w = w / w.sum()
+        w[-1] = 1 - math.fsum(w[:-1])
+        fields["m"] = np.sort(np.asarray(draw(st.lists(_pos, min_size=lobes, max_size=lobes, unique=True))))
+        fields["w"] = w
+    if structure.has_s:
+        fields["s"] = np.asarray(draw(st.floats(0.0, 1.0)))
+    if structure.needs_fresnel_params:
+        if structure.fresnel == "f0":
+            fields["f0"] = bands(st.floats(0.0, 1.0))
+        else:
+            fields["n"] = bands(st.floats(0.05, 5.0))
+        if structure.fresnel == "conductor":
+            fields["k"] = bands(st.floats(0.0, 8.0))
+    if diffuse == "spectrum":
+        fields["rd"] = bands(st.floats(0.0, 1.0))
+    elif diffuse == "constant":
+        fields["rd"] = np.asarray(draw(st.floats(0.0, 1.0)))
+    wl = None if rgb else np.cumsum(draw(st.lists(st.floats(1.0, 100.0), min_size=nb, max_size=nb))) + 300
+    return Material(
+        structure,
+        Params(**fields),
+        wavelength_nm=wl,
+        channels=("R", "G", "B") if rgb else None,
+        name=draw(st.text(max_size=5)),
+        meta={"fit": {"steps": draw(st.integers(0, 9))}},
+    )
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(materials())
+def test_any_material_round_trips(tmp_path, material):
+    assert_same_material(material, load_material(save_material_json(material, tmp_path / "r.json")))
