@@ -531,7 +531,8 @@ def _dominant(xy, xy_n, observer):
         t, lam, on_purple = _first_hit(xy_n, d, observer, purple=True)
         _, lam_c, _ = _first_hit(xy_n, -d, observer, purple=False)
         lam = np.where(on_purple, -lam_c, lam)
-        achromatic = ~np.isfinite(t) | (np.hypot(d[..., 0], d[..., 1]) == 0)
+        # Closer than 1e-12 to the white (rounding, e.g. a reflectance of exactly 1): achromatic.
+        achromatic = ~np.isfinite(t) | (np.hypot(d[..., 0], d[..., 1]) <= 1e-12)
         lam = np.where(achromatic, np.nan, lam)
         purity = np.where(achromatic, 0.0, 1 / np.where(np.isfinite(t) & (t > 0), t, np.inf))
         bad = ~np.all(np.isfinite(xy), axis=-1) | ~np.all(np.isfinite(xy_n), axis=-1)
@@ -547,7 +548,7 @@ def dominant_wavelength(xy, xy_n, observer: str = DEFAULT_OBSERVER) -> np.ndarra
     tabulated 1 nm points joined by straight segments, as colour-science does) at λ_d,
     interpolated along the segment. Where it meets the line of purples instead, the value is
     −λ_c, the complementary wavelength with a minus sign (colour-science's convention).
-    NaN where ``xy`` equals ``xy_n`` (achromatic) or is not finite. NumPy.
+    NaN where ``xy`` is within 1e-12 of ``xy_n`` (achromatic) or is not finite. NumPy.
     """
     return _dominant(xy, xy_n, observer)[0]
 

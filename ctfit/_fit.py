@@ -255,7 +255,11 @@ def fit(
         loss = "sigma" if data.sigma is not None else "relative"
     if loss not in LOSSES:
         raise ValueError(f"loss must be 'auto' or one of {LOSSES}, got {loss!r}")
-    start = start if start is not None else _default_start(structure, data)
+    default = _default_start(structure, data)
+    if start is None:
+        start = default
+    else:  # anything the structure needs but ``start`` lacks comes from the defaults
+        start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype)
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     seeds = _seed_points(problem, u0, starts if "m" in u0 else 1)

@@ -414,7 +414,7 @@ def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tup
                 i = int(np.argmin(ok))
                 raise p.error(
                     f"{derived[0]}[{i}]",
-                    f'{given[i]!r} is inconsistent with fresnel = "{mode}" ({expected[i]!r} expected)',
+                    f'{float(given[i])!r} is inconsistent with fresnel = "{mode}" ({float(expected[i])!r} expected)',
                 )
     return mode, {key.lower(): values[key] for key in _FRESNEL_KEYS[mode]}
 
@@ -450,16 +450,19 @@ def _jsonable(x):
 def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     """The material as a fit-result document (plain JSON-ready values, ``docs/formats.md``).
 
-    Always written: ``s``, ``d``, ``distribution``, ``geometry``, ``normalization``, the bands,
-    and, when the material has Fresnel parameters, ``fresnel``, ``F0`` and ``n`` (``k`` for a
-    conductor); lobes in ascending m. ``material.meta`` and then ``extra`` (e.g. ``fit``,
-    ``uncertainty``) follow; they may not reuse a model key. Non-finite numbers become null.
+    Always written: ``name``, ``s``, ``d``, ``distribution``, ``geometry``, ``normalization``,
+    the bands, and, when the material has Fresnel parameters, ``fresnel``, ``F0`` and ``n``
+    (``k`` for a conductor); lobes in ascending m. A part whose fraction is exactly 0 (s = 0 or
+    d = 0, e.g. a fit at its bound) is left out, as the format requires; the BRDF is unchanged.
+    ``material.meta`` and then ``extra`` (e.g. ``fit``, ``uncertainty``) follow; they may not
+    reuse a model key. Non-finite numbers become null.
     """
     st, p = material.structure, material.params
-    out: dict = {"name": material.name} if material.name else {}
+    out: dict = {"name": material.name}
     s = float(p.s) if st.has_s else (1.0 if st.has_specular else 0.0)
     out["s"], out["d"] = s, 1.0 - s
-    if st.has_specular:
+    specular, diffuse = st.has_specular and s > 0, st.diffuse if s < 1 else None
+    if specular:
         m, w = _floats(p.m), _floats(p.w)
         out["lobes"] = [{"m": m[j], "weight": w[j]} for j in sorted(range(len(m)), key=m.__getitem__)]
     out["distribution"], out["geometry"], out["normalization"] = st.distribution, st.geometry, st.normalization
@@ -469,7 +472,7 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
         out["wavelength_nm"] = _floats(material.wavelength_nm)
     else:
         raise MaterialError(f"material {material.name!r} has neither wavelength_nm nor channels")
-    if st.needs_fresnel_params:
+    if specular or diffuse == "F0/pi":
         out["fresnel"] = st.fresnel
         if st.fresnel == "f0":
             f0 = np.asarray(p.f0, dtype=float)
@@ -481,11 +484,11 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
             out["n"] = _floats(n)
             if k is not None:
                 out["k"] = _floats(k)
-    if st.diffuse == "F0/pi":
+    if diffuse == "F0/pi":
         out["Rd"] = "F0/pi"
-    elif st.diffuse == "constant":
+    elif diffuse == "constant":
         out["Rd"] = float(p.rd)
-    elif st.diffuse == "spectrum":
+    elif diffuse == "spectrum":
         out["Rd"] = _floats(p.rd)
     for key, value in {**material.meta, **(extra or {})}.items():
         if key in _MODEL_KEYS:

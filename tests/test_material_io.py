@@ -1,5 +1,6 @@
 """Material files (TOML configs, fit-result JSON): key mapping, errors, round trips."""
 
+import dataclasses
 import json
 import math
 import os
@@ -302,7 +303,7 @@ def test_toml_syntax_error_has_line_and_column(tmp_path):
 
 
 def test_toml_error_at_end_of_document(tmp_path):
-    with pytest.raises(MaterialError, match=r"m\.toml:2:\d+: TOML syntax error"):
+    with pytest.raises(MaterialError, match=r"m\.toml:3:1: TOML syntax error: Invalid value$"):
         load_material(write(tmp_path, "s = 1\nlobes = [\n"))
 
 
@@ -340,7 +341,7 @@ def test_config_round_trip(tmp_path, config):
     path = save_material_json(m, tmp_path / "result.json", extra={"fit": {"converged": True, "steps": 7}})
     again = load_material(path)
     assert again.meta == {"fit": {"converged": True, "steps": 7}}
-    assert_same_material(m, Material(**{**m.__dict__, "meta": again.meta}))
+    assert_same_material(dataclasses.replace(m, meta=again.meta), again)
     assert_same_material(again, load_material(save_material_json(again, tmp_path / "again.json")))
 
 
@@ -372,7 +373,7 @@ def test_meta_and_extra_are_json_ready(tmp_path):
     import jax.numpy as jnp
 
     m = load_material(ROOT / "configs" / "rubber.toml")
-    m = Material(**{**m.__dict__, "meta": {"fit": {"rmse": np.float32(0.5)}, "note": "x"}})
+    m = dataclasses.replace(m, meta={"fit": {"rmse": np.float32(0.5)}, "note": "x"})
     extra = {"fit": {"cost": np.float64(1.5), "se": jnp.array([1.0, 2.0]), "bad": float("nan"), "ok": np.bool_(True)}}
     d = material_to_dict(m, extra)
     assert d["fit"] == {"cost": 1.5, "se": [1.0, 2.0], "bad": None, "ok": True}  # extra replaces meta
@@ -418,6 +419,25 @@ def test_copied_config_still_finds_its_table(tmp_path):
     assert load_material(tmp_path / "copper.toml").structure.fresnel == "conductor"
 
 
+@pytest.mark.parametrize("s", [0.0, 1.0])
+@pytest.mark.parametrize("diffuse", ["F0/pi", "spectrum", "constant"])
+def test_fraction_at_bound_drops_the_empty_part(tmp_path, s, diffuse):
+    import ctfit
+
+    rd = {"F0/pi": None, "spectrum": np.array([0.1, 0.2]), "constant": np.asarray(0.1)}[diffuse]
+    m = Material(
+        Structure(lobes=1, fresnel="n", diffuse=diffuse),
+        Params(s=np.asarray(s), m=np.array([0.3]), w=np.array([1.0]), n=np.array([1.5, 1.6]), rd=rd),
+        wavelength_nm=np.array([400.0, 600.0]),
+    )
+    again = load_material(save_material_json(m, tmp_path / "r.json"))
+    assert again.structure.has_specular == (s > 0) and again.structure.has_diffuse == (s < 1)
+    geom = ctfit.geometry_from_angles_deg(np.array([10.0, 40.0]), 0.0, np.array([30.0, 20.0]), 180.0)
+    expected = ctfit.brdf(m.structure, m.params, geom)
+    got = ctfit.brdf(again.structure, again.params, geom)  # (2, 1) for a constant R_d alone
+    np.testing.assert_allclose(np.broadcast_to(got, expected.shape), expected, rtol=1e-12)
+
+
 # --- property: any valid material survives save → load ---------------------------------------------
 
 _pos = st.floats(0.01, 2.0)
@@ -447,7 +467,7 @@ def materials(draw):
         fields["m"] = np.sort(np.asarray(draw(st.lists(_pos, min_size=lobes, max_size=lobes, unique=True))))
         fields["w"] = w
     if structure.has_s:
-        fields["s"] = np.asarray(draw(st.floats(0.0, 1.0)))
+        fields["s"] = np.asarray(draw(st.floats(0.0, 1.0, exclude_min=True, exclude_max=True)))
     if structure.needs_fresnel_params:
         if structure.fresnel == "f0":
             fields["f0"] = bands(st.floats(0.0, 1.0))
