@@ -24,8 +24,8 @@ install-test: $(VENV)/.installed-test
 # The main job on a bundled measurement.
 fit: install
 	@mkdir -p out
-	$(BIN)/ctfit simulate configs/copper-vase.toml -o out/copper-vase-sim.csv --samples 4000 --seed 1 --noise 0.02
-	$(BIN)/ctfit eval configs/copper-vase.toml out/copper-vase-sim.csv -o out/copper-vase-eval.csv
+	$(BIN)/ctfit simulate configs/copper-vase.toml -o out/copper-vase.csv --samples 2000 --seed 1 --noise 0.02
+	$(BIN)/ctfit fit out/copper-vase.csv --material configs/copper-vase.toml -o out/copper-vase.fit.json
 
 test: install-test
 	$(BIN)/python -m pytest -n 2 -q

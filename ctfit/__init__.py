@@ -34,6 +34,18 @@ from ._material import Material as Material, Params as Params, Structure as Stru
 from ._measurement import Measurement as Measurement
 from ._shadowing import smith_g1_reduced as smith_g1_reduced, v_cavity_reduced as v_cavity_reduced
 
+from ._material_io import (
+    MaterialError as MaterialError,
+    load_material as load_material,
+    material_from_dict as material_from_dict,
+    material_to_dict as material_to_dict,
+    read_optical_constants as read_optical_constants,
+    save_material_json as save_material_json,
+)
+from ._simulate import evaluate as evaluate, goniometer_directions as goniometer_directions, simulate as simulate
+from ._fit import FitResult as FitResult, fit as fit, select_structure as select_structure
+from ._fit_io import fit_result_to_dict as fit_result_to_dict, format_fit_table as format_fit_table
+
 try:
     __version__ = importlib.metadata.version("ctfit")
 except importlib.metadata.PackageNotFoundError:  # running from a source tree

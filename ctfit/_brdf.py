@@ -49,16 +49,18 @@ def _distribution(structure: Structure, tan2, m):
 def specular_geometric(structure: Structure, params: Params, geom: Geometry):
     """K Σ_j w_j D̂(α; m_j) G_j/((N·L)(N·V)) per direction: everything in R_s but F."""
     m, w = params.m, params.w
-    tan2 = geom.tan2_h[..., None]  # lobes on the last axis
-    d = _distribution(structure, tan2, m)
+    # The lobe sum (eq. 5) is unrolled (lobes is static and small): no reduce op, so XLA fuses
+    # it with F into one loop (and it avoids an XLA CPU miscompilation of a small reduction
+    # whose result is broadcast over the bands, see tests/test_brdf.py).
+    total = None
+    for j in range(structure.lobes):
+        term = w[j] * _distribution(structure, geom.tan2_h, m[j])
+        if structure.geometry == "smith":
+            term = term * smith_g1_reduced(geom.cos_l, geom.sin_l, m[j]) * smith_g1_reduced(geom.cos_v, geom.sin_v, m[j])
+        total = term if total is None else total + term
     if structure.geometry == "v-cavity":
-        g = v_cavity_reduced(geom.cos_l, geom.cos_v, geom.cos_h, geom.cos_vh)
-        total = jnp.sum(w * d, axis=-1) if structure.lobes > 1 else w[0] * d[..., 0]
-        return specular_constant(structure) * g * total
-    g = smith_g1_reduced(geom.cos_l[..., None], geom.sin_l[..., None], m) * smith_g1_reduced(
-        geom.cos_v[..., None], geom.sin_v[..., None], m
-    )
-    return specular_constant(structure) * jnp.sum(w * d * g, axis=-1)
+        total = v_cavity_reduced(geom.cos_l, geom.cos_v, geom.cos_h, geom.cos_vh) * total
+    return specular_constant(structure) * total
 
 
 def fresnel(structure: Structure, params: Params, cos_vh):

@@ -40,8 +40,8 @@ References
   implementation notes, supplementary test data, and mathematical observations.
   Color Research & Application 30(1), 21–30. doi:10.1002/col.20070
 - IEC 61966-2-1:1999 (sRGB).
-- Mansencal, T., Mauderer, M., Parsons, M., et al. Colour 0.4 (colour-science).
-  doi:10.5281/zenodo.3757045
+- Mansencal, T., Mauderer, M., Parsons, M., et al. Colour (colour-science for Python) 0.4.7.
+  doi:10.5281/zenodo.17837391
 - Cook, R. L. and Torrance, K. E. (1982). A Reflectance Model for Computer Graphics.
   ACM Transactions on Graphics 1(1), 7–24, §4. doi:10.1145/357290.357293
 """
@@ -187,8 +187,8 @@ def spectral_weights(wavelength_nm, illuminant="D65", observer: str = DEFAULT_OB
     --------
     >>> import numpy as np
     >>> w = spectral_weights(np.arange(360.0, 831.0, 5.0))
-    >>> np.round(w.white_XYZ, 4)  # D65's white point, Y = 1
-    array([0.9504, 1.    , 1.0889])
+    >>> [round(float(v), 4) for v in w.white_XYZ]  # D65's white point, Y = 1
+    [0.9505, 1.0, 1.089]
     """
     wl = np.asarray(wavelength_nm, dtype=float)
     if wl.ndim != 1 or wl.size < 2:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import numpy as np
 
 from ._brdf import ambient_reflectance, fresnel
@@ -42,6 +43,18 @@ from ._gamut import desaturate_to_gamut, in_gamut
 from ._material import Material
 
 __all__ = ["colour_report", "reflectance_spectrum"]
+
+
+_fresnel = eqx.filter_jit(fresnel)
+_ambient = eqx.filter_jit(ambient_reflectance)
+_spectrum_to_XYZ = eqx.filter_jit(spectrum_to_XYZ)
+
+
+@eqx.filter_jit
+def _to_rgb(XYZ, conv):
+    """Linear RGB, and gamut-mapped linear RGB of a colourspace (compiled once per shape)."""
+    lin = XYZ_to_RGB(XYZ, conv)
+    return lin, desaturate_to_gamut(lin, conv.luminance, upper=1.0)
 
 
 def _cos(angle_deg: float) -> float:
@@ -71,9 +84,9 @@ def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_
         params = material.params_at(wavelength_nm=wl)
         n_bands = len(wl)
     if st.has_specular:
-        quantity, r = "F(theta)", fresnel(st, params, np.asarray(cos))
+        quantity, r = "F(theta)", _fresnel(st, params, np.asarray(cos))
     else:
-        quantity, r = "pi*Rd", ambient_reflectance(st, params)
+        quantity, r = "pi*Rd", _ambient(st, params)
     r = np.asarray(r, dtype=float)
     if n_bands is not None:
         r = np.broadcast_to(r, (n_bands,)).copy()
@@ -119,8 +132,7 @@ def colour_report(
     if material.is_rgb:
         conv = rgb_conversion(colourspace, None, None)
         quantity, r = reflectance_spectrum(material, angle_deg)
-        lin = np.asarray(r, dtype=float)
-        XYZ = np.asarray(RGB_to_XYZ(lin, conv), dtype=float)
+        XYZ = np.asarray(RGB_to_XYZ(np.asarray(r, dtype=float), conv), dtype=float)
         white_XYZ = conv.white_XYZ
         illuminant_name = f"{colourspace} white"
         srgb_conv = None
@@ -129,21 +141,20 @@ def colour_report(
         quantity, r = reflectance_spectrum(material, angle_deg, grid)
         weights = spectral_weights(grid, illuminant, observer)
         conv = rgb_conversion(colourspace, weights.white_XYZ, chromatic_adaptation)
-        XYZ = np.asarray(spectrum_to_XYZ(r, weights), dtype=float)
-        lin = np.asarray(XYZ_to_RGB(XYZ, conv), dtype=float)
+        XYZ = np.asarray(_spectrum_to_XYZ(r, weights), dtype=float)
         white_XYZ = np.asarray(weights.white_XYZ, dtype=float)
         illuminant_name = weights.illuminant
         srgb_conv = rgb_conversion("sRGB", weights.white_XYZ, chromatic_adaptation)
     white_xy = white_XYZ[:2] / white_XYZ.sum()
-    mapped = desaturate_to_gamut(lin, conv.luminance, upper=1.0)
+    lin, mapped = _to_rgb(XYZ, conv)
+    lin = np.asarray(lin, dtype=float)
     rgb = np.asarray(encode_RGB(mapped, colourspace), dtype=float)
     if colourspace == "sRGB":
         srgb = rgb
     else:
         if srgb_conv is None:  # RGB material in another colourspace: through XYZ to sRGB
             srgb_conv = rgb_conversion("sRGB", white_XYZ, chromatic_adaptation or "CAT02")
-        lin_s = XYZ_to_RGB(XYZ, srgb_conv)
-        srgb = np.asarray(encode_RGB(desaturate_to_gamut(lin_s, srgb_conv.luminance, upper=1.0), "sRGB"), dtype=float)
+        srgb = np.asarray(encode_RGB(_to_rgb(XYZ, srgb_conv)[1], "sRGB"), dtype=float)
     xy = np.asarray(XYZ_to_xy(XYZ, white_xy), dtype=float)
     lab = np.asarray(colour.XYZ_to_Lab(XYZ, illuminant=white_xy), dtype=float)
     lam = float(dominant_wavelength(xy, white_xy, observer))

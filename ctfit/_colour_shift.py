@@ -12,7 +12,9 @@ F_avg the unpolarised dielectric Fresnel reflectance with the index of the avera
 reflectance, n_avg = (1 + √F0_avg)/(1 − √F0_avg) (so F_avg(0) = F0_avg, F_avg(π/2) = 1).
 The interpolation is linear, so it may be done in XYZ or in linear RGB alike (not in encoded
 RGB). :func:`average_normal_reflectance` gives F0_avg; its luminance-weighted form (the Y of
-the F0 spectrum) makes the approximation's luminance follow F_avg(θ) exactly.
+the F0 spectrum) makes the approximation's luminance exactly max(F_avg(θ), F0_avg). (For a
+high index the unpolarised F_avg first dips below F0 — the p-polarised Brewster minimum — so
+the max(0, ·) keeps the normal-incidence colour up to the angle where F_avg recovers F0.)
 
 The exact versions, :func:`fresnel_reflectance_spectrum` + :func:`ctfit.spectrum_to_XYZ`, use
 either the effective index per wavelength from F0(λ) (the paper's k = 0 model) or the

@@ -66,28 +66,35 @@ def n_from_f0(f0):
     return (1 + r) / (1 - r)
 
 
-def _dielectric(c, r, f0):
-    """Unpolarised dielectric F from c = V·H, r = (n − 1)/(n + 1) and F0 = r² (see module doc).
+def _clip_cos(c):
+    """c clipped to [0, 1] (V·H from rounded vectors can exceed 1 by an ulp) and 1 − c²."""
+    c = jnp.clip(jnp.asarray(c), 0, 1)
+    return c, (1 - c) * (1 + c)
 
-    ``r`` may be negative (n < 1): then total internal reflection gives F = 1 where G² ≤ 0.
+
+def _dielectric(c, a, u, scale):
+    """Unpolarised dielectric F from c = V·H, a = 1 − u², u = 1/n and ``scale`` = a².
+
+    ``scale`` is passed separately so the F0 path can write it as 16 F0/(1 + r)⁴, exactly linear
+    in F0. ``a`` may be negative (n < 1): then total internal reflection gives F = 1 where
+    G² ≤ 0. Every quantity is a sum of non-negative terms except G² for n < 1, so the formula
+    loses no precision to cancellation (see the module docstring).
     """
-    c = jnp.asarray(c)
+    c, s2 = _clip_cos(c)
     c2 = c * c
-    s2 = 1 - c2
-    one_plus_r = 1 + r
-    u = (1 - r) / one_plus_r
-    a = 4 * r / (one_plus_r * one_plus_r)  # 1 − u²
     g2 = c2 + s2 * a
     tir = g2 <= 0
     g = jnp.sqrt(jnp.where(tir, 1, g2))
     gcu = g + c * u
+    gcu2 = gcu * gcu
     p = c * g + s2 * u
-    num = 16 * f0 * (c2 * g2 + s2 * s2 * u * u)
-    den = (one_plus_r * one_plus_r * gcu * gcu) ** 2 * (p * p)
-    # den = 0 only at grazing (c = 0) with F0 = 0 or F0 = 1: the limit there is 1 unless F0 = 0.
+    num = scale * (c2 * g2 + s2 * s2 * u * u)
+    den = gcu2 * gcu2 * (p * p)
+    # den = 0 only at grazing (c = 0) with F0 = 1 (u = 0); the limit there is 1. (With F0 = 0
+    # the F0 path has a = 4 r/(1 + r)² > 0 from the clamped r, so den > 0.)
     bad = den <= 0
     f = num / jnp.where(bad, 1, den)
-    f = jnp.where(bad, jnp.where(f0 > 0, 1, 0).astype(f.dtype), f)
+    f = jnp.where(bad, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
     f = jnp.where(tir, 1, f)
     return jnp.clip(f, 0, 1)
 
@@ -97,6 +104,8 @@ def fresnel_dielectric_f0(c, f0):
 
     Equivalent to ``fresnel_dielectric(c, n_from_f0(f0))`` but finite and differentiable for
     every F0 in [0, 1], including F0 = 1 (n = ∞). F(c = 1) = F0 and F(c = 0) = 1 for F0 > 0.
+    1/n = (1 − √F0)/(1 + √F0) is computed as (1 − F0)/(1 + √F0)², which keeps full relative
+    precision as F0 → 1 (1 − F0 is exact there).
 
     Examples
     --------
@@ -106,7 +115,11 @@ def fresnel_dielectric_f0(c, f0):
     """
     f0 = jnp.asarray(f0)
     r = jnp.sqrt(jnp.maximum(f0, _TINY_F0))
-    return _dielectric(c, r, f0)
+    one_plus_r2 = (1 + r) * (1 + r)
+    u = (1 - f0) / one_plus_r2
+    a = 4 * r / one_plus_r2
+    scale = 16 * f0 / (one_plus_r2 * one_plus_r2)
+    return _dielectric(c, a, u, scale)
 
 
 def fresnel_dielectric(c, n):
@@ -116,42 +129,55 @@ def fresnel_dielectric(c, n):
     gives total internal reflection (F = 1) beyond the critical angle.
     """
     n = jnp.asarray(n)
-    r = (n - 1) / (n + 1)
-    return _dielectric(c, r, r * r)
+    u = 1 / n
+    a = (n - 1) * (n + 1) * (u * u)
+    return _dielectric(c, a, u, a * a)
 
 
 def fresnel_conductor(c, n, k):
     """Exact unpolarised Fresnel reflectance of a conductor with complex index n + i k.
 
     Born & Wolf's formulation (as in Mitsuba 3's ``fresnel_conductor``): with
-    a² + b² = √((n² − k² − sin²θ)² + 4 n² k²) and a = √(½ (a² + b² + n² − k² − sin²θ)),
+    (a + i b)² = n² − k² − sin²θ + 2 i n k (a, b ≥ 0, a² + b² = |n² − k² − sin²θ + 2 i n k|),
 
-        R_s = (a² + b² + cos²θ − 2 a cosθ)/(a² + b² + cos²θ + 2 a cosθ),
-        R_p = R_s (a² + b² cos²θ + sin⁴θ − 2 a cosθ sin²θ)/(… + 2 a cosθ sin²θ),
+        R_s = ((a − cosθ)² + b²)/((a + cosθ)² + b²),
+        R_p = R_s ((a cosθ − sin²θ)² + b² cos²θ)/((a cosθ + sin²θ)² + b² cos²θ),
         F = ½ (R_s + R_p).
 
-    With k = 0 and n ≥ 1 this equals :func:`fresnel_dielectric`.
+    The sums of squares are the textbook numerators a² + b² + cos²θ − 2 a cosθ etc. written
+    without cancellation; the smaller of a², b² is taken from a² b² = n² k², and
+    a − cosθ = (n² − k² − 1 + b²)/(a + cosθ). With k = 0 and n ≥ 1 this equals
+    :func:`fresnel_dielectric`.
     """
-    c = jnp.asarray(c)
+    c, s2 = _clip_cos(c)
     n, k = jnp.asarray(n), jnp.asarray(k)
     c2 = c * c
-    s2 = 1 - c2
-    t1 = n * n - k * k - s2
-    q = t1 * t1 + 4 * n * n * k * k
-    qpos = q > 0
-    a2b2 = jnp.sqrt(jnp.where(qpos, q, 1))
-    a2b2 = jnp.where(qpos, a2b2, 0)
-    h = 0.5 * (a2b2 + t1)
-    hpos = h > 0
-    a = jnp.where(hpos, jnp.sqrt(jnp.where(hpos, h, 1)), 0)
-    term1 = a2b2 + c2
-    term2 = 2 * c * a
-    den_s = term1 + term2
+    nk = n * k
+    nk2 = nk * nk
+    # t1 = n² − k² − sin²θ, with n² − 1 formed as (n − 1)(n + 1) (exact near n = 1).
+    n2m1 = (n - 1) * (n + 1)
+    t1 = n2m1 + c2 - k * k
+    q_zero = (t1 == 0) & (nk == 0)
+    t1_s = jnp.where(q_zero, 1, t1)
+    a2b2 = jnp.where(q_zero, 0, jnp.hypot(t1_s, 2 * jnp.where(q_zero, 1, nk)))
+    pos = t1 >= 0
+    big = 0.5 * (a2b2 + jnp.abs(t1))  # a² if t1 ≥ 0 else b²; > 0 unless a2b2 = 0
+    big_ok = big > 0
+    small = nk2 / jnp.where(big_ok, big, 1)
+    a2 = jnp.where(pos, big, small)
+    b2 = jnp.where(pos, small, big)
+    a_ok = a2 > 0
+    a = jnp.where(a_ok, jnp.sqrt(jnp.where(a_ok, a2, 1)), 0)
+    apc = a + c
+    apc_ok = apc > 0
+    amc = jnp.where(apc_ok, (n2m1 - k * k + b2) / jnp.where(apc_ok, apc, 1), 0)
+    den_s = apc * apc + b2
     ok_s = den_s > 0
-    rs = jnp.where(ok_s, (term1 - term2) / jnp.where(ok_s, den_s, 1), 1)
-    term3 = a2b2 * c2 + s2 * s2
-    term4 = term2 * s2
-    den_p = term3 + term4
+    rs = jnp.where(ok_s, (amc * amc + b2) / jnp.where(ok_s, den_s, 1), 0)
+    ac = a * c
+    b2c2 = b2 * c2
+    num_p = (ac - s2) ** 2 + b2c2
+    den_p = (ac + s2) ** 2 + b2c2
     ok_p = den_p > 0
-    rp = rs * jnp.where(ok_p, (term3 - term4) / jnp.where(ok_p, den_p, 1), 1)
-    return jnp.clip(0.5 * (rs + rp), 0, 1)
+    ratio = jnp.where(ok_p, num_p / jnp.where(ok_p, den_p, 1), 1)
+    return jnp.clip(0.5 * rs * (1 + ratio), 0, 1)

@@ -18,7 +18,8 @@ one with Y ≥ upper becomes white of luminance ``upper``. In-gamut colours are 
 
 Every division is guarded twice (``where`` on the value and on the denominator) so values and
 gradients stay finite for black, for white and for colours on the gamut boundary. Non-finite
-input propagates to NaN in that pixel and nowhere else.
+input raises nothing: that pixel comes out with NaN channels (a NaN channel stays NaN), and no
+other pixel is affected.
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ def desaturate_to_gamut(rgb, luminance=None, *, upper=1.0):
     else:
         y_c = jnp.maximum(y, 0)
     t = jnp.clip(t, 0, 1)
-    out = y_c + t * (c - y_c)
+    out = jnp.where(t < 1, y_c + t * (c - y_c), c)  # in-gamut colours bit for bit
     # Only rounding can leave a mapped colour outside the box; untouched colours are inside.
     return jnp.clip(out, 0, upper) if upper is not None else jnp.maximum(out, 0)
 

@@ -43,18 +43,26 @@ class Geometry(eqx.Module):
     valid: Array
 
 
-def _norm(x):
-    return jnp.sqrt(jnp.sum(x * x, axis=-1))
-
-
 def _safe_sqrt(x):
     pos = x > 0
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
 
 
+def _components(x):
+    return x[..., 0], x[..., 1], x[..., 2]
+
+
+def _dot(a, b):
+    # Written out, not jnp.sum(a * b, -1): no reduce op, so XLA fuses it with the rest (and it
+    # avoids an XLA CPU miscompilation of small reductions, see tests/test_brdf.py).
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
 def _cross_norm2(a, b):
-    c = jnp.cross(a, b)
-    return jnp.sum(c * c, axis=-1)
+    cx = a[1] * b[2] - a[2] * b[1]
+    cy = a[2] * b[0] - a[0] * b[2]
+    cz = a[0] * b[1] - a[1] * b[0]
+    return cx * cx + cy * cy + cz * cz
 
 
 def geometry(l, v, n=None) -> Geometry:
@@ -66,25 +74,39 @@ def geometry(l, v, n=None) -> Geometry:
     """
     l = jnp.asarray(l)
     v = jnp.asarray(v)
-    n = jnp.asarray([0.0, 0.0, 1.0], dtype=l.dtype) if n is None else jnp.asarray(n)
-    cos_l = jnp.sum(n * l, axis=-1)
-    cos_v = jnp.sum(n * v, axis=-1)
+    lc, vc = _components(l), _components(v)
+    if n is None:
+        # N = +z: N·x is the z component and |N × x|² = x_x² + x_y².
+        cos_l, cos_v = lc[2], vc[2]
+    else:
+        nc = _components(jnp.asarray(n, dtype=l.dtype))
+        cos_l, cos_v = _dot(nc, lc), _dot(nc, vc)
     valid = (cos_l > 0) & (cos_v > 0)
     # Stand-ins for invalid pairs: L = V = N.
-    l = jnp.where(valid[..., None], l, n)
-    v = jnp.where(valid[..., None], v, n)
+    if n is None:
+        zero, one = jnp.zeros((), l.dtype), jnp.ones((), l.dtype)
+        nc = (zero, zero, one)
+    lc = tuple(jnp.where(valid, a, b) for a, b in zip(lc, nc))
+    vc = tuple(jnp.where(valid, a, b) for a, b in zip(vc, nc))
     cos_l = jnp.where(valid, cos_l, 1)
     cos_v = jnp.where(valid, cos_v, 1)
-    h = l + v
-    h_len = _norm(h)  # > 0: both directions are above the horizon
-    h_n = jnp.sum(n * h, axis=-1)
+    hc = tuple(a + b for a, b in zip(lc, vc))
+    h_len = jnp.sqrt(_dot(hc, hc))  # > 0: both directions are above the horizon
+    if n is None:
+        h_n = hc[2]
+        sin2_l = lc[0] * lc[0] + lc[1] * lc[1]
+        sin2_v = vc[0] * vc[0] + vc[1] * vc[1]
+        sin2_h = hc[0] * hc[0] + hc[1] * hc[1]
+    else:
+        h_n = _dot(nc, hc)
+        sin2_l, sin2_v, sin2_h = _cross_norm2(nc, lc), _cross_norm2(nc, vc), _cross_norm2(nc, hc)
     return Geometry(
         cos_l=cos_l,
         cos_v=cos_v,
-        sin_l=_safe_sqrt(_cross_norm2(n, l)),
-        sin_v=_safe_sqrt(_cross_norm2(n, v)),
+        sin_l=_safe_sqrt(sin2_l),
+        sin_v=_safe_sqrt(sin2_v),
         cos_h=h_n / h_len,
-        tan2_h=_cross_norm2(n, h) / (h_n * h_n),
+        tan2_h=sin2_h / (h_n * h_n),
         cos_vh=0.5 * h_len,
         valid=valid,
     )

@@ -125,7 +125,7 @@ def read_optical_constants(path) -> dict:
 
 def _read_text(path: pathlib.Path) -> str:
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")  # a leading byte-order mark is dropped
     except FileNotFoundError:
         raise MaterialError(f"{path}: no such file") from None
     except (OSError, UnicodeDecodeError) as err:

@@ -36,7 +36,7 @@ from ._geometry import Geometry, geometry_from_angles_deg
 from ._material import Params, Structure
 from ._measurement import Measurement
 
-__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "residual", "model_values"]
+__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "residual", "model_values", "normal_equations"]
 
 LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
@@ -205,7 +205,7 @@ def make_problem(
 
 def _gather_bands(params: Params, band) -> Params:
     def g(a):
-        return None if a is None or jnp.ndim(a) == 0 else a[band]
+        return a if a is None or jnp.ndim(a) == 0 else a[band]
 
     return Params(s=params.s, m=params.m, w=params.w, f0=g(params.f0), n=g(params.n), k=g(params.k), rd=g(params.rd))
 
@@ -239,7 +239,7 @@ def model_values(problem: Problem, u: dict):
     return _values_from_s(problem, s_dir, u_rest, u_shape)
 
 
-def _loss(problem: Problem, values, y):
+def _loss(problem: Problem, values, y, flat: bool = True):
     """Residuals in the problem's layout for the selected weighting (missing cells give 0)."""
     loss = problem.spec.loss
     if loss == "absolute":
@@ -252,7 +252,125 @@ def _loss(problem: Problem, values, y):
         r = (values - y) * problem.cos_i
     else:  # log: Low et al. 2012
         r = jnp.log1p(values * problem.cos_i) - jnp.log1p(y * problem.cos_i)
-    return (r * problem.mask).reshape(-1)
+    r = r * problem.mask
+    return r.reshape(-1) if flat else r
+
+
+def _split(u: dict):
+    return {k: v for k, v in u.items() if k in _SHAPE}, {k: v for k, v in u.items() if k not in _SHAPE}
+
+
+def _dir_sum(problem: Problem, x):
+    """Σ over the samples of each direction pair: (D,) from a layout-shaped array."""
+    if problem.spec.grid:
+        return jnp.sum(x, axis=1)
+    return jax.ops.segment_sum(x, problem.pair, num_segments=problem.geom.cos_vh.shape[0])
+
+
+def _band_sum(problem: Problem, x):
+    """Σ over the samples of each band: (W,) from a layout-shaped array."""
+    if problem.spec.grid:
+        return jnp.sum(x, axis=0)
+    return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)
+
+
+def _columns(problem: Problem, u: dict, y):
+    """The residual and its Jacobian in factored form, all in the problem's layout.
+
+    Returns ``(res, values, cols)`` with ``res`` the flat residual and ``cols`` a dict name →
+    (kind, column): kind "shape" → (a, J_S) with ∂r/∂u_name = a · J_S[direction] (``a`` per
+    sample, ``J_S`` (D, size) per direction); kind "scalar" → c with ∂r/∂u_name = c; kind "band"
+    → e with ∂r_i/∂u_name[band_i] = e_i (a value depends only on its own band's entry).
+    One model pass, one batched JVP for the band and scalar parameters and ∂/∂S, and a
+    per-direction Jacobian of S — never an N × P matrix.
+    """
+    spec = problem.spec
+    u_shape, u_rest = _split(u)
+    has_spec = spec.structure.has_specular
+    s_dir = _per_direction(problem, u_shape, u_rest) if has_spec else None
+
+    def f_rest(s, ur):
+        return _values_from_s(problem, s, ur, u_shape)
+
+    # One JVP per derivative needed, batched: ∂v/∂S (tangent 1 on S) and ∂v/∂u_k for every
+    # band/scalar parameter k (tangent 1 on all of u_k: each value sees only its own entry).
+    names = tuple(sorted(u_rest))
+    t_s = [] if not (has_spec and u_shape) else [None]
+    tangents = []
+    for k in t_s + list(names):
+        ts = jnp.ones_like(s_dir) if k is None else (None if s_dir is None else jnp.zeros_like(s_dir))
+        tr = {n: (jnp.ones_like(v) if n == k else jnp.zeros_like(v)) for n, v in u_rest.items()}
+        tangents.append((ts, tr))
+    if tangents:
+        stacked = jax.tree.map(lambda *a: jnp.stack(a), *tangents)
+        values, dvs = jax.vmap(lambda t: jax.jvp(f_rest, (s_dir, u_rest), t), out_axes=(None, 0))(stacked)
+    else:
+        values, dvs = f_rest(s_dir, u_rest), None
+    res, g = jax.jvp(lambda v: _loss(problem, v, y, flat=False), (values,), (jnp.ones_like(values),))
+    cols = {}
+    i = 0
+    if t_s:
+        a = g * dvs[0]
+        jac_s = jax.jacfwd(lambda us: _per_direction(problem, us, u_rest))(u_shape)
+        for k in u_shape:
+            cols[k] = ("shape", (a, jac_s[k].reshape(s_dir.shape[0], -1)))
+        i = 1
+    for j, k in enumerate(names):
+        kind = "scalar" if jnp.ndim(u_rest[k]) == 0 else "band"
+        cols[k] = (kind, g * dvs[i + j])
+    return res.reshape(-1), values, cols
+
+
+def normal_equations(problem: Problem, u: dict, y=None):
+    """½‖r‖², Jᵀr and JᵀJ at ``u``, from the factored Jacobian (no N × P matrix).
+
+    The flat parameter order is that of ``jax.flatten_util.ravel_pytree(u)`` (sorted names,
+    each entry flattened). Blocks: shape–shape J_Sᵀ diag(Σ_band a²) J_S; anything × band is a
+    per-band sum; band × band is diagonal.
+    """
+    y = problem.y if y is None else y
+    res, _, cols = _columns(problem, u, y)
+    r = res.reshape(problem.y.shape)
+    names = sorted(u)
+    W = problem.fixed_bands
+
+    def dense(kind, col, rhs):
+        """Σ_i col_i(·) · rhs_i for a layout-shaped ``rhs``: shape (size,)."""
+        if kind == "shape":
+            a, js = col
+            return js.T @ _dir_sum(problem, a * rhs)
+        if kind == "scalar":
+            return jnp.sum(col * rhs)[None]
+        return _band_sum(problem, col * rhs)
+
+    def block(ki, ci, kj, cj):
+        if ki == "band" and kj == "band":
+            return jnp.diag(_band_sum(problem, ci * cj))
+        if ki == "band":
+            return block(kj, cj, ki, ci).T
+        if ki == "scalar":
+            if kj == "scalar":
+                return jnp.sum(ci * cj)[None, None]
+            if kj == "band":
+                return _band_sum(problem, ci * cj)[None, :]
+            return block(kj, cj, ki, ci).T
+        a, js = ci
+        if kj == "shape":
+            b, js2 = cj
+            return js.T @ (_dir_sum(problem, a * b)[:, None] * js2)
+        if kj == "scalar":
+            return (js.T @ _dir_sum(problem, a * cj))[:, None]
+        # shape × band: Σ over samples of band b of a_i e_i J_S[d_i]
+        if problem.spec.grid:
+            return js.T @ (a * cj)
+        return jax.ops.segment_sum((a * cj)[:, None] * js[problem.pair], problem.band, num_segments=W).T
+
+    grad = jnp.concatenate([dense(*cols[k], r) for k in names]) if names else jnp.zeros((0,), r.dtype)
+    rows = []
+    for ki in names:
+        rows.append(jnp.concatenate([block(*cols[ki], *cols[kj]) for kj in names], axis=1))
+    hess = jnp.concatenate(rows, axis=0) if names else jnp.zeros((0, 0), r.dtype)
+    return 0.5 * jnp.sum(res * res), grad, hess
 
 
 @jax.custom_jvp
@@ -264,39 +382,19 @@ def _residual(u: dict, y, problem: Problem):
 def _residual_jvp(primals, tangents):
     u, y, problem = primals
     tu, ty, _ = tangents  # the problem (geometry, weights) is data: no derivative through it
-    spec = problem.spec
-    u_shape = {k: v for k, v in u.items() if k in _SHAPE}
-    u_rest = {k: v for k, v in u.items() if k not in _SHAPE}
-    has_spec = spec.structure.has_specular
-    if has_spec:
-        s_dir = _per_direction(problem, u_shape, u_rest)
-        # ∂S/∂(m, w) per direction pair: a (D,) · n_shape Jacobian, cheap (no band axis).
-        if u_shape:
-            jac_s = jax.jacfwd(lambda us: _per_direction(problem, us, u_rest))(u_shape)
-    else:
-        s_dir = None
-
-    def f_rest(s, ur):
-        return _values_from_s(problem, s, ur, u_shape)
-
-    values = f_rest(s_dir, u_rest)
-    res, dres_dv = jax.jvp(lambda v: _loss(problem, v, y), (values,), (jnp.ones_like(values),))
-    dres_dv = dres_dv.reshape(values.shape)
-
-    dv = jnp.zeros_like(values)
-    # Per-band and scalar parameters: each value depends on one entry (its band) of each, so a
-    # JVP with an all-ones tangent gives every value's own derivative.
-    for name, t in tu.items():
-        if name in _SHAPE:
-            continue
-        ones = {k: (jnp.ones_like(v) if k == name else jnp.zeros_like(v)) for k, v in u_rest.items()}
-        _, col = jax.jvp(lambda ur: f_rest(s_dir, ur), (u_rest,), (ones,))
-        dv = dv + col * (t if jnp.ndim(t) == 0 or spec.grid else t[problem.band])
-    if has_spec and u_shape:
-        _, dv_ds = jax.jvp(lambda s: f_rest(s, u_rest), (s_dir,), (jnp.ones_like(s_dir),))
-        ds = sum(jnp.tensordot(jac_s[k], tu[k], axes=1) for k in u_shape)
-        dv = dv + dv_ds * (ds[:, None] if spec.grid else ds[problem.pair])
-    dres = dres_dv.reshape(-1) * dv.reshape(-1)
+    res, values, cols = _columns(problem, u, y)
+    dres = 0
+    for name, (kind, col) in cols.items():
+        t = tu[name]
+        if kind == "shape":
+            a, js = col
+            ds = js @ t.reshape(-1)
+            dres = dres + a * (ds[:, None] if problem.spec.grid else ds[problem.pair])
+        elif kind == "scalar":
+            dres = dres + col * t
+        else:
+            dres = dres + col * (t if problem.spec.grid else t[problem.band])
+    dres = jnp.reshape(dres, (-1,)) if cols else jnp.zeros_like(res)
     # Data tangent: ∂r/∂y.
     _, dres_dy = jax.jvp(lambda yy: _loss(problem, values, yy), (y,), (ty,))
     return res, dres + dres_dy

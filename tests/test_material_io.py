@@ -8,11 +8,13 @@ import pathlib
 import shutil
 
 import hypothesis.strategies as st
+import jax.numpy as jnp
 import numpy as np
 import pytest
 import tomli_w
 from hypothesis import HealthCheck, given, settings
 
+import ctfit
 from ctfit import Material, Params, Structure
 from ctfit._material_io import (
     MaterialError,
@@ -39,6 +41,11 @@ def write(tmp_path, text, name="m.toml"):
     path = tmp_path / name
     path.write_text(text, encoding="utf-8")
     return path
+
+
+def edit(old, new):
+    """BASE with ``old`` replaced by ``new`` (appended when ``old`` is empty), plus F0."""
+    return (BASE.replace(old, new) if old else BASE + new) + "F0 = 0.04\n"
 
 
 def load_text(tmp_path, text, name="m.toml"):
@@ -103,7 +110,12 @@ def test_scalar_is_broadcast_to_bands(tmp_path):
 
 @pytest.mark.parametrize(
     "rd, diffuse, value",
-    [(None, "F0/pi", None), ('"F0/pi"', "F0/pi", None), ("0.1", "constant", 0.1), ("[0.1, 0.2, 0.3]", "spectrum", [0.1, 0.2, 0.3])],
+    [
+        (None, "F0/pi", None),
+        ('"F0/pi"', "F0/pi", None),
+        ("0.1", "constant", 0.1),
+        ("[0.1, 0.2, 0.3]", "spectrum", [0.1, 0.2, 0.3]),
+    ],
 )
 def test_rd_forms(tmp_path, rd, diffuse, value):
     m = load_text(tmp_path, BASE + "F0 = 0.04\n" + ("" if rd is None else f"Rd = {rd}\n"))
@@ -235,9 +247,9 @@ def test_read_optical_constants_errors(tmp_path, text, match):
 @pytest.mark.parametrize(
     "text, match",
     [
-        (BASE.replace("weight = 1.0", "weight = 0.9") + "F0 = 0.04\n", r"key 'lobes\[0\]\.weight': weights sum to 0\.9, must sum to 1"),
+        (edit("weight = 1.0", "weight = 0.9"), r"key 'lobes\[0\]\.weight': weights sum to 0\.9, must sum to 1"),
         (
-            BASE.replace("{ m = 0.3, weight = 1.0 }", "{ m = 0.3, weight = 0.5 }, { m = 0.2, weight = 0.4 }") + "F0 = 0.04\n",
+            edit("{ m = 0.3, weight = 1.0 }", "{ m = 0.3, weight = 0.5 }, { m = 0.2, weight = 0.4 }"),
             r"key 'lobes\[1\]\.weight': weights sum to 0\.9, must sum to 1",
         ),
         (BASE.replace("d = 0.75", "d = 0.7") + "F0 = 0.04\n", r"key 'd': s \+ d = 0\.95, must be 1"),
@@ -247,8 +259,8 @@ def test_read_optical_constants_errors(tmp_path, text, match):
         (BASE.replace("m = 0.3", "m = true") + "F0 = 0.04\n", r"key 'lobes\[0\]\.m': must be a number"),
         (BASE.replace("weight", "wieght") + "F0 = 0.04\n", r"key 'lobes\[0\]\.wieght': unknown key"),
         (BASE.replace("lobes = [{ m = 0.3, weight = 1.0 }]", "lobes = []") + "F0 = 0.04\n", r"key 'lobes': missing"),
-        (BASE.replace("lobes = [{ m = 0.3, weight = 1.0 }]", "lobes = 3") + "F0 = 0.04\n", r"key 'lobes': must be a list"),
-        ("s = 0\nd = 1\nlobes = [{ m = 0.3 }]\nwavelength_nm = [500]\nRd = 0.1\n", r"key 'lobes': must be absent or empty"),
+        (edit("lobes = [{ m = 0.3, weight = 1.0 }]", "lobes = 3"), r"key 'lobes': must be a list"),
+        ("s = 0\nd = 1\nlobes = [{ m = 0.3 }]\nwavelength_nm = [500]\nRd = 0.1\n", r"key 'lobes': must be absent"),
         ("s = 0\nd = 1\nwavelength_nm = [500]\nRd = 0.1\nn = 1.5\n", r"key 'n': not used"),
         (BASE.replace("s = 0.25\nd = 0.75", "s = 1\nd = 0") + "F0 = 0.04\nRd = 0.1\n", r"key 'Rd': not used: d = 0"),
         (BASE + 'F0 = 0.04\nRd = "F0"\n', r"key 'Rd': must be \"F0/pi\""),
@@ -265,12 +277,12 @@ def test_read_optical_constants_errors(tmp_path, text, match):
         (BASE + 'fresnel = "n"\nn = 1.5\nk = 1\n', r"key 'k': only with fresnel = \"conductor\""),
         (BASE + "F0 = 0.04\nn = 2.0\n", r"key 'n\[0\]': 2\.0 is inconsistent with fresnel = \"f0\""),
         (BASE + "n = 1.5\nk = 1\nF0 = 0.5\n", r"key 'F0\[0\]': 0\.5 is inconsistent"),
-        (BASE.replace("[400, 500, 600]", "[400, 400, 600]") + "F0 = 0.04\n", r"key 'wavelength_nm': must be strictly increasing"),
+        (edit("[400, 500, 600]", "[400, 400, 600]"), r"key 'wavelength_nm': must be strictly increasing"),
         (BASE.replace("[400, 500, 600]", "[]") + "F0 = 0.04\n", r"key 'wavelength_nm': must be a non-empty list"),
         (BASE.replace("wavelength_nm = [400, 500, 600]", "") + "F0 = 0.04\n", r"key 'wavelength_nm': missing"),
         (BASE + 'F0 = 0.04\nchannels = ["R"]\n', r"key 'channels': give only one of"),
         (BASE.replace("wavelength_nm = [400, 500, 600]", 'channels = ["R", "R"]') + "F0 = 0.04\n", r"unique"),
-        (BASE + 'F0 = 0.04\ndistrbution = "beckmann"\n', r"key 'distrbution': unknown key; did you mean 'distribution'\?"),
+        (edit("", 'distrbution = "beckmann"\n'), r"key 'distrbution': unknown key; did you mean 'distribution'\?"),
         (BASE + "F0 = 0.04\nrd = 0.1\n", r"key 'rd': unknown key; did you mean 'Rd'\?"),
         (BASE + "F0 = 0.04\nname = 3\n", r"key 'name': must be a string"),
         (
@@ -363,15 +375,14 @@ def test_result_lists_lobes_in_ascending_m():
 
 
 def test_derived_n_of_f0_one_is_null(tmp_path):
-    m = Material(Structure(), Params(m=np.array([0.2]), w=np.array([1.0]), f0=np.array([0.5, 1.0])), np.array([400.0, 500.0]))
+    params = Params(m=np.array([0.2]), w=np.array([1.0]), f0=np.array([0.5, 1.0]))
+    m = Material(Structure(), params, wavelength_nm=np.array([400.0, 500.0]))
     d = material_to_dict(m)
     assert d["n"][1] is None and math.isfinite(d["n"][0])
     assert_same_material(m, load_material(save_material_json(m, tmp_path / "r.json")))
 
 
 def test_meta_and_extra_are_json_ready(tmp_path):
-    import jax.numpy as jnp
-
     m = load_material(ROOT / "configs" / "rubber.toml")
     m = dataclasses.replace(m, meta={"fit": {"rmse": np.float32(0.5)}, "note": "x"})
     extra = {"fit": {"cost": np.float64(1.5), "se": jnp.array([1.0, 2.0]), "bad": float("nan"), "ok": np.bool_(True)}}
@@ -422,8 +433,6 @@ def test_copied_config_still_finds_its_table(tmp_path):
 @pytest.mark.parametrize("s", [0.0, 1.0])
 @pytest.mark.parametrize("diffuse", ["F0/pi", "spectrum", "constant"])
 def test_fraction_at_bound_drops_the_empty_part(tmp_path, s, diffuse):
-    import ctfit
-
     rd = {"F0/pi": None, "spectrum": np.array([0.1, 0.2]), "constant": np.asarray(0.1)}[diffuse]
     m = Material(
         Structure(lobes=1, fresnel="n", diffuse=diffuse),
@@ -446,7 +455,7 @@ _pos = st.floats(0.01, 2.0)
 @st.composite
 def materials(draw):
     lobes = draw(st.integers(0, 3))
-    diffuse = draw(st.sampled_from([None, "F0/pi", "spectrum", "constant"] if lobes else ["F0/pi", "spectrum", "constant"]))
+    diffuse = draw(st.sampled_from(([None] if lobes else []) + ["F0/pi", "spectrum", "constant"]))
     fresnel = draw(st.sampled_from(["f0", "n", "conductor"]))
     rgb = draw(st.booleans())
     nb = 3 if rgb else draw(st.integers(1, 4))
@@ -494,3 +503,22 @@ def materials(draw):
 @given(materials())
 def test_any_material_round_trips(tmp_path, material):
     assert_same_material(material, load_material(save_material_json(material, tmp_path / "r.json")))
+
+
+# --- encodings -------------------------------------------------------------------------------------
+
+JSON_DOC = '{"s": 1, "d": 0, "lobes": [{"m": 0.2}], "wavelength_nm": [500], "F0": 0.5}'
+
+
+@pytest.mark.parametrize("name, text", [("m.toml", BASE + "F0 = 0.04\n"), ("m.json", JSON_DOC)])
+def test_byte_order_mark_is_ignored(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    assert load_material(path).structure.has_specular
+
+
+def test_undecodable_file(tmp_path):
+    path = tmp_path / "m.toml"
+    path.write_bytes(b"s = 1\nname = '\xff'\n")
+    with pytest.raises(MaterialError, match=r"m\.toml: cannot read: 'utf-8' codec can't decode"):
+        load_material(path)

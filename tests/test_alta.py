@@ -1,0 +1,144 @@
+"""ALTA text files: the three measured files in ../shared, synthetic files, and every error."""
+
+import math
+import re
+
+import numpy as np
+import pytest
+from conftest import MEASURED
+
+from ctfit._alta import read_alta
+from ctfit._csvio import read_csv, write_csv
+from ctfit._errors import DataError, DataWarning
+
+HEAD_3D = "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n"
+
+
+def write(tmp_path, text, name="data.alta"):
+    path = tmp_path / name
+    (path.write_bytes if isinstance(text, bytes) else path.write_text)(text)
+    return path
+
+
+def read_measured(name, **kwargs):
+    with pytest.warns(DataWarning, match=r"86 samples with theta_o ≥ 90° dropped"):
+        return read_alta(MEASURED / name, **kwargs)
+
+
+# --- the measured files -------------------------------------------------------------------------
+
+
+def test_retro_3m_yellow():
+    m = read_measured("retro-3M-jaune.dat")
+    assert len(m) == 7397 - 86
+    np.testing.assert_array_equal(m.wavelength_nm, [550.0])
+    assert (m.band == 0).all() and m.sigma is None
+    assert m.meta["alta_sample"] == "3M Yellow"
+    assert m.meta["alta_param_out"] == "INV_STERADIAN_COSINE_FACTOR"
+    assert "placeholder" in m.meta["wavelength_nm"] and "86 samples" in m.meta["dropped"]
+    np.testing.assert_array_equal(np.unique(m.theta_i), [15.0, 30.0, 60.0])
+    assert (m.phi_i == 0).all() and m.theta_o.max() < 90 and m.brdf.min() > 0
+    # Line 11: θ_l = 15°, [θ_v cos Δφ, θ_v sin Δφ] = [-1.5184…, 1.9e-16] (87°, Δφ = 180°), value 0.00362877.
+    theta_v = math.hypot(-1.51843644923506659871748070145259, 0.00000000000000018595483372643967)
+    assert m.theta_i[0] == pytest.approx(15.0) and m.theta_o[0] == pytest.approx(math.degrees(theta_v))
+    assert m.phi_o[0] == pytest.approx(180.0)
+    assert m.brdf[0] == pytest.approx(0.00362876999999999991231014462301 / math.cos(theta_v), rel=1e-12)
+
+
+def test_retro_gray_tape_needs_its_missing_param_out():
+    with pytest.raises(DataError, match=r"retro-gray-tape\.dat: no #PARAM_OUT line: the unit of the values is unknown"):
+        read_alta(MEASURED / "retro-gray-tape.dat")
+    m = read_measured("retro-gray-tape.dat", param_out="INV_STERADIAN_COSINE_FACTOR")
+    assert len(m) == 7405 - 86 and m.meta["alta_sample"] == "Gray Tape"
+
+
+def test_param_out_must_agree_with_the_file():
+    with pytest.raises(DataError, match=r"retro-3M-jaune\.dat:7: #PARAM_OUT INV_STERADIAN_COSINE_FACTOR contradicts param_out='INV_STERADIAN'"):
+        read_alta(MEASURED / "retro-3M-jaune.dat", param_out="INV_STERADIAN")
+
+
+def test_pink_felt_cos_th_rgb():
+    m = read_alta(MEASURED / "pink-felt-1d.alta")
+    assert m.channels == ("R", "G", "B") and m.wavelength_nm is None and len(m) == 90 * 3
+    np.testing.assert_array_equal(m.band[:6], [0, 1, 2, 0, 1, 2])
+    theta_h = math.degrees(math.acos(0.999984567305837))
+    # θ_d = 0: light and viewer both along the half vector (ALTA's half_to_cartesian(θ_h, 0, 0, 0)).
+    np.testing.assert_allclose(m.theta_i[:3], theta_h, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(m.theta_o, m.theta_i)
+    assert (m.phi_i == 0).all() and (m.phi_o == 0).all()
+    np.testing.assert_array_equal(m.brdf[:3], [0.109704419970512, 0.0794405192136765, 0.0616232864558697])
+    assert "wavelength_nm" not in m.meta
+
+
+def test_measured_file_survives_a_csv_round_trip(tmp_path):
+    m = read_measured("retro-3M-jaune.dat")
+    write_csv(m, tmp_path / "yellow.csv")
+    back = read_csv(tmp_path / "yellow.csv")
+    for name in ("theta_i", "phi_i", "theta_o", "phi_o", "brdf", "band", "wavelength_nm"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(m, name))
+    assert back.meta == m.meta
+
+
+# --- synthetic files ----------------------------------------------------------------------------
+
+
+def test_inv_steradian_keeps_horizon_and_reads_negative_theta_l(tmp_path):
+    text = "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n#PARAM_OUT INV_STERADIAN\n" f"-0.5 0 {math.pi / 2} 0.25\n0.5 0 0 0.5\n"
+    m = read_alta(write(tmp_path, text))
+    np.testing.assert_allclose(m.theta_i, math.degrees(0.5))
+    np.testing.assert_array_equal(m.phi_i, [180.0, 0.0])
+    np.testing.assert_array_equal(m.theta_o, [90.0, 0.0])
+    np.testing.assert_array_equal(m.phi_o, [90.0, 0.0])
+    np.testing.assert_array_equal(m.brdf, [0.25, 0.5])
+
+
+def test_vs1_half_width_becomes_sigma_and_is_cosine_corrected(tmp_path):
+    text = HEAD_3D + "#PARAM_OUT INV_STERADIAN_COSINE_FACTOR\n#VS 1\n\t0.3  -0.6 0.8   0.5 0.05\t\n"
+    m = read_alta(write(tmp_path, text))
+    assert m.theta_o[0] == pytest.approx(math.degrees(1.0)) and m.phi_o[0] == pytest.approx(math.degrees(math.atan2(0.8, -0.6)))
+    np.testing.assert_allclose(m.brdf, 0.5 / math.cos(1.0), rtol=1e-14)
+    np.testing.assert_allclose(m.sigma, 0.05 / math.cos(1.0), rtol=1e-14)
+
+
+def test_vs2_bounds_become_sigma_per_channel(tmp_path):
+    text = "#DIM 1 3\n#PARAM_IN COS_TH\n#PARAM_OUT RGB_COLOR\n#VS 2\n1.0 0.5 0.6 0.7 0.4 0.7 0.5 0.9 0.6 0.8\n"
+    m = read_alta(write(tmp_path, text))
+    np.testing.assert_array_equal(m.theta_i, [0, 0, 0])
+    np.testing.assert_array_equal(m.brdf, [0.5, 0.6, 0.7])
+    np.testing.assert_allclose(m.sigma, [0.15, 0.2, 0.1])
+
+
+GOOD_ROW = "0.3 0.1 0.2 0.5\n"
+OUT = "#PARAM_OUT INV_STERADIAN\n"
+BAD = [
+    (OUT + "#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n" + GOOD_ROW, r"data\.alta: no #DIM line"),
+    ("#DIM three 1\n#PARAM_IN COS_TH\n" + OUT + GOOD_ROW, r"data\.alta:1: #DIM 'three 1': expected two integers"),
+    ("#DIM 3 1\n" + OUT + GOOD_ROW, r"data\.alta: no #PARAM_IN line"),
+    ("#DIM 3 1\n#PARAM_IN RUSIN_TH_TD_PD\n" + OUT + GOOD_ROW, r"data\.alta:2: #PARAM_IN RUSIN_TH_TD_PD: not supported \(supported: ISOTROPIC_TL_TV_PROJ_DPHI, COS_TH\)"),
+    ("#DIM 2 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n" + OUT + GOOD_ROW, r"data\.alta:1: #DIM says 2 inputs, #PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI has 3"),
+    (HEAD_3D + "#PARAM_OUT XYZ_COLOR\n" + GOOD_ROW, r"data\.alta:3: output XYZ_COLOR: not supported"),
+    ("#DIM 1 1\n#PARAM_IN COS_TH\n#PARAM_OUT RGB_COLOR\n0.5 0.1\n", r"data\.alta:1: #DIM says 1 outputs, RGB_COLOR has 3"),
+    (HEAD_3D + OUT + "#VS 3\n" + GOOD_ROW, r"data\.alta:4: #VS 3: expected 0, 1 or 2"),
+    (HEAD_3D + OUT + "#VS 1\n#VS 2\n" + GOOD_ROW, r"data\.alta:5: #VS 2 differs from #VS 1 on line 4"),
+    (HEAD_3D + OUT + "#PARAM_IN COS_TH\n" + GOOD_ROW, r"data\.alta:4: #PARAM_IN appears twice \(also line 2\)"),
+    ("#FORMAT binary\n" + HEAD_3D + OUT, r"data\.alta:1: #FORMAT binary: only ALTA's text format is supported"),
+    (HEAD_3D + OUT + "# nothing else\n", r"data\.alta: no data lines"),
+    (HEAD_3D + OUT + GOOD_ROW + "0.3 0.1 0.2\n", r"data\.alta:5: expected 4 numbers \(theta_l theta_v\*cos\(dphi\) theta_v\*sin\(dphi\) value\), found 3"),
+    (HEAD_3D + OUT + GOOD_ROW + "0.3 0.1 x 0.5\n", r"data\.alta:5: column 'theta_v\*sin\(dphi\)' \(3\): 'x' is not a number"),
+    (HEAD_3D + OUT + GOOD_ROW + "0.3 0.1 0.2 nan\n", r"data\.alta:5: column 'value' \(4\): NaN is not allowed"),
+    (HEAD_3D + OUT + GOOD_ROW + "0.3 0.1 0.2 -1e-3\n", r"data\.alta:5: column 'value' \(4\): -0\.001 is negative"),
+    (HEAD_3D + OUT + "1.6 0.1 0.2 0.5\n", r"data\.alta:4: column 'theta_l' \(1\): 1\.6 rad: the light is below the horizon"),
+    (HEAD_3D + OUT + "0.3 1.2 1.2 0.5\n", r"data\.alta:4: column 'theta_v\*cos\(dphi\), theta_v\*sin\(dphi\)' \(2\): θ_v = hypot\(1\.2, 1\.2\) = 1\.69.* rad > π/2"),
+    ("#DIM 1 1\n#PARAM_IN COS_TH\n" + OUT + "1.5 0.1\n", r"data\.alta:4: column 'cos\(theta_h\)' \(1\): 1\.5 is not the cosine"),
+    (HEAD_3D + OUT + "#VS 1\n0.3 0.1 0.2 0.5 0\n", r"data\.alta:5: column 'value_halfwidth' \(5\): 0\.0: the half-width must be positive"),
+    (HEAD_3D + OUT + "#VS 2\n0.3 0.1 0.2 0.5 0.6 0.7\n", r"data\.alta:5: column 'value_lower' \(5\): 0\.6: the lower bound exceeds the value"),
+    (HEAD_3D + OUT + "#VS 2\n0.3 0.1 0.2 0.5 0.4 0.45\n", r"data\.alta:5: column 'value_upper' \(6\): 0\.45: the upper bound is below the value"),
+    (HEAD_3D + "#PARAM_OUT INV_STERADIAN_COSINE_FACTOR\n" + f"0.3 0 {math.pi / 2} 0.5\n", r"data\.alta: no samples left: 1 samples with theta_o ≥ 90° dropped"),
+    (b"#DIM 3 1 \xe9\n", r"data\.alta:1: byte 0xe9 at byte offset 9"),
+]
+
+
+@pytest.mark.parametrize("text, pattern", BAD, ids=[re.sub(r"\W+", "_", p[:40]) for _, p in BAD])
+def test_bad_input_raises_located_error(tmp_path, text, pattern):
+    with pytest.raises(DataError, match=pattern):
+        read_alta(write(tmp_path, text))

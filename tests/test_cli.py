@@ -1,0 +1,116 @@
+"""The ctfit command: simulate → fit → eval round trip, JSON equality, errors and exit codes."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import ctfit
+from ctfit.cli import app
+
+from conftest import ROOT
+
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    d = tmp_path_factory.mktemp("cli")
+    csv = d / "copper.csv"
+    r = run("simulate", ROOT / "configs" / "copper-vase.toml", "-o", csv, "--samples", 300, "--seed", 2, "--noise", 0.01, "--wavelengths", "400:700:50")
+    assert r.exit_code == 0, r.output
+    return d, csv
+
+
+def test_version_is_fast_and_does_not_import_jax():
+    out = subprocess.run(
+        [sys.executable, "-c", "import sys; from ctfit.cli import main; sys.argv=['ctfit','--version']\ntry: main()\nexcept SystemExit: pass\nprint('jax' in sys.modules)"],
+        capture_output=True, text=True, check=True,
+    )
+    assert out.stdout.strip().splitlines() == [f"ctfit {ctfit.__version__}", "False"]
+
+
+def test_simulate_is_reproducible_with_a_seed(simulated, tmp_path):
+    d, csv = simulated
+    again = tmp_path / "again.csv"
+    r = run("simulate", ROOT / "configs" / "copper-vase.toml", "-o", again, "--samples", 300, "--seed", 2, "--noise", 0.01, "--wavelengths", "400:700:50")
+    assert r.exit_code == 0, r.output
+    assert again.read_bytes() == csv.read_bytes()
+
+
+def test_fit_json_equals_library_serialisation_and_file(simulated):
+    d, csv = simulated
+    out = d / "fit.json"
+    r = run("fit", csv, "--lobes", 2, "--no-diffuse", "--json", "-o", out)
+    assert r.exit_code == 0, r.output
+    printed = json.loads(r.stdout)
+    written = json.loads(out.read_text())
+    for doc in (printed, written):
+        doc["fit"].pop("time_s")
+    assert printed == written
+    assert printed["fit"]["converged"] is True
+    np.testing.assert_allclose(sorted(lobe["m"] for lobe in printed["lobes"]), [0.2, 0.4], rtol=0.02)
+    # The library produces the same document for the same data and options.
+    from ctfit._fit import fit
+    from ctfit._fit_io import fit_result_to_dict
+    from ctfit._readers import read_measurement
+
+    res = fit(read_measurement(csv), ctfit.Structure(lobes=2))
+    res.material.meta["data"] = str(csv)
+    lib = json.loads(json.dumps(fit_result_to_dict(res)))
+    lib["fit"].pop("time_s")
+    assert lib == printed
+
+
+def test_fit_result_is_a_material_for_eval(simulated):
+    d, csv = simulated
+    out = d / "fit2.json"
+    assert run("fit", csv, "--lobes", 2, "--no-diffuse", "-o", out).exit_code == 0
+    model = d / "model.csv"
+    r = run("eval", out, csv, "-o", model)
+    assert r.exit_code == 0, r.output
+    from ctfit._readers import read_measurement
+
+    data, fitted = read_measurement(csv), read_measurement(model)
+    rel = np.abs(fitted.brdf - data.brdf) / np.maximum(data.brdf, 1e-3 * data.brdf.max())
+    assert np.sqrt(np.mean(rel**2)) < 0.03
+
+
+def test_table_is_printed(simulated):
+    d, csv = simulated
+    r = run("fit", csv, "--lobes", 1, "--no-diffuse")
+    assert r.exit_code == 0, r.output
+    assert "lobe 0: m =" in r.stdout and "converged: True" in r.stdout and "±" in r.stdout
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("fit", "missing.csv"), "no such file"),
+        (("fit", "{csv}", "--lobes", "x"), "--lobes"),
+        (("fit", "{csv}", "--geometry", "flat"), "--geometry"),
+        (("simulate", "{root}/configs/copper-vase.toml", "-o", "{tmp}/x.csv", "--wavelengths", "a:b"), "--wavelengths"),
+    ],
+)
+def test_bad_input_exits_2_with_one_error_line(simulated, tmp_path, args, message):
+    d, csv = simulated
+    args = [a.format(csv=csv, root=ROOT, tmp=tmp_path) for a in args]
+    r = run(*args)
+    assert r.exit_code == 2
+    assert message in r.output and "Traceback" not in r.output
+
+
+def test_bad_csv_names_file_line_and_column(tmp_path):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,500,0.5\n10,0,95,180,500,0.5\n")
+    r = run("eval", ROOT / "configs" / "copper-vase.toml", bad, "-o", tmp_path / "o.csv")
+    assert r.exit_code == 2
+    assert "bad.csv:3" in r.output and "theta_o" in r.output
+    assert not (tmp_path / "o.csv").exists()

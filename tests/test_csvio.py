@@ -1,0 +1,321 @@
+"""Measurement CSV: reading, validation errors (file:line: column), writing, round trips."""
+
+import os
+import re
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ctfit import _csvio
+from ctfit._csvio import read_csv, write_csv
+from ctfit._errors import DataError
+from ctfit._measurement import Measurement
+
+HEADER = "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf"
+
+
+def write(tmp_path, text, name="data.csv"):
+    path = tmp_path / name
+    (path.write_bytes if isinstance(text, bytes) else path.write_text)(text)
+    return path
+
+
+def assert_same(a: Measurement, b: Measurement):
+    for name in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf", "sigma", "wavelength_nm"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None) == (y is None), name
+        if x is not None:
+            np.testing.assert_array_equal(x, y, err_msg=name)
+    assert a.channels == b.channels
+    assert {k: str(v) for k, v in a.meta.items()} == b.meta
+
+
+@pytest.fixture(params=["fast", "slow"])
+def path_kind(request, monkeypatch):
+    """Run a test through the vectorised path and through the line-by-line fallback."""
+    if request.param == "slow":
+        monkeypatch.setattr(_csvio, "_parse_fast", lambda body, cols: None)
+    return request.param
+
+
+# --- reading ------------------------------------------------------------------------------------
+
+
+def test_read_spectral(tmp_path, path_kind):
+    text = (
+        "# Free text, ignored\n"
+        "# sample: gold foil\n"
+        "#instrument:gonio-2\n"
+        "\n"
+        f"{HEADER}\n"
+        "10,0,10,180,650,0.5\n"
+        "20,-90,30,720,450,0.25\n"
+        "0,359.5,90,-1e-20,550,0\n"
+    )
+    m = read_csv(write(tmp_path, text))
+    assert m.meta == {"sample": "gold foil", "instrument": "gonio-2"}
+    np.testing.assert_array_equal(m.theta_i, [10, 20, 0])
+    np.testing.assert_array_equal(m.phi_i, [0, 270, 359.5])
+    np.testing.assert_array_equal(m.phi_o, [180, 0, 0])  # modulo 360; a tiny negative φ is 0, not 360
+    np.testing.assert_array_equal(m.wavelength_nm, [450, 550, 650])
+    np.testing.assert_array_equal(m.band, [2, 0, 1])
+    np.testing.assert_array_equal(m.brdf, [0.5, 0.25, 0])
+    assert m.sigma is None and m.channels is None
+    assert m.source == str(tmp_path / "data.csv")
+
+
+def test_read_rgb_channels_in_rgb_order(tmp_path, path_kind):
+    text = "theta_i,phi_i,theta_o,phi_o,channel,brdf,sigma\n10,0,10,180,B,0.5,0.01\n10,0,10,180,R,0.7,0.02\n"
+    m = read_csv(write(tmp_path, text))
+    assert m.channels == ("R", "B") and m.wavelength_nm is None
+    np.testing.assert_array_equal(m.band, [1, 0])
+    np.testing.assert_array_equal(m.sigma, [0.01, 0.02])
+
+
+def test_columns_in_any_order_extra_columns_ignored(tmp_path, path_kind):
+    text = "note,brdf,phi_o,theta_o,wavelength_nm,phi_i,theta_i,model\nfirst,0.5,180,10,550,0,20,0.4\n,0.25,90,30,550,45,40,0.2\n"
+    m = read_csv(write(tmp_path, text))
+    np.testing.assert_array_equal(m.theta_i, [20, 40])
+    np.testing.assert_array_equal(m.phi_i, [0, 45])
+    np.testing.assert_array_equal(m.theta_o, [10, 30])
+    np.testing.assert_array_equal(m.brdf, [0.5, 0.25])
+
+
+def test_no_brdf_column_reads_geometry_only(tmp_path, path_kind):
+    m = read_csv(write(tmp_path, "theta_i,phi_i,theta_o,phi_o,wavelength_nm\n10,0,10,180,550\n"))
+    assert m.brdf is None and m.sigma is None and len(m) == 1
+
+
+def test_crlf_bom_blanks_and_trailing_lines(tmp_path, path_kind):
+    text = "\ufeff# a: b\r\n" + HEADER + "\r\n 10 , 0,10 ,180,550, 0.5\r\n\t20,0,20,180,550,1e-3\r\n\r\n\r\n"
+    m = read_csv(write(tmp_path, text.encode("utf-8")))
+    np.testing.assert_array_equal(m.theta_i, [10, 20])
+    np.testing.assert_array_equal(m.brdf, [0.5, 1e-3])
+    assert m.meta == {"a": "b"}
+
+
+@pytest.mark.parametrize("variant", ["spectral", "rgb", "spaces", "crlf"])
+def test_large_file_takes_the_vectorised_path(tmp_path, monkeypatch, variant):
+    rng = np.random.default_rng(1)
+    n = 20_000
+    cols = [rng.uniform(0, 90, n), rng.uniform(0, 360, n), rng.uniform(0, 90, n), rng.uniform(0, 360, n)]
+    brdf = rng.uniform(0, 2, n)
+    if variant == "rgb":
+        band = rng.integers(0, 3, n)
+        head, bands = "theta_i,phi_i,theta_o,phi_o,channel,brdf", np.array(["R", "G", "B"])[band].tolist()
+    else:
+        band = rng.integers(0, 3, n)
+        head, bands = HEADER, (450.0 + 100 * band).tolist()
+    sep, eol = (" , ", "\r\n") if variant == "spaces" else (",", "\r\n" if variant == "crlf" else "\n")
+    rows = [sep.join(map(str, row)) for row in zip(*[c.tolist() for c in cols], bands, brdf.tolist())]
+    path = write(tmp_path, eol.join([head, *rows]) + eol)
+    monkeypatch.setattr(_csvio, "_parse_slow", None)  # calling it would fail
+    m = read_csv(path)
+    np.testing.assert_array_equal(m.theta_i, cols[0])
+    np.testing.assert_array_equal(m.phi_o, cols[3])
+    np.testing.assert_array_equal(m.brdf, brdf)
+    np.testing.assert_array_equal(m.band, band)
+
+
+def test_error_message_format(tmp_path):
+    path = write(tmp_path, f"# one\n# two\n{HEADER}\n10,0,10,180,550,0.5\n95.0,0,10,180,550,0.5\n")
+    with pytest.raises(DataError) as info:
+        read_csv(path)
+    e = info.value
+    assert str(e) == f"{path}:5: column 'theta_i' (1): 95.0 is outside [0, 90] degrees"
+    assert (e.line, e.column, e.index, e.path) == (5, "theta_i", 1, path)
+    assert isinstance(e, ValueError)
+
+
+def test_earliest_bad_line_is_reported(tmp_path, path_kind):
+    text = f"{HEADER}\n10,0,10,180,550,0.5\n10,0,10,180,550,0.5\n10,0,10,180,550,-1\n10,0,95,180,550,0.5\n"
+    with pytest.raises(DataError, match=r"data\.csv:4: column 'brdf' \(6\): -1\.0 is negative"):
+        read_csv(write(tmp_path, text))
+
+
+ROW = "10,0,10,180,550,0.5\n"
+ROWS = ROW * 5
+BAD = [
+    # (file text, message pattern)
+    ("", r"data\.csv: the file is empty"),
+    ("\n  \n", r"data\.csv: the file is empty"),
+    ("# only: comments\n", r"data\.csv: no header row: the file has only comment lines"),
+    (f"# m: 1\n{HEADER}\n\n", r"data\.csv:2: no data rows after the header"),
+    (ROWS, r"data\.csv:1: no header row: this line looks like data"),
+    ("theta_i,phi_i,Theta_o,phi_o,wavelength_nm,brdf\n" + ROW, r"data\.csv:1: missing column 'theta_o' \(is 'Theta_o' meant to be 'theta_o'\?\)"),
+    ("theta_i,phi_i,phi_o,wavelength_nm,brdf\n10,0,180,550,0.5\n", r"data\.csv:1: missing column 'theta_o'"),
+    (HEADER + ",theta_i\n" + "10,0,10,180,550,0.5,10\n", r"data\.csv:1: column 'theta_i' \(7\): duplicated \(also column 1\)"),
+    (HEADER + ",\n" + "10,0,10,180,550,0.5,\n", r"data\.csv:1: column 7 has no name"),
+    (HEADER + ",channel\n" + "10,0,10,180,550,0.5,R\n", r"data\.csv:1: both 'wavelength_nm' \(5\) and 'channel' \(7\)"),
+    ("theta_i,phi_i,theta_o,phi_o,brdf\n10,0,10,180,0.5\n", r"data\.csv:1: missing column 'wavelength_nm' \(or 'channel' for RGB data\)"),
+    ("theta_i,phi_i,theta_o,phi_o,wavelength_nm,sigma\n10,0,10,180,550,0.1\n", r"data\.csv:1: column 'sigma' \(6\): 'sigma' without 'brdf'"),
+    (f"{HEADER}\n{ROW}10,0,10,180,550\n", r"data\.csv:3: expected 6 fields \(theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\), found 5"),
+    (f"{HEADER}\n{ROW}10,0,10,180,550,0.5,1\n", r"data\.csv:3: expected 6 fields .*, found 7"),
+    (f"{HEADER}\n{ROW}10,0,abc,180,550,0.5\n", r"data\.csv:3: column 'theta_o' \(3\): 'abc' is not a number"),
+    (f"{HEADER}\n{ROW}10,0,1_0,180,550,0.5\n", r"data\.csv:3: column 'theta_o' \(3\): '1_0' is not a number"),
+    (f"{HEADER}\n{ROW}10,,10,180,550,0.5\n", r"data\.csv:3: column 'phi_i' \(2\): empty value"),
+    (f"{HEADER}\n{ROW}10, ,10,180,550,0.5\n", r"data\.csv:3: column 'phi_i' \(2\): empty value"),
+    (f"{HEADER}\n{ROW}10,0,10,180,550,nan\n", r"data\.csv:3: column 'brdf' \(6\): NaN is not allowed"),
+    (f"{HEADER}\n{ROW}10,0,10,-inf,550,0.5\n", r"data\.csv:3: column 'phi_o' \(4\): -inf is not allowed"),
+    (f"{HEADER}\n{ROW}10,0,10,180,550,1e400\n", r"data\.csv:3: column 'brdf' \(6\): inf is not allowed"),
+    (f"{HEADER}\n{ROW}90.5,0,10,180,550,0.5\n", r"data\.csv:3: column 'theta_i' \(1\): 90\.5 is outside \[0, 90\] degrees"),
+    (f"{HEADER}\n{ROW}10,0,-1,180,550,0.5\n", r"data\.csv:3: column 'theta_o' \(3\): -1\.0 is outside \[0, 90\] degrees"),
+    (f"{HEADER}\n{ROW}10,0,10,180,550,-0.001\n", r"data\.csv:3: column 'brdf' \(6\): -0\.001 is negative"),
+    (f"{HEADER}\n{ROW}10,0,10,180,0,0.5\n", r"data\.csv:3: column 'wavelength_nm' \(5\): 0\.0 is not a positive wavelength"),
+    (f"{HEADER},sigma\n10,0,10,180,550,0.5,0.1\n10,0,10,180,550,0.5,0\n", r"data\.csv:3: column 'sigma' \(7\): 0\.0: sigma must be positive"),
+    (f"{HEADER},sigma\n10,0,10,180,550,0.5,-0.1\n", r"data\.csv:2: column 'sigma' \(7\): -0\.1: sigma must be positive"),
+    ("theta_i,phi_i,theta_o,phi_o,channel,brdf\n10,0,10,180,R,0.5\n10,0,10,180,X,0.5\n", r"data\.csv:3: column 'channel' \(5\): 'X' is not a channel \(R, G or B\)"),
+    ("theta_i,phi_i,theta_o,phi_o,channel,brdf\n10,0,10,180,r,0.5\n", r"data\.csv:2: column 'channel' \(5\): 'r' is not a channel"),
+    ("theta_i,phi_i,theta_o,phi_o,channel,brdf\n10,0,10,180,,0.5\n", r"data\.csv:2: column 'channel' \(5\): '' is not a channel"),
+    (f"{HEADER}\n{ROW}\n{ROW}", r"data\.csv:3: empty line"),
+    (f"{HEADER}\n{ROW}# late: comment\n{ROW}", r"data\.csv:3: a # line after the header"),
+    (b"# caf\xe9\n" + HEADER.encode() + b"\n", r"data\.csv:1: byte 0xe9 at byte offset 5 \(byte 6 of the line\) is not UTF-8"),
+    (f"{HEADER}\n{ROW}".encode() + b"10,0,10,180,550,0.5\xff\n", r"data\.csv:3: byte 0xff at byte offset 86 \(byte 20 of the line\)"),
+    (f"{HEADER}\n" + "0.5,0,0.5,3.1,550,0.5\n" * 4, r"data\.csv:1: column 'theta_i' \(1\): every theta_i and theta_o is ≤ 1\.5708 .*look like radians.*# angle_unit: degrees"),
+    (f"# angle_unit: radians\n{HEADER}\n{ROW}", r"data\.csv:1: angle_unit 'radians' is not supported"),
+]
+
+
+@pytest.mark.parametrize("text, pattern", BAD, ids=[re.sub(r"\W+", "_", p[:40]) for _, p in BAD])
+def test_bad_input_raises_located_error(tmp_path, path_kind, text, pattern):
+    with pytest.raises(DataError, match=pattern):
+        read_csv(write(tmp_path, text))
+
+
+def test_radians_hint_needs_more_than_a_few_rows_and_can_be_overridden(tmp_path):
+    few = f"{HEADER}\n" + "0.5,0,0.5,180,550,0.5\n" * 3 + "0,0,0,0,550,0.5\n" * 5
+    assert len(read_csv(write(tmp_path, few))) == 8
+    many = f"# angle_unit: degrees\n{HEADER}\n" + "0.5,0,0.5,180,550,0.5\n" * 10
+    m = read_csv(write(tmp_path, many))
+    assert len(m) == 10 and m.meta["angle_unit"] == "degrees"
+
+
+# --- writing ------------------------------------------------------------------------------------
+
+
+def spectral(n=4, sigma=True, brdf=True):
+    rng = np.random.default_rng(n)
+    return Measurement(
+        theta_i=rng.uniform(0, 90, n),
+        phi_i=rng.uniform(0, 360, n),
+        theta_o=rng.uniform(0, 90, n),
+        phi_o=rng.uniform(0, 360, n),
+        band=np.arange(n) % 2,
+        wavelength_nm=np.array([500.0, 600.0]),
+        brdf=rng.uniform(0, 1, n) if brdf else None,
+        sigma=rng.uniform(0.01, 0.1, n) if sigma and brdf else None,
+        meta={"sample": "test: one", "count": 3},
+    )
+
+
+def test_write_layout(tmp_path):
+    m = spectral(2).replace(theta_i=np.array([10.0, 0.1 + 0.2]))
+    path = tmp_path / "out.csv"
+    write_csv(m, path, extra_columns={"model": [1.5, 2.5]}, meta={"count": 4, "by": "test"})
+    lines = path.read_text().splitlines()
+    assert lines[:4] == ["# sample: test: one", "# count: 4", "# by: test", "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf,sigma,model"]
+    assert lines[4].startswith("10.0,") and lines[5].startswith("0.30000000000000004,")
+    assert lines[4].split(",")[4] == "500.0" and lines[5].split(",")[4] == "600.0"
+    assert lines[4].endswith(",1.5") and len(lines) == 6
+
+
+@pytest.mark.parametrize("brdf, sigma", [(True, True), (True, False), (False, False)])
+def test_round_trip_spectral(tmp_path, brdf, sigma):
+    m = spectral(7, sigma=sigma, brdf=brdf)
+    write_csv(m, tmp_path / "m.csv")
+    assert_same(m, read_csv(tmp_path / "m.csv"))
+
+
+def test_round_trip_rgb_with_brdf_override(tmp_path):
+    m = spectral(6).replace(wavelength_nm=None, channels=("R", "G", "B"), band=np.arange(6) % 3)
+    values = np.linspace(0.1, 0.6, 6)
+    write_csv(m, tmp_path / "m.csv", brdf=values)
+    back = read_csv(tmp_path / "m.csv")
+    assert "channel" in (tmp_path / "m.csv").read_text()
+    assert_same(m.replace(brdf=values), back)
+
+
+def test_write_is_atomic_and_replaces(tmp_path):
+    path = tmp_path / "m.csv"
+    path.write_text("old contents\n")
+    with pytest.raises(ValueError, match="cannot be written"):
+        write_csv(spectral(), path, meta={"bad key": 1})
+    assert path.read_text() == "old contents\n"
+    write_csv(spectral(), path)
+    assert read_csv(path).meta["sample"] == "test: one"
+    assert os.listdir(tmp_path) == ["m.csv"]  # no temporary file left behind
+
+
+def test_write_failure_midway_leaves_no_temporary(tmp_path, monkeypatch):
+    def boom(values):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(_csvio, "_strings", boom)
+    with pytest.raises(RuntimeError):
+        write_csv(spectral(), tmp_path / "m.csv")
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.parametrize(
+    "kwargs, change, pattern",
+    [
+        ({"meta": {"key": "two\nlines"}}, {}, "cannot be written"),
+        ({"extra_columns": {"brdf": [1, 2, 3, 4]}}, {}, "extra column name"),
+        ({"extra_columns": {"a,b": [1, 2, 3, 4]}}, {}, "extra column name"),
+        ({"extra_columns": {"model": [1, 2]}}, {}, "'model' has 2 values for 4 samples"),
+        ({"brdf": [0.1, np.nan, 0.2, 0.3]}, {}, "'brdf' has non-finite values"),
+        ({}, {"channels": ("R", "IR"), "wavelength_nm": None}, "channels .* cannot be written"),
+        ({}, {"theta_i": np.array([]), "phi_i": np.array([]), "theta_o": np.array([]), "phi_o": np.array([]),
+              "band": np.array([], int), "brdf": None, "sigma": None}, "no samples"),
+    ],
+)  # fmt: skip
+def test_write_rejects_what_cannot_be_read_back(tmp_path, kwargs, change, pattern):
+    with pytest.raises(ValueError, match=pattern):
+        write_csv(spectral().replace(**change), tmp_path / "m.csv", **kwargs)
+    assert not (tmp_path / "m.csv").exists()
+
+
+angles = st.floats(0, 90, allow_subnormal=True)
+azimuths = st.floats(0, 360, exclude_max=True)
+positive = st.floats(1e-300, 1e300)
+
+
+@st.composite
+def measurements(draw):
+    n = draw(st.integers(1, 12))
+    rgb = draw(st.booleans())
+    if rgb:
+        channels = draw(st.lists(st.sampled_from("RGB"), min_size=1, max_size=3, unique=True))
+        bands = dict(channels=tuple(sorted(channels, key="RGB".index)))
+        nb = len(channels)
+    else:
+        wl = draw(st.lists(st.floats(1, 1e5), min_size=1, max_size=4, unique=True))
+        bands = dict(wavelength_nm=np.array(sorted(wl)))
+        nb = len(wl)
+    n = max(n, nb)
+    band = np.array(draw(st.permutations(list(range(nb)) + draw(st.lists(st.integers(0, nb - 1), min_size=n - nb, max_size=n - nb)))))
+    arr = lambda s: np.array(draw(st.lists(s, min_size=n, max_size=n)), dtype=float)  # noqa: E731
+    with_brdf = draw(st.booleans())
+    keys = st.from_regex(r"[A-Za-z_][\w.-]{0,8}", fullmatch=True)
+    values = st.text(st.characters(blacklist_categories=("Cs", "Cc", "Zl", "Zp")), max_size=20).map(str.strip)
+    return Measurement(
+        theta_i=arr(angles),
+        phi_i=arr(azimuths),
+        theta_o=arr(angles),
+        phi_o=arr(azimuths),
+        band=band,
+        brdf=arr(st.floats(0, 1e300)) if with_brdf else None,
+        sigma=arr(positive) if with_brdf and draw(st.booleans()) else None,
+        meta=draw(st.dictionaries(keys.filter(lambda k: k != "angle_unit"), values, max_size=3)) | {"angle_unit": "degrees"},
+        **bands,
+    )
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(m=measurements())
+def test_round_trip_property(tmp_path, m):
+    path = tmp_path / "rt.csv"
+    write_csv(m, path)
+    assert_same(m, read_csv(path))
