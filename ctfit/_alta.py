@@ -14,8 +14,8 @@ Supported input parametrisations (names as in ALTA's ``params.h``):
   light and viewer both along the half vector, θ_i = θ_o = θ_h, φ_i = φ_o = 0.
 
 Supported outputs: ``INV_STERADIAN`` (the BRDF, sr⁻¹), ``INV_STERADIAN_COSINE_FACTOR`` (BRDF ×
-cos θ_v: divided by cos θ_v here; samples at or below the viewer's horizon are dropped with a
-:class:`~ctfit.DataWarning`), both with one value per sample, and ``RGB_COLOR`` (three values:
+cos θ_v: divided by cos θ_v here; samples with the viewer on the horizon, θ_v within 1e-6° of
+90°, are dropped with a :class:`~ctfit.DataWarning`), both with one value per sample, and ``RGB_COLOR`` (three values:
 channels R, G, B, in sr⁻¹). Angles are converted to degrees and rounded to 1e-9° (so that
 π/12 written to 32 digits reads as 15°, not 14.999999999999998°); the cosine factor uses the
 unrounded angle. One-band data have no wavelength; they get the placeholder band
@@ -43,7 +43,7 @@ from ._errors import DataError, DataWarning
 from ._fileio import read_text
 from ._measurement import Measurement
 
-__all__ = ["read_alta", "PARAM_IN", "PARAM_OUT", "PLACEHOLDER_WAVELENGTH_NM"]
+__all__ = ["PARAM_IN", "PARAM_OUT", "PLACEHOLDER_WAVELENGTH_NM", "read_alta"]
 
 PARAM_IN = {
     "ISOTROPIC_TL_TV_PROJ_DPHI": ("theta_l", "theta_v*cos(dphi)", "theta_v*sin(dphi)"),
@@ -88,10 +88,10 @@ def read_alta(path, *, param_out: str | None = None) -> Measurement:
         values = values / cos_o[:, None]
         sigma = None if sigma is None else sigma[keep] / cos_o[:, None]
     if pout == "RGB_COLOR":
-        rep = lambda a: np.repeat(a, 3)  # noqa: E731 (sample k of row r is channel k of that row)
+        rep = lambda a: np.repeat(a, 3)  # sample 3r + k is channel k of row r
         bands = dict(channels=("R", "G", "B"), band=np.tile(np.arange(3), len(values)))
     else:
-        rep = lambda a: a  # noqa: E731
+        rep = lambda a: a
         bands = dict(wavelength_nm=np.array([PLACEHOLDER_WAVELENGTH_NM]), band=np.zeros(len(values), np.int64))
         meta["wavelength_nm"] = f"unknown (single band); {PLACEHOLDER_WAVELENGTH_NM:g} used as placeholder"
     return Measurement(

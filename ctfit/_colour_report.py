@@ -117,14 +117,17 @@ def colour_report(
     - ``XYZ``: CIE XYZ, Y of a perfect white reflector = 1; ``xy``: its chromaticity (the
       white's for black); ``white_XYZ``, ``white_xy``: the illuminant's white.
     - ``linear_rgb``: linear RGB of ``colourspace`` after chromatic adaptation, before gamut
-      mapping (may be < 0 or > 1); ``in_gamut``: whether it is inside [0, 1]³ (to 1e-9).
+      mapping (may be < 0 or > 1); ``in_gamut``: whether it is inside [0, 1]³ (to 1e-9, or
+      100 machine epsilons in float32).
     - ``rgb``: encoded RGB of ``colourspace`` after the paper's gamut mapping
       (:func:`ctfit.desaturate_to_gamut`, upper 1), in [0, 1]; not scaled.
     - ``sRGB``: the same for sRGB (equal to ``rgb`` when ``colourspace`` is sRGB); ``hex``:
       ``"#rrggbb"`` of ``sRGB``.
     - ``Lab``: CIELAB relative to the illuminant's white (colour-science's ``XYZ_to_Lab``).
     - ``dominant_wavelength_nm``: seen from the illuminant's white; negative for purples
-      (−complementary wavelength); None for achromatic colours. ``excitation_purity``.
+      (−complementary wavelength); None for achromatic colours (excitation purity below
+      100 machine epsilons of the computation's dtype, then reported as 0).
+      ``excitation_purity``.
     - ``quantity`` (``"F(theta)"`` or ``"pi*Rd"``), ``material``, ``angle_deg``,
       ``illuminant``, ``observer``, ``colourspace``, ``chromatic_adaptation``.
     """
@@ -132,7 +135,9 @@ def colour_report(
     if material.is_rgb:
         conv = rgb_conversion(colourspace, None, None)
         quantity, r = reflectance_spectrum(material, angle_deg)
-        XYZ = np.asarray(RGB_to_XYZ(np.asarray(r, dtype=float), conv), dtype=float)
+        XYZ = RGB_to_XYZ(np.asarray(r, dtype=float), conv)
+        eps = float(np.finfo(XYZ.dtype).eps)
+        XYZ = np.asarray(XYZ, dtype=float)
         white_XYZ = conv.white_XYZ
         illuminant_name = f"{colourspace} white"
         srgb_conv = None
@@ -141,7 +146,9 @@ def colour_report(
         quantity, r = reflectance_spectrum(material, angle_deg, grid)
         weights = spectral_weights(grid, illuminant, observer)
         conv = rgb_conversion(colourspace, weights.white_XYZ, chromatic_adaptation)
-        XYZ = np.asarray(_spectrum_to_XYZ(r, weights), dtype=float)
+        XYZ = _spectrum_to_XYZ(r, weights)
+        eps = float(np.finfo(XYZ.dtype).eps)
+        XYZ = np.asarray(XYZ, dtype=float)
         white_XYZ = np.asarray(weights.white_XYZ, dtype=float)
         illuminant_name = weights.illuminant
         srgb_conv = rgb_conversion("sRGB", weights.white_XYZ, chromatic_adaptation)
@@ -159,6 +166,8 @@ def colour_report(
     lab = np.asarray(colour.XYZ_to_Lab(XYZ, illuminant=white_xy), dtype=float)
     lam = float(dominant_wavelength(xy, white_xy, observer))
     purity = float(excitation_purity(xy, white_xy, observer))
+    if purity < 100 * eps:  # a white, up to the rounding of the dtype the spectrum was integrated in
+        lam, purity = math.nan, 0.0
     return {
         "material": material.name,
         "quantity": quantity,
@@ -172,7 +181,7 @@ def colour_report(
         "white_XYZ": _floats(white_XYZ),
         "white_xy": _floats(white_xy),
         "linear_rgb": _floats(lin),
-        "in_gamut": bool(in_gamut(lin, atol=1e-9)),
+        "in_gamut": bool(in_gamut(lin, atol=max(1e-9, 100 * eps))),
         "rgb": _floats(rgb),
         "sRGB": _floats(srgb),
         "hex": _hex(srgb),

@@ -55,10 +55,9 @@ def read_csv(path) -> Measurement:
         end -= 1
     if end == pos:
         raise DataError("no data rows after the header", path=path, line=header_line)
-    body = memoryview(raw)[pos:end]
     first = header_line + 1
-    parsed = _parse_fast(body, cols)
-    values, channel = parsed if parsed is not None else _parse_slow(str(body, "utf-8"), first, cols, path)
+    parsed = _parse_fast(raw, pos, end, cols)
+    values, channel = parsed if parsed is not None else _parse_slow(raw[pos:end].decode("utf-8"), first, cols, path)
     _check_values(values, cols, first, path)
     _check_units(values, meta, meta_lines, cols, header_line, path)
     return _measurement(values, channel, meta, path)
@@ -89,7 +88,7 @@ class _Header:
     def __init__(self, header: str, line: int, path):
         names = [n.strip().strip('"').strip() for n in header.split(",")]
         self.names, self.line = names, line
-        err = lambda msg, name=None, i=None: DataError(msg, path=path, line=line, column=name, index=i)  # noqa: E731
+        err = lambda msg, name=None, i=None: DataError(msg, path=path, line=line, column=name, index=i)
         if _is_number(names[0]):
             raise DataError(
                 "no header row: this line looks like data; the first line after the # lines must name the columns, "
@@ -105,6 +104,9 @@ class _Header:
                 raise err(f"duplicated (also column {seen[name] + 1})", name, i + 1)
             seen[name] = i
         self.index = seen
+        for i, name in enumerate(names):
+            if name not in _KNOWN and name.lower() in _KNOWN and name.lower() not in seen:
+                raise err(f"is this {name.lower()!r}? Column names are case sensitive", name, i + 1)
         for name in ANGLES:
             if name not in seen:
                 raise err(f"missing column {name!r}{_did_you_mean(name, names)} (columns: {','.join(names)})")
@@ -120,14 +122,14 @@ class _Header:
             raise err("'sigma' without 'brdf': sigma is the uncertainty of the brdf column", "sigma", seen["sigma"] + 1)
         self.channel = seen.get("channel")
         self.numeric = [n for n in (*ANGLES, "wavelength_nm", "brdf", "sigma") if n in seen]
+        self.ignored = [i for i, n in enumerate(names) if n not in _KNOWN]
 
     def column(self, name):
         return dict(column=name, index=self.index[name] + 1)
 
 
 def _did_you_mean(name, names):
-    unknown = [n for n in names if n not in _KNOWN]
-    close = [n for n in unknown if n.lower() == name.lower()] or difflib.get_close_matches(name, unknown, n=1, cutoff=0.75)
+    close = difflib.get_close_matches(name, [n for n in names if n not in _KNOWN], n=1, cutoff=0.75)
     return f" (is {close[0]!r} meant to be {name!r}?)" if close else ""
 
 
@@ -147,26 +149,34 @@ def _number(token: str) -> float:
     return float(token)
 
 
-def _parse_fast(body: memoryview, cols: _Header):
-    """({name: values}, channel codes or None), or None when the body needs a closer look."""
-    if len(body) >= 2**31 - 1:
+def _parse_fast(raw: bytes, pos: int, end: int, cols: _Header):
+    """({name: values}, channel codes or None) from ``raw[pos:end]``, or None when the body needs
+    a closer look."""
+    n = end - pos
+    if n >= 2**31 - 1:
         return None
-    buf = np.empty(len(body) + 1, np.uint8)
-    buf[:-1] = np.frombuffer(body, np.uint8)
-    buf[-1] = ord("\n")
+    work = bytearray(n + 1)
+    work[:n], work[n] = memoryview(raw)[pos:end], ord("\n")
+    buf = np.frombuffer(work, np.uint8)
     ncols = len(cols.names)
-    is_nl = buf == 10
-    sep = np.flatnonzero(is_nl | (buf == 44))
-    nrows = len(sep) // ncols
+    sep = np.flatnonzero((buf == 44) | (buf == 10))
+    nrows = raw.count(b"\n", pos, end) + 1
+    line_ends = sep[ncols - 1 :: ncols]
     # Every row has ncols fields iff there are nrows·ncols separators and each ncols-th is a newline.
-    if len(sep) != nrows * ncols or not is_nl[sep[ncols - 1 :: ncols]].all():
+    if len(sep) != nrows * ncols or not (buf[line_ends] == 10).all():
         return None
     starts = np.empty_like(sep)
     starts[0], starts[1:] = 0, sep[:-1] + 1
-    blank = (buf == 32) | (buf == 9)
-    if blank.any():  # fromstring reads a blank field as -1: refuse blank fields
+    if cols.ignored:  # overwrite ignored fields (free text, say) with zeros: "n/a" → "000"
+        token = np.concatenate([np.arange(j, len(sep), ncols) for j in cols.ignored])
+        if (sep[token] == starts[token]).any():
+            return None
+        inside = np.zeros(len(buf) + 1, np.int8)
+        inside[starts[token]], inside[sep[token]] = 1, -1
+        buf[np.cumsum(inside[:-1], dtype=np.int8).view(bool)] = ord("0")
+    if raw.find(b" ", pos, end) >= 0 or raw.find(b"\t", pos, end) >= 0:  # fromstring reads a blank field as -1
         filled = np.zeros(len(buf) + 1, np.int32)
-        np.cumsum((~blank).view(np.int8), dtype=np.int32, out=filled[1:])
+        np.cumsum(((buf != 32) & (buf != 9)).view(np.int8), dtype=np.int32, out=filled[1:])
         if (filled[sep] == filled[starts]).any():
             return None
     channel = None
@@ -176,9 +186,9 @@ def _parse_fast(body: memoryview, cols: _Header):
         if (channel == 255).any() or (sep[cols.channel :: ncols] - first != 1).any():
             return None
         buf[first] = ord("0")
-    buf[is_nl] = ord(",")
+    buf[line_ends] = ord(",")
     try:
-        flat = np.fromstring(buf.tobytes(), sep=",")
+        flat = np.fromstring(bytes(work), sep=",")
     except ValueError:  # a field that is not a number
         return None
     if flat.size != nrows * ncols:
@@ -314,7 +324,7 @@ def write_csv(measurement: Measurement, path, brdf=None, extra_columns=None, *, 
     n = len(m)
     if n == 0:
         raise ValueError("no samples to write: a measurement CSV has at least one data row")
-    brdf = m.brdf if brdf is None else np.asarray(brdf, dtype=np.float64)
+    brdf = m.brdf if brdf is None else brdf
     columns = [(name, np.asarray(getattr(m, name), dtype=np.float64)) for name in ANGLES]
     band = np.asarray(m.band)
     if m.channels is not None:
@@ -324,11 +334,11 @@ def write_csv(measurement: Measurement, path, brdf=None, extra_columns=None, *, 
     else:
         columns.append(("wavelength_nm", np.asarray(m.wavelength_nm, dtype=np.float64)[band]))
     if brdf is not None:
-        columns.append(("brdf", brdf))
+        columns.append(("brdf", np.asarray(brdf, dtype=np.float64)))
     if m.sigma is not None:
         columns.append(("sigma", np.asarray(m.sigma, dtype=np.float64)))
     for name, values in (extra_columns or {}).items():
-        if not name or name in _KNOWN or any(c in name for c in ',\n"#') or name != name.strip():
+        if not name or name.lower() in _KNOWN or any(c in name for c in ',\n\r"#') or name != name.strip():
             raise ValueError(f"extra column name {name!r} is empty, a standard column, or contains , \" # or spaces at its ends")
         columns.append((name, np.asarray(values, dtype=np.float64)))
     for name, values in columns:

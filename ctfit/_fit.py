@@ -32,7 +32,7 @@ from ._brdf import normal_reflectance
 from ._fresnel import n_from_f0
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
-from ._problem import LOSSES, Problem, from_params, make_problem, model_values, residual, to_params
+from ._problem import LOSSES, Problem, from_params, make_problem, model_values, normal_equations, residual, to_params
 
 __all__ = ["fit", "FitResult", "SOLVERS", "select_structure"]
 
@@ -118,27 +118,92 @@ def _score_grid(problem: Problem, u0: dict, grid):
     return jax.vmap(score)(grid)
 
 
-def _seed_points(problem: Problem, u0: dict, k: int) -> dict:
-    """The ``k`` best starting points from a grid over m, each with its best per-band scale."""
-    st = problem.spec.structure
-    if "m" not in u0 or k < 1:
+def _seed_points(problem: Problem, u0: dict, k: int, grid=None) -> dict:
+    """The ``k`` best starting points from a grid over log m, each with its best per-band scale.
+
+    Traceable (used inside the jitted fit); ``grid`` is the (G, lobes) grid of log m.
+    """
+    if "m" not in u0 or k < 1 or grid is None:
         return jax.tree.map(lambda a: jnp.asarray(a)[None], u0)
-    grid = jnp.asarray(np.log(_m_grid(st.lobes)), dtype=problem.y.dtype)
     costs, scales = _score_grid(problem, u0, grid)
-    order = np.argsort(np.asarray(costs))[: min(k, len(grid))]
-    seeds = []
-    for i in order:
-        u = dict(u0, m=np.asarray(grid[i]))
-        if "f0" in u:
-            f0 = np.clip(jax.nn.sigmoid(np.asarray(u0["f0"])) * np.asarray(scales[i]), 0.005, 0.995)
-            u["f0"] = np.log(f0) - np.log1p(-f0)
-        seeds.append(u)
-    return jax.tree.map(lambda *a: jnp.stack([jnp.asarray(x) for x in a]), *seeds)
+    order = jnp.argsort(costs)[: min(k, grid.shape[0])]
+    seeds = dict(jax.tree.map(lambda a: jnp.broadcast_to(a, (order.shape[0],) + jnp.shape(a)), u0))
+    seeds["m"] = grid[order]
+    if "f0" in u0:
+        f0 = jnp.clip(jax.nn.sigmoid(u0["f0"]) * scales[order], 0.005, 0.995)
+        seeds["f0"] = jnp.log(f0) - jnp.log1p(-f0)
+    return seeds
 
 
-@eqx.filter_jit
-def _solve_batch(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
-    """optimistix from every seed at once; returns values, success flags, steps, final costs."""
+def _tolerances(dtype):
+    """(ftol, xtol, gtol) of the structured Levenberg–Marquardt solver."""
+    return (1e-10, 1e-8, 1e-10) if dtype == jnp.float64 else (1e-6, 1e-5, 1e-6)
+
+
+def _lm(problem: Problem, u0: dict, max_steps: int):
+    """Levenberg–Marquardt on the structured normal equations (JᵀJ formed without J).
+
+    Each iteration solves (JᵀJ + μ D) δ = −Jᵀr by Cholesky (P × P, D the running maximum of
+    diag JᵀJ: Marquardt's scaling), evaluates ½‖r‖², Jᵀr and JᵀJ at the trial point in one
+    pass (:func:`~ctfit._problem.normal_equations`) and accepts it when the actual reduction
+    is a positive fraction of the predicted one; μ follows Nielsen's update. Converged when a
+    step changes the cost by less than ftol (actual and predicted, relative), moves u by less
+    than xtol (relative), or the gradient is orthogonal to the residual to gtol (MINPACK's
+    tests). Returns u, converged, iterations, cost, JᵀJ at u.
+    """
+    flat0, unravel = ravel_pytree(u0)
+    dtype = flat0.dtype
+    ftol, xtol, gtol = _tolerances(dtype)
+    tiny = jnp.finfo(dtype).tiny
+
+    def evaluate(f):
+        c, g, h = normal_equations(problem, unravel(f))
+        finite = jnp.isfinite(c) & jnp.all(jnp.isfinite(g)) & jnp.all(jnp.isfinite(h))
+        return c, g, h, finite
+
+    c0, g0, h0, ok0 = evaluate(flat0)
+    d0 = jnp.diag(h0)
+    d0 = jnp.maximum(d0, 1e-12 * jnp.max(d0) + tiny)
+    # status: 0 running, 1 converged, 2 stopped (non-finite start, μ overflow or max_steps)
+    init = (flat0, c0, g0, h0, d0, jnp.asarray(1e-3, dtype), jnp.asarray(2.0, dtype), jnp.asarray(0), jnp.where(ok0, 0, 2))
+
+    def body(state):
+        x, c, g, h, d, mu, nu, it, status = state
+        a = h + mu * jnp.diag(d)
+        chol = jnp.linalg.cholesky(a)
+        delta = -jax.scipy.linalg.cho_solve((chol, True), g)
+        pred = -(g @ delta + 0.5 * delta @ (h @ delta))  # predicted reduction (> 0)
+        x_new = x + delta
+        c_new, g_new, h_new, ok = evaluate(x_new)
+        ok = ok & jnp.all(jnp.isfinite(delta)) & (pred > 0)
+        actual = c - c_new
+        rho = actual / jnp.where(pred > 0, pred, 1)
+        accept = ok & (rho > 1e-4)
+        mu_acc = mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3)
+        mu = jnp.where(accept, mu_acc, mu * nu)
+        nu = jnp.where(accept, 2.0, 2 * nu)
+        x = jnp.where(accept, x_new, x)
+        c = jnp.where(accept, c_new, c)
+        g = jnp.where(accept, g_new, g)
+        h = jnp.where(accept, h_new, h)
+        d = jnp.where(accept, jnp.maximum(d, jnp.diag(h_new)), d)
+        small_f = accept & (actual <= ftol * c_new) & (pred <= ftol * c_new)
+        small_x = jnp.all(jnp.isfinite(delta)) & (jnp.linalg.norm(delta) <= xtol * (jnp.linalg.norm(x) + xtol))
+        small_g = jnp.max(jnp.abs(g) / jnp.sqrt(jnp.maximum(jnp.diag(h) * 2 * c, tiny))) <= gtol
+        it = it + 1
+        conv = small_f | small_x | small_g
+        stop = (it >= max_steps) | (mu > 1e30) | ~jnp.isfinite(mu)
+        status = jnp.where(conv, 1, jnp.where(stop, 2, 0))
+        return x, c, g, h, d, mu, nu, it, status
+
+    x, c, g, h, d, mu, nu, it, status = jax.lax.while_loop(lambda s: s[-1] == 0, body, init)
+    return unravel(x), status == 1, it, c, h
+
+
+def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
+    """Every seed at once (vmapped); values, success flags, steps, final costs, JᵀJ."""
+    if solver_name == "lm":
+        return jax.vmap(lambda u0: _lm(problem, u0, max_steps))(seeds)
     solver = _solver(solver_name, problem.y.dtype)
 
     def one(u0):
@@ -147,18 +212,49 @@ def _solve_batch(problem: Problem, seeds: dict, solver_name: str, max_steps: int
             sol = optx.minimise(fn, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
         else:
             sol = optx.least_squares(residual, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
-        r = residual(sol.value, (problem.y, problem))
-        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"], 0.5 * jnp.sum(r * r)
+        c, _, h = normal_equations(problem, sol.value)
+        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"], c, h
 
     return jax.vmap(one)(seeds)
 
 
 @eqx.filter_jit
-def _jtj(problem: Problem, u: dict):
-    """JᵀJ at ``u`` (flattened free parameters), from the structured Jacobian–vector products."""
+def _solve_batch(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
+    """optimistix / structured LM from every seed at once; values, success flags, steps, costs."""
+    return _solve_seeds(problem, seeds, solver_name, max_steps)[:4]
+
+
+def _constrained(problem: Problem, unravel, f):
+    """The reported (constrained) parameters as a dict, from the flat free values."""
+    spec = problem.spec
+    p = to_params(spec, unravel(f), problem.fixed)
+    f0 = normal_reflectance(spec.structure, p) if spec.structure.needs_fresnel_params else None
+    out = {k: getattr(p, k) for k in ("s", "m", "w", "n", "k", "rd") if getattr(p, k) is not None}
+    if f0 is not None:
+        out["F0"] = f0
+        if spec.structure.fresnel == "f0":
+            out["n"] = n_from_f0(f0)
+    return out
+
+
+@eqx.filter_jit
+def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, max_steps: int):
+    """Seeds, solve, pick the best, and everything the report needs, in one compiled program."""
+    seeds = _seed_points(problem, u0, starts, grid)
+    values, ok, steps, costs, hess = _solve_seeds(problem, seeds, solver_name, max_steps)
+    costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
+    best = jnp.argmin(costs)
+    u = jax.tree.map(lambda a: a[best], values)
     flat, unravel = ravel_pytree(u)
-    jac = jax.jacfwd(lambda f: residual(unravel(f), (problem.y, problem)))(flat)
-    return jac.T @ jac
+    jt = jax.jacfwd(lambda f: _constrained(problem, unravel, f))(flat) if flat.size else None
+    params = to_params(problem.spec, u, problem.fixed)
+    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=hess[best], pred=model_values(problem, u), jt=jt, params=params)
+
+
+@eqx.filter_jit
+def _jtj(problem: Problem, u: dict):
+    """JᵀJ at ``u`` (flattened free parameters), from the structured normal equations."""
+    return normal_equations(problem, u)[2]
 
 
 def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -168,11 +264,11 @@ def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
     return dataclasses.replace(params, m=np.asarray(params.m)[order], w=np.asarray(params.w)[order]), order
 
 
-def _stderr(problem: Problem, u: dict, scale2: float, order) -> dict | None:
-    flat, unravel = ravel_pytree(u)
-    if flat.size == 0:
+def _stderr(jtj, jt: dict | None, scale2: float, order) -> dict | None:
+    """Standard errors of the constrained parameters from JᵀJ and their Jacobian ``jt``."""
+    jtj = np.asarray(jtj)
+    if jtj.size == 0 or jt is None:
         return None
-    jtj = np.asarray(_jtj(problem, u))
     try:
         cond = np.linalg.cond(jtj)
     except np.linalg.LinAlgError:
@@ -180,22 +276,9 @@ def _stderr(problem: Problem, u: dict, scale2: float, order) -> dict | None:
     if not np.isfinite(cond) or cond > 1e12:
         return None
     cov_u = np.linalg.inv(jtj) * scale2
-    spec, fixed = problem.spec, problem.fixed
-
-    def constrained(f):
-        p = to_params(spec, unravel(f), fixed)
-        f0 = normal_reflectance(spec.structure, p) if spec.structure.needs_fresnel_params else None
-        out = {k: getattr(p, k) for k in ("s", "m", "w", "n", "k", "rd") if getattr(p, k) is not None}
-        if f0 is not None:
-            out["F0"] = f0
-            if spec.structure.fresnel == "f0":
-                out["n"] = n_from_f0(f0)
-        return out
-
-    jt = jax.jacfwd(constrained)(flat)
     se = {}
     for k, jk in jt.items():
-        jk = np.asarray(jk).reshape(-1, flat.size)
+        jk = np.asarray(jk).reshape(-1, jtj.shape[0])
         var = np.einsum("ij,jk,ik->i", jk, cov_u, jk)
         v = np.sqrt(np.maximum(var, 0))
         if k in ("m", "w") and order is not None:
@@ -262,14 +345,13 @@ def fit(
         start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype)
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
-    seeds = _seed_points(problem, u0, starts if "m" in u0 else 1)
-    values, ok, steps, costs = _solve_batch(problem, seeds, solver, max_steps)
-    costs = np.asarray(costs)
-    finite = np.isfinite(costs)
-    best = int(np.argmin(np.where(finite, costs, np.inf))) if finite.any() else 0
-    u = jax.tree.map(lambda a: a[best], values)
-    params = jax.tree.map(np.asarray, to_params(problem.spec, u, problem.fixed))
-    pred = np.asarray(model_values(problem, u)).reshape(-1)
+    k = starts if "m" in u0 else 1
+    grid = jnp.asarray(np.log(_m_grid(structure.lobes)), dtype=dtype) if ("m" in u0 and k >= 1) else None
+    out = jax.device_get(_fit_core(problem, u0, grid, k, solver, max_steps))
+    costs, ok, steps, best = out["costs"], out["ok"], out["steps"], int(out["best"])
+    u = out["u"]
+    params = jax.tree.map(np.asarray, out["params"])
+    pred = np.asarray(out["pred"]).reshape(-1)
     y = np.asarray(problem.y).reshape(-1)
     mask = np.asarray(problem.mask).reshape(-1) > 0
     err = (pred - y)[mask]
@@ -279,7 +361,7 @@ def fit(
     rss_like = 2 * cost
     scale2 = 1.0 if loss == "sigma" else rss_like / max(n - p, 1)
     params, order = _sorted_lobes(params)
-    stderr = _stderr(problem, u, scale2, order)
+    stderr = _stderr(out["jtj"], out["jt"], scale2, order)
     converged = bool(np.asarray(ok)[best]) and bool(np.all(np.isfinite(pred))) and np.isfinite(cost)
     bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, 1e-300) / n)) + p * math.log(n)
     stats = {

@@ -90,9 +90,9 @@ def _dielectric(c, a, u, scale):
     p = c * g + s2 * u
     num = scale * (c2 * g2 + s2 * s2 * u * u)
     den = gcu2 * gcu2 * (p * p)
-    # den = 0 only at grazing (c = 0) with F0 = 1 (u = 0); the limit there is 1. (With F0 = 0
-    # the F0 path has a = 4 r/(1 + r)² > 0 from the clamped r, so den > 0.)
-    bad = den <= 0
+    # At grazing (c = 0) F = 1 for any interface (F0 > 0): set exactly, since the formula gives
+    # a²/a² there with rounding, and 0/0 for F0 = 1 (u = 0).
+    bad = (den <= 0) | (c == 0)
     f = num / jnp.where(bad, 1, den)
     f = jnp.where(bad, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
     f = jnp.where(tir, 1, f)

@@ -37,17 +37,17 @@ from ._fileio import atomic_write
 from ._measurement import Measurement
 
 __all__ = [
-    "MERL_SHAPE",
     "MERL_SCALE",
+    "MERL_SHAPE",
+    "angles_deg_to_half_diff",
+    "half_diff_to_angles_deg",
+    "merl_cell_centres",
+    "merl_phi_d_index",
+    "merl_table",
+    "merl_theta_d_index",
+    "merl_theta_h_index",
     "read_merl",
     "write_merl",
-    "merl_table",
-    "merl_cell_centres",
-    "merl_theta_h_index",
-    "merl_theta_d_index",
-    "merl_phi_d_index",
-    "half_diff_to_angles_deg",
-    "angles_deg_to_half_diff",
 ]
 
 MERL_SHAPE = (90, 90, 180)

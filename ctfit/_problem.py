@@ -74,6 +74,11 @@ class Problem(eqx.Module):
     fixed_bands: int = eqx.field(static=True)
 
 
+@jax.jit
+def _geometry_deg(pairs):
+    return geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3])
+
+
 def _softplus_inv(x):
     x = np.asarray(x, dtype=float)
     return np.where(x > 30, x, np.log(np.expm1(np.maximum(x, 1e-300))))
@@ -165,7 +170,7 @@ def make_problem(
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data)
-    geom = geometry_from_angles_deg(*(jnp.asarray(pairs[:, j], dtype=dtype) for j in range(4)))
+    geom = _geometry_deg(jnp.asarray(pairs, dtype=dtype))
     y_pos = data.brdf[data.brdf > 0]
     floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))

@@ -18,7 +18,7 @@ from ._errors import DataError
 from ._measurement import Measurement
 from ._merl import _FILE_BYTES, MERL_SHAPE, read_merl
 
-__all__ = ["read_measurement", "READERS"]
+__all__ = ["READERS", "read_measurement"]
 
 READERS = {".csv": read_csv, ".binary": read_merl, ".alta": read_alta}
 _SNIFF_BYTES = 64 * 1024

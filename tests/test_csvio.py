@@ -36,7 +36,7 @@ def assert_same(a: Measurement, b: Measurement):
 def path_kind(request, monkeypatch):
     """Run a test through the vectorised path and through the line-by-line fallback."""
     if request.param == "slow":
-        monkeypatch.setattr(_csvio, "_parse_fast", lambda body, cols: None)
+        monkeypatch.setattr(_csvio, "_parse_fast", lambda *args: None)
     return request.param
 
 
@@ -96,7 +96,7 @@ def test_crlf_bom_blanks_and_trailing_lines(tmp_path, path_kind):
     assert m.meta == {"a": "b"}
 
 
-@pytest.mark.parametrize("variant", ["spectral", "rgb", "spaces", "crlf"])
+@pytest.mark.parametrize("variant", ["spectral", "rgb", "spaces", "crlf", "text column"])
 def test_large_file_takes_the_vectorised_path(tmp_path, monkeypatch, variant):
     rng = np.random.default_rng(1)
     n = 20_000
@@ -110,6 +110,8 @@ def test_large_file_takes_the_vectorised_path(tmp_path, monkeypatch, variant):
         head, bands = HEADER, (450.0 + 100 * band).tolist()
     sep, eol = (" , ", "\r\n") if variant == "spaces" else (",", "\r\n" if variant == "crlf" else "\n")
     rows = [sep.join(map(str, row)) for row in zip(*[c.tolist() for c in cols], bands, brdf.tolist())]
+    if variant == "text column":
+        head, rows = head + ",note", [f"{row},n/a {k} é" for k, row in enumerate(rows)]
     path = write(tmp_path, eol.join([head, *rows]) + eol)
     monkeypatch.setattr(_csvio, "_parse_slow", None)  # calling it would fail
     m = read_csv(path)
@@ -144,7 +146,9 @@ BAD = [
     ("# only: comments\n", r"data\.csv: no header row: the file has only comment lines"),
     (f"# m: 1\n{HEADER}\n\n", r"data\.csv:2: no data rows after the header"),
     (ROWS, r"data\.csv:1: no header row: this line looks like data"),
-    ("theta_i,phi_i,Theta_o,phi_o,wavelength_nm,brdf\n" + ROW, r"data\.csv:1: missing column 'theta_o' \(is 'Theta_o' meant to be 'theta_o'\?\)"),
+    ("theta_i,phi_i,Theta_o,phi_o,wavelength_nm,brdf\n" + ROW, r"data\.csv:1: column 'Theta_o' \(3\): is this 'theta_o'\? Column names are case sensitive"),
+    ("theta_i,phi_i,theta_0,phi_o,wavelength_nm,brdf\n" + ROW, r"data\.csv:1: missing column 'theta_o' \(is 'theta_0' meant to be 'theta_o'\?\)"),
+    (HEADER.replace("brdf", "BRDF") + "\n" + ROW, r"data\.csv:1: column 'BRDF' \(6\): is this 'brdf'\?"),
     ("theta_i,phi_i,phi_o,wavelength_nm,brdf\n10,0,180,550,0.5\n", r"data\.csv:1: missing column 'theta_o'"),
     (HEADER + ",theta_i\n" + "10,0,10,180,550,0.5,10\n", r"data\.csv:1: column 'theta_i' \(7\): duplicated \(also column 1\)"),
     (HEADER + ",\n" + "10,0,10,180,550,0.5,\n", r"data\.csv:1: column 7 has no name"),
@@ -237,6 +241,14 @@ def test_round_trip_rgb_with_brdf_override(tmp_path):
     assert_same(m.replace(brdf=values), back)
 
 
+def test_write_accepts_jax_arrays(tmp_path):
+    import jax.numpy as jnp
+
+    m = spectral(3)
+    write_csv(m.replace(brdf=jnp.asarray(m.brdf)), tmp_path / "m.csv", brdf=jnp.asarray(m.brdf) * 2)
+    np.testing.assert_array_equal(read_csv(tmp_path / "m.csv").brdf, m.brdf * 2)
+
+
 def test_write_is_atomic_and_replaces(tmp_path):
     path = tmp_path / "m.csv"
     path.write_text("old contents\n")
@@ -296,7 +308,7 @@ def measurements(draw):
         nb = len(wl)
     n = max(n, nb)
     band = np.array(draw(st.permutations(list(range(nb)) + draw(st.lists(st.integers(0, nb - 1), min_size=n - nb, max_size=n - nb)))))
-    arr = lambda s: np.array(draw(st.lists(s, min_size=n, max_size=n)), dtype=float)  # noqa: E731
+    arr = lambda s: np.array(draw(st.lists(s, min_size=n, max_size=n)), dtype=float)
     with_brdf = draw(st.booleans())
     keys = st.from_regex(r"[A-Za-z_][\w.-]{0,8}", fullmatch=True)
     values = st.text(st.characters(blacklist_categories=("Cs", "Cc", "Zl", "Zp")), max_size=20).map(str.strip)

@@ -83,7 +83,7 @@ def test_read_back_a_written_table_end_to_end(merl_file):
     assert len(m) == 3 * (90 * 90 * 180 - above) and 0 < above < 90 * 90 * 180 / 2
     assert max(m.theta_i.max(), m.theta_o.max()) < 90 and m.phi_i.min() >= 0 and m.phi_o.max() < 360
     np.testing.assert_array_equal(m.band[:3], [0, 1, 2])  # ordered by cell, then channel
-    k = np.random.default_rng(0).choice(len(m), 200_000, replace=False)  # a sample keeps the test fast
+    k = np.random.default_rng(0).choice(len(m), 50_000, replace=False)  # a sample keeps the test fast
     th, td, pd = angles_deg_to_half_diff(m.theta_i[k], m.phi_i[k], m.theta_o[k], m.phi_o[k])
     cell = (merl_theta_h_index(th), merl_theta_d_index(td), merl_phi_d_index(pd))
     np.testing.assert_allclose(m.brdf[k], table[(m.band[k], *cell)], rtol=1e-15)

@@ -1,0 +1,345 @@
+"""Posterior samples to and from the outside: the fit JSON's ``uncertainty`` section, a readable
+table, the corner plot and the spectral-band plot, and the body of ``ctfit sample``.
+
+The ``uncertainty`` section (``docs/uncertainty.md``) is :meth:`SampleResult.to_dict`:
+``s``, ``lobes[j].m``, ``lobes[j].weight``, ``F0[i]``, ``n[i]`` (``k[i]``, ``Rd``,
+``sigma_noise`` where sampled), each ``{"median", "p16", "p84", "p2.5", "p97.5", "mean",
+"std"}``; ``colour`` (sRGB and CIELAB under D65); ``diagnostics``; ``likelihood``; ``priors``;
+``warnings``; ``plots`` (the PNGs written, when asked).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pathlib
+
+import numpy as np
+
+from ._material import Material
+
+__all__ = [
+    "uncertainty_section",
+    "plot_corner",
+    "plot_spectra",
+    "format_uncertainty_table",
+    "sample_command_body",
+    "fit_sample_body",
+]
+
+
+def uncertainty_section(result) -> dict:
+    """The ``uncertainty`` section of the fit JSON for a :class:`~ctfit.SampleResult`."""
+    return result.to_dict()
+
+
+# --- plots --------------------------------------------------------------------------------------
+
+
+def _pyplot():
+    import matplotlib
+
+    if "MPLBACKEND" not in os.environ and matplotlib.get_backend().lower() not in ("agg", "pdf", "svg"):
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _global_columns(result) -> tuple[np.ndarray, list[str], list[float]]:
+    """Draws (n, p), labels and optimum values of s, m_j, w_j (R_d bands for a diffuse-only material)."""
+    ch, opt = result.chain, result.optimum
+    cols, labels, truths = [], [], []
+    if "s" in ch:
+        cols.append(ch["s"])
+        labels.append("s")
+        truths.append(float(opt["s"]))
+    if "m" in ch:
+        nl = ch["m"].shape[1]
+        for j in range(nl):
+            cols.append(ch["m"][:, j])
+            labels.append(f"$m_{j + 1}$" if nl > 1 else "m")
+            truths.append(float(opt["m"][j]))
+        if nl > 1:
+            for j in range(nl):
+                cols.append(ch["weight"][:, j])
+                labels.append(f"$w_{j + 1}$")
+                truths.append(float(opt["weight"][j]))
+    if not cols and "Rd" in ch:
+        rd = ch["Rd"] if ch["Rd"].ndim == 2 else ch["Rd"][:, None]
+        for i in range(min(rd.shape[1], 6)):
+            cols.append(rd[:, i])
+            labels.append(f"$R_d$[{_band_labels(result.material, rd.shape[1])[i]}]")
+            truths.append(float(np.ravel(opt["Rd"])[i]))
+    if "sigma_noise" in ch and len(cols) < 6:
+        cols.append(ch["sigma_noise"])
+        labels.append(r"$\sigma_{noise}$")
+        truths.append(float(opt["sigma_noise"]))
+    keep = [i for i, c in enumerate(cols) if np.std(c) > 0]
+    return np.stack([cols[i] for i in keep], axis=1), [labels[i] for i in keep], [truths[i] for i in keep]
+
+
+def _band_labels(material: Material, n: int) -> list[str]:
+    if material.channels is not None:
+        return list(material.channels)
+    if material.wavelength_nm is not None:
+        return [f"{w:g} nm" for w in material.wavelength_nm]
+    return [str(i) for i in range(n)]
+
+
+def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathlib.Path:
+    """Corner plot (``corner`` package) of the global parameters s, m_j, w_j (and σ_noise).
+
+    Dashed lines: 16 %, 50 %, 84 % quantiles; blue lines: the least-squares optimum the walkers
+    started from, or ``truths`` (a list, one value per panel) when given.
+    """
+    import corner
+
+    plt = _pyplot()
+    data, labels, opt = _global_columns(result)
+    if data.shape[1] == 0:
+        raise ValueError("nothing to plot: no sampled global parameter varies")
+    fig = corner.corner(
+        data,
+        labels=labels,
+        quantiles=[0.16, 0.5, 0.84],
+        show_titles=True,
+        title_fmt=".4g",
+        truths=truths if truths is not None else opt,
+        truth_color="#1f77b4",
+        label_kwargs={"fontsize": 12},
+        title_kwargs={"fontsize": 10},
+    )
+    d = result.diagnostics
+    fig.suptitle(
+        title
+        or f"posterior ({d['draws']} draws, {d['walkers']} walkers × {d['steps']} steps, burn {d['burn']}); "
+        + ("blue: truth" if truths is not None else "blue: least-squares optimum"),
+        fontsize=10,
+        y=1.02,
+    )
+    path = pathlib.Path(path)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def plot_spectra(result, path, *, truth: dict | None = None, title: str | None = None) -> pathlib.Path:
+    """F0(λ) and n(λ) (and k(λ), R_d(λ) where sampled) with their 68 % and 95 % posterior bands.
+
+    Line: posterior median; dark band: 16–84 %; light band: 2.5–97.5 %; crosses: the
+    least-squares optimum; ``truth`` ({"F0": [...], "n": [...]}) is drawn as a dashed line.
+    """
+    plt = _pyplot()
+    mat = result.material
+    keys = [k for k in ("F0", "n", "k", "Rd") if k in result.chain and result.chain[k].ndim == 2]
+    if not keys:
+        raise ValueError("nothing to plot: no per-band quantity was sampled")
+    n_bands = result.chain[keys[0]].shape[1]
+    rgb = mat.channels is not None or mat.wavelength_nm is None
+    x = np.arange(n_bands, dtype=float) if rgb else np.asarray(mat.wavelength_nm, dtype=float)
+    names = {"F0": "$F_0$ (normal reflectance)", "n": "n (effective index)" if mat.structure.fresnel == "f0" else "n", "k": "k", "Rd": r"$R_d$ (sr$^{-1}$)"}
+    fig, axes = plt.subplots(len(keys), 1, figsize=(6.4, 2.6 * len(keys) + 0.4), sharex=True, squeeze=False)
+    for ax, key in zip(axes[:, 0], keys):
+        q = np.percentile(result.chain[key], [2.5, 16, 50, 84, 97.5], axis=0)
+        ax.fill_between(x, q[0], q[4], color="#9ecae1", alpha=0.6, lw=0, label="95 %", step="mid" if rgb else None)
+        ax.fill_between(x, q[1], q[3], color="#3182bd", alpha=0.6, lw=0, label="68 %", step="mid" if rgb else None)
+        ax.plot(x, q[2], color="#08306b", lw=1.5, label="median", marker="o" if n_bands < 12 else None, ms=3)
+        ax.plot(x, np.ravel(result.optimum[key]), "x", color="#d62728", ms=5, label="least squares")
+        if truth is not None and key in truth:
+            ax.plot(x, np.ravel(truth[key]), "--", color="k", lw=1, label="truth")
+        ax.set_ylabel(names[key])
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8, ncol=5, loc="best")
+    ax = axes[-1, 0]
+    if rgb:
+        ax.set_xticks(x)
+        ax.set_xticklabels(_band_labels(mat, n_bands))
+    else:
+        ax.set_xlabel("wavelength (nm)")
+    d = result.diagnostics
+    fig.suptitle(title or f"posterior bands ({d['draws']} draws)", fontsize=10)
+    fig.tight_layout()
+    path = pathlib.Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# --- table --------------------------------------------------------------------------------------
+
+
+def _fmt(s: dict | None) -> str:
+    if not s or s.get("median") is None:
+        return "—"
+    med, lo, hi = s["median"], s["p16"], s["p84"]
+    return f"{med:.6g} (+{hi - med:.2g} / −{med - lo:.2g})"
+
+
+def format_uncertainty_table(doc: dict, label: str = "") -> str:
+    """A plain-text table of an ``uncertainty`` section (or a whole fit JSON document holding one)."""
+    u = doc.get("uncertainty", doc)
+    lines = [f"posterior of {label}" if label else "posterior", "-" * 72, "  median (+p84 − median / −median − p16)"]
+    if "s" in u:
+        lines.append(f"  s = {_fmt(u['s'])}")
+    for j, lobe in enumerate(u.get("lobes", [])):
+        lines.append(f"  lobe {j}: m = {_fmt(lobe['m'])}   weight = {_fmt(lobe['weight'])}")
+    band_keys = [k for k in ("F0", "n", "k", "Rd") if isinstance(u.get(k), list)]
+    if band_keys:
+        wl = doc.get("wavelength_nm") or doc.get("channels") or list(range(len(u[band_keys[0]])))
+        lines.append("  " + f"{'band':>10}" + "".join(f"{k:>30}" for k in band_keys))
+        for i, w in enumerate(wl):
+            lab = f"{w:g} nm" if isinstance(w, (int, float)) else str(w)
+            lines.append("  " + f"{lab:>10}" + "".join(f"{_fmt(u[k][i]):>30}" for k in band_keys))
+    if isinstance(u.get("Rd"), dict):
+        lines.append(f"  Rd = {_fmt(u['Rd'])}")
+    if "sigma_noise" in u:
+        lines.append(f"  sigma_noise = {_fmt(u['sigma_noise'])}   ({u['likelihood']['loss']} residuals)")
+    col = u.get("colour")
+    if col:
+        srgb = ", ".join(f"{c['median']:.3f}" for c in col["sRGB"])
+        lab = ", ".join(_fmt(c) for c in col["Lab"])
+        lines.append(f"  colour ({col['illuminant']}): sRGB median ({srgb}) {col['sRGB_hex_median']}   Lab {lab}")
+    d = u.get("diagnostics", {})
+    if d:
+        lines.append("-" * 72)
+        acc = d["acceptance_fraction"]
+        lines.append(
+            f"  walkers: {d['walkers']}   steps: {d['steps']}   burn: {d['burn']}   thin: {d['thin']}   draws: {d['draws']}   "
+            f"acceptance: {acc['mean']:.2f}"
+        )
+        lines.append(
+            f"  τ_max: {d['autocorr_time_max']:.1f} steps   ESS_min: {d['ess_min']:.0f}   "
+            f"chain ≥ 50 τ: {d['chain_long_enough']}   time: {d['time_s']:.1f} s"
+        )
+    for w in u.get("warnings", []):
+        lines.append(f"  warning: {w}")
+    return "\n".join(lines)
+
+
+# --- command bodies -----------------------------------------------------------------------------
+
+
+def _read_data(path):
+    try:
+        from ._readers import read_measurement
+    except ImportError:  # pragma: no cover - older trees: CSV only
+        from ._csvio import read_csv as read_measurement
+    return read_measurement(path)
+
+
+def _plots(result, plot_dir, stem: str) -> list[str]:
+    plot_dir = pathlib.Path(plot_dir)
+    plot_dir.mkdir(parents=True, exist_ok=True)
+    out = []
+    try:
+        out.append(str(plot_corner(result, plot_dir / f"{stem}.corner.png")))
+    except ValueError:
+        pass
+    try:
+        out.append(str(plot_spectra(result, plot_dir / f"{stem}.spectra.png")))
+    except ValueError:
+        pass
+    return out
+
+
+def _stem(path: pathlib.Path) -> str:
+    name = path.name
+    for suffix in (".json", ".toml"):
+        if name.endswith(suffix):
+            name = name[: -len(suffix)]
+    return name
+
+
+def _run(target, data, *, walkers, steps, burn, thin, seed, backend, resume, progress, priors):
+    from ._sample import sample
+
+    return sample(
+        target,
+        data,
+        walkers=walkers,
+        steps=steps,
+        burn=burn,
+        thin=thin,
+        seed=seed,
+        backend=None if backend is None else str(backend),
+        resume=resume,
+        progress=progress,
+        priors=priors,
+    )
+
+
+def sample_command_body(
+    fit_json,
+    data,
+    walkers: int | None = None,
+    steps: int = 2000,
+    burn: int | None = None,
+    thin: int = 1,
+    seed: int = 0,
+    backend=None,
+    resume: bool = False,
+    plot_dir=None,
+    output=None,
+    *,
+    progress: bool = False,
+    priors: dict | None = None,
+) -> dict:
+    """``ctfit sample FIT.json DATA``: sample, write the fit JSON with its ``uncertainty`` section.
+
+    Reads the material (fit JSON or TOML) and the measurement, samples (the loss recorded in
+    the file's ``fit`` section, else sigma/relative), writes ``output`` (default: ``fit_json``
+    itself, updated in place) atomically — every key of the input kept, ``uncertainty``
+    replaced — and, with ``plot_dir``, ``<stem>.corner.png`` and ``<stem>.spectra.png``.
+    Returns the document written (JSON-ready).
+    """
+    from ._material_io import load_material, material_to_dict, save_material_json
+
+    fit_json = pathlib.Path(fit_json)
+    material = load_material(fit_json)
+    if str(fit_json).endswith(".toml") and output is None:
+        raise ValueError(f"{fit_json}: a TOML material is not overwritten; pass an output JSON path")
+    meas = _read_data(data)
+    res = _run(material, meas, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend, resume=resume, progress=progress, priors=priors)
+    target = pathlib.Path(output) if output is not None else fit_json
+    unc = res.to_dict()
+    if plot_dir is not None:
+        unc["plots"] = _plots(res, plot_dir, _stem(target))
+    extra = {"uncertainty": unc}
+    save_material_json(material, target, extra=extra)
+    return material_to_dict(material, extra=extra)
+
+
+def fit_sample_body(
+    fit_result,
+    data,
+    *,
+    walkers: int | None = None,
+    steps: int = 2000,
+    burn: int | None = None,
+    thin: int = 1,
+    seed: int = 0,
+    backend=None,
+    resume: bool = False,
+    plot_dir=None,
+    output=None,
+    progress: bool = False,
+    priors: dict | None = None,
+    plot_stem: str = "fit",
+) -> dict:
+    """``ctfit fit DATA --sample``: sample a fresh :class:`~ctfit.FitResult` on its measurement.
+
+    Returns the fit-result document with ``fit`` and ``uncertainty`` sections; writes it
+    atomically to ``output`` when given, and the plots to ``plot_dir``.
+    """
+    from ._fit_io import fit_result_to_dict
+    from ._material_io import material_to_dict, save_material_json
+
+    res = _run(fit_result, data, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend, resume=resume, progress=progress, priors=priors)
+    unc = res.to_dict()
+    if plot_dir is not None:
+        unc["plots"] = _plots(res, plot_dir, _stem(pathlib.Path(output)) if output is not None else plot_stem)
+    extra = {**fit_result_to_dict(fit_result, material_keys=False), "uncertainty": unc}
+    if output is not None:
+        save_material_json(fit_result.material, output, extra=extra)
+    return material_to_dict(fit_result.material, extra=extra)

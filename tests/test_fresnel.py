@@ -1,0 +1,205 @@
+"""Fresnel reflectance F (Cook & Torrance 1982, appendix; conductor form after Born & Wolf).
+
+References for the external values:
+- Hecht, E. Optics (5th ed., 2017), §4.6.2–4.6.3 (Fresnel equations; reflectance of glass,
+  n = 1.5: R = 0.04 at normal incidence, R_s ≈ 0.092 and R_p ≈ 0.0085 at 45°, Brewster's
+  angle θ_p = arctan 1.5 = 56.31° with R_p = 0 and R_s ≈ 0.148).
+- Born, M. and Wolf, E. Principles of Optics (7th ed., 1999), §1.5.2 eqs. 21, 35 (the same).
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import mp_fresnel_conductor, mp_fresnel_dielectric, mp_fresnel_dielectric_f0
+
+import ctfit
+from ctfit import f0_from_n, f0_from_nk, fresnel_conductor, fresnel_dielectric, fresnel_dielectric_f0, n_from_f0
+
+F0S = np.array([0.0, 1e-8, 1e-4, 0.04, 0.2, 0.5, 0.9, 0.98, 1 - 1e-7, 1.0])
+
+
+def ulps(got, ref):
+    got = np.asarray(got, dtype=np.float64)
+    ref = np.asarray(ref, dtype=np.float64)
+    return np.abs(got - ref) / np.spacing(np.abs(ref))
+
+
+# --------------------------------------------------------------------------- closed forms
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_normal_incidence_is_f0(dtype):
+    f0 = jnp.asarray(F0S, dtype)
+    f = fresnel_dielectric_f0(jnp.ones((), dtype), f0)
+    assert f.dtype == dtype
+    rtol = 4 * np.finfo(dtype).eps
+    np.testing.assert_allclose(np.asarray(f), np.asarray(f0), rtol=rtol, atol=0)
+    n = jnp.asarray([1.0001, 1.5, 2.0, 4.0, 1e3, 1e6], dtype)
+    np.testing.assert_allclose(np.asarray(fresnel_dielectric(jnp.ones((), dtype), n)), np.asarray(f0_from_n(n)), rtol=rtol)
+    k = jnp.asarray([0.0, 0.5, 3.0, 20.0, 1.0, 0.1], dtype)
+    np.testing.assert_allclose(np.asarray(fresnel_conductor(jnp.ones((), dtype), n, k)), np.asarray(f0_from_nk(n, k)), rtol=rtol)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_grazing_limit_is_one(dtype):
+    """F → 1 as c → 0 for every F0 > 0 (and F = 0 for F0 = 0, no interface)."""
+    f0 = jnp.asarray(F0S, dtype)
+    f_zero = np.asarray(fresnel_dielectric_f0(jnp.zeros((), dtype), f0))
+    np.testing.assert_array_equal(f_zero, np.where(F0S > 0, 1.0, 0.0))
+    # Approaching grazing: for 1e-4 ≤ F0 ≤ 0.98 F is within 1 % of 1 at c = 1e-6 and 1 − F
+    # decreases over the last decades of c. (For F0 → 1, n → ∞, the Brewster dip of R_p moves
+    # to c ≈ 1/n and F comes back to 1 only below that.)
+    c = jnp.asarray([1e-3, 1e-4, 1e-5, 1e-6], dtype)[:, None]
+    f = np.asarray(fresnel_dielectric_f0(c, f0[(F0S >= 1e-4) & (F0S <= 0.98)]), dtype=np.float64)
+    assert np.all(np.diff(1 - f, axis=0) <= 0)
+    assert np.all(f[-1] > 0.99)
+    # Conductor and real index: also 1 at grazing.
+    n = jnp.asarray([1.5, 0.2, 3.0, 1e6], dtype)
+    k = jnp.asarray([0.0, 3.0, 20.0, 0.0], dtype)
+    np.testing.assert_allclose(np.asarray(fresnel_conductor(jnp.zeros((), dtype), n, k)), 1.0, rtol=4 * np.finfo(dtype).eps)
+    np.testing.assert_allclose(np.asarray(fresnel_dielectric(jnp.zeros((), dtype), n[jnp.asarray([0, 2, 3])])), 1.0, rtol=4 * np.finfo(dtype).eps)
+
+
+def test_glass_against_textbook_values():
+    """n = 1.5 (Hecht §4.6; Born & Wolf §1.5.2): F0 = 0.04; 45°: (R_s + R_p)/2 = (0.0920 + 0.0085)/2."""
+    n = jnp.asarray(1.5)
+    assert float(f0_from_n(n)) == pytest.approx(0.04, rel=1e-15)
+    assert float(fresnel_dielectric(jnp.asarray(1.0), n)) == pytest.approx(0.04, rel=1e-15)
+    c45 = jnp.asarray(np.cos(np.pi / 4))
+    assert float(fresnel_dielectric(c45, n)) == pytest.approx(0.5 * (0.0920 + 0.0085), abs=5e-5)
+    assert float(fresnel_dielectric(c45, n)) == pytest.approx(0.0502, abs=5e-5)
+    assert float(fresnel_dielectric_f0(c45, jnp.asarray(0.04))) == pytest.approx(0.0502, abs=5e-5)
+    assert float(fresnel_conductor(c45, n, 0.0)) == pytest.approx(0.0502, abs=5e-5)
+    # Brewster's angle: R_p = 0, R_s = 0.1479 → F = 0.0740.
+    cb = jnp.asarray(np.cos(np.arctan(1.5)))
+    assert float(fresnel_dielectric(cb, n)) == pytest.approx(0.5 * 0.14793, abs=5e-5)
+
+
+def test_effective_index_round_trip():
+    f0 = jnp.asarray(F0S[1:-1])
+    np.testing.assert_allclose(np.asarray(f0_from_n(n_from_f0(f0))), np.asarray(f0), rtol=1e-8)
+    assert float(n_from_f0(jnp.asarray(0.04))) == pytest.approx(1.5, rel=1e-14)
+    n = jnp.asarray([1.2, 1.5, 3.0])
+    np.testing.assert_array_equal(np.asarray(f0_from_nk(n, 0.0)), np.asarray(f0_from_n(n)))
+
+
+# --------------------------------------------------------------------------- against mpmath
+
+N_GRID = np.geomspace(1.0001, 1e6, 37)
+C_GRID = np.concatenate([np.geomspace(1e-6, 1, 37), [np.cos(np.pi / 4), 0.5, 0.999, 1 - 1e-9]])
+
+
+def test_dielectric_against_mpmath_to_a_few_ulps():
+    """The paper's formula at 50 digits vs ctfit's cancellation-free rewrite, float64."""
+    n, c = np.meshgrid(N_GRID, C_GRID, indexing="ij")
+    ref = np.vectorize(lambda c_, n_: float(mp_fresnel_dielectric(c_, n_)))(c, n)
+    got = np.asarray(fresnel_dielectric(jnp.asarray(c), jnp.asarray(n)))
+    u = ulps(got, ref)
+    # Measured: median 2 ulps, max 11 ulps (F near 1 at large n, and the 4th power of G + c/n).
+    assert np.median(u) <= 3
+    assert u.max() <= 16, (u.max(), n.ravel()[u.argmax()], c.ravel()[u.argmax()])
+
+
+def test_dielectric_f0_against_mpmath_to_a_few_ulps():
+    """F from F0 (effective index n = (1 + √F0)/(1 − √F0), computed at 50 digits from the F0 given)."""
+    f0 = np.concatenate([np.asarray(f0_from_n(jnp.asarray(N_GRID))), [1e-12, 0.98, 1 - 1e-7]])
+    f, c = np.meshgrid(f0, C_GRID, indexing="ij")
+    ref = np.vectorize(lambda c_, f_: float(mp_fresnel_dielectric_f0(c_, f_)))(c, f)
+    got = np.asarray(fresnel_dielectric_f0(jnp.asarray(c), jnp.asarray(f)))
+    u = ulps(got, ref)
+    assert np.median(u) <= 3
+    assert u.max() <= 16, (u.max(), f.ravel()[u.argmax()], c.ravel()[u.argmax()])
+
+
+@pytest.mark.parametrize("k", [0.0, 1e-3, 0.1, 1.0, 3.0, 20.0])
+def test_conductor_against_mpmath_complex_formula(k):
+    """Against |r_s|², |r_p|² from the complex amplitudes at 50 digits; n from 0.05 to 1e6."""
+    ns = np.concatenate([np.geomspace(0.05, 0.99, 8), N_GRID[::3]])
+    if k == 0.0:
+        ns = ns[ns > 1]  # n < 1 with k = 0: total internal reflection, tested separately
+    n, c = np.meshgrid(ns, C_GRID, indexing="ij")
+    ref = np.vectorize(lambda c_, n_: float(mp_fresnel_conductor(c_, n_, k)))(c, n)
+    got = np.asarray(fresnel_conductor(jnp.asarray(c), jnp.asarray(n), k))
+    u = ulps(got, ref)
+    assert u.max() <= 32, (u.max(), n.ravel()[u.argmax()], c.ravel()[u.argmax()])
+
+
+def test_conductor_with_k_zero_equals_dielectric():
+    n, c = np.meshgrid(N_GRID, C_GRID, indexing="ij")
+    a = np.asarray(fresnel_conductor(jnp.asarray(c), jnp.asarray(n), 0.0))
+    b = np.asarray(fresnel_dielectric(jnp.asarray(c), jnp.asarray(n)))
+    assert ulps(a, b).max() <= 24
+
+
+def test_total_internal_reflection_for_n_below_one():
+    """n < 1 (light inside the denser medium): F = 1 beyond the critical angle, the formula before."""
+    n = 1 / 1.5
+    c_crit = np.sqrt(1 - n * n)
+    c = np.array([0.0, 0.1, 0.5, c_crit * 0.999, c_crit * 1.001, 0.8, 0.95, 1.0])
+    f = np.asarray(fresnel_dielectric(jnp.asarray(c), n))
+    assert np.all(f[c < c_crit] == 1.0)
+    above = c > c_crit
+    ref = np.array([float(mp_fresnel_conductor(ci, n, 0.0)) for ci in c[above]])
+    np.testing.assert_allclose(f[above], ref, rtol=1e-12)
+    fc = np.asarray(fresnel_conductor(jnp.asarray(c), n, 0.0))
+    np.testing.assert_allclose(fc, f, rtol=1e-12)
+
+
+# --------------------------------------------------------------------------- dtypes, range, bad inputs
+
+
+def test_float32_agrees_with_float64_and_stays_in_range():
+    c = np.concatenate([[0.0], np.geomspace(1e-6, 1, 60)])
+    cc, f0 = np.meshgrid(c, F0S, indexing="ij")
+    f64 = np.asarray(fresnel_dielectric_f0(jnp.asarray(cc), jnp.asarray(f0)))
+    f32 = fresnel_dielectric_f0(jnp.asarray(cc, jnp.float32), jnp.asarray(f0, jnp.float32))
+    assert f32.dtype == jnp.float32
+    f32 = np.asarray(f32, dtype=np.float64)
+    assert np.all((f32 >= 0) & (f32 <= 1))
+    np.testing.assert_allclose(f32, f64, rtol=2e-6, atol=1e-12)
+    n = np.array([0.05, 0.3, 1.0, 1.5, 3.0, 1e3, 1e6])
+    k = np.array([0.0, 1e-3, 1.0, 5.0, 20.0])
+    cc, nn, kk = np.meshgrid(c, n, k, indexing="ij")
+    g64 = np.asarray(fresnel_conductor(jnp.asarray(cc), jnp.asarray(nn), jnp.asarray(kk)))
+    g32 = np.asarray(fresnel_conductor(jnp.asarray(cc, jnp.float32), jnp.asarray(nn, jnp.float32), jnp.asarray(kk, jnp.float32)), np.float64)
+    assert np.all((g32 >= 0) & (g32 <= 1)) and np.all((g64 >= 0) & (g64 <= 1))
+    np.testing.assert_allclose(g32, g64, rtol=2e-5, atol=1e-7)
+
+
+def test_cosine_slightly_above_one_is_clipped():
+    """V·H from rounded unit vectors can exceed 1 by an ulp; F must still be F0."""
+    c = jnp.asarray(1 + 2e-16)
+    assert float(fresnel_dielectric_f0(c, 0.04)) == pytest.approx(0.04, rel=1e-14)
+    assert float(fresnel_conductor(c, 0.2, 3.0)) == pytest.approx(float(f0_from_nk(0.2, 3.0)), rel=1e-14)
+
+
+@pytest.mark.parametrize("fn", [lambda x: fresnel_dielectric_f0(x, x), lambda x: fresnel_dielectric(x, x), lambda x: fresnel_conductor(x, x, x)])
+def test_odd_inputs_do_not_raise(fn):
+    x = jnp.asarray([-1.0, 0.0, 1.0, -np.inf, np.inf, np.nan])
+    out = fn(x)
+    assert out.shape == x.shape
+
+
+def test_gradients_finite_over_the_range():
+    """dF/dF0, dF/dn, dF/dk finite for c ∈ [0, 1], F0 ∈ [0, 1], n up to 1e6, k up to 20 (both dtypes)."""
+    for dtype in (jnp.float32, jnp.float64):
+        c = jnp.asarray(np.concatenate([[0.0, 1e-7], np.linspace(0.01, 1, 12)]), dtype)[:, None]
+        g = jax.vmap(jax.grad(lambda f0, c: fresnel_dielectric_f0(c, f0)), in_axes=(0, None))
+        d = np.asarray(jax.vmap(g, in_axes=(None, 0))(jnp.asarray(F0S, dtype), c[:, 0]))
+        assert np.all(np.isfinite(d))
+        n = jnp.asarray([0.05, 0.7, 1.0, 1.0001, 1.5, 1e3, 1e6], dtype)
+        for k in (0.0, 1e-3, 3.0, 20.0):
+            kk = jnp.full_like(n, k)
+            gn, gk = jax.vmap(jax.grad(lambda n_, k_, c_: fresnel_conductor(c_, n_, k_), argnums=(0, 1)), in_axes=(0, 0, None))(n, kk, c[3, 0])
+            assert np.all(np.isfinite(np.asarray(gn))) and np.all(np.isfinite(np.asarray(gk)))
+            for ci in np.asarray(c[:, 0]):
+                gn, gk = jax.vmap(jax.grad(lambda n_, k_: fresnel_conductor(ci, n_, k_), argnums=(0, 1)))(n, kk)
+                assert np.all(np.isfinite(np.asarray(gn))) and np.all(np.isfinite(np.asarray(gk))), (dtype, k, ci)
+        gd = jax.vmap(jax.grad(lambda n_, c_: fresnel_dielectric(c_, n_)), in_axes=(0, None))
+        for ci in np.asarray(c[:, 0]):
+            assert np.all(np.isfinite(np.asarray(gd(n, ci))))
+
+
+def test_public_names():
+    assert ctfit.fresnel_dielectric_f0 is fresnel_dielectric_f0

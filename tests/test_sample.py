@@ -1,0 +1,287 @@
+"""Posterior sampling: a known Gaussian posterior, synthetic Cook–Torrance data, priors and their
+Jacobians, reproducibility, resuming an interrupted run, the JSON section, plots and the command body.
+
+Small data and short chains; every test of one kind shares the data shapes and structure, so
+each log-probability compiles once.
+"""
+
+import json
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ctfit
+from ctfit._problem import from_params, make_problem, to_params
+from ctfit._sample import ChainTooShortWarning, _Engine, _Layout, _normalise_priors, default_walkers, draw_colours, sample
+from ctfit._simulate import simulate
+
+WL3 = np.array([450.0, 550.0, 650.0])
+WL4 = np.linspace(400.0, 700.0, 4)
+NOISE = 0.004  # sr⁻¹, absolute, for the diffuse toy
+short = pytest.mark.filterwarnings("ignore::ctfit._sample.ChainTooShortWarning")
+
+
+# --- a linear toy with a known Gaussian posterior -----------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def diffuse_toy():
+    """Diffuse only, R = R_d(λ) in every direction: the model is linear in R_d.
+
+    With Gaussian noise of known σ and a prior flat in R_d (far from 0), the posterior of each
+    R_d(λ) is Gaussian with mean = the band's sample mean and sd = σ/√n_band.
+    """
+    st = ctfit.Structure(lobes=0, diffuse="spectrum")
+    truth = ctfit.Material(st, ctfit.Params(rd=np.array([0.05, 0.08, 0.12])), wavelength_nm=WL3, name="toy")
+    base = simulate(truth, 100, seed=3)
+    y = base.brdf + NOISE * np.random.default_rng(5).standard_normal(len(base))
+    data = base.replace(brdf=y, sigma=np.full(len(base), NOISE))
+    n = np.bincount(data.band, minlength=3)
+    mean = np.bincount(data.band, weights=y, minlength=3) / n
+    return truth, data, mean, NOISE / np.sqrt(n)
+
+
+@short
+def test_linear_gaussian_posterior_mean_and_sd(diffuse_toy):
+    """emcee's own acceptance test (emcee/tests/integration/test_proposal.py, ``_test_normal``:
+    32 walkers, 2000 steps, |mean| < 0.08 and |sd − 1| < 0.05 for a unit normal, acceptance in
+    (0.1, 0.9)), applied to the standardised posterior of R_d(λ)."""
+    truth, data, mean, sd = diffuse_toy
+    res = sample(truth, data, walkers=32, steps=2000, seed=1, colour=False)
+    draws = (res.chain["Rd"] - mean) / sd
+    assert np.all(np.abs(draws.mean(axis=0)) < 0.08), draws.mean(axis=0)
+    assert np.all(np.abs(draws.std(axis=0) - 1) < 0.05), draws.std(axis=0)
+    acc = res.diagnostics["acceptance_fraction"]
+    assert 0.1 < acc["min"] and acc["max"] < 0.9
+    # Laplace = exact here.
+    np.testing.assert_allclose(res.laplace_stderr["Rd"], sd, rtol=1e-3)
+    assert res.likelihood["loss"] == "sigma" and "sigma_noise" not in res.chain
+    # The summary is the chain's quantiles.
+    np.testing.assert_allclose([s["median"] for s in res.summary["Rd"]], np.median(res.chain["Rd"], axis=0))
+
+
+@short
+def test_unknown_noise_scale_is_sampled(diffuse_toy):
+    """Without sigma (loss 'absolute'), σ_noise is a parameter: recovered, and R_d's posterior
+    (a Student t with ~100 degrees of freedom) still has sd ≈ σ/√n."""
+    truth, data, mean, sd = diffuse_toy
+    res = sample(truth, data.replace(sigma=None), walkers=32, steps=1500, seed=2, loss="absolute", colour=False)
+    assert "sigma_noise" in res.chain and res.labels[-1] == "sigma_noise"
+    s = res.summary["sigma_noise"]
+    assert s["p2.5"] < NOISE < s["p97.5"]
+    draws = (res.chain["Rd"] - mean) / sd
+    assert np.all(np.abs(draws.mean(axis=0)) < 0.15)
+    assert np.all(np.abs(draws.std(axis=0) - 1) < 0.1)
+    assert res.priors["parameters"]["sigma_noise"]["kind"] == "log-uniform"
+    assert "σ_noise" in res.likelihood["log_likelihood"]
+
+
+# --- synthetic Cook–Torrance data ---------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def metal():
+    st = ctfit.Structure(lobes=1)
+    truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.55, 0.7, 0.85, 0.95])), wavelength_nm=WL4, name="metal")
+    data = simulate(truth, 150, noise=0.03, seed=11)
+    fitted = ctfit.fit(data, st, starts=1)
+    return truth, data, fitted
+
+
+@short
+def test_metal_posterior_covers_truth_and_matches_laplace(metal):
+    truth, data, fitted = metal
+    assert fitted.converged and fitted.stderr is not None
+    res = sample(fitted, data, steps=1000, seed=3, colour=False)
+    ch = res.chain
+    sd_m, sd_f0 = ch["m"].std(axis=0), ch["F0"].std(axis=0)
+    # Medians within 2σ of the truth.
+    assert np.all(np.abs(np.median(ch["m"], axis=0) - truth.params.m) < 2 * sd_m)
+    assert np.all(np.abs(np.median(ch["F0"], axis=0) - truth.params.f0) < 2 * sd_f0)
+    # Near-Gaussian here: posterior sd within 20 % of the Laplace approximation of the fit.
+    np.testing.assert_allclose(sd_m, fitted.stderr["m"], rtol=0.2)
+    np.testing.assert_allclose(sd_f0, fitted.stderr["F0"], rtol=0.2)
+    # The sampler's own Laplace errors are the fit's.
+    np.testing.assert_allclose(res.laplace_stderr["F0"], fitted.stderr["F0"], rtol=1e-3)
+    # n is the effective index of each draw's F0.
+    np.testing.assert_allclose(ch["n"], (1 + np.sqrt(ch["F0"])) / (1 - np.sqrt(ch["F0"])), rtol=1e-12)
+    d = res.diagnostics
+    assert d["walkers"] == default_walkers(5) == 32
+    assert d["draws"] == 32 * (1000 - d["burn"])
+    assert set(d["autocorr_time"]) == set(res.labels) == {"m[0]", "F0[0]", "F0[1]", "F0[2]", "F0[3]"}
+    assert all(v > 0 for v in d["ess"].values())
+
+
+def test_same_seed_same_chain_and_short_chain_warns(metal):
+    truth, data, _ = metal
+    with pytest.warns(ChainTooShortWarning, match="50 τ"):
+        a = sample(truth, data, steps=60, seed=7, colour=False)
+    with pytest.warns(ChainTooShortWarning):
+        b = sample(truth, data, steps=60, seed=7, colour=False)
+    with pytest.warns(ChainTooShortWarning):
+        c = sample(truth, data, steps=60, seed=8, colour=False)
+    np.testing.assert_array_equal(a.chain_u, b.chain_u)
+    np.testing.assert_array_equal(a.log_prob, b.log_prob)
+    assert not np.array_equal(a.chain_u, c.chain_u)
+    assert any("too short" in w for w in a.warnings)
+    assert a.diagnostics["chain_long_enough"] is False
+
+
+@pytest.mark.filterwarnings("ignore::ctfit._sample.ChainTooShortWarning")
+def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path, monkeypatch):
+    truth, data, _ = metal
+    ref = sample(truth, data, steps=80, seed=4, backend=tmp_path / "ref.h5", colour=False)
+
+    # Interrupt a run after 30 of its 80 steps (a Ctrl-C inside the log-probability).
+    path = tmp_path / "run.h5"
+    calls = {"n": 0}
+    original = _Engine.__call__
+
+    def interrupted(self, coords):
+        calls["n"] += 1
+        if calls["n"] > 1 + 2 * 30:  # the start, then two half-ensemble calls per step
+            raise KeyboardInterrupt
+        return original(self, coords)
+
+    monkeypatch.setattr(_Engine, "__call__", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        sample(truth, data, steps=80, seed=4, backend=path, colour=False)
+    monkeypatch.setattr(_Engine, "__call__", original)
+
+    import emcee
+
+    assert emcee.backends.HDFBackend(str(path), name="ctfit", read_only=True).iteration == 30
+    res = sample(truth, data, steps=80, seed=4, backend=path, resume=True, colour=False)
+    assert res.diagnostics["resumed_from"] == 30 and res.diagnostics["steps_run_now"] == 50
+    assert res.chain_u.shape == ref.chain_u.shape == (80, 32, 5)
+    np.testing.assert_array_equal(res.chain_u, ref.chain_u)  # no gap, nothing repeated
+    assert emcee.backends.HDFBackend(str(path), name="ctfit", read_only=True).iteration == 80
+
+    # Resuming a finished run runs nothing; other data is refused.
+    again = sample(truth, data, steps=80, seed=4, backend=path, resume=True, colour=False)
+    assert again.diagnostics["steps_run_now"] == 0
+    np.testing.assert_array_equal(again.chain_u, ref.chain_u)
+    with pytest.raises(ValueError, match="other data"):
+        sample(truth, data.replace(brdf=data.brdf * 1.01), steps=80, backend=path, resume=True, colour=False)
+
+
+# --- priors, Jacobians and lobe order -----------------------------------------------------------
+
+
+def _engine(material, data, loss, priors=None):
+    st = material.structure
+    problem = make_problem(st, data, fixed_params=material.params, loss=loss)
+    u0 = {k: jnp.asarray(v) for k, v in from_params(problem.spec, material.params).items()}
+    names = tuple(sorted(u0))
+    layout = _Layout(names, tuple(np.shape(u0[k]) for k in names), loss != "sigma", st.fresnel == "conductor", st.lobes > 1)
+    prior = _normalise_priors(priors, layout, st)
+    return problem, layout, _Engine(problem, layout, prior, 4), u0
+
+
+def test_log_prior_is_flat_in_the_constrained_parameters():
+    """log p(u) − log L(u) = log |det ∂θ/∂u| for the default priors, with θ the free constrained
+    values (s, m, w_2..w_J, F0): checked against the determinant of jax.jacfwd of the transforms."""
+    st = ctfit.Structure(lobes=2, diffuse="F0/pi")
+    mat = ctfit.Material(st, ctfit.Params(s=np.asarray(0.6), m=np.array([0.1, 0.3]), w=np.array([0.3, 0.7]), f0=np.array([0.5, 0.6])), wavelength_nm=WL3[:2])
+    data = simulate(mat, 30, noise=0.02, seed=1)
+    problem, layout, eng, u0 = _engine(mat, data, "sigma")
+    from jax.flatten_util import ravel_pytree
+
+    flat0, unravel = ravel_pytree(u0)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        x = np.asarray(flat0) + 0.3 * rng.standard_normal(flat0.size)
+        u = unravel(jnp.asarray(x))
+        if not np.all(np.diff(np.asarray(u["m"])) > 0):
+            continue
+
+        def theta(f):
+            p = to_params(problem.spec, unravel(f), problem.fixed)
+            return jnp.concatenate([jnp.atleast_1d(p.s), p.m, p.w[1:], p.f0])
+
+        logdet = np.linalg.slogdet(np.asarray(jax.jacfwd(theta)(jnp.asarray(x))))[1]
+        r = np.asarray(ctfit._problem.residual(u, (problem.y, problem)))
+        lp = eng(x[None])[0]
+        np.testing.assert_allclose(lp - (-0.5 * np.sum(r * r)), logdet, rtol=1e-9, atol=1e-9)
+    # Lobes out of order have probability 0.
+    swapped = {**u0, "m": u0["m"][::-1]}
+    assert eng(np.asarray(ravel_pytree(swapped)[0])[None])[0] == -np.inf
+
+
+def test_user_priors(diffuse_toy):
+    truth, data, mean, sd = diffuse_toy
+    problem, layout, eng, u0 = _engine(truth, data, "sigma", {"Rd": ("normal", 0.0, 1.0)})
+    _, _, flat_eng, _ = _engine(truth, data, "sigma")
+    x = np.log(np.expm1(np.array([[0.05, 0.08, 0.12]])))
+    diff = eng(x)[0] - flat_eng(x)[0]
+    np.testing.assert_allclose(diff, np.sum(-0.5 * np.array([0.05, 0.08, 0.12]) ** 2), rtol=1e-12)
+    # A uniform prior excludes what it excludes.
+    _, _, eng_u, _ = _engine(truth, data, "sigma", {"Rd": ("uniform", 0.0, 0.1)})
+    assert eng_u(x)[0] == -np.inf
+    with pytest.raises(ValueError, match="not a sampled parameter"):
+        _engine(truth, data, "sigma", {"m": ("lognormal", -1.0, 0.5)})
+    with pytest.raises(ValueError, match="kind one of"):
+        _engine(truth, data, "sigma", {"Rd": ("cauchy", 0.0, 1.0)})
+    with pytest.raises(ValueError, match="standard deviation"):
+        _engine(truth, data, "sigma", {"rd": ("normal", 0.0, -1.0)})
+
+
+@short
+def test_informative_prior_pulls_the_posterior(metal):
+    truth, data, _ = metal
+    res = sample(truth, data, steps=300, seed=5, colour=False, priors={"m": ("lognormal", float(np.log(0.3)), 0.001)})
+    assert abs(np.median(res.chain["m"]) - 0.3) < 0.003
+    assert res.priors["parameters"]["m"]["kind"] == "lognormal"
+
+
+# --- output: JSON section, colour, plots, command body ------------------------------------------
+
+
+@short
+def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
+    from ctfit._colour_report import colour_report
+    from ctfit._fit_io import fit_result_to_dict
+    from ctfit._material_io import load_material, save_material_json
+    from ctfit._sample_io import format_uncertainty_table, plot_corner, plot_spectra, sample_command_body
+
+    truth, data, fitted = metal
+    # The colour of a draw is colour_report's colour of that material.
+    opt = {"F0": np.asarray(fitted.material.params.f0)[None]}
+    c = draw_colours(fitted.material, opt)
+    rep = colour_report(fitted.material)
+    np.testing.assert_allclose(c["sRGB"][0], rep["sRGB"], atol=1e-9)
+    np.testing.assert_allclose(c["Lab"][0], rep["Lab"], atol=1e-7)
+
+    # The command body: fit JSON in, the same document with an uncertainty section out.
+    from ctfit._csvio import write_csv
+
+    csv = tmp_path / "metal.csv"
+    write_csv(data, csv)
+    fit_json = tmp_path / "metal.fit.json"
+    save_material_json(fitted.material, fit_json, extra=fit_result_to_dict(fitted, material_keys=False))
+    doc = sample_command_body(fit_json, csv, walkers=None, steps=200, burn=None, thin=2, seed=0, backend=None, resume=False, plot_dir=tmp_path / "plots", output=None)
+    on_disk = json.loads(fit_json.read_text())
+    assert on_disk == doc
+    assert on_disk["fit"]["loss"] == "sigma" and on_disk["F0"] == json.loads(json.dumps(doc))["F0"]
+    u = on_disk["uncertainty"]
+    keys = {"median", "p16", "p84"}
+    assert keys <= set(u["lobes"][0]["m"]) and keys <= set(u["lobes"][0]["weight"])
+    assert len(u["F0"]) == len(u["n"]) == 4 and all(keys <= set(e) for e in u["F0"] + u["n"])
+    assert all(e["p16"] <= e["median"] <= e["p84"] for e in u["F0"])
+    assert u["diagnostics"]["thin"] == 2 and u["diagnostics"]["walkers"] == 32
+    assert u["likelihood"]["model"] == "gaussian" and "F0" in u["priors"]["parameters"]
+    assert len(u["colour"]["sRGB"]) == 3 and len(u["colour"]["Lab"]) == 3
+    assert [pathlib.Path(p).name for p in u["plots"]] == ["metal.fit.corner.png", "metal.fit.spectra.png"]
+    for p in u["plots"]:
+        assert pathlib.Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert load_material(fit_json).meta["uncertainty"]["diagnostics"]["steps"] == 200
+    table = format_uncertainty_table(doc, "metal")
+    assert "lobe 0: m =" in table and "τ_max" in table
+
+    # Plots of a result directly (a diffuse-only material has no global parameter but R_d).
+    res = sample(truth, data, steps=100, seed=0, colour=False)
+    assert plot_corner(res, tmp_path / "c.png").stat().st_size > 1000
+    assert plot_spectra(res, tmp_path / "s.png", truth={"F0": truth.params.f0}).stat().st_size > 1000
