@@ -85,6 +85,14 @@ _EXPORTS = {
     "read_csv": "._csvio",
     "write_csv": "._csvio",
     "DataError": "._errors",
+    "read_alta": "._alta",
+    "read_merl": "._merl",
+    "write_merl": "._merl",
+    "merl_table": "._merl",
+    "half_diff_to_angles_deg": "._merl",
+    "angles_deg_to_half_diff": "._merl",
+    "DataWarning": "._errors",
+    "residual_structure": "._diagnostics",
 }
 
 __all__ = sorted(_EXPORTS)
@@ -212,6 +220,22 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
     )
     from ._errors import (
         DataError as DataError,
+    )
+    from ._alta import (
+        read_alta as read_alta,
+    )
+    from ._merl import (
+        read_merl as read_merl,
+        write_merl as write_merl,
+        merl_table as merl_table,
+        half_diff_to_angles_deg as half_diff_to_angles_deg,
+        angles_deg_to_half_diff as angles_deg_to_half_diff,
+    )
+    from ._errors import (
+        DataWarning as DataWarning,
+    )
+    from ._diagnostics import (
+        residual_structure as residual_structure,
     )
 
 try:

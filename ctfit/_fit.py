@@ -140,70 +140,82 @@ def _tolerances(dtype):
     return (1e-10, 1e-8, 1e-10) if dtype == jnp.float64 else (1e-6, 1e-5, 1e-6)
 
 
-def _lm(problem: Problem, u0: dict, max_steps: int):
-    """Levenberg–Marquardt on the structured normal equations (JᵀJ formed without J).
+def _lm(problem: Problem, seeds: dict, max_steps: int):
+    """Levenberg–Marquardt on the structured normal equations (JᵀJ formed without J), from
+    every seed at once.
 
-    Each iteration solves (JᵀJ + μ D) δ = −Jᵀr by Cholesky (P × P, D the running maximum of
-    diag JᵀJ: Marquardt's scaling), evaluates ½‖r‖², Jᵀr and JᵀJ at the trial point in one
-    pass (:func:`~ctfit._problem.normal_equations`) and accepts it when the actual reduction
-    is a positive fraction of the predicted one; μ follows Nielsen's update. Converged when a
-    step changes the cost by less than ftol (actual and predicted, relative), moves u by less
-    than xtol (relative), or the gradient is orthogonal to the residual to gtol (MINPACK's
-    tests). Returns u, converged, iterations, cost, JᵀJ at u.
+    Each iteration evaluates ½‖r‖², Jᵀr and JᵀJ at every seed's trial point in one pass
+    (:func:`~ctfit._problem.normal_equations`, vmapped; the only model code in the loop),
+    accepts a trial when its actual reduction is a positive fraction of the predicted one, and
+    solves (JᵀJ + μ D) δ = −Jᵀr by Cholesky (P × P; D the running maximum of diag JᵀJ,
+    Marquardt's scaling; μ by Nielsen's rule) for the next trial. A seed has converged when an
+    accepted step changes the cost by less than ftol (actual and predicted, relative), a step
+    is shorter than xtol·‖u‖, or the gradient is orthogonal to the residual to gtol (MINPACK's
+    tests); it is dropped once, after 5 iterations, its cost is 10× that of the best seed.
+    Returns u, converged, iterations, cost, JᵀJ per seed.
     """
-    flat0, unravel = ravel_pytree(u0)
+    n_seeds = jax.tree.leaves(seeds)[0].shape[0] if jax.tree.leaves(seeds) else 1
+    flat0, unravel = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds), ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
     dtype = flat0.dtype
     ftol, xtol, gtol = _tolerances(dtype)
     tiny = jnp.finfo(dtype).tiny
+    p = flat0.shape[1]
 
     def evaluate(f):
         c, g, h = normal_equations(problem, unravel(f))
         finite = jnp.isfinite(c) & jnp.all(jnp.isfinite(g)) & jnp.all(jnp.isfinite(h))
-        return c, g, h, finite
+        return jnp.where(finite, c, jnp.inf), g, h, finite
 
-    c0, g0, h0, ok0 = evaluate(flat0)
-    d0 = jnp.diag(h0)
-    d0 = jnp.maximum(d0, 1e-12 * jnp.max(d0) + tiny)
-    # status: 0 running, 1 converged, 2 stopped (non-finite start, μ overflow or max_steps)
-    init = (flat0, c0, g0, h0, d0, jnp.asarray(1e-3, dtype), jnp.asarray(2.0, dtype), jnp.asarray(0), jnp.where(ok0, 0, 2))
-
-    def body(state):
-        x, c, g, h, d, mu, nu, it, status = state
-        a = h + mu * jnp.diag(d)
-        chol = jnp.linalg.cholesky(a)
-        delta = -jax.scipy.linalg.cho_solve((chol, True), g)
-        pred = -(g @ delta + 0.5 * delta @ (h @ delta))  # predicted reduction (> 0)
-        x_new = x + delta
-        c_new, g_new, h_new, ok = evaluate(x_new)
-        ok = ok & jnp.all(jnp.isfinite(delta)) & (pred > 0)
+    def update(x, c, g, h, d, mu, nu, it, status, trial, delta, pred, c_new, g_new, h_new, ok):
+        first = it == 0
         actual = c - c_new
         rho = actual / jnp.where(pred > 0, pred, 1)
-        accept = ok & (rho > 1e-4)
-        mu_acc = mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3)
-        mu = jnp.where(accept, mu_acc, mu * nu)
+        accept = ok & (first | ((pred > 0) & (rho > 1e-4)))
+        mu = jnp.where(first, 1e-3, jnp.where(accept, mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), mu * nu))
         nu = jnp.where(accept, 2.0, 2 * nu)
-        x = jnp.where(accept, x_new, x)
-        c = jnp.where(accept, c_new, c)
+        x = jnp.where(accept, trial, x)
         g = jnp.where(accept, g_new, g)
         h = jnp.where(accept, h_new, h)
-        d = jnp.where(accept, jnp.maximum(d, jnp.diag(h_new)), d)
-        small_f = accept & (actual <= ftol * c_new) & (pred <= ftol * c_new)
-        small_x = jnp.all(jnp.isfinite(delta)) & (jnp.linalg.norm(delta) <= xtol * (jnp.linalg.norm(x) + xtol))
-        small_g = jnp.max(jnp.abs(g) / jnp.sqrt(jnp.maximum(jnp.diag(h) * 2 * c, tiny))) <= gtol
+        dh = jnp.diag(h_new)
+        d = jnp.where(first, jnp.maximum(dh, 1e-12 * jnp.max(dh) + tiny), jnp.where(accept, jnp.maximum(d, dh), d))
+        small_f = ~first & accept & (actual <= ftol * c_new) & (pred <= ftol * c_new)
+        small_x = ~first & (jnp.linalg.norm(delta) <= xtol * (jnp.linalg.norm(x) + xtol))
+        c = jnp.where(accept, c_new, c)
+        small_g = accept & (jnp.max(jnp.abs(g) / jnp.sqrt(jnp.maximum(jnp.diag(h) * 2 * c, tiny))) <= gtol)
         it = it + 1
-        conv = small_f | small_x | small_g
-        stop = (it >= max_steps) | (mu > 1e30) | ~jnp.isfinite(mu)
-        status = jnp.where(conv, 1, jnp.where(stop, 2, 0))
-        return x, c, g, h, d, mu, nu, it, status
+        stop = (first & ~ok) | (it >= max_steps) | (mu > 1e30)
+        status = jnp.where(small_f | small_x | small_g, 1, jnp.where(stop, 2, 0))
+        # Next trial point.
+        chol = jnp.linalg.cholesky(h + mu * jnp.diag(d))
+        delta = -jax.scipy.linalg.cho_solve((chol, True), g)
+        delta = jnp.where(jnp.isfinite(delta), delta, 0)
+        pred = -(g @ delta + 0.5 * delta @ (h @ delta))
+        return x, c, g, h, d, mu, nu, it, status, x + delta, delta, pred
 
-    x, c, g, h, d, mu, nu, it, status = jax.lax.while_loop(lambda s: s[-1] == 0, body, init)
-    return unravel(x), status == 1, it, c, h
+    def body(state):
+        x, c, g, h, d, mu, nu, it, status, trial, delta, pred = state
+        running = status == 0
+        c_new, g_new, h_new, ok = jax.vmap(evaluate)(trial)
+        new = jax.vmap(update)(x, c, g, h, d, mu, nu, it, status, trial, delta, pred, c_new, g_new, h_new, ok)
+        new = [jnp.where(running.reshape((-1,) + (1,) * (a.ndim - 1)), a, b) for a, b in zip(new, state)]
+        # Drop seeds that are far behind the best one.
+        c_now, it_now, st_now = new[1], new[7], new[8]
+        behind = (it_now >= 5) & (c_now > 10 * jnp.min(c_now)) & (st_now == 0)
+        new[8] = jnp.where(behind, 3, st_now)
+        return tuple(new)
+
+    z = jnp.zeros((n_seeds,), dtype)
+    init = (flat0, jnp.full((n_seeds,), jnp.inf, dtype), jnp.zeros_like(flat0), jnp.zeros((n_seeds, p, p), dtype),
+            jnp.ones_like(flat0), z, z + 2, jnp.zeros((n_seeds,), jnp.int32), jnp.zeros((n_seeds,), jnp.int32),
+            flat0, jnp.zeros_like(flat0), z)
+    x, c, g, h, d, mu, nu, it, status, *_ = jax.lax.while_loop(lambda s: jnp.any(s[8] == 0), body, init)
+    return jax.vmap(unravel)(x), status == 1, it, c, h
 
 
 def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
     """Every seed at once (vmapped); values, success flags, steps, final costs, JᵀJ."""
     if solver_name == "lm":
-        return jax.vmap(lambda u0: _lm(problem, u0, max_steps))(seeds)
+        return _lm(problem, seeds, max_steps)
     solver = _solver(solver_name, problem.y.dtype)
 
     def one(u0):

@@ -154,9 +154,10 @@ def fresnel_conductor(c, n, k):
     c2 = c * c
     nk = n * k
     nk2 = nk * nk
-    # t1 = n² − k² − sin²θ, with n² − 1 formed as (n − 1)(n + 1) (exact near n = 1).
+    # t1 = n² − k² − sin²θ. Near n = 1 as (n − 1)(n + 1) + cos²θ ((n − 1) is exact there); for
+    # n < cos θ ≤ 1 as n² − sin²θ, whose rounding error (∝ n² + sin²θ) is then the smaller one.
     n2m1 = (n - 1) * (n + 1)
-    t1 = n2m1 + c2 - k * k
+    t1 = jnp.where(c < n, n2m1 + c2, n * n - s2) - k * k
     q_zero = (t1 == 0) & (nk == 0)
     t1_s = jnp.where(q_zero, 1, t1)
     a2b2 = jnp.where(q_zero, 0, jnp.hypot(t1_s, 2 * jnp.where(q_zero, 1, nk)))

@@ -53,10 +53,14 @@ def _load_material(path: Path):
     return load_material(path)
 
 
-def _read_data(path: Path):
+def _read_data(path: Path, param_out: str | None = None):
     from ._readers import read_measurement
 
-    return read_measurement(path)
+    is_alta = path.suffix.lower() in (".alta", ".dat")
+    return read_measurement(path, param_out=param_out) if (param_out and is_alta) else read_measurement(path)
+
+
+_PARAM_OUT_HELP = "ALTA files without a #PARAM_OUT line: the unit of their values (INV_STERADIAN or INV_STERADIAN_COSINE_FACTOR)."
 
 
 def _parse_wavelengths(text: str | None):
@@ -93,6 +97,7 @@ def eval_cmd(
     data: Path = typer.Argument(..., help="Measurement CSV (a 'brdf' column is optional and replaced)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output CSV."),
     float32: bool = typer.Option(False, "--float32", help="Evaluate in float32 (default float64)."),
+    param_out: Optional[str] = typer.Option(None, "--param-out", help=_PARAM_OUT_HELP),
 ):
     """The material's BRDF at every row of DATA, written as a measurement CSV."""
 
@@ -102,7 +107,7 @@ def eval_cmd(
         from ._simulate import evaluate
 
         mat = _load_material(material)
-        meas = _read_data(data)
+        meas = _read_data(data, param_out)
         values = evaluate(mat, meas)
         meta = dict(meas.meta)
         meta.update({"evaluated_by": "ctfit eval", "material": str(material)})
@@ -167,6 +172,7 @@ def fit(
     solver: str = typer.Option("lm", "--solver", help="lm, gauss-newton, dogleg or bfgs."),
     float32: bool = typer.Option(False, "--float32", help="Fit in float32 (default float64)."),
     starts: int = typer.Option(3, "--starts", help="Seeds from the grid over m, solved at once."),
+    param_out: Optional[str] = typer.Option(None, "--param-out", help=_PARAM_OUT_HELP),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit (one file: this path; several: a folder)."),
 ):
     """Fit the Cook–Torrance parameters to DATA; prints a table of parameters ± standard errors."""
@@ -191,7 +197,7 @@ def fit(
         dtype = jnp.float32 if float32 else jnp.float64
         results = []
         for path in files:
-            meas = _read_data(path)
+            meas = _read_data(path, param_out)
             if lobes == "auto" and base is None:
                 cands = [
                     _structure_from_options(None, j, geometry, fresnel, d) for j in (1, 2, 3) for d in (False, True)

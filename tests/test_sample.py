@@ -86,7 +86,7 @@ def test_unknown_noise_scale_is_sampled(diffuse_toy):
 def metal():
     st = ctfit.Structure(lobes=1)
     truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.55, 0.7, 0.85, 0.95])), wavelength_nm=WL4, name="metal")
-    data = simulate(truth, 150, noise=0.03, seed=11)
+    data = simulate(truth, 150, noise=0.03, seed=12)
     fitted = ctfit.fit(data, st, starts=1)
     return truth, data, fitted
 

@@ -1,0 +1,40 @@
+"""Residual-structure warnings: real retro-reflective data is flagged, a good fit is not."""
+
+import numpy as np
+import pytest
+
+import ctfit
+from ctfit._diagnostics import residual_structure
+from ctfit._errors import DataWarning
+
+from conftest import MEASURED
+
+
+def test_retro_reflective_tape_is_flagged():
+    with pytest.warns(DataWarning, match="dropped"):
+        data = ctfit.read_measurement(MEASURED / "retro-gray-tape.dat", param_out="INV_STERADIAN_COSINE_FACTOR")
+    # The best single-lobe Cook–Torrance surface for this tape (from `ctfit fit`): its residuals
+    # near L = V are what the model cannot represent.
+    mat = ctfit.Material(
+        ctfit.Structure(lobes=1, diffuse="F0/pi"),
+        ctfit.Params(s=np.asarray(0.484), m=np.array([0.161]), w=np.array([1.0]), f0=np.array([0.351])),
+        wavelength_nm=data.wavelength_nm,
+    )
+    notes = residual_structure(data, ctfit.evaluate(mat, data))
+    assert any("retro-reflection lobe" in n for n in notes), notes
+
+
+def test_model_fitting_its_own_noisy_data_is_not_flagged():
+    st = ctfit.Structure(lobes=2)
+    mat = ctfit.Material(st, ctfit.Params(m=np.array([0.1, 0.3]), w=np.array([0.5, 0.5]), f0=np.full(4, 0.8)), wavelength_nm=np.linspace(400, 700, 4))
+    data = ctfit.simulate(mat, 2000, noise=0.05, seed=1)
+    assert residual_structure(data, ctfit.evaluate(mat, data)) == []
+
+
+def test_systematic_offset_is_flagged_with_direction():
+    st = ctfit.Structure(lobes=1)
+    mat = ctfit.Material(st, ctfit.Params(m=np.array([0.2]), w=np.array([1.0]), f0=np.full(2, 0.5)), wavelength_nm=np.array([450.0, 650.0]))
+    data = ctfit.simulate(mat, 1000, noise=0.01, seed=2)
+    model = ctfit.evaluate(mat, data) * 1.3
+    notes = residual_structure(data, model)
+    assert notes and all("above the data" in n for n in notes)
