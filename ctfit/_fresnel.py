@@ -78,23 +78,30 @@ def _dielectric(c, a, u, scale):
     ``scale`` is passed separately so the F0 path can write it as 16 F0/(1 + r)⁴, exactly linear
     in F0. ``a`` may be negative (n < 1): then total internal reflection gives F = 1 where
     G² ≤ 0. Every quantity is a sum of non-negative terms except G² for n < 1, so the formula
-    loses no precision to cancellation (see the module docstring).
+    loses no precision to cancellation (see the module docstring). It is evaluated as
+
+        F = scale · [1/(G + c u)²]² · (c² G² + (1 − c²)² u²)/(c G + (1 − c²) u)²,
+
+    where the last factor lies in [½, 1]; no intermediate gets close to the under- or overflow
+    thresholds, so the derivatives stay finite too (a single division by the whole
+    denominator would square it in the derivative, which underflows in float32 near grazing).
     """
     c, s2 = _clip_cos(c)
+    # At grazing (c = 0) F = 1 for any interface (F0 > 0). It is set exactly; the formula is
+    # evaluated at a stand-in c = 1 there (the double-where pattern: no 0/0 in the derivative).
+    grazing = c == 0
+    c = jnp.where(grazing, 1, c)
+    s2 = jnp.where(grazing, 0, s2)
     c2 = c * c
     g2 = c2 + s2 * a
     tir = g2 <= 0
     g = jnp.sqrt(jnp.where(tir, 1, g2))
     gcu = g + c * u
-    gcu2 = gcu * gcu
+    inv = 1 / (gcu * gcu)
     p = c * g + s2 * u
-    num = scale * (c2 * g2 + s2 * s2 * u * u)
-    den = gcu2 * gcu2 * (p * p)
-    # At grazing (c = 0) F = 1 for any interface (F0 > 0): set exactly, since the formula gives
-    # a²/a² there with rounding, and 0/0 for F0 = 1 (u = 0).
-    bad = (den <= 0) | (c == 0)
-    f = num / jnp.where(bad, 1, den)
-    f = jnp.where(bad, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
+    pol = (c2 * g2 + s2 * s2 * u * u) / (p * p)
+    f = scale * (inv * inv) * pol
+    f = jnp.where(grazing, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
     f = jnp.where(tir, 1, f)
     return jnp.clip(f, 0, 1)
 
@@ -114,7 +121,9 @@ def fresnel_dielectric_f0(c, f0):
     0.04...
     """
     f0 = jnp.asarray(f0)
-    r = jnp.sqrt(jnp.maximum(f0, _TINY_F0))
+    # A select, not jnp.maximum: maximum's derivative multiplies by a 0/1 mask, which turns an
+    # infinite cotangent into NaN.
+    r = jnp.sqrt(jnp.where(f0 > _TINY_F0, f0, _TINY_F0))
     one_plus_r2 = (1 + r) * (1 + r)
     u = (1 - f0) / one_plus_r2
     a = 4 * r / one_plus_r2

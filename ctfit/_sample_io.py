@@ -47,7 +47,8 @@ def _pyplot():
 
 
 def _global_columns(result) -> tuple[np.ndarray, list[str], list[float]]:
-    """Draws (n, p), labels and optimum values of s, m_j, w_j (R_d bands for a diffuse-only material)."""
+    """Draws (n, p), labels and optimum values of s, m_j, w_j (with F0 at the first, middle and
+    last bands when there is only one of them; R_d bands for a diffuse-only material)."""
     ch, opt = result.chain, result.optimum
     cols, labels, truths = [], [], []
     if "s" in ch:
@@ -65,6 +66,12 @@ def _global_columns(result) -> tuple[np.ndarray, list[str], list[float]]:
                 cols.append(ch["weight"][:, j])
                 labels.append(f"$w_{j + 1}$")
                 truths.append(float(opt["weight"][j]))
+    if len(cols) < 2 and "F0" in ch:  # one global parameter: show its correlation with F0
+        nb = ch["F0"].shape[1]
+        for i in sorted({0, nb // 2, nb - 1}):
+            cols.append(ch["F0"][:, i])
+            labels.append(f"$F_0$[{_band_labels(result.material, nb)[i]}]")
+            truths.append(float(opt["F0"][i]))
     if not cols and "Rd" in ch:
         rd = ch["Rd"] if ch["Rd"].ndim == 2 else ch["Rd"][:, None]
         for i in range(min(rd.shape[1], 6)):
@@ -88,7 +95,8 @@ def _band_labels(material: Material, n: int) -> list[str]:
 
 
 def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathlib.Path:
-    """Corner plot (``corner`` package) of the global parameters s, m_j, w_j (and σ_noise).
+    """Corner plot (``corner`` package) of the global parameters s, m_j, w_j (and σ_noise);
+    with a single global parameter (one lobe, no diffuse part), F0 at three bands join it.
 
     Dashed lines: 16 %, 50 %, 84 % quantiles; blue lines: the least-squares optimum the walkers
     started from, or ``truths`` (a list, one value per panel) when given.

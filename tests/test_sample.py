@@ -153,9 +153,10 @@ def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path
 
     import emcee
 
-    assert emcee.backends.HDFBackend(str(path), name="ctfit", read_only=True).iteration == 30
+    done = emcee.backends.HDFBackend(str(path), name="ctfit", read_only=True).iteration
+    assert 20 < done < 80  # the steps before the interruption are on disk
     res = sample(truth, data, steps=80, seed=4, backend=path, resume=True, colour=False)
-    assert res.diagnostics["resumed_from"] == 30 and res.diagnostics["steps_run_now"] == 50
+    assert res.diagnostics["resumed_from"] == done and res.diagnostics["steps_run_now"] == 80 - done
     assert res.chain_u.shape == ref.chain_u.shape == (80, 32, 5)
     np.testing.assert_array_equal(res.chain_u, ref.chain_u)  # no gap, nothing repeated
     assert emcee.backends.HDFBackend(str(path), name="ctfit", read_only=True).iteration == 80
@@ -217,7 +218,7 @@ def test_user_priors(diffuse_toy):
     _, _, flat_eng, _ = _engine(truth, data, "sigma")
     x = np.log(np.expm1(np.array([[0.05, 0.08, 0.12]])))
     diff = eng(x)[0] - flat_eng(x)[0]
-    np.testing.assert_allclose(diff, np.sum(-0.5 * np.array([0.05, 0.08, 0.12]) ** 2), rtol=1e-12)
+    np.testing.assert_allclose(diff, np.sum(-0.5 * np.array([0.05, 0.08, 0.12]) ** 2), rtol=1e-9)
     # A uniform prior excludes what it excludes.
     _, _, eng_u, _ = _engine(truth, data, "sigma", {"Rd": ("uniform", 0.0, 0.1)})
     assert eng_u(x)[0] == -np.inf
@@ -231,9 +232,16 @@ def test_user_priors(diffuse_toy):
 
 @short
 def test_informative_prior_pulls_the_posterior(metal):
-    truth, data, _ = metal
-    res = sample(truth, data, steps=300, seed=5, colour=False, priors={"m": ("lognormal", float(np.log(0.3)), 0.001)})
-    assert abs(np.median(res.chain["m"]) - 0.3) < 0.003
+    """A log-normal prior on m as tight as the likelihood: the posterior median lies between the
+    two, near the precision-weighted mean (both near-Gaussian in log m)."""
+    truth, data, fitted = metal
+    m_ls, se = float(fitted.material.params.m[0]), float(fitted.stderr["m"][0])
+    centre, width = m_ls * np.exp(3 * se / m_ls), se / m_ls  # prior 3σ above, same width in log m
+    res = sample(fitted, data, steps=400, seed=5, colour=False, priors={"m": ("lognormal", float(np.log(centre)), width)})
+    med = float(np.median(res.chain["m"]))
+    expected = np.exp(0.5 * (np.log(m_ls) + np.log(centre)))
+    assert m_ls < med < centre
+    assert abs(np.log(med / expected)) < 0.5 * width
     assert res.priors["parameters"]["m"]["kind"] == "lognormal"
 
 

@@ -1,0 +1,540 @@
+"""Pictures of materials as in Cook & Torrance (1982), Figures 6 and 7: shaded objects under two lights.
+
+The scene (``docs/rendering.md`` states it with the reasons for each choice):
+
+- **Camera.** Orthographic, looking down −z: every pixel sees along V = (0, 0, 1) (towards the
+  viewer). The tile spans [−1, 1]² with x to the right and y up; pixels are sampled at their
+  centres, ``supersample`` × ``supersample`` times per pixel and averaged in linear light.
+- **Objects.** ``"sphere"``: the unit-radius-0.92 sphere, N = (x, y, z)/r. ``"vase"``: a surface
+  of revolution about the y axis with radius r(y) (a cubic spline through a few profile points,
+  :func:`vase_profile`); the front surface at pixel (x, y) has z = √(r² − x²) and normal
+  N ∝ (x, −r r′(y), z), from the gradient of x² + z² − r(y)². Seen at right angles to its axis, a
+  surface of revolution hides nothing from itself, so this is the exact visible surface.
+- **Lights.** Two distant D65 lights of equal intensity, with the paper's solid angles
+  dω = 0.0001 sr and 0.0002 sr, from the upper left and the right (:data:`LIGHT_DIRECTIONS`).
+- **Ambient.** I_ia = 0.01 · Σ_l I_il dω_il / π, reflected with R_a = π R_d (paper eq. 1,
+  :func:`ctfit.ambient_reflectance`): the ambient light gives 1 % of the diffuse brightness the
+  two lights give at normal incidence. (Read literally, "I_ia = 0.01 I_i" with dω = 10⁻⁴ makes
+  the ambient term ~300 × the lights' diffuse term and every object a flat disc; see the docs.)
+- **Colour.** Spectral materials are evaluated on ``wavelength_step`` nm bands over 380–780 nm
+  (their parameters interpolated linearly, held at the end values). The lights carry the D65
+  spectrum, scaled to Y = 1 (:func:`scene_lights`), and the reflected spectrum I_r(λ) is
+  integrated with the equal-energy colour-matching weights (``spectral_weights(wl, "E")``):
+  XYZ = Σ I_r(λ) x̄ȳz̄(λ) Δλ / Σ ȳ Δλ. So D65 enters once, through the lights; a perfect white
+  reflector lit at normal incidence by one light of unit dω has the XYZ of the D65 white, which
+  CAT02 maps to linear sRGB (1, 1, 1). RGB materials (channels R, G, B) are shaded in their
+  channels directly with white lights (1, 1, 1): their values are linear sRGB.
+- **Tone mapping, per tile** (the paper's rule, per picture): :func:`ctfit.scale_to_display`
+  scales the tile so that its brightest colour is shown at the maximum luminance its
+  chromaticity allows, after desaturating negative channels at constant luminance and dominant
+  wavelength; then sRGB encoding. Each material gets its own exposure, so a dark rubber and a
+  mirror-like silver are both readable; brightness is *not* comparable between tiles.
+
+:func:`render_compare` puts a fitted material beside "its measurement's nearest rendering":
+every pixel of the second tile uses, per light and band, the measured BRDF of the nearest
+measured direction pair (see its docstring), lit and tone-mapped the same way.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ._brdf import ambient_reflectance
+from ._colour import eotf_inverse_sRGB, rgb_conversion, spectral_weights
+from ._gamut import desaturate_to_gamut, scale_to_display
+from ._intensity import Light, reflected_intensity
+from ._material import Material
+from ._measurement import Measurement
+
+__all__ = [
+    "SHAPES",
+    "LIGHT_DIRECTIONS",
+    "SOLID_ANGLES",
+    "AMBIENT_FRACTION",
+    "Surface",
+    "surface",
+    "vase_profile",
+    "scene_lights",
+    "shade_linear",
+    "render_linear",
+    "render_material",
+    "render_materials",
+    "render_compare",
+    "measured_linear",
+    "tone_map",
+    "grid_layout",
+    "save_png",
+]
+
+SHAPES = ("sphere", "vase")
+# Towards the lights (x right, y up, z towards the viewer): a weaker light upper left in front,
+# the paper's second light (twice the solid angle) from the right, a little above.
+LIGHT_DIRECTIONS = ((-0.45, 0.55, 0.70), (0.75, 0.25, 0.61))
+SOLID_ANGLES = (1e-4, 2e-4)  # sr, the paper's two lights (§5)
+AMBIENT_FRACTION = 0.01
+VIEW = (0.0, 0.0, 1.0)
+RADIUS = 0.92  # of the sphere, in tile units ([−1, 1] across)
+BACKGROUND = (0.1, 0.1, 0.1)  # linear sRGB: a neutral dark grey (encoded 89/255)
+SPECTRAL_RANGE_NM = (380.0, 780.0)
+_LABEL_HEIGHT_FRACTION = 0.11
+
+
+# --- geometry -------------------------------------------------------------------------------
+
+
+class Surface(NamedTuple):
+    """Per-sample unit normals (h, w, 3) and the mask (h, w) of samples on the object."""
+
+    normal: np.ndarray
+    mask: np.ndarray
+
+
+def _pixel_centres(n: int) -> np.ndarray:
+    return (np.arange(n) + 0.5) / n * 2 - 1
+
+
+# Radius of the vase against height, y from the foot (−0.95) to the lip (0.95).
+_VASE_POINTS = (
+    (-0.95, 0.34),
+    (-0.80, 0.46),
+    (-0.45, 0.62),
+    (-0.05, 0.56),
+    (0.35, 0.30),
+    (0.62, 0.22),
+    (0.82, 0.25),
+    (0.95, 0.36),
+)
+
+
+@functools.cache
+def _vase_spline():
+    from scipy.interpolate import CubicSpline  # noqa: PLC0415
+
+    y, r = np.asarray(_VASE_POINTS).T
+    return CubicSpline(y, r, bc_type="natural")
+
+
+def vase_profile(y):
+    """``(r, dr/dy)`` of the vase's profile at heights ``y`` (r = 0 outside the vase)."""
+    y = np.asarray(y, dtype=float)
+    spline = _vase_spline()
+    inside = (y >= _VASE_POINTS[0][0]) & (y <= _VASE_POINTS[-1][0])
+    yc = np.clip(y, _VASE_POINTS[0][0], _VASE_POINTS[-1][0])
+    return np.where(inside, spline(yc), 0.0), np.where(inside, spline(yc, 1), 0.0)
+
+
+def surface(shape: str, size: int, supersample: int = 1) -> Surface:
+    """Normals of ``shape`` ("sphere" or "vase") seen by the orthographic camera.
+
+    ``size`` × ``size`` pixels, each sampled ``supersample``² times: arrays of side
+    ``size * supersample``, row 0 at the top (y = +1). Off-object samples hold N = V.
+    """
+    if shape not in SHAPES:
+        raise ValueError(f"shape must be one of {SHAPES}, got {shape!r}")
+    if not (isinstance(size, int) and size >= 1) or not (isinstance(supersample, int) and supersample >= 1):
+        raise ValueError(f"size and supersample must be positive integers, got {size!r}, {supersample!r}")
+    n = size * supersample
+    c = _pixel_centres(n)
+    x, y = np.meshgrid(c, -c)  # y up
+    if shape == "sphere":
+        ry = np.sqrt(np.maximum(RADIUS * RADIUS - y * y, 0.0))  # the circle's half-width at height y
+        mask = np.abs(x) < ry
+        z = np.sqrt(np.maximum(ry * ry - x * x, 0.0))
+        normal = np.stack([x, y, z], axis=-1) / RADIUS
+    else:
+        r, dr = vase_profile(y)
+        mask = np.abs(x) < r
+        z = np.sqrt(np.maximum(r * r - x * x, 0.0))
+        normal = np.stack([x, -r * dr, z], axis=-1)
+        normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-300)
+    normal = np.where(mask[..., None], normal, np.asarray(VIEW))
+    return Surface(normal=normal, mask=mask)
+
+
+# --- lights and colour ----------------------------------------------------------------------
+
+
+@functools.cache
+def _spectral_setup(wavelength_nm: tuple[float, ...]):
+    """(D65 spectrum with Y = 1, (λ, 3) matrix from I_r(λ) to linear sRGB) for the bands."""
+    import colour  # noqa: PLC0415
+
+    wl = np.asarray(wavelength_nm, dtype=float)
+    weights = spectral_weights(wl, "E")
+    d65 = np.asarray(colour.SDS_ILLUMINANTS["D65"][wl], dtype=float)
+    d65 = d65 / (d65 @ np.asarray(weights.weights)[:, 1])
+    white = d65 @ np.asarray(weights.weights)
+    conv = rgb_conversion("sRGB", white, "CAT02")
+    return d65, np.asarray(weights.weights) @ np.asarray(conv.matrix).T
+
+
+def _bands(material: Material, wavelength_step: float, wavelength_nm=None):
+    """(params on the render bands, light spectrum (bands,), (bands, 3) to linear sRGB)."""
+    if material.is_rgb:
+        return material.params_at(channels=("R", "G", "B")), np.ones(3), np.eye(3)
+    if wavelength_nm is None:
+        if not wavelength_step > 0:
+            raise ValueError(f"wavelength_step must be > 0 nm, got {wavelength_step!r}")
+        lo, hi = SPECTRAL_RANGE_NM
+        wavelength_nm = np.arange(lo, hi + 1e-9, wavelength_step)
+    wl = tuple(float(w) for w in np.asarray(wavelength_nm, dtype=float))
+    spectrum, to_rgb = _spectral_setup(wl)
+    params = material.params if material.wavelength_nm is None else material.params_at(wavelength_nm=np.asarray(wl))
+    return params, spectrum, to_rgb
+
+
+def scene_lights(spectrum, directions=LIGHT_DIRECTIONS, solid_angles=SOLID_ANGLES) -> list[Light]:
+    """The paper's two lights: equal intensity ``spectrum`` (bands,), solid angles 1e-4 and 2e-4 sr."""
+    if len(directions) != len(solid_angles):
+        raise ValueError(f"{len(directions)} light directions but {len(solid_angles)} solid angles")
+    return [Light(np.asarray(d, dtype=float), np.asarray(spectrum, dtype=float), float(w)) for d, w in zip(directions, solid_angles)]
+
+
+def _ambient(lights: Sequence[Light], fraction: float):
+    """I_ia = fraction · Σ I_il dω_il / π (see the module docstring)."""
+    total = sum(np.asarray(l.spectrum) * float(l.solid_angle) for l in lights)
+    return fraction * np.asarray(total) / math.pi
+
+
+@eqx.filter_jit
+def shade_linear(structure, params, normal, view, lights, ambient, to_rgb):
+    """Linear RGB (…, 3) of eq. 1 at the given normals: I_r(bands) @ ``to_rgb`` (bands, 3)."""
+    intensity = reflected_intensity(structure, params, normal, view, lights, ambient)
+    return intensity @ jnp.asarray(to_rgb).astype(intensity.dtype)
+
+
+class _Tile(NamedTuple):
+    rgb: np.ndarray  # (n, n, 3) linear, 0 off the object
+    mask: np.ndarray  # (n, n)
+    supersample: int
+
+
+def render_linear(
+    material: Material,
+    size: int = 256,
+    shape: str = "sphere",
+    *,
+    directions=LIGHT_DIRECTIONS,
+    solid_angles=SOLID_ANGLES,
+    ambient: float = AMBIENT_FRACTION,
+    wavelength_step: float = 5.0,
+    wavelength_nm=None,
+    supersample: int = 2,
+) -> _Tile:
+    """Unscaled linear sRGB of ``material`` on ``shape``: ``(rgb, mask, supersample)``.
+
+    ``rgb`` has side ``size * supersample``; only samples on the object are shaded (one
+    compiled function per structure, band count and number of object samples).
+    """
+    surf = surface(shape, size, supersample)
+    params, spectrum, to_rgb = _bands(material, wavelength_step, wavelength_nm)
+    lights = scene_lights(spectrum, directions, solid_angles)
+    normals = surf.normal[surf.mask]
+    rgb_on = shade_linear(
+        material.structure, params, normals, np.asarray(VIEW), lights, _ambient(lights, ambient), to_rgb
+    )
+    rgb = np.zeros(surf.mask.shape + (3,))
+    rgb[surf.mask] = np.asarray(rgb_on, dtype=float)
+    return _Tile(rgb, surf.mask, supersample)
+
+
+def tone_map(tile: _Tile, scale=None, background=BACKGROUND):
+    """``(uint8 image (size, size, 3), scale)``: the paper's scaling, sRGB encoding, background.
+
+    ``scale=None``: :func:`ctfit.scale_to_display` over the tile's object samples (brightest
+    colour at the maximum luminance its chromaticity allows). A given ``scale`` is applied
+    as is, and colours beyond the display are desaturated at constant luminance and dominant
+    wavelength (:func:`ctfit.desaturate_to_gamut`).
+    """
+    on = tile.rgb[tile.mask]
+    if scale is None:
+        shown, scale = scale_to_display(on)
+    else:
+        shown = desaturate_to_gamut(desaturate_to_gamut(on, upper=None) * scale, upper=1.0)
+    lin = np.broadcast_to(np.asarray(background, dtype=float), tile.rgb.shape).copy()
+    lin[tile.mask] = np.asarray(shown, dtype=float)
+    s = tile.supersample
+    n = lin.shape[0] // s
+    lin = lin.reshape(n, s, n, s, 3).mean(axis=(1, 3))  # average in linear light
+    enc = np.asarray(eotf_inverse_sRGB(lin), dtype=float)
+    return np.clip(np.round(enc * 255), 0, 255).astype(np.uint8), float(scale)
+
+
+def render_material(material: Material, size: int = 256, shape: str = "sphere", **options) -> np.ndarray:
+    """One tile, (size, size, 3) uint8; ``options`` as for :func:`render_linear`."""
+    return tone_map(render_linear(material, size, shape, **options))[0]
+
+
+# --- the grid -------------------------------------------------------------------------------
+
+
+def grid_layout(n_tiles: int, size: int, columns: int | None = None, labels: bool = True):
+    """``(height, width, boxes)``: the grid's image size and each tile's (top, left) corner.
+
+    ``columns`` defaults to min(n, 6). With ``labels`` each tile has a text strip below it.
+    """
+    if n_tiles < 1:
+        raise ValueError("nothing to render: give at least one material")
+    cols = min(n_tiles, 6) if columns is None else int(columns)
+    if cols < 1:
+        raise ValueError(f"columns must be ≥ 1, got {columns!r}")
+    rows = -(-n_tiles // cols)
+    label_h = _label_height(size) if labels else 0
+    cell_h = size + label_h
+    boxes = [((i // cols) * cell_h, (i % cols) * size) for i in range(n_tiles)]
+    return rows * cell_h, cols * size, boxes
+
+
+def _label_height(size: int) -> int:
+    return max(14, round(size * _LABEL_HEIGHT_FRACTION))
+
+
+def _font(px: int):
+    from PIL import ImageFont  # noqa: PLC0415
+
+    try:
+        return ImageFont.load_default(size=px)
+    except TypeError:  # Pillow < 10.1, or no FreeType: the fixed bitmap font
+        return ImageFont.load_default()
+
+
+def _assemble(tiles: list[np.ndarray], names: list[str] | None, size: int, columns: int | None, background):
+    from PIL import Image, ImageDraw  # noqa: PLC0415
+
+    height, width, boxes = grid_layout(len(tiles), size, columns, labels=names is not None)
+    bg = np.clip(np.round(np.asarray(eotf_inverse_sRGB(np.asarray(background, dtype=float))) * 255), 0, 255)
+    out = np.empty((height, width, 3), np.uint8)
+    out[...] = bg.astype(np.uint8)
+    for tile, (top, left) in zip(tiles, boxes):
+        out[top : top + size, left : left + size] = tile
+    if names is None:
+        return out
+    img = Image.fromarray(out)
+    draw = ImageDraw.Draw(img)
+    label_h = _label_height(size)
+    font = _font(max(9, round(label_h * 0.62)))
+    for name, (top, left) in zip(names, boxes):
+        text = _fit_text(draw, name, font, size - 6)
+        box = draw.textbbox((0, 0), text, font=font)
+        x = left + (size - (box[2] - box[0])) / 2 - box[0]
+        y = top + size + (label_h - (box[3] - box[1])) / 2 - box[1]
+        draw.text((x, y), text, fill=(235, 235, 235), font=font)
+    return np.asarray(img)
+
+
+def _fit_text(draw, text: str, font, width: int) -> str:
+    if draw.textlength(text, font=font) <= width:
+        return text
+    while text and draw.textlength(text + "…", font=font) > width:
+        text = text[:-1]
+    return text + "…"
+
+
+def _names(materials, labels):
+    if labels is False:
+        return None
+    if labels is None or labels is True:
+        return [m.name or f"material {i + 1}" for i, m in enumerate(materials)]
+    labels = [str(x) for x in labels]
+    if len(labels) != len(materials):
+        raise ValueError(f"{len(labels)} labels for {len(materials)} materials")
+    return labels
+
+
+def render_materials(
+    materials: Sequence[Material],
+    size: int = 256,
+    shape: str | Sequence[str] = "sphere",
+    labels=None,
+    *,
+    columns: int | None = None,
+    background=BACKGROUND,
+    **options,
+) -> np.ndarray:
+    """A grid of tiles, one per material, (H, W, 3) uint8, like the paper's Figure 7.
+
+    ``shape``: one of :data:`SHAPES` for every tile, or one per material. ``labels``: None
+    (the materials' names), False (no text strip), or one string per material. Each tile is
+    tone-mapped on its own (see the module docstring). ``options`` go to :func:`render_linear`.
+    """
+    materials = list(materials)
+    shapes = [shape] * len(materials) if isinstance(shape, str) else list(shape)
+    if len(shapes) != len(materials):
+        raise ValueError(f"{len(shapes)} shapes for {len(materials)} materials")
+    names = _names(materials, labels)
+    tiles = [tone_map(render_linear(m, size, s, **options), background=background)[0] for m, s in zip(materials, shapes)]
+    return _assemble(tiles, names, size, columns, background)
+
+
+# --- the measurement beside the fit -------------------------------------------------------
+
+
+def _embed(theta_i, theta_o, dphi):
+    """Direction pairs as points of R⁶ (L, V in the local frame with L at φ = 0)."""
+    st_o = np.sin(theta_o)
+    return np.stack(
+        [np.sin(theta_i), np.zeros_like(theta_i), np.cos(theta_i), st_o * np.cos(dphi), st_o * np.sin(dphi), np.cos(theta_o)],
+        axis=-1,
+    )
+
+
+def _measured_pairs(data: Measurement):
+    """Per group of bands that share direction pairs: (bands, points (2D, 6), values (2D, bands)).
+
+    Isotropy: only θ_i, θ_o and |Δφ| (folded to [0°, 180°]) are kept; reciprocity: every pair
+    also stands for its swap (θ_o, θ_i, Δφ).
+    """
+    if data.brdf is None:
+        raise ValueError(f"{data.source}: the measurement has no BRDF values to show")
+    ti, to = np.deg2rad(data.theta_i), np.deg2rad(data.theta_o)
+    d = np.mod(np.asarray(data.phi_o) - np.asarray(data.phi_i), 360.0)
+    dphi = np.deg2rad(np.minimum(d, 360.0 - d))
+    values = np.asarray(data.brdf, dtype=float)
+    if data.grid() is not None:
+        pairs, order = data.grid()
+        grid = values[order].reshape(len(pairs), data.n_bands)
+        first = order.reshape(len(pairs), data.n_bands)[:, 0]
+        groups = [(np.arange(data.n_bands), first, grid)]
+    else:
+        groups = []
+        for b in range(data.n_bands):
+            idx = np.flatnonzero(data.band == b)
+            groups.append((np.array([b]), idx, values[idx][:, None]))
+    out = []
+    for bands, idx, vals in groups:
+        if len(idx) == 0:
+            raise ValueError(f"{data.source}: band {data.band_labels[bands[0]]} has no samples")
+        pts = np.concatenate([_embed(ti[idx], to[idx], dphi[idx]), _embed(to[idx], ti[idx], dphi[idx])])
+        out.append((bands, pts, np.concatenate([vals, vals])))
+    return out
+
+
+def _pixel_angles(normal, light, view):
+    """θ_i, θ_o, |Δφ| (radians) of each normal (P, 3) for one light and the view, and validity."""
+    cl, cv = normal @ light, normal @ view
+    tl = light - cl[:, None] * normal
+    tv = view - cv[:, None] * normal
+    den = np.linalg.norm(tl, axis=-1) * np.linalg.norm(tv, axis=-1)
+    cos_dphi = np.where(den > 1e-12, np.sum(tl * tv, axis=-1) / np.where(den > 1e-12, den, 1), 1.0)
+    valid = (cl > 0) & (cv > 0)
+    return np.arccos(np.clip(cl, -1, 1)), np.arccos(np.clip(cv, -1, 1)), np.arccos(np.clip(cos_dphi, -1, 1)), valid
+
+
+def measured_linear(
+    material: Material,
+    data: Measurement,
+    size: int = 256,
+    shape: str = "sphere",
+    *,
+    directions=LIGHT_DIRECTIONS,
+    solid_angles=SOLID_ANGLES,
+    ambient: float = AMBIENT_FRACTION,
+    supersample: int = 2,
+    max_distance: float = 0.35,
+):
+    """``(tile, coverage)``: the scene shaded with the measured BRDF, nearest direction pair per band.
+
+    For every object sample and light, the local (θ_i, θ_o, |Δφ|) is looked up in the data
+    (isotropy and reciprocity assumed) by the Euclidean distance between the pairs' unit
+    vectors (L, V) in R⁶ — about the angle between them; the nearest measured pair gives the
+    BRDF of each band. Samples whose nearest pair is farther than ``max_distance`` for a light
+    that reaches them have no data and are shown as background. The ambient term, which needs
+    the hemispherical reflectance the data does not give, is the material's R_a = π R_d.
+    ``coverage`` is the fraction of object samples with data. The bands are the data's.
+    """
+    from scipy.spatial import cKDTree  # noqa: PLC0415
+
+    kwargs = {"channels": data.channels} if data.channels is not None else {"wavelength_nm": data.wavelength_nm}
+    if data.channels is not None and tuple(data.channels) != ("R", "G", "B"):
+        raise ValueError(f"{data.source}: RGB data must have channels R, G, B, got {list(data.channels)}")
+    if data.channels is not None:
+        params, spectrum, to_rgb = _bands(material, 5.0)
+    else:
+        params, spectrum, to_rgb = _bands(material, 5.0, data.wavelength_nm)
+    lights = scene_lights(spectrum, directions, solid_angles)
+    surf = surface(shape, size, supersample)
+    normals = surf.normal[surf.mask]
+    view = np.asarray(VIEW)
+    n_bands = len(spectrum)
+    ra = np.broadcast_to(np.asarray(ambient_reflectance(material.structure, params), dtype=float), (n_bands,))
+    intensity = np.broadcast_to(_ambient(lights, ambient) * ra, (len(normals), n_bands)).copy()
+    missing = np.zeros(len(normals), bool)
+    groups = _measured_pairs(data)
+    trees = [cKDTree(pts) for _, pts, _ in groups]
+    for light in lights:
+        ld = np.asarray(light.direction, dtype=float)
+        ti, to, dphi, valid = _pixel_angles(normals, ld, view)
+        q = _embed(ti[valid], to[valid], dphi[valid])
+        r = np.zeros((int(valid.sum()), n_bands))
+        for (bands, _, vals), tree in zip(groups, trees):
+            dist, j = tree.query(q)
+            r[:, bands] = vals[j]
+            missing[np.flatnonzero(valid)[dist > max_distance]] = True
+        e = np.asarray(light.spectrum, dtype=float) * float(light.solid_angle)
+        intensity[valid] += e * np.cos(ti[valid])[:, None] * r
+    mask = surf.mask.copy()
+    rgb = np.zeros(mask.shape + (3,))
+    rgb[mask] = intensity @ to_rgb
+    obj = np.flatnonzero(mask.ravel())
+    mask.ravel()[obj[missing]] = False
+    rgb[~mask] = 0
+    return _Tile(rgb, mask, supersample), 1 - missing.mean() if len(missing) else 0.0
+
+
+def render_compare(
+    material: Material,
+    data: Measurement,
+    size: int = 256,
+    shape: str = "sphere",
+    labels=None,
+    *,
+    background=BACKGROUND,
+    **options,
+) -> np.ndarray:
+    """Two tiles, (H, W, 3) uint8: ``material`` and the nearest-measured rendering of ``data``.
+
+    Both are shaded on the data's bands with the same lights; both use the model tile's
+    exposure (the paper's scale of the left tile), so brightness is comparable and measured
+    colours beyond the display are desaturated. ``labels``: None (defaults), False, or two
+    strings. ``options``: ``directions``, ``solid_angles``, ``ambient``, ``supersample``
+    (both tiles), ``max_distance`` (the measured tile).
+    """
+    max_distance = options.pop("max_distance", 0.35)
+    if data.channels is not None:
+        model = render_linear(material, size, shape, **options)
+    else:
+        model = render_linear(material, size, shape, wavelength_nm=data.wavelength_nm, **options)
+    measured, coverage = measured_linear(material, data, size, shape, max_distance=max_distance, **options)
+    left, scale = tone_map(model, background=background)
+    right, _ = tone_map(measured, scale=scale, background=background)
+    if labels is None:
+        src = Path(str(data.source)).name
+        names = [f"model: {material.name}", f"nearest measured: {src} ({coverage:.0%})"]
+    elif labels is False:
+        names = None
+    else:
+        names = [str(x) for x in labels]
+        if len(names) != 2:
+            raise ValueError(f"--compare shows two tiles; got {len(names)} labels")
+    return _assemble([left, right], names, size, 2, background)
+
+
+def save_png(image: np.ndarray, path) -> Path:
+    """Write an (H, W, 3) uint8 image as PNG (Pillow); the parent folder is created."""
+    from PIL import Image  # noqa: PLC0415
+
+    a = np.asarray(image)
+    if a.ndim != 3 or a.shape[-1] not in (3, 4) or a.dtype != np.uint8:
+        raise ValueError(f"expected an (H, W, 3) uint8 image, got {a.shape} {a.dtype}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(a).save(path, format="PNG")
+    return path
