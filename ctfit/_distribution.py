@@ -12,7 +12,8 @@ factor 1/π, written D̂ here: the normalisation of ``../docs/conventions.md`` m
   normalised one, so that ∫ D cos α dω = 1 there too.
 
 tan²α is computed from the half-vector's components (no 1 − cos² cancellation near the peak)
-and clamped at 1e12, where both distributions are 0 to every precision for m ≤ 10³.
+and clamped at 1e12 (α within 1e-6 rad of 90°): there Beckmann's D̂ is 0 to every precision for
+m ≤ 10³ and the Gaussian's equals its value at α = 90° (exp(−(π/2m)²) times the peak).
 """
 
 from __future__ import annotations

@@ -5,9 +5,13 @@
 1. Starting points: a grid over the rms slopes (one value per lobe, ascending), each scored
    by the loss after the best per-band amplitude (a linear least-squares problem) — one
    vmapped pass over the data. The best ``starts`` grid points seed the solver.
-2. optimistix least squares from every seed at once (vmapped); the lowest finite cost wins.
-   Levenberg–Marquardt by default (normal equations with Cholesky: the Jacobian is tall and
-   thin), Gauss–Newton, Dogleg or BFGS on request; float64 unless float32 is asked for.
+2. optimistix Levenberg–Marquardt from each seed in turn (``jax.lax.map``), with the
+   Gauss–Newton matrix JᵀJ formed from the factored Jacobian, never the N × P matrix
+   (:class:`~ctfit._solvers.StructuredLevenbergMarquardt`, :func:`~ctfit._problem.normal_equations`);
+   the lowest finite cost wins. optimistix Gauss–Newton, Dogleg (normal equations with
+   Cholesky) or BFGS on request; float64 unless float32 is asked for. Seeding, solve and everything the report
+   needs are one jitted program (``_fit_core``), so a run compiles once (and JAX's persistent
+   cache, where enabled, skips even that).
 3. Standard errors from (JᵀJ)⁻¹ at the optimum (scaled by the residual variance unless the
    loss is sigma-weighted), mapped to the constrained parameters by the delta method, reported
    only where JᵀJ is well conditioned. Near-degenerate solutions are detected and reported.
@@ -32,6 +36,7 @@ from ._brdf import normal_reflectance
 from ._fresnel import n_from_f0
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
+from ._solvers import StructuredLevenbergMarquardt
 from ._problem import LOSSES, Problem, from_params, make_problem, model_values, normal_equations, residual, to_params
 
 __all__ = ["fit", "FitResult", "SOLVERS", "select_structure"]
@@ -135,87 +140,37 @@ def _seed_points(problem: Problem, u0: dict, k: int, grid=None) -> dict:
     return seeds
 
 
-def _tolerances(dtype):
-    """(ftol, xtol, gtol) of the structured Levenberg–Marquardt solver."""
-    return (1e-10, 1e-8, 1e-10) if dtype == jnp.float64 else (1e-6, 1e-5, 1e-6)
+def _gauss_newton(flat, data):
+    problem, unravel = data
+    return normal_equations(problem, unravel(flat))[2]
 
 
-def _lm(problem: Problem, seeds: dict, max_steps: int):
-    """Levenberg–Marquardt on the structured normal equations (JᵀJ formed without J), from
-    every seed at once.
+def _half_squared_norm(flat, data):
+    problem, unravel = data
+    r = residual(unravel(flat), (problem.y, problem))
+    return 0.5 * jnp.sum(r * r)
 
-    Each iteration evaluates ½‖r‖², Jᵀr and JᵀJ at every seed's trial point in one pass
-    (:func:`~ctfit._problem.normal_equations`, vmapped; the only model code in the loop),
-    accepts a trial when its actual reduction is a positive fraction of the predicted one, and
-    solves (JᵀJ + μ D) δ = −Jᵀr by Cholesky (P × P; D the running maximum of diag JᵀJ,
-    Marquardt's scaling; μ by Nielsen's rule) for the next trial. A seed has converged when an
-    accepted step changes the cost by less than ftol (actual and predicted, relative), a step
-    is shorter than xtol·‖u‖, or the gradient is orthogonal to the residual to gtol (MINPACK's
-    tests); it is dropped once, after 5 iterations, its cost is 10× that of the best seed.
-    Returns u, converged, iterations, cost, JᵀJ per seed.
-    """
-    n_seeds = jax.tree.leaves(seeds)[0].shape[0] if jax.tree.leaves(seeds) else 1
-    flat0, unravel = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds), ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
-    dtype = flat0.dtype
-    ftol, xtol, gtol = _tolerances(dtype)
-    tiny = jnp.finfo(dtype).tiny
-    p = flat0.shape[1]
 
-    def evaluate(f):
-        c, g, h = normal_equations(problem, unravel(f))
-        finite = jnp.isfinite(c) & jnp.all(jnp.isfinite(g)) & jnp.all(jnp.isfinite(h))
-        return jnp.where(finite, c, jnp.inf), g, h, finite
+def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
+    """optimistix Levenberg–Marquardt on the structured normal equations, one seed after another."""
+    flat_seeds = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
+    unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
+    rtol, atol = (1e-8, 1e-12) if flat_seeds.dtype == jnp.float64 else (1e-5, 1e-8)
+    data = (problem, jax.tree_util.Partial(unravel))
+    solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton)
 
-    def update(x, c, g, h, d, mu, nu, it, status, trial, delta, pred, c_new, g_new, h_new, ok):
-        first = it == 0
-        actual = c - c_new
-        rho = actual / jnp.where(pred > 0, pred, 1)
-        accept = ok & (first | ((pred > 0) & (rho > 1e-4)))
-        mu = jnp.where(first, 1e-3, jnp.where(accept, mu * jnp.maximum(1 / 3, 1 - (2 * rho - 1) ** 3), mu * nu))
-        nu = jnp.where(accept, 2.0, 2 * nu)
-        x = jnp.where(accept, trial, x)
-        g = jnp.where(accept, g_new, g)
-        h = jnp.where(accept, h_new, h)
-        dh = jnp.diag(h_new)
-        d = jnp.where(first, jnp.maximum(dh, 1e-12 * jnp.max(dh) + tiny), jnp.where(accept, jnp.maximum(d, dh), d))
-        small_f = ~first & accept & (actual <= ftol * c_new) & (pred <= ftol * c_new)
-        small_x = ~first & (jnp.linalg.norm(delta) <= xtol * (jnp.linalg.norm(x) + xtol))
-        c = jnp.where(accept, c_new, c)
-        small_g = accept & (jnp.max(jnp.abs(g) / jnp.sqrt(jnp.maximum(jnp.diag(h) * 2 * c, tiny))) <= gtol)
-        it = it + 1
-        stop = (first & ~ok) | (it >= max_steps) | (mu > 1e30)
-        status = jnp.where(small_f | small_x | small_g, 1, jnp.where(stop, 2, 0))
-        # Next trial point.
-        chol = jnp.linalg.cholesky(h + mu * jnp.diag(d))
-        delta = -jax.scipy.linalg.cho_solve((chol, True), g)
-        delta = jnp.where(jnp.isfinite(delta), delta, 0)
-        pred = -(g @ delta + 0.5 * delta @ (h @ delta))
-        return x, c, g, h, d, mu, nu, it, status, x + delta, delta, pred
+    def one(f0):
+        sol = optx.minimise(_half_squared_norm, solver, f0, data, max_steps=max_steps, throw=False)
+        c, _, h = normal_equations(problem, unravel(sol.value))
+        return unravel(sol.value), sol.result == optx.RESULTS.successful, sol.stats["num_steps"], c, h
 
-    def body(state):
-        x, c, g, h, d, mu, nu, it, status, trial, delta, pred = state
-        running = status == 0
-        c_new, g_new, h_new, ok = jax.vmap(evaluate)(trial)
-        new = jax.vmap(update)(x, c, g, h, d, mu, nu, it, status, trial, delta, pred, c_new, g_new, h_new, ok)
-        new = [jnp.where(running.reshape((-1,) + (1,) * (a.ndim - 1)), a, b) for a, b in zip(new, state)]
-        # Drop seeds that are far behind the best one.
-        c_now, it_now, st_now = new[1], new[7], new[8]
-        behind = (it_now >= 5) & (c_now > 10 * jnp.min(c_now)) & (st_now == 0)
-        new[8] = jnp.where(behind, 3, st_now)
-        return tuple(new)
-
-    z = jnp.zeros((n_seeds,), dtype)
-    init = (flat0, jnp.full((n_seeds,), jnp.inf, dtype), jnp.zeros_like(flat0), jnp.zeros((n_seeds, p, p), dtype),
-            jnp.ones_like(flat0), z, z + 2, jnp.zeros((n_seeds,), jnp.int32), jnp.zeros((n_seeds,), jnp.int32),
-            flat0, jnp.zeros_like(flat0), z)
-    x, c, g, h, d, mu, nu, it, status, *_ = jax.lax.while_loop(lambda s: jnp.any(s[8] == 0), body, init)
-    return jax.vmap(unravel)(x), status == 1, it, c, h
+    return jax.lax.map(one, flat_seeds)
 
 
 def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
     """Every seed at once (vmapped); values, success flags, steps, final costs, JᵀJ."""
     if solver_name == "lm":
-        return _lm(problem, seeds, max_steps)
+        return _structured_lm(problem, seeds, max_steps)
     solver = _solver(solver_name, problem.y.dtype)
 
     def one(u0):
@@ -394,7 +349,8 @@ def fit(
     }
     full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     if structure.needs_fresnel_params and structure.fresnel == "f0":
-        full = dataclasses.replace(full, n=np.asarray(n_from_f0(full.f0)))
+        r = np.sqrt(np.asarray(full.f0))
+        full = dataclasses.replace(full, n=(1 + r) / (1 - r))  # n_from_f0, in NumPy
     material = Material(
         structure=structure,
         params=full,

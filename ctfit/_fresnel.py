@@ -99,7 +99,7 @@ def _dielectric(c, a, u, scale):
     gcu = g + c * u
     inv = 1 / (gcu * gcu)
     p = c * g + s2 * u
-    pol = (c2 * g2 + s2 * s2 * u * u) / (p * p)
+    pol = (c2 * g2 + s2 * s2 * u * u) * (1 / (p * p))
     f = scale * (inv * inv) * pol
     f = jnp.where(grazing, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
     f = jnp.where(tir, 1, f)
@@ -154,40 +154,48 @@ def fresnel_conductor(c, n, k):
         F = ½ (R_s + R_p).
 
     The sums of squares are the textbook numerators a² + b² + cos²θ − 2 a cosθ etc. written
-    without cancellation; the smaller of a², b² is taken from a² b² = n² k², and
-    a − cosθ = (n² − k² − 1 + b²)/(a + cosθ). With k = 0 and n ≥ 1 this equals
-    :func:`fresnel_dielectric`.
+    without cancellation; the smaller of a, b is taken from a b = n k, and near a = cosθ
+    a − cosθ = (n² − k² − 1 + b²)/(a + cosθ). Divisions are written x · (1/y), so that in the
+    derivative the small x multiplies the cotangent before 1/y² does (no overflow to inf·0 in
+    float32 near grazing with n ≈ 1, k ≈ 0). With k = 0 and n ≥ 1 this equals
+    :func:`fresnel_dielectric`; at grazing (cos θ = 0) F = 1 unless n = 1, k = 0.
     """
     c, s2 = _clip_cos(c)
     n, k = jnp.asarray(n), jnp.asarray(k)
+    # Stand-in c = 1 at grazing (double-where pattern); F is set there at the end.
+    grazing = c == 0
+    c = jnp.where(grazing, 1, c)
+    s2 = jnp.where(grazing, 0, s2)
     c2 = c * c
-    nk = n * k
-    nk2 = nk * nk
+    nk = jnp.abs(n * k)
     # t1 = n² − k² − sin²θ. Near n = 1 as (n − 1)(n + 1) + cos²θ ((n − 1) is exact there); for
     # n < cos θ ≤ 1 as n² − sin²θ, whose rounding error (∝ n² + sin²θ) is then the smaller one.
     n2m1 = (n - 1) * (n + 1)
-    t1 = jnp.where(c < n, n2m1 + c2, n * n - s2) - k * k
-    q_zero = (t1 == 0) & (nk == 0)
-    t1_s = jnp.where(q_zero, 1, t1)
-    a2b2 = jnp.where(q_zero, 0, jnp.hypot(t1_s, 2 * jnp.where(q_zero, 1, nk)))
+    k2 = k * k
+    t1 = jnp.where(c < n, n2m1 + c2, n * n - s2) - k2
+    q = t1 * t1 + 4 * (nk * nk)
+    q_ok = q > 0
+    a2b2 = jnp.where(q_ok, jnp.sqrt(jnp.where(q_ok, q, 1)), 0)
+    # The larger of a², b² from (a² + b² ± t1)/2 without cancellation, the other from a b = n k.
+    big2 = 0.5 * (a2b2 + jnp.abs(t1))
+    big_ok = big2 > 0
+    big = jnp.where(big_ok, jnp.sqrt(jnp.where(big_ok, big2, 1)), 0)
+    small = jnp.where(big_ok, nk * (1 / jnp.where(big_ok, big, 1)), 0)
     pos = t1 >= 0
-    big = 0.5 * (a2b2 + jnp.abs(t1))  # a² if t1 ≥ 0 else b²; > 0 unless a2b2 = 0
-    big_ok = big > 0
-    small = nk2 / jnp.where(big_ok, big, 1)
-    a2 = jnp.where(pos, big, small)
-    b2 = jnp.where(pos, small, big)
-    a_ok = a2 > 0
-    a = jnp.where(a_ok, jnp.sqrt(jnp.where(a_ok, a2, 1)), 0)
-    apc = a + c
-    apc_ok = apc > 0
-    amc = jnp.where(apc_ok, (n2m1 - k * k + b2) / jnp.where(apc_ok, apc, 1), 0)
-    den_s = apc * apc + b2
-    ok_s = den_s > 0
-    rs = jnp.where(ok_s, (amc * amc + b2) / jnp.where(ok_s, den_s, 1), 0)
+    a = jnp.where(pos, big, small)
+    b = jnp.where(pos, small, big)
+    b2 = b * b
+    apc = a + c  # > 0 (c > 0)
+    inv_apc = 1 / apc
+    near = (a < 2 * c) & (c < 2 * a)
+    amc = jnp.where(near, (n2m1 - k2 + b2) * inv_apc, a - c)
+    rs = (amc * amc + b2) * (1 / (apc * apc + b2))
     ac = a * c
     b2c2 = b2 * c2
-    num_p = (ac - s2) ** 2 + b2c2
     den_p = (ac + s2) ** 2 + b2c2
     ok_p = den_p > 0
-    ratio = jnp.where(ok_p, num_p / jnp.where(ok_p, den_p, 1), 1)
-    return jnp.clip(0.5 * rs * (1 + ratio), 0, 1)
+    ratio = jnp.where(ok_p, ((ac - s2) ** 2 + b2c2) * (1 / jnp.where(ok_p, den_p, 1)), 1)
+    f = 0.5 * rs * (1 + ratio)
+    interface = (n != 1) | (k != 0)
+    f = jnp.where(grazing, interface.astype(f.dtype), f)
+    return jnp.clip(f, 0, 1)

@@ -5,11 +5,12 @@ The scene (``docs/rendering.md`` states it with the reasons for each choice):
 - **Camera.** Orthographic, looking down −z: every pixel sees along V = (0, 0, 1) (towards the
   viewer). The tile spans [−1, 1]² with x to the right and y up; pixels are sampled at their
   centres, ``supersample`` × ``supersample`` times per pixel and averaged in linear light.
-- **Objects.** ``"sphere"``: the unit-radius-0.92 sphere, N = (x, y, z)/r. ``"vase"``: a surface
-  of revolution about the y axis with radius r(y) (a cubic spline through a few profile points,
-  :func:`vase_profile`); the front surface at pixel (x, y) has z = √(r² − x²) and normal
-  N ∝ (x, −r r′(y), z), from the gradient of x² + z² − r(y)². Seen at right angles to its axis, a
-  surface of revolution hides nothing from itself, so this is the exact visible surface.
+- **Objects.** ``"sphere"``: radius 0.92, N = (x, y, z)/0.92. ``"vase"``: a surface of
+  revolution about the y axis with radius r(y) (a cubic spline through a few profile points,
+  :func:`vase_profile`, shrunk by 0.9 into the tile); the front surface at pixel (x, y) has
+  z = √(r² − x²) and normal N ∝ (x, −r r′(y), z), from the gradient of x² + z² − r(y)². Seen at
+  right angles to its axis, a surface of revolution hides nothing from itself, so this is the
+  exact visible surface.
 - **Lights.** Two distant D65 lights of equal intensity, with the paper's solid angles
   dω = 0.0001 sr and 0.0002 sr, from the upper left and the right (:data:`LIGHT_DIRECTIONS`).
 - **Ambient.** I_ia = 0.01 · Σ_l I_il dω_il / π, reflected with R_a = π R_d (paper eq. 1,
@@ -63,6 +64,7 @@ __all__ = [
     "surface",
     "vase_profile",
     "scene_lights",
+    "render_bands",
     "shade_linear",
     "render_linear",
     "render_material",
@@ -80,8 +82,10 @@ SHAPES = ("sphere", "vase")
 LIGHT_DIRECTIONS = ((-0.45, 0.55, 0.70), (0.75, 0.25, 0.61))
 SOLID_ANGLES = (1e-4, 2e-4)  # sr, the paper's two lights (§5)
 AMBIENT_FRACTION = 0.01
+EXPOSURES = ("reference", "tile")
 VIEW = (0.0, 0.0, 1.0)
 RADIUS = 0.92  # of the sphere, in tile units ([−1, 1] across)
+VASE_SCALE = 0.9  # the vase's profile (heights ±0.95) shrunk by this factor into the tile
 BACKGROUND = (0.1, 0.1, 0.1)  # linear sRGB: a neutral dark grey (encoded 89/255)
 SPECTRAL_RANGE_NM = (380.0, 780.0)
 _LABEL_HEIGHT_FRACTION = 0.11
@@ -150,7 +154,8 @@ def surface(shape: str, size: int, supersample: int = 1) -> Surface:
         z = np.sqrt(np.maximum(ry * ry - x * x, 0.0))
         normal = np.stack([x, y, z], axis=-1) / RADIUS
     else:
-        r, dr = vase_profile(y)
+        r, dr = vase_profile(y / VASE_SCALE)
+        r = VASE_SCALE * r  # the profile shrunk into the tile; dr/dy is unchanged
         mask = np.abs(x) < r
         z = np.sqrt(np.maximum(r * r - x * x, 0.0))
         normal = np.stack([x, -r * dr, z], axis=-1)
@@ -176,8 +181,13 @@ def _spectral_setup(wavelength_nm: tuple[float, ...]):
     return d65, np.asarray(weights.weights) @ np.asarray(conv.matrix).T
 
 
-def _bands(material: Material, wavelength_step: float, wavelength_nm=None):
-    """(params on the render bands, light spectrum (bands,), (bands, 3) to linear sRGB)."""
+def render_bands(material: Material, wavelength_step: float = 5.0, wavelength_nm=None):
+    """``(params, light spectrum (bands,), to_rgb (bands, 3))`` of ``material`` for rendering.
+
+    Spectral materials: ``wavelength_nm``, or 380–780 nm every ``wavelength_step`` nm; the
+    parameters interpolated there, the D65 spectrum (Y = 1), and the matrix taking an intensity
+    spectrum to linear sRGB. RGB materials: their R, G, B parameters, white (1, 1, 1), identity.
+    """
     if material.is_rgb:
         return material.params_at(channels=("R", "G", "B")), np.ones(3), np.eye(3)
     if wavelength_nm is None:
@@ -215,6 +225,16 @@ class _Tile(NamedTuple):
     rgb: np.ndarray  # (n, n, 3) linear, 0 off the object
     mask: np.ndarray  # (n, n)
     supersample: int
+    white_scale: float  # 1 / brightest value of a white Lambertian object in the same scene
+
+
+def _white_scale(normals, lights, ambient_fraction) -> float:
+    """1 / max over the object of Σ_l dω_l (N·L_l)⁺/π + ambient: a white R_d = 1/π, in the
+    units where a perfect white reflector lit by a unit light of unit dω is linear RGB 1."""
+    e = sum(float(l.solid_angle) * np.maximum(normals @ np.asarray(l.direction, dtype=float), 0) for l in lights)
+    amb = ambient_fraction * sum(float(l.solid_angle) for l in lights) / math.pi
+    peak = float(np.max(e)) / math.pi + amb if len(normals) else 0.0
+    return 1 / peak if peak > 0 else 1.0
 
 
 def render_linear(
@@ -235,7 +255,7 @@ def render_linear(
     compiled function per structure, band count and number of object samples).
     """
     surf = surface(shape, size, supersample)
-    params, spectrum, to_rgb = _bands(material, wavelength_step, wavelength_nm)
+    params, spectrum, to_rgb = render_bands(material, wavelength_step, wavelength_nm)
     lights = scene_lights(spectrum, directions, solid_angles)
     normals = surf.normal[surf.mask]
     rgb_on = shade_linear(
@@ -243,34 +263,55 @@ def render_linear(
     )
     rgb = np.zeros(surf.mask.shape + (3,))
     rgb[surf.mask] = np.asarray(rgb_on, dtype=float)
-    return _Tile(rgb, surf.mask, supersample)
+    return _Tile(rgb, surf.mask, supersample, _white_scale(normals, lights, ambient))
 
 
-def tone_map(tile: _Tile, scale=None, background=BACKGROUND):
+@eqx.filter_jit
+def _display(on, scale):
+    """Linear display colours of the object samples: the paper's scaling (or ``scale``)."""
+    if scale is None:
+        return scale_to_display(on)
+    return desaturate_to_gamut(desaturate_to_gamut(on, upper=None) * scale, upper=1.0), jnp.asarray(scale)
+
+
+@eqx.filter_jit
+def _encode(lin):
+    return eotf_inverse_sRGB(lin)
+
+
+def tone_map(tile: _Tile, scale=None, background=BACKGROUND, exposure: str = "reference"):
     """``(uint8 image (size, size, 3), scale)``: the paper's scaling, sRGB encoding, background.
 
-    ``scale=None``: :func:`ctfit.scale_to_display` over the tile's object samples (brightest
-    colour at the maximum luminance its chromaticity allows). A given ``scale`` is applied
-    as is, and colours beyond the display are desaturated at constant luminance and dominant
-    wavelength (:func:`ctfit.desaturate_to_gamut`).
+    ``scale=None``: the paper's rule (:func:`ctfit.scale_to_display`): the tile's brightest
+    colour at the maximum luminance its chromaticity allows. With ``exposure="reference"``
+    (default) the rule is applied to the tile *and* a white Lambertian object of the same shape
+    under the same lights, so a dark material stays dark and a highlight brighter than white
+    sets the scale; ``exposure="tile"`` applies it to the tile alone. A given ``scale`` is
+    applied as is; colours beyond the display are desaturated at constant luminance and
+    dominant wavelength (:func:`ctfit.desaturate_to_gamut`).
     """
+    if exposure not in EXPOSURES:
+        raise ValueError(f"exposure must be one of {EXPOSURES}, got {exposure!r}")
     on = tile.rgb[tile.mask]
     if scale is None:
-        shown, scale = scale_to_display(on)
-    else:
-        shown = desaturate_to_gamut(desaturate_to_gamut(on, upper=None) * scale, upper=1.0)
+        _, scale = _display(on, None)
+        if exposure == "reference":
+            scale = min(float(scale), float(tile.white_scale))
+    shown, _ = _display(on, float(scale))
     lin = np.broadcast_to(np.asarray(background, dtype=float), tile.rgb.shape).copy()
     lin[tile.mask] = np.asarray(shown, dtype=float)
     s = tile.supersample
     n = lin.shape[0] // s
     lin = lin.reshape(n, s, n, s, 3).mean(axis=(1, 3))  # average in linear light
-    enc = np.asarray(eotf_inverse_sRGB(lin), dtype=float)
+    enc = np.asarray(_encode(lin), dtype=float)
     return np.clip(np.round(enc * 255), 0, 255).astype(np.uint8), float(scale)
 
 
-def render_material(material: Material, size: int = 256, shape: str = "sphere", **options) -> np.ndarray:
+def render_material(
+    material: Material, size: int = 256, shape: str = "sphere", *, exposure: str = "reference", background=BACKGROUND, **options
+) -> np.ndarray:
     """One tile, (size, size, 3) uint8; ``options`` as for :func:`render_linear`."""
-    return tone_map(render_linear(material, size, shape, **options))[0]
+    return tone_map(render_linear(material, size, shape, **options), exposure=exposure, background=background)[0]
 
 
 # --- the grid -------------------------------------------------------------------------------
@@ -298,8 +339,15 @@ def _label_height(size: int) -> int:
 
 
 def _font(px: int):
+    """DejaVu Sans (shipped with matplotlib, as in the other figures), else Pillow's default."""
     from PIL import ImageFont  # noqa: PLC0415
 
+    try:
+        from matplotlib import font_manager  # noqa: PLC0415
+
+        return ImageFont.truetype(font_manager.findfont("DejaVu Sans", fallback_to_default=True), px)
+    except (ImportError, OSError, ValueError):
+        pass
     try:
         return ImageFont.load_default(size=px)
     except TypeError:  # Pillow < 10.1, or no FreeType: the fixed bitmap font
@@ -320,13 +368,11 @@ def _assemble(tiles: list[np.ndarray], names: list[str] | None, size: int, colum
     img = Image.fromarray(out)
     draw = ImageDraw.Draw(img)
     label_h = _label_height(size)
-    font = _font(max(9, round(label_h * 0.62)))
+    font = _font(max(9, round(label_h * 0.55)))
     for name, (top, left) in zip(names, boxes):
         text = _fit_text(draw, name, font, size - 6)
-        box = draw.textbbox((0, 0), text, font=font)
-        x = left + (size - (box[2] - box[0])) / 2 - box[0]
-        y = top + size + (label_h - (box[3] - box[1])) / 2 - box[1]
-        draw.text((x, y), text, fill=(235, 235, 235), font=font)
+        # One baseline for every label, whatever its letters: anchor "ms" (middle, baseline).
+        draw.text((left + size / 2, top + size + 0.7 * label_h), text, fill=(235, 235, 235), font=font, anchor="ms")
     return np.asarray(img)
 
 
@@ -356,6 +402,7 @@ def render_materials(
     labels=None,
     *,
     columns: int | None = None,
+    exposure: str = "reference",
     background=BACKGROUND,
     **options,
 ) -> np.ndarray:
@@ -370,7 +417,10 @@ def render_materials(
     if len(shapes) != len(materials):
         raise ValueError(f"{len(shapes)} shapes for {len(materials)} materials")
     names = _names(materials, labels)
-    tiles = [tone_map(render_linear(m, size, s, **options), background=background)[0] for m, s in zip(materials, shapes)]
+    tiles = [
+        tone_map(render_linear(m, size, s, **options), exposure=exposure, background=background)[0]
+        for m, s in zip(materials, shapes)
+    ]
     return _assemble(tiles, names, size, columns, background)
 
 
@@ -398,8 +448,9 @@ def _measured_pairs(data: Measurement):
     d = np.mod(np.asarray(data.phi_o) - np.asarray(data.phi_i), 360.0)
     dphi = np.deg2rad(np.minimum(d, 360.0 - d))
     values = np.asarray(data.brdf, dtype=float)
-    if data.grid() is not None:
-        pairs, order = data.grid()
+    grid_order = data.grid()
+    if grid_order is not None:
+        pairs, order = grid_order
         grid = values[order].reshape(len(pairs), data.n_bands)
         first = order.reshape(len(pairs), data.n_bands)[:, 0]
         groups = [(np.arange(data.n_bands), first, grid)]
@@ -456,9 +507,9 @@ def measured_linear(
     if data.channels is not None and tuple(data.channels) != ("R", "G", "B"):
         raise ValueError(f"{data.source}: RGB data must have channels R, G, B, got {list(data.channels)}")
     if data.channels is not None:
-        params, spectrum, to_rgb = _bands(material, 5.0)
+        params, spectrum, to_rgb = render_bands(material, 5.0)
     else:
-        params, spectrum, to_rgb = _bands(material, 5.0, data.wavelength_nm)
+        params, spectrum, to_rgb = render_bands(material, 5.0, data.wavelength_nm)
     lights = scene_lights(spectrum, directions, solid_angles)
     surf = surface(shape, size, supersample)
     normals = surf.normal[surf.mask]
@@ -486,7 +537,8 @@ def measured_linear(
     obj = np.flatnonzero(mask.ravel())
     mask.ravel()[obj[missing]] = False
     rgb[~mask] = 0
-    return _Tile(rgb, mask, supersample), 1 - missing.mean() if len(missing) else 0.0
+    white = _white_scale(normals, lights, ambient)
+    return _Tile(rgb, mask, supersample, white), 1 - missing.mean() if len(missing) else 0.0
 
 
 def render_compare(
@@ -496,6 +548,7 @@ def render_compare(
     shape: str = "sphere",
     labels=None,
     *,
+    exposure: str = "reference",
     background=BACKGROUND,
     **options,
 ) -> np.ndarray:
@@ -513,11 +566,10 @@ def render_compare(
     else:
         model = render_linear(material, size, shape, wavelength_nm=data.wavelength_nm, **options)
     measured, coverage = measured_linear(material, data, size, shape, max_distance=max_distance, **options)
-    left, scale = tone_map(model, background=background)
+    left, scale = tone_map(model, background=background, exposure=exposure)
     right, _ = tone_map(measured, scale=scale, background=background)
     if labels is None:
-        src = Path(str(data.source)).name
-        names = [f"model: {material.name}", f"nearest measured: {src} ({coverage:.0%})"]
+        names = [f"model: {material.name}", f"measured, nearest pair ({coverage:.0%})"]
     elif labels is False:
         names = None
     else:

@@ -227,6 +227,14 @@ def _log_prob_one(problem: Problem, layout: _Layout, prior: tuple, x):
 
 
 _CACHE: dict = {}
+_BAKE_MAX_PAIRS = 200_000  # direction pairs up to which the geometry is compiled in as constants
+
+
+def _cache_put(key, fn):
+    if len(_CACHE) > 64:
+        _CACHE.clear()
+    _CACHE[key] = fn
+    return fn
 
 
 def _jitted(kind: str, problem: Problem, statics: tuple, builder):
@@ -238,14 +246,51 @@ def _jitted(kind: str, problem: Problem, statics: tuple, builder):
     key = (kind, tdef, jax.tree_util.tree_structure(static), statics)
     fn = _CACHE.get(key)
     if fn is None:
-        if len(_CACHE) > 64:
-            _CACHE.clear()
 
         def rebuild(lv):
             return eqx.combine(jax.tree_util.tree_unflatten(tdef, lv), static)
 
-        fn = _CACHE[key] = jax.jit(builder(rebuild))
+        fn = _cache_put(key, jax.jit(builder(rebuild)))
     return fn, leaves
+
+
+def _data_fields(q: Problem):
+    return q.y, q.sigma, q.floor
+
+
+def _geometry_key(problem: Problem) -> str:
+    """A fingerprint of everything in the problem but the data values (y, sigma, floor)."""
+    stripped = eqx.tree_at(_data_fields, problem, (None, None, None), is_leaf=lambda x: x is None)
+    leaves, tdef = jax.tree_util.tree_flatten(stripped)
+    h = hashlib.sha1(str(tdef).encode())
+    for leaf in leaves:
+        a = np.asarray(leaf)
+        h.update(str((a.dtype, a.shape)).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _jitted_baked(kind: str, problem: Problem, statics: tuple, builder):
+    """Like :func:`_jitted`, with the geometry and layout compiled in as constants and only the
+    data values (y, sigma, floor) as arguments. XLA then folds every data-independent term (the
+    V-cavity G, powers of tan²α, ...) once at compile time: 2–3× fewer operations per walker.
+    Cached by a fingerprint of the geometry, so data sets that share directions (fresh noise on
+    the same goniometer) compile once."""
+    if problem.geom.cos_vh.shape[0] > _BAKE_MAX_PAIRS:
+        return _jitted(kind, problem, statics, builder)
+    key = (kind + "/baked", _geometry_key(problem), statics)
+    fn = _CACHE.get(key)
+    args = [a for a in _data_fields(problem) if a is not None]
+    if fn is None:
+        has_sigma = problem.sigma is not None
+        base = problem
+
+        def rebuild(lv):
+            y, sigma, floor = (lv[0], lv[1], lv[2]) if has_sigma else (lv[0], None, lv[1])
+            return eqx.tree_at(_data_fields, base, (y, sigma, floor), is_leaf=lambda x: x is None)
+
+        fn = _cache_put(key, jax.jit(builder(rebuild)))
+    return fn, args
 
 
 def _build_log_prob(layout: _Layout, prior: tuple):
@@ -304,22 +349,24 @@ class _Engine:
     def __init__(self, problem: Problem, layout: _Layout, prior: tuple, chunk: int):
         self.problem, self.layout, self.prior, self.chunk = problem, layout, prior, int(chunk)
         self.dtype = problem.y.dtype
-        self._lp, self.leaves = _jitted("log_prob", problem, (layout, prior), _build_log_prob(layout, prior))
+        self._lp, self.leaves = _jitted_baked("log_prob", problem, (layout, prior), _build_log_prob(layout, prior))
         self.calls = 0
 
     def __call__(self, coords):
-        coords = np.atleast_2d(np.asarray(coords, dtype=float))
+        coords = np.asarray(coords, dtype=float)
+        if coords.ndim == 1:
+            coords = coords[None]
         k = coords.shape[0]
+        self.calls += k
+        if k == self.chunk:  # emcee's stretch move: every call but the first
+            return np.asarray(self._lp(self.leaves, coords), dtype=float)
         out = np.empty(k)
         for start in range(0, k, self.chunk):
             block = coords[start : start + self.chunk]
             n = block.shape[0]
             if n < self.chunk:
                 block = np.concatenate([block, np.repeat(block[-1:], self.chunk - n, axis=0)])
-            lp = self._lp(self.leaves, jnp.asarray(block, dtype=self.dtype))
-            out[start : start + n] = np.asarray(lp, dtype=float)[:n]
-        self.calls += k
-        out[np.isnan(out)] = -np.inf
+            out[start : start + n] = np.asarray(self._lp(self.leaves, block), dtype=float)[:n]
         return out
 
     def normal(self, x_u):

@@ -61,8 +61,8 @@ def _global_columns(result) -> tuple[np.ndarray, list[str], list[float]]:
             cols.append(ch["m"][:, j])
             labels.append(f"$m_{j + 1}$" if nl > 1 else "m")
             truths.append(float(opt["m"][j]))
-        if nl > 1:
-            for j in range(nl):
+        if nl > 1:  # w_J = 1 − Σ the others: its panels would only repeat theirs
+            for j in range(nl - 1):
                 cols.append(ch["weight"][:, j])
                 labels.append(f"$w_{j + 1}$")
                 truths.append(float(opt["weight"][j]))
@@ -95,8 +95,9 @@ def _band_labels(material: Material, n: int) -> list[str]:
 
 
 def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathlib.Path:
-    """Corner plot (``corner`` package) of the global parameters s, m_j, w_j (and σ_noise);
-    with a single global parameter (one lobe, no diffuse part), F0 at three bands join it.
+    """Corner plot (``corner`` package) of the global parameters s, m_j, w_j (j < J: the last
+    weight is 1 − the others) and σ_noise; with a single global parameter (one lobe, no diffuse
+    part), F0 at three bands join it.
 
     Dashed lines: 16 %, 50 %, 84 % quantiles; blue lines: the least-squares optimum the walkers
     started from, or ``truths`` (a list, one value per panel) when given.
@@ -135,38 +136,54 @@ def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathl
 def plot_spectra(result, path, *, truth: dict | None = None, title: str | None = None) -> pathlib.Path:
     """F0(λ) and n(λ) (and k(λ), R_d(λ) where sampled) with their 68 % and 95 % posterior bands.
 
-    Line: posterior median; dark band: 16–84 %; light band: 2.5–97.5 %; crosses: the
-    least-squares optimum; ``truth`` ({"F0": [...], "n": [...]}) is drawn as a dashed line.
+    Left column: the values — line: posterior median; dark band: 16–84 %; light band:
+    2.5–97.5 %; crosses: the least-squares optimum; ``truth`` ({"F0": [...], "n": [...]}) as a
+    dashed line. Right column: the same minus the posterior median, so that bands much narrower
+    than the spectrum's range stay visible.
     """
     plt = _pyplot()
     mat = result.material
-    keys = [k for k in ("F0", "n", "k", "Rd") if k in result.chain and result.chain[k].ndim == 2]
+    keys = [k for k in ("F0", "n", "k") if k in result.chain and result.chain[k].ndim == 2]
+    if "Rd" in result.chain and result.chain["Rd"].ndim == 2 and mat.structure.diffuse == "spectrum":
+        keys.append("Rd")
     if not keys:
         raise ValueError("nothing to plot: no per-band quantity was sampled")
     n_bands = result.chain[keys[0]].shape[1]
     rgb = mat.channels is not None or mat.wavelength_nm is None
     x = np.arange(n_bands, dtype=float) if rgb else np.asarray(mat.wavelength_nm, dtype=float)
-    names = {"F0": "$F_0$ (normal reflectance)", "n": "n (effective index)" if mat.structure.fresnel == "f0" else "n", "k": "k", "Rd": r"$R_d$ (sr$^{-1}$)"}
-    fig, axes = plt.subplots(len(keys), 1, figsize=(6.4, 2.6 * len(keys) + 0.4), sharex=True, squeeze=False)
-    for ax, key in zip(axes[:, 0], keys):
+    names = {
+        "F0": "$F_0$",
+        "n": "n (effective)" if mat.structure.fresnel == "f0" else "n",
+        "k": "k",
+        "Rd": r"$R_d$ (sr$^{-1}$)",
+    }
+    marker = "o" if n_bands < 12 else None
+    fig, axes = plt.subplots(len(keys), 2, figsize=(10, 2.5 * len(keys) + 0.6), sharex=True, squeeze=False)
+    for row, key in enumerate(keys):
         q = np.percentile(result.chain[key], [2.5, 16, 50, 84, 97.5], axis=0)
-        ax.fill_between(x, q[0], q[4], color="#9ecae1", alpha=0.6, lw=0, label="95 %", step="mid" if rgb else None)
-        ax.fill_between(x, q[1], q[3], color="#3182bd", alpha=0.6, lw=0, label="68 %", step="mid" if rgb else None)
-        ax.plot(x, q[2], color="#08306b", lw=1.5, label="median", marker="o" if n_bands < 12 else None, ms=3)
-        ax.plot(x, np.ravel(result.optimum[key]), "x", color="#d62728", ms=5, label="least squares")
-        if truth is not None and key in truth:
-            ax.plot(x, np.ravel(truth[key]), "--", color="k", lw=1, label="truth")
-        ax.set_ylabel(names[key])
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=8, ncol=5, loc="best")
-    ax = axes[-1, 0]
-    if rgb:
-        ax.set_xticks(x)
-        ax.set_xticklabels(_band_labels(mat, n_bands))
-    else:
-        ax.set_xlabel("wavelength (nm)")
+        opt = np.ravel(result.optimum[key])
+        tru = None if truth is None or key not in truth else np.ravel(np.asarray(truth[key], dtype=float))
+        for col, ref in ((0, 0.0), (1, q[2])):
+            ax = axes[row, col]
+            ax.fill_between(x, q[0] - ref, q[4] - ref, color="#9ecae1", lw=0, label="95 %")
+            ax.fill_between(x, q[1] - ref, q[3] - ref, color="#4292c6", lw=0, label="68 %")
+            ax.plot(x, q[2] - ref, color="#08306b", lw=1.4, marker=marker, ms=3, label="median")
+            ax.plot(x, opt - ref, "x", color="#d62728", ms=6, mew=1.5, label="least squares")
+            if tru is not None:
+                ax.plot(x, tru - ref, "--", color="k", lw=1, marker="s" if marker else None, ms=3, mfc="none", label="truth")
+            ax.grid(alpha=0.3)
+        axes[row, 0].set_ylabel(names[key])
+        axes[row, 1].set_ylabel(f"{names[key]} − median")
+        axes[row, 1].axhline(0, color="#08306b", lw=0.8)
+    axes[0, 0].legend(fontsize=8, loc="best")
+    for ax in axes[-1]:
+        if rgb:
+            ax.set_xticks(x)
+            ax.set_xticklabels(_band_labels(mat, n_bands))
+        else:
+            ax.set_xlabel("wavelength (nm)")
     d = result.diagnostics
-    fig.suptitle(title or f"posterior bands ({d['draws']} draws)", fontsize=10)
+    fig.suptitle(title or f"posterior bands: median, 68 % and 95 % intervals ({d['draws']} draws)", fontsize=11)
     fig.tight_layout()
     path = pathlib.Path(path)
     fig.savefig(path, dpi=110)
@@ -195,10 +212,10 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
     band_keys = [k for k in ("F0", "n", "k", "Rd") if isinstance(u.get(k), list)]
     if band_keys:
         wl = doc.get("wavelength_nm") or doc.get("channels") or list(range(len(u[band_keys[0]])))
-        lines.append("  " + f"{'band':>10}" + "".join(f"{k:>30}" for k in band_keys))
+        lines.append("  " + f"{'band':>10}" + "".join(f"  {k:>32}" for k in band_keys))
         for i, w in enumerate(wl):
             lab = f"{w:g} nm" if isinstance(w, (int, float)) else str(w)
-            lines.append("  " + f"{lab:>10}" + "".join(f"{_fmt(u[k][i]):>30}" for k in band_keys))
+            lines.append("  " + f"{lab:>10}" + "".join(f"  {_fmt(u[k][i]):>32}" for k in band_keys))
     if isinstance(u.get("Rd"), dict):
         lines.append(f"  Rd = {_fmt(u['Rd'])}")
     if "sigma_noise" in u:

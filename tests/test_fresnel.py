@@ -14,7 +14,12 @@ import pytest
 from helpers import mp_fresnel_conductor, mp_fresnel_dielectric, mp_fresnel_dielectric_f0
 
 import ctfit
-from ctfit import f0_from_n, f0_from_nk, fresnel_conductor, fresnel_dielectric, fresnel_dielectric_f0, n_from_f0
+from ctfit import f0_from_n, f0_from_nk, n_from_f0
+
+# Jitted once here: one compilation per input shape instead of one per primitive (eager mode).
+fresnel_dielectric = jax.jit(ctfit.fresnel_dielectric)
+fresnel_dielectric_f0 = jax.jit(ctfit.fresnel_dielectric_f0)
+fresnel_conductor = jax.jit(ctfit.fresnel_conductor)
 
 F0S = np.array([0.0, 1e-8, 1e-4, 0.04, 0.2, 0.5, 0.9, 0.98, 1 - 1e-7, 1.0])
 
@@ -122,14 +127,14 @@ def test_conductor_against_mpmath_complex_formula(k):
     ref = np.vectorize(lambda c_, n_: float(mp_fresnel_conductor(c_, n_, k)))(c, n)
     got = np.asarray(fresnel_conductor(jnp.asarray(c), jnp.asarray(n), k))
     u = ulps(got, ref)
-    assert u.max() <= 32, (u.max(), n.ravel()[u.argmax()], c.ravel()[u.argmax()])
+    assert u.max() <= 16, (u.max(), n.ravel()[u.argmax()], c.ravel()[u.argmax()])
 
 
 def test_conductor_with_k_zero_equals_dielectric():
     n, c = np.meshgrid(N_GRID, C_GRID, indexing="ij")
     a = np.asarray(fresnel_conductor(jnp.asarray(c), jnp.asarray(n), 0.0))
     b = np.asarray(fresnel_dielectric(jnp.asarray(c), jnp.asarray(n)))
-    assert ulps(a, b).max() <= 24
+    assert ulps(a, b).max() <= 16
 
 
 def test_total_internal_reflection_for_n_below_one():
@@ -182,25 +187,27 @@ def test_odd_inputs_do_not_raise(fn):
     assert out.shape == x.shape
 
 
-def test_gradients_finite_over_the_range():
-    """dF/dF0, dF/dn, dF/dk finite for c ∈ [0, 1], F0 ∈ [0, 1], n up to 1e6, k up to 20 (both dtypes)."""
-    for dtype in (jnp.float32, jnp.float64):
-        c = jnp.asarray(np.concatenate([[0.0, 1e-7], np.linspace(0.01, 1, 12)]), dtype)[:, None]
-        g = jax.vmap(jax.grad(lambda f0, c: fresnel_dielectric_f0(c, f0)), in_axes=(0, None))
-        d = np.asarray(jax.vmap(g, in_axes=(None, 0))(jnp.asarray(F0S, dtype), c[:, 0]))
-        assert np.all(np.isfinite(d))
-        n = jnp.asarray([0.05, 0.7, 1.0, 1.0001, 1.5, 1e3, 1e6], dtype)
-        for k in (0.0, 1e-3, 3.0, 20.0):
-            kk = jnp.full_like(n, k)
-            gn, gk = jax.vmap(jax.grad(lambda n_, k_, c_: fresnel_conductor(c_, n_, k_), argnums=(0, 1)), in_axes=(0, 0, None))(n, kk, c[3, 0])
-            assert np.all(np.isfinite(np.asarray(gn))) and np.all(np.isfinite(np.asarray(gk)))
-            for ci in np.asarray(c[:, 0]):
-                gn, gk = jax.vmap(jax.grad(lambda n_, k_: fresnel_conductor(ci, n_, k_), argnums=(0, 1)))(n, kk)
-                assert np.all(np.isfinite(np.asarray(gn))) and np.all(np.isfinite(np.asarray(gk))), (dtype, k, ci)
-        gd = jax.vmap(jax.grad(lambda n_, c_: fresnel_dielectric(c_, n_)), in_axes=(0, None))
-        for ci in np.asarray(c[:, 0]):
-            assert np.all(np.isfinite(np.asarray(gd(n, ci))))
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_gradients_finite_over_the_range(dtype):
+    """dF/dF0, dF/dn, dF/dk finite for c ∈ [0, 1], F0 ∈ [0, 1], n up to 1e6, k up to 20.
 
-
-def test_public_names():
-    assert ctfit.fresnel_dielectric_f0 is fresnel_dielectric_f0
+    Caught: dF/dF0 = NaN at F0 = 0, c = 1e-7 in float32 (maximum's mask times an infinite
+    cotangent), and dF/dn = NaN at n = 1, k = 0, c = 1e-7 in float32 (x/y with y² underflowing
+    in the derivative); both fixed in ctfit/_fresnel.py.
+    """
+    c = np.concatenate([[0.0, 1e-8, 1e-7, 1e-5], np.linspace(0.01, 1, 12)])
+    n = np.array([0.05, 0.7, 1.0, 1.0001, 1.5, 4.0, 1e3, 1e6])
+    k = np.array([0.0, 1e-3, 0.5, 3.0, 20.0])
+    cc, f0 = (a.ravel() for a in np.meshgrid(c, F0S, indexing="ij"))
+    g = jax.jit(jax.vmap(jax.grad(ctfit.fresnel_dielectric_f0, argnums=1)))
+    d = np.asarray(g(jnp.asarray(cc, dtype), jnp.asarray(f0, dtype)))
+    assert np.all(np.isfinite(d)), (cc[~np.isfinite(d)], f0[~np.isfinite(d)])
+    cc, nn, kk = (a.ravel() for a in np.meshgrid(c, n, k, indexing="ij"))
+    gc = jax.jit(jax.vmap(jax.grad(ctfit.fresnel_conductor, argnums=(1, 2))))
+    dn, dk = (np.asarray(x) for x in gc(jnp.asarray(cc, dtype), jnp.asarray(nn, dtype), jnp.asarray(kk, dtype)))
+    bad = ~(np.isfinite(dn) & np.isfinite(dk))
+    assert not bad.any(), list(zip(cc[bad], nn[bad], kk[bad]))[:5]
+    cc, nn = (a.ravel() for a in np.meshgrid(c, n, indexing="ij"))
+    gd = jax.jit(jax.vmap(jax.grad(ctfit.fresnel_dielectric, argnums=1)))
+    d = np.asarray(gd(jnp.asarray(cc, dtype), jnp.asarray(nn, dtype)))
+    assert np.all(np.isfinite(d)), (cc[~np.isfinite(d)], nn[~np.isfinite(d)])

@@ -1,0 +1,188 @@
+"""Numerical stability of the model over its whole domain, in float32 and float64.
+
+Values finite and ≥ 0 (exactly 0 on or below the horizon), F in [0, 1], and the gradient with
+respect to every parameter (m, w, s, f0, n, k, rd) finite — on a fixed grid of hard cases
+(m from 1e-4 to 3, θ from 0 to 90° including 1e-6° and 89.9°, the exact mirror and
+retro-reflection directions, V = −L, F0 from 0 to 1, n up to 1e6, k up to 20) and on a
+hypothesis sweep of the same space. Each check is one compiled, vmapped evaluation of a whole
+batch.
+"""
+
+import functools
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as hs
+from hypothesis.extra import numpy as hnp
+
+import ctfit
+from ctfit import Params, Structure
+
+DTYPES = [jnp.float32, jnp.float64]
+THETAS = [0.0, 1e-6, 30.0, 60.0, 85.0, 89.9, 90.0]
+MS = [1e-4, 1e-3, 0.00935, 0.05, 0.2, 0.6, 1.0, 3.0]
+F0S = [0.0, 1e-8, 0.04, 0.5, 0.98, 1 - 1e-7, 1.0]
+N_REAL = [1.0, 1.0001, 1.5, 4.0, 1e3, 1e6]
+N_COND = [0.05, 0.2, 1.0, 1.0, 1.5, 3.0, 1e3, 1e6, 1e6]
+K_COND = [0.0, 3.0, 0.0, 1e-3, 20.0, 0.5, 20.0, 20.0, 0.0]
+
+# Every pair of (distribution, geometry, Fresnel form) options occurs in some structure (a
+# pairwise covering design: 6 structures instead of 12, each one compiled program per dtype).
+PAIRWISE = [
+    ("beckmann", "v-cavity", "f0"),
+    ("gaussian", "smith", "f0"),
+    ("beckmann", "smith", "n"),
+    ("gaussian", "v-cavity", "n"),
+    ("beckmann", "v-cavity", "conductor"),
+    ("gaussian", "smith", "conductor"),
+]
+assert {(d, g) for d, g, _ in PAIRWISE} == set(itertools.product(("beckmann", "gaussian"), ("v-cavity", "smith")))
+assert {(d, f) for d, _, f in PAIRWISE} == set(itertools.product(("beckmann", "gaussian"), ("f0", "n", "conductor")))
+assert {(g, f) for _, g, f in PAIRWISE} == set(itertools.product(("v-cavity", "smith"), ("f0", "n", "conductor")))
+STRUCTURES = [Structure(lobes=2, distribution=d, geometry=g, fresnel=f, diffuse="spectrum") for d, g, f in PAIRWISE] + [
+    Structure(lobes=1, geometry="smith", fresnel="f0", diffuse="F0/pi", normalization="cook-torrance-1982")
+]
+
+
+def _sid(st):
+    return f"{st.distribution}-{st.geometry}-{st.fresnel}-{st.diffuse}-{st.normalization}"
+
+
+def _band_params(st, dtype):
+    """Per-band Fresnel parameters: every hard F0 / n / (n, k) value is one band."""
+    a = lambda x: jnp.asarray(np.asarray(x, np.float64), dtype)  # noqa: E731
+    if st.fresnel == "f0":
+        bands = dict(f0=a(F0S))
+    elif st.fresnel == "n":
+        bands = dict(n=a(N_REAL))
+    else:
+        bands = dict(n=a(N_COND), k=a(K_COND))
+    nb = len(next(iter(bands.values())))
+    if st.diffuse == "spectrum":
+        bands["rd"] = a(np.linspace(0, 1 / np.pi, nb))
+    if st.has_s:
+        bands["s"] = a(0.7)
+    return bands
+
+
+def _directions(dtype):
+    """All (θ_i, θ_o) in THETAS² at φ_o − φ_i ∈ {180 (mirror plane), 0 (retro plane), 90}, plus V = −L.
+
+    θ_o = θ_i with φ_o = φ_i + 180 is the exact mirror direction, with φ_o = φ_i the exact
+    retro-reflection (V = L).
+    """
+    ti, to, dp = (x.ravel() for x in np.meshgrid(THETAS, THETAS, [180.0, 0.0, 90.0], indexing="ij"))
+    pi = np.full_like(ti, 33.0)
+    d = lambda t, p: ctfit.direction_from_angles_deg(jnp.asarray(t, dtype), jnp.asarray(p, dtype))  # noqa: E731
+    l, v = d(ti, pi), d(to, pi + dp)
+    lm = d(np.asarray(THETAS), np.full(len(THETAS), 33.0))
+    horizon = (ti >= 90) | (to >= 90)
+    return jnp.concatenate([l, lm]), jnp.concatenate([v, -lm]), np.concatenate([horizon, np.ones(len(THETAS), bool)])
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _evaluate(st, m1, bands, l, v):
+    """Values (P, B), F (P, B) and per-direction gradients w.r.t. every parameter, for lobe-1 slope m1."""
+    params = Params(m=jnp.stack([m1, jnp.asarray(0.3, m1.dtype)])[: st.lobes], w=jnp.asarray([0.6, 0.4], m1.dtype)[: st.lobes] if st.lobes == 2 else jnp.ones(1, m1.dtype), **bands)
+    geom = ctfit.geometry(l, v)
+    values = ctfit.brdf(st, params, geom)
+    f = ctfit.fresnel(st, params, geom.cos_vh[:, None])
+
+    # The gradient of the sum over every direction and band: a non-finite derivative of any
+    # single value makes it non-finite (inf and NaN propagate through the sum).
+    grads = jax.grad(lambda p: jnp.sum(ctfit.brdf(st, p, geom)))(params)
+    return values, f, grads
+
+
+def _check(values, f, grads, horizon, what):
+    values, f = np.asarray(values), np.asarray(f)
+    assert np.all(np.isfinite(values)), f"{what}: non-finite values at {np.argwhere(~np.isfinite(values))[:5].tolist()}"
+    assert np.all(values >= 0), f"{what}: negative values"
+    assert np.all(values[horizon] == 0), f"{what}: non-zero on or below the horizon"
+    assert np.all(np.isfinite(f)) and np.all((f >= 0) & (f <= 1)), f"{what}: F outside [0, 1]"
+    for name in ("s", "m", "w", "f0", "n", "k", "rd"):
+        g = getattr(grads, name)
+        if g is not None:
+            g = np.asarray(g)
+            bad = ~np.isfinite(g)
+            assert not bad.any(), f"{what}: d/d{name} not finite at {np.argwhere(bad)[:5].tolist()}"
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["float32", "float64"])
+@pytest.mark.parametrize("st", STRUCTURES, ids=_sid)
+def test_hard_grid(st, dtype):
+    l, v, horizon = _directions(dtype)
+    bands = _band_params(st, dtype)
+    for m in MS:
+        vals, f, grads = _evaluate(st, jnp.asarray(m, dtype), bands, l, v)
+        _check(vals, f, grads, horizon, f"{_sid(st)} {jnp.dtype(dtype).name} m={m}")
+
+
+# --------------------------------------------------------------------------- hypothesis sweep
+
+HYP_STRUCTURES = [
+    Structure(lobes=1, fresnel="f0", diffuse="spectrum"),
+    Structure(lobes=1, geometry="smith", fresnel="conductor", diffuse="spectrum"),
+    Structure(lobes=1, distribution="gaussian", geometry="smith", fresnel="n", diffuse="F0/pi"),
+]
+BATCH = 64
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _evaluate_batch(st, ti, pi, to, po, m, f0, n, k, s, rd):
+    """One full configuration per batch element (own directions and own parameters)."""
+
+    def one(ti, pi, to, po, m, f0, n, k, s, rd):
+        geom = ctfit.geometry_from_angles_deg(ti[None], pi, to[None], po)
+        fres = {"f0": dict(f0=f0[None]), "n": dict(n=n[None]), "conductor": dict(n=n[None], k=k[None])}[st.fresnel]
+        extra = dict(rd=rd[None]) if st.diffuse == "spectrum" else {}
+        if st.has_s:
+            extra["s"] = s
+
+        def r(p):
+            return ctfit.brdf(st, p, geom)[0, 0]
+
+        p = Params(m=m[None], w=jnp.ones(1, m.dtype), **fres, **extra)
+        return r(p), ctfit.fresnel(st, p, geom.cos_vh[:, None])[0, 0], jax.grad(r)(p)
+
+    return jax.vmap(one)(ti, pi, to, po, m, f0, n, k, s, rd)
+
+
+def _angles(lo, hi, special):
+    return hs.one_of(hs.sampled_from(special), hs.floats(lo, hi, allow_nan=False, width=64))
+
+
+@settings(max_examples=20, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(
+    data=hs.data(),
+    st_index=hs.integers(0, len(HYP_STRUCTURES) - 1),
+    dtype=hs.sampled_from(DTYPES),
+)
+def test_hypothesis_sweep(data, st_index, dtype):
+    st = HYP_STRUCTURES[st_index]
+
+    def arr(elements):
+        return data.draw(hnp.arrays(np.float64, BATCH, elements=elements))
+
+    ti = arr(_angles(0, 90, [0.0, 1e-6, 89.9, 90.0]))
+    to = arr(_angles(0, 90, [0.0, 1e-6, 89.9, 90.0]))
+    pi = arr(hs.floats(0, 360, allow_nan=False))
+    # Relative azimuth: exact mirror (180), exact retro (0), or anything.
+    dphi = arr(_angles(-360, 360, [0.0, 180.0, -180.0]))
+    # Some elements get θ_o = θ_i: with dphi ∈ {0, 180} those are the exact retro / mirror pairs.
+    same = data.draw(hnp.arrays(np.bool_, BATCH))
+    to = np.where(same, ti, to)
+    m = 10 ** arr(hs.one_of(hs.sampled_from([-4.0, np.log10(0.00935), np.log10(3.0)]), hs.floats(-4, np.log10(3.0))))
+    f0 = arr(hs.one_of(hs.sampled_from(F0S), hs.floats(0, 1)))
+    n = 10 ** arr(hs.floats(-1.3, 6)) if st.fresnel == "conductor" else 10 ** arr(hs.floats(0, 6))
+    k = arr(hs.one_of(hs.sampled_from([0.0, 20.0]), hs.floats(0, 20)))
+    s = arr(hs.floats(0, 1))
+    rd = arr(hs.floats(0, 1 / np.pi))
+    a = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    vals, f, grads = _evaluate_batch(st, a(ti), a(pi), a(to), a(pi + dphi), a(m), a(f0), a(n), a(k), a(s), a(rd))
+    horizon = (np.asarray(a(ti)) >= 90) | (np.asarray(a(to)) >= 90)
+    _check(np.asarray(vals)[:, None], np.asarray(f), grads, horizon, f"{_sid(st)} {jnp.dtype(dtype).name}")
