@@ -93,6 +93,12 @@ _EXPORTS = {
     "angles_deg_to_half_diff": "._merl",
     "DataWarning": "._errors",
     "residual_structure": "._diagnostics",
+    "ChainTooShortWarning": "._sample",
+    "SampleResult": "._sample",
+    "sample": "._sample",
+    "format_uncertainty_table": "._sample_io",
+    "plot_corner": "._sample_io",
+    "plot_spectra": "._sample_io",
 }
 
 __all__ = sorted(_EXPORTS)
@@ -236,6 +242,16 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
     )
     from ._diagnostics import (
         residual_structure as residual_structure,
+    )
+    from ._sample import (
+        ChainTooShortWarning as ChainTooShortWarning,
+        SampleResult as SampleResult,
+        sample as sample,
+    )
+    from ._sample_io import (
+        format_uncertainty_table as format_uncertainty_table,
+        plot_corner as plot_corner,
+        plot_spectra as plot_spectra,
     )
 
 try:

@@ -33,8 +33,8 @@ _GL_W = 0.5 * _GL_W
 def beckmann(tan2, m):
     """Beckmann D̂(α; m) = exp(−tan²α/m²)(1 + tan²α)²/m² (paper eq. 4, without 1/π)."""
     t = jnp.minimum(jnp.asarray(tan2), _TAN2_MAX)
-    m2 = jnp.asarray(m) ** 2
-    return jnp.exp(-t / m2) * ((1 + t) * (1 + t)) / m2
+    inv_m2 = 1 / jnp.asarray(m) ** 2  # once per lobe, not per direction
+    return jnp.exp(-t * inv_m2) * ((1 + t) * (1 + t)) * inv_m2
 
 
 def gaussian_norm_integral(m):
@@ -65,8 +65,6 @@ def gaussian(tan2, m, *, normalized: bool = True):
     """Gaussian D̂(α; m) = exp(−(α/m)²)/(2 m² J(m)) (normalised) or exp(−(α/m)²)/m² (1982)."""
     t = jnp.minimum(jnp.asarray(tan2), _TAN2_MAX)
     m = jnp.asarray(m)
-    m2 = m * m
-    e = jnp.exp(-_alpha2(t) / m2)
-    if normalized:
-        return e / (2 * m2 * gaussian_norm_integral(m))
-    return e / m2
+    inv_m2 = 1 / (m * m)  # the constants once per lobe, not per direction
+    scale = inv_m2 / (2 * gaussian_norm_integral(m)) if normalized else inv_m2
+    return jnp.exp(-_alpha2(t) * inv_m2) * scale

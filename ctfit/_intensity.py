@@ -33,6 +33,7 @@ from collections.abc import Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array
 
 from ._brdf import ambient_reflectance, brdf
@@ -56,15 +57,18 @@ class Light(eqx.Module):
     solid_angle: Array
 
     def __init__(self, direction, spectrum, solid_angle):
-        d = jnp.asarray(direction)
-        d = d.astype(d.dtype if jnp.issubdtype(d.dtype, jnp.floating) else jnp.result_type(float))
+        # NumPy for concrete inputs (no per-light dispatch of tiny JAX ops), JAX for traced ones.
+        xp = np if isinstance(direction, (np.ndarray, list, tuple)) else jnp
+        d = xp.asarray(direction)
+        if not xp.issubdtype(d.dtype, xp.floating):
+            d = d.astype(float)
         if d.shape != (3,):
             raise ValueError(f"a light's direction must have shape (3,), got {d.shape}")
-        self.direction = d / jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-        self.spectrum = jnp.asarray(spectrum)
-        self.solid_angle = jnp.asarray(solid_angle)
-        if self.solid_angle.ndim != 0:
-            raise ValueError(f"a light's solid_angle must be a scalar, got shape {self.solid_angle.shape}")
+        self.direction = d / xp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        self.spectrum = spectrum if isinstance(spectrum, (np.ndarray, jnp.ndarray)) else np.asarray(spectrum, dtype=float)
+        self.solid_angle = solid_angle if isinstance(solid_angle, (np.ndarray, jnp.ndarray)) else np.asarray(solid_angle, dtype=float)
+        if np.ndim(self.solid_angle) != 0:
+            raise ValueError(f"a light's solid_angle must be a scalar, got shape {np.shape(self.solid_angle)}")
 
 
 def reflected_intensity(
@@ -101,7 +105,8 @@ def reflected_intensity(
         r = brdf(structure, params, geom)  # (…, bands), 0 below the horizon
         # N·L is 1 in the geometry's stand-in for invalid pairs; R is 0 there.
         cos_l = jnp.where(geom.valid, geom.cos_l, 0)[..., None]
-        term = (light.spectrum * light.solid_angle) * cos_l * r
+        e = jnp.asarray(light.spectrum).astype(r.dtype) * jnp.asarray(light.solid_angle).astype(r.dtype)
+        term = e * cos_l * r
         total = term if total is None else total + term
     if ambient is not None:
         ra = ambient_reflectance(structure, params)

@@ -16,7 +16,7 @@ The scene (``docs/rendering.md`` states it with the reasons for each choice):
 - **Ambient.** I_ia = 0.01 · Σ_l I_il dω_il / π, reflected with R_a = π R_d (paper eq. 1,
   :func:`ctfit.ambient_reflectance`): the ambient light gives 1 % of the diffuse brightness the
   two lights give at normal incidence. (Read literally, "I_ia = 0.01 I_i" with dω = 10⁻⁴ makes
-  the ambient term ~300 × the lights' diffuse term and every object a flat disc; see the docs.)
+  the ambient term about 100 × the two lights' diffuse term and every object a flat disc; see the docs.)
 - **Colour.** Spectral materials are evaluated on ``wavelength_step`` nm bands over 380–780 nm
   (their parameters interpolated linearly, held at the end values). The lights carry the D65
   spectrum, scaled to Y = 1 (:func:`scene_lights`), and the reflected spectrum I_r(λ) is
@@ -25,11 +25,16 @@ The scene (``docs/rendering.md`` states it with the reasons for each choice):
   reflector lit at normal incidence by one light of unit dω has the XYZ of the D65 white, which
   CAT02 maps to linear sRGB (1, 1, 1). RGB materials (channels R, G, B) are shaded in their
   channels directly with white lights (1, 1, 1): their values are linear sRGB.
-- **Tone mapping, per tile** (the paper's rule, per picture): :func:`ctfit.scale_to_display`
-  scales the tile so that its brightest colour is shown at the maximum luminance its
-  chromaticity allows, after desaturating negative channels at constant luminance and dominant
-  wavelength; then sRGB encoding. Each material gets its own exposure, so a dark rubber and a
-  mirror-like silver are both readable; brightness is *not* comparable between tiles.
+- **Tone mapping, per tile** (the paper's rule, applied to each picture):
+  :func:`ctfit.scale_to_display` scales the tile so that its brightest colour is shown at the
+  maximum luminance its chromaticity allows, after desaturating negative channels at constant
+  luminance and dominant wavelength; then sRGB encoding. With ``exposure="reference"`` (the
+  default) the rule sees the tile *and* a white Lambertian object of the same shape under the
+  same lights (:attr:`Tile.white_scale`): a highlight brighter than that white sets the
+  scale, as the paper's rule would; otherwise the white does, so a dark material (carbon,
+  rubber) stays dark instead of being stretched to white. ``exposure="tile"`` is the rule on
+  the tile alone. Either way brightness is comparable between tiles only under
+  ``"reference"`` and only among tiles whose highlights are not brighter than white.
 
 :func:`render_compare` puts a fitted material beside "its measurement's nearest rendering":
 every pixel of the second tile uses, per light and band, the measured BRDF of the nearest
@@ -61,6 +66,7 @@ __all__ = [
     "SOLID_ANGLES",
     "AMBIENT_FRACTION",
     "Surface",
+    "Tile",
     "surface",
     "vase_profile",
     "scene_lights",
@@ -80,7 +86,7 @@ SHAPES = ("sphere", "vase")
 # Towards the lights (x right, y up, z towards the viewer): a weaker light upper left in front,
 # the paper's second light (twice the solid angle) from the right, a little above.
 LIGHT_DIRECTIONS = ((-0.45, 0.55, 0.70), (0.75, 0.25, 0.61))
-SOLID_ANGLES = (1e-4, 2e-4)  # sr, the paper's two lights (§5)
+SOLID_ANGLES = (1e-4, 2e-4)  # sr, the paper's two light sources
 AMBIENT_FRACTION = 0.01
 EXPOSURES = ("reference", "tile")
 VIEW = (0.0, 0.0, 1.0)
@@ -140,11 +146,17 @@ def surface(shape: str, size: int, supersample: int = 1) -> Surface:
 
     ``size`` × ``size`` pixels, each sampled ``supersample``² times: arrays of side
     ``size * supersample``, row 0 at the top (y = +1). Off-object samples hold N = V.
+    The arrays are cached and read-only.
     """
     if shape not in SHAPES:
         raise ValueError(f"shape must be one of {SHAPES}, got {shape!r}")
     if not (isinstance(size, int) and size >= 1) or not (isinstance(supersample, int) and supersample >= 1):
         raise ValueError(f"size and supersample must be positive integers, got {size!r}, {supersample!r}")
+    return _surface(shape, size, supersample)
+
+
+@functools.lru_cache(maxsize=8)
+def _surface(shape: str, size: int, supersample: int) -> Surface:
     n = size * supersample
     c = _pixel_centres(n)
     x, y = np.meshgrid(c, -c)  # y up
@@ -161,6 +173,8 @@ def surface(shape: str, size: int, supersample: int = 1) -> Surface:
         normal = np.stack([x, -r * dr, z], axis=-1)
         normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-300)
     normal = np.where(mask[..., None], normal, np.asarray(VIEW))
+    normal.flags.writeable = False
+    mask.flags.writeable = False
     return Surface(normal=normal, mask=mask)
 
 
@@ -221,7 +235,9 @@ def shade_linear(structure, params, normal, view, lights, ambient, to_rgb):
     return intensity @ jnp.asarray(to_rgb).astype(intensity.dtype)
 
 
-class _Tile(NamedTuple):
+class Tile(NamedTuple):
+    """An unscaled rendering: linear sRGB per sample, before the paper's scaling."""
+
     rgb: np.ndarray  # (n, n, 3) linear, 0 off the object
     mask: np.ndarray  # (n, n)
     supersample: int
@@ -248,7 +264,7 @@ def render_linear(
     wavelength_step: float = 5.0,
     wavelength_nm=None,
     supersample: int = 2,
-) -> _Tile:
+) -> Tile:
     """Unscaled linear sRGB of ``material`` on ``shape``: ``(rgb, mask, supersample)``.
 
     ``rgb`` has side ``size * supersample``; only samples on the object are shaded (one
@@ -263,23 +279,26 @@ def render_linear(
     )
     rgb = np.zeros(surf.mask.shape + (3,))
     rgb[surf.mask] = np.asarray(rgb_on, dtype=float)
-    return _Tile(rgb, surf.mask, supersample, _white_scale(normals, lights, ambient))
+    return Tile(rgb, surf.mask, supersample, _white_scale(normals, lights, ambient))
 
 
 @eqx.filter_jit
-def _display(on, scale):
-    """Linear display colours of the object samples: the paper's scaling (or ``scale``)."""
-    if scale is None:
-        return scale_to_display(on)
-    return desaturate_to_gamut(desaturate_to_gamut(on, upper=None) * scale, upper=1.0), jnp.asarray(scale)
+def _paper_scale(rgb):
+    return scale_to_display(rgb.reshape(-1, 3))[1]
 
 
 @eqx.filter_jit
-def _encode(lin):
-    return eotf_inverse_sRGB(lin)
+def _compose(rgb, mask, scale, background, supersample: int):
+    """uint8 sRGB: scaled and gamut-mapped object samples over the background, averaged in
+    linear light over each pixel's ``supersample``² samples, then encoded."""
+    shown = desaturate_to_gamut(desaturate_to_gamut(rgb, upper=None) * scale, upper=1.0)
+    lin = jnp.where(mask[..., None], shown, jnp.asarray(background).astype(shown.dtype))
+    n = lin.shape[0] // supersample
+    lin = lin.reshape(n, supersample, n, supersample, 3).mean(axis=(1, 3))
+    return jnp.clip(jnp.round(eotf_inverse_sRGB(lin) * 255), 0, 255).astype(jnp.uint8)
 
 
-def tone_map(tile: _Tile, scale=None, background=BACKGROUND, exposure: str = "reference"):
+def tone_map(tile: Tile, scale=None, background=BACKGROUND, exposure: str = "reference"):
     """``(uint8 image (size, size, 3), scale)``: the paper's scaling, sRGB encoding, background.
 
     ``scale=None``: the paper's rule (:func:`ctfit.scale_to_display`): the tile's brightest
@@ -292,19 +311,13 @@ def tone_map(tile: _Tile, scale=None, background=BACKGROUND, exposure: str = "re
     """
     if exposure not in EXPOSURES:
         raise ValueError(f"exposure must be one of {EXPOSURES}, got {exposure!r}")
-    on = tile.rgb[tile.mask]
+    rgb = np.where(tile.mask[..., None], tile.rgb, 0.0)
     if scale is None:
-        _, scale = _display(on, None)
+        scale = float(_paper_scale(rgb))
         if exposure == "reference":
-            scale = min(float(scale), float(tile.white_scale))
-    shown, _ = _display(on, float(scale))
-    lin = np.broadcast_to(np.asarray(background, dtype=float), tile.rgb.shape).copy()
-    lin[tile.mask] = np.asarray(shown, dtype=float)
-    s = tile.supersample
-    n = lin.shape[0] // s
-    lin = lin.reshape(n, s, n, s, 3).mean(axis=(1, 3))  # average in linear light
-    enc = np.asarray(_encode(lin), dtype=float)
-    return np.clip(np.round(enc * 255), 0, 255).astype(np.uint8), float(scale)
+            scale = min(scale, float(tile.white_scale))
+    img = _compose(rgb, tile.mask, jnp.asarray(float(scale)), np.asarray(background, dtype=float), tile.supersample)
+    return np.asarray(img), float(scale)
 
 
 def render_material(
@@ -503,13 +516,17 @@ def measured_linear(
     """
     from scipy.spatial import cKDTree  # noqa: PLC0415
 
-    kwargs = {"channels": data.channels} if data.channels is not None else {"wavelength_nm": data.wavelength_nm}
-    if data.channels is not None and tuple(data.channels) != ("R", "G", "B"):
-        raise ValueError(f"{data.source}: RGB data must have channels R, G, B, got {list(data.channels)}")
     if data.channels is not None:
-        params, spectrum, to_rgb = render_bands(material, 5.0)
+        if tuple(data.channels) != ("R", "G", "B") or not material.is_rgb:
+            raise ValueError(
+                f"{data.source}: RGB data (channels {list(data.channels)}) needs channels R, G, B and an RGB "
+                f"material; material {material.name!r} is {'RGB' if material.is_rgb else 'spectral'}"
+            )
+        params, spectrum, to_rgb = render_bands(material)
     else:
-        params, spectrum, to_rgb = render_bands(material, 5.0, data.wavelength_nm)
+        if material.is_rgb:
+            raise ValueError(f"{data.source}: spectral data needs a spectral material; {material.name!r} has RGB channels")
+        params, spectrum, to_rgb = render_bands(material, wavelength_nm=data.wavelength_nm)
     lights = scene_lights(spectrum, directions, solid_angles)
     surf = surface(shape, size, supersample)
     normals = surf.normal[surf.mask]
@@ -534,11 +551,11 @@ def measured_linear(
     mask = surf.mask.copy()
     rgb = np.zeros(mask.shape + (3,))
     rgb[mask] = intensity @ to_rgb
-    obj = np.flatnonzero(mask.ravel())
-    mask.ravel()[obj[missing]] = False
+    rows, cols = np.nonzero(mask)
+    mask[rows[missing], cols[missing]] = False  # no measured pair near enough: shown as background
     rgb[~mask] = 0
     white = _white_scale(normals, lights, ambient)
-    return _Tile(rgb, mask, supersample, white), 1 - missing.mean() if len(missing) else 0.0
+    return Tile(rgb, mask, supersample, white), 1 - missing.mean() if len(missing) else 0.0
 
 
 def render_compare(

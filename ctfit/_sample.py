@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
 import json
 import logging
@@ -375,6 +376,16 @@ class _Engine:
         fn, leaves = _jitted("normal", self.problem, (self.layout, dense), _build_normal(self.layout, dense))
         return tuple(np.asarray(a, dtype=float) for a in fn(leaves, jnp.asarray(x_u, dtype=self.dtype)))
 
+    def residuals(self, x_u) -> np.ndarray:
+        """The flat residual vector (the fit's weighting) at a flat u."""
+        layout = self.layout
+
+        def build(rebuild):
+            return lambda leaves, x: residual(layout.unravel(x), (rebuild(leaves).y, rebuild(leaves)))
+
+        fn, leaves = _jitted("residual", self.problem, (layout,), build)
+        return np.asarray(fn(leaves, jnp.asarray(x_u, dtype=self.dtype)), dtype=float)
+
     def constrained(self, xs) -> dict:
         xs = np.atleast_2d(np.asarray(xs, dtype=float))
         fn, leaves = _jitted("constrained", self.problem, (self.layout,), _build_constrained(self.layout, False))
@@ -512,7 +523,9 @@ def _polish(engine: _Engine, x: np.ndarray, max_steps: int = 30) -> tuple[np.nda
 
 def _sort_lobes(layout: _Layout, x: np.ndarray) -> tuple[np.ndarray, bool]:
     """Flat u with the lobes reordered by ascending m (m and the weights permuted together)."""
-    u = {k: np.asarray(v, dtype=float) for k, v in layout.unravel(jnp.asarray(x)).items()}
+    sizes = [math.prod(sh) for sh in layout.shapes]
+    parts = np.split(np.asarray(x[: layout.n_u], dtype=float), np.cumsum(sizes)[:-1])
+    u = {k: p.reshape(sh) for k, p, sh in zip(layout.names, parts, layout.shapes)}
     order = np.argsort(u["m"])
     if np.all(order == np.arange(order.size)):
         return x, False
@@ -522,6 +535,20 @@ def _sort_lobes(layout: _Layout, x: np.ndarray) -> tuple[np.ndarray, bool]:
         u["w"] = logw[1:] - logw[0]
     flat = np.concatenate([np.ravel(u[k]) for k in layout.names])
     return np.concatenate([flat, x[layout.n_u :]]), True
+
+
+def _residual_spread(engine: _Engine, x_u: np.ndarray) -> float | None:
+    """rms residual of the quarter of the samples (sorted by value) where it is largest, over the
+    quarter where it is smallest: ≈ 1 when one noise scale fits every residual."""
+    r = engine.residuals(x_u)
+    y = np.asarray(engine.problem.y, dtype=float).reshape(-1)
+    keep = np.asarray(engine.problem.mask, dtype=float).reshape(-1) > 0
+    r, y = r[keep], y[keep]
+    if r.size < 40:
+        return None
+    groups = np.array_split(np.argsort(y, kind="stable"), 4)
+    rms = np.array([np.sqrt(np.mean(r[g] ** 2)) for g in groups])
+    return float(np.max(rms) / np.min(rms)) if np.min(rms) > 0 else float("inf")
 
 
 def _laplace_cov(hess: np.ndarray, scale2: float) -> tuple[np.ndarray, bool]:
@@ -699,26 +726,32 @@ def _interp_matrix(src, dst) -> np.ndarray:
     return np.stack([np.interp(dst, src, eye[j]) for j in range(src.size)], axis=1)
 
 
+@functools.partial(jax.jit, static_argnums=0)
+def _normal_fresnel(structure: Structure, params: Params):
+    from ._brdf import fresnel
+
+    return fresnel(structure, params, jnp.ones((), params.f0.dtype if params.f0 is not None else params.n.dtype))
+
+
+@jax.jit
+def _xyz_to_srgb_lab(XYZ, matrix, luminance, white):
+    """Encoded, gamut-mapped sRGB and CIELAB of XYZ (…, 3): colour_report's steps, in one kernel."""
+    from ._colour import XYZ_to_Lab, eotf_inverse_sRGB
+    from ._gamut import desaturate_to_gamut
+
+    lin = XYZ @ matrix.T
+    return eotf_inverse_sRGB(desaturate_to_gamut(lin, luminance, upper=1.0)), XYZ_to_Lab(XYZ, white)
+
+
 def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws: int = 2000) -> dict:
     """sRGB (encoded, gamut-mapped as in :func:`ctfit._colour_report.colour_report`) and CIELAB
     under ``illuminant`` of every draw (at most ``max_draws``, evenly spaced): arrays (n, 3).
 
     The colour is that of ``colour_report`` at normal incidence: the normal reflectance F0(λ)
-    when there is a specular part, π R_d(λ) otherwise.
+    when there is a specular part (F(0) from the interpolated F0, n or n and k, as the report
+    computes it), π R_d(λ) otherwise.
     """
-    from ._brdf import fresnel
-    from ._colour import (
-        DEFAULT_OBSERVER,
-        RGB_to_XYZ,
-        XYZ_to_Lab,
-        XYZ_to_RGB,
-        _cmfs,
-        encode_RGB,
-        rgb_conversion,
-        spectral_weights,
-        spectrum_to_XYZ,
-    )
-    from ._gamut import desaturate_to_gamut
+    from ._colour import DEFAULT_OBSERVER, _cmfs, rgb_conversion, spectral_weights
 
     st = material.structure
     key = next(k for k in ("F0", "n", "Rd") if k in chain)
@@ -731,39 +764,34 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
 
     if material.is_rgb:
         order = [material.channels.index(c) for c in ("R", "G", "B")]
-        mat = lambda a: None if a is None else (a if a.ndim == 1 else a[:, order])  # noqa: E731
-        grid = None
+        to_bands = lambda a: a[:, order]  # noqa: E731
+        n_out = 3
     else:
         grid = np.asarray(_cmfs(DEFAULT_OBSERVER).wavelengths, dtype=float)
         A = _interp_matrix(material.wavelength_nm, grid)
-        mat = lambda a: None if a is None else (a if a.ndim == 1 else a @ A.T)  # noqa: E731
+        to_bands = lambda a: a @ A.T  # noqa: E731
+        n_out = grid.size
     if st.has_specular:
-        if st.fresnel == "f0":
-            p = Params(f0=jnp.asarray(mat(band_param("F0"))))
-        elif st.fresnel == "n":
-            p = Params(n=jnp.asarray(mat(band_param("n"))))
-        else:
-            p = Params(n=jnp.asarray(mat(band_param("n"))), k=jnp.asarray(mat(band_param("k"))))
-        r = np.asarray(fresnel(st, p, jnp.asarray(1.0)), dtype=float)
+        names = {"f0": ("f0",), "n": ("n",), "conductor": ("n", "k")}[st.fresnel]
+        src = {"f0": "F0", "n": "n", "k": "k"}
+        p = Params(**{f: jnp.asarray(to_bands(band_param(src[f]))) for f in names})
+        r = np.asarray(_normal_fresnel(st, p), dtype=float)
     else:
         rd = band_param("Rd")
-        rd = rd[:, None] * np.ones((1, 3 if grid is None else grid.size)) if rd.ndim == 1 else mat(rd)
-        r = np.pi * rd
+        r = np.pi * (np.repeat(rd[:, None], n_out, axis=1) if rd.ndim == 1 else to_bands(rd))
     if material.is_rgb:
         conv = rgb_conversion("sRGB", None, None)
-        XYZ = np.asarray(RGB_to_XYZ(r, conv), dtype=float)
+        XYZ = r @ np.linalg.inv(np.asarray(conv.matrix)).T
         white = conv.white_XYZ
         illum = "sRGB white"
     else:
         weights = spectral_weights(grid, illuminant, DEFAULT_OBSERVER)
         conv = rgb_conversion("sRGB", weights.white_XYZ, "CAT02")
-        XYZ = np.asarray(spectrum_to_XYZ(r, weights), dtype=float)
+        XYZ = r @ np.asarray(weights.weights, dtype=float)
         white = np.asarray(weights.white_XYZ, dtype=float)
         illum = weights.illuminant
-    lin = XYZ_to_RGB(XYZ, conv)
-    srgb = np.asarray(encode_RGB(desaturate_to_gamut(lin, conv.luminance, upper=1.0), "sRGB"), dtype=float)
-    lab = np.asarray(XYZ_to_Lab(XYZ, white), dtype=float)
-    return {"sRGB": srgb, "Lab": lab, "XYZ": XYZ, "illuminant": illum, "draws": int(idx.size)}
+    srgb, lab = _xyz_to_srgb_lab(XYZ, np.asarray(conv.matrix, dtype=float), np.asarray(conv.luminance, dtype=float), white)
+    return {"sRGB": np.asarray(srgb, dtype=float), "Lab": np.asarray(lab, dtype=float), "XYZ": XYZ, "illuminant": illum, "draws": int(idx.size)}
 
 
 def _colour_summary(material: Material, chain: dict) -> tuple[dict | None, str | None]:
@@ -861,6 +889,8 @@ def sample(
     t0 = time.perf_counter()
     if steps < 1 or thin < 1:
         raise ValueError(f"steps and thin must be ≥ 1, got steps={steps}, thin={thin}")
+    if resume and backend is None:
+        raise ValueError("resume=True needs a backend (the HDF5 file of the run to continue)")
     material, loss, fixed = _resolve(fit_result_or_material, loss, fixed)
     if loss == "auto":
         loss = "sigma" if data.sigma is not None else "relative"
@@ -911,6 +941,7 @@ def sample(
         x0 = np.concatenate([x_u, [0.5 * math.log(max(2 * cost / max(n_obs, 1), 1e-300))]])
         cov[-1, -1] = 1.0 / (2 * max(n_obs, 1))
     labels = layout.labels()
+    spread = _residual_spread(engine, x_u) if noise else None
     laplace = _laplace_stderr(engine, x0, cov_u) if well else None
     optimum = {k: v[0] for k, v in engine.constrained(x0[None]).items()}
     logp = engine
@@ -984,6 +1015,12 @@ def sample(
         notes.append(f"mean acceptance fraction {np.mean(acc):.2f} is outside 0.15–0.7: the posterior may be multimodal or badly scaled")
     if laplace is None:
         notes.append("Laplace standard errors not computed: JᵀJ is singular or ill conditioned")
+    if spread is not None and spread > 2:
+        notes.append(
+            f"the residuals' scale varies by ×{spread:.3g} between the lowest and highest quarter of the data "
+            f"(by value): one σ_noise for all of them is a poor noise model, and the intervals may be too narrow; "
+            "give the data a sigma column (loss 'sigma'), or use a loss whose residuals have one scale"
+        )
     col = None
     if colour:
         col, note = _colour_summary(material, chain)
@@ -1034,6 +1071,7 @@ def sample(
         "sampling_time_s": run_s,
         "walker_steps_per_s": (nwalkers * max(todo, 0) / run_s) if run_s > 0 and todo > 0 else None,
         "backend": None if backend is None else str(backend),
+        "residual_scale_ratio": spread,
         "autocorr_note": "τ in steps, per sampled coordinate (u of ctfit._problem); ESS = walkers · (steps − burn)/τ",
     }
     return SampleResult(

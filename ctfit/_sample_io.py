@@ -10,7 +10,6 @@ The ``uncertainty`` section (``docs/uncertainty.md``) is :meth:`SampleResult.to_
 
 from __future__ import annotations
 
-import math
 import os
 import pathlib
 
@@ -119,6 +118,13 @@ def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathl
         label_kwargs={"fontsize": 12},
         title_kwargs={"fontsize": 10},
     )
+    from matplotlib.ticker import ScalarFormatter
+
+    for ax in fig.axes:  # absolute values on the ticks, no "+2e−1" offsets
+        for axis in (ax.xaxis, ax.yaxis):
+            fmt = axis.get_major_formatter()
+            if isinstance(fmt, ScalarFormatter):
+                fmt.set_useOffset(False)
     d = result.diagnostics
     fig.suptitle(
         title
@@ -246,6 +252,10 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
 
 
 def _read_data(path):
+    from ._measurement import Measurement
+
+    if isinstance(path, Measurement):
+        return path
     try:
         from ._readers import read_measurement
     except ImportError:  # pragma: no cover - older trees: CSV only
@@ -312,7 +322,8 @@ def sample_command_body(
 ) -> dict:
     """``ctfit sample FIT.json DATA``: sample, write the fit JSON with its ``uncertainty`` section.
 
-    Reads the material (fit JSON or TOML) and the measurement, samples (the loss recorded in
+    Reads the material (fit JSON or TOML) and the measurement (a path, or a
+    :class:`~ctfit.Measurement` already read), samples (the loss recorded in
     the file's ``fit`` section, else sigma/relative), writes ``output`` (default: ``fit_json``
     itself, updated in place) atomically — every key of the input kept, ``uncertainty``
     replaced — and, with ``plot_dir``, ``<stem>.corner.png`` and ``<stem>.spectra.png``.

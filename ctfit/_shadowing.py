@@ -37,8 +37,9 @@ def v_cavity_reduced(cos_l, cos_v, cos_h, cos_vh):
 
     Requires N·L > 0, N·V > 0 and V·H > 0 (callers mask other directions).
     """
+    # = min{1, 2(N·H)(N·V)/(V·H), 2(N·H)(N·L)/(V·H)} / ((N·L)(N·V)), with two divisions.
     two_h = 2 * cos_h / cos_vh
-    return jnp.minimum(1 / (cos_l * cos_v), jnp.minimum(two_h / cos_l, two_h / cos_v))
+    return jnp.minimum(1, two_h * jnp.minimum(cos_l, cos_v)) / (cos_l * cos_v)
 
 
 def smith_g1_reduced(cos_t, sin_t, m):

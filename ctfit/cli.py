@@ -1,4 +1,4 @@
-"""The ``ctfit`` command: eval, simulate, fit, color.
+"""The ``ctfit`` command: eval, simulate, fit, sample, color.
 
 Heavy imports (JAX, colour-science) happen inside the commands, so ``ctfit --version`` is fast.
 Errors in the input (bad files, bad options) print one ``error:`` line naming the file, line
@@ -174,6 +174,14 @@ def fit(
     starts: int = typer.Option(3, "--starts", help="Seeds from the grid over m, solved at once."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=_PARAM_OUT_HELP),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit (one file: this path; several: a folder)."),
+    sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
+    walkers: Optional[int] = typer.Option(None, "--walkers", help="With --sample: walkers (default max(2·ndim + 2, 32))."),
+    steps: int = typer.Option(2000, "--steps", help="With --sample: steps per walker."),
+    burn: Optional[int] = typer.Option(None, "--burn", help="With --sample: steps discarded."),
+    thin: int = typer.Option(1, "--thin", help="With --sample: keep every THIN-th step."),
+    seed: int = typer.Option(0, "--seed", help="With --sample: random seed."),
+    backend: Optional[Path] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder)."),
+    resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
 ):
     """Fit the Cook–Torrance parameters to DATA; prints a table of parameters ± standard errors."""
     status = {"code": 0}
@@ -185,6 +193,8 @@ def fit(
             raise UserError(f"--fresnel must be effective-n or conductor, got {fresnel!r}")
         if lobes != "auto" and not (lobes.isdigit() and 1 <= int(lobes) <= 8):
             raise UserError(f"--lobes must be 1..8 or 'auto', got {lobes!r}")
+        if resume and backend is None:
+            raise UserError("--resume needs --backend")
         _setup_jax(float32)
         import jax.numpy as jnp
 
@@ -211,15 +221,37 @@ def fit(
                 res = run_fit(meas, st, start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts)
             res.material.meta["data"] = str(path)
             results.append((path, res))
-            if as_json:
-                typer.echo(json.dumps(fit_result_to_dict(res), indent=2))
+            many = len(files) > 1
+            target = None if output is None else (output / (Path(path).stem + ".fit.json") if many else output)
+            for folder in ([output] if many and output else []) + ([backend] if many and backend and sample_ else []):
+                folder.mkdir(parents=True, exist_ok=True)
+            if sample_:
+                import warnings
+
+                from ._sample import ChainTooShortWarning
+                from ._sample_io import fit_sample_body, format_uncertainty_table
+
+                be = None if backend is None else (backend / (Path(path).stem + ".h5") if many else backend)
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
+                    doc = fit_sample_body(
+                        res, meas, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=be,
+                        resume=resume, output=target, plot_dir=None if plot is None else (plot if many else plot.parent),
+                        plot_stem=Path(path).stem, progress=sys.stderr.isatty(),
+                    )
+                if as_json:
+                    typer.echo(json.dumps(doc, indent=2))
+                else:
+                    typer.echo(format_fit_table(res, str(path)))
+                    typer.echo(format_uncertainty_table(doc, str(path)))
             else:
-                typer.echo(format_fit_table(res, str(path)))
-            if output is not None:
-                target = output if len(files) == 1 else output / (Path(path).stem + ".fit.json")
-                if len(files) > 1:
-                    output.mkdir(parents=True, exist_ok=True)
-                save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
+                if as_json:
+                    typer.echo(json.dumps(fit_result_to_dict(res), indent=2))
+                else:
+                    typer.echo(format_fit_table(res, str(path)))
+                if target is not None:
+                    save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
+            if target is not None:
                 typer.echo(f"wrote {target}", err=True)
             if plot is not None:
                 from ._fit_plot import plot_fit
@@ -259,6 +291,45 @@ def _bic_table(table, best) -> str:
         mark = "  <- kept" if r is best else ""
         lines.append(f"  {st.lobes:>5} {str(st.has_diffuse):>8} {r.stats['n_params']:>6} {r.stats['rel_rmse']:>10.4g} {r.stats['bic']:>14.6g}{mark}")
     return "\n".join(lines)
+
+
+@app.command("sample")
+def sample_cmd(
+    fit_json: Path = typer.Argument(..., help="Fit-result JSON (a material TOML needs -o)."),
+    data: Path = typer.Argument(..., help="The measurement the material was fitted to."),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
+    walkers: Optional[int] = typer.Option(None, "--walkers", help="Walkers (default max(2·ndim + 2, 32), even)."),
+    steps: int = typer.Option(2000, "--steps", help="Steps per walker in all (also with --resume)."),
+    burn: Optional[int] = typer.Option(None, "--burn", help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
+    thin: int = typer.Option(1, "--thin", help="Keep every THIN-th step."),
+    seed: int = typer.Option(0, "--seed"),
+    backend: Optional[Path] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Folder for the corner and spectral-band PNGs."),
+    param_out: Optional[str] = typer.Option(None, "--param-out", help=_PARAM_OUT_HELP),
+):
+    """Posterior sampling (emcee) of a fitted material: medians and 68 %/95 % intervals, written into the fit JSON."""
+
+    def body():
+        if resume and backend is None:
+            raise UserError("--resume needs --backend")
+        _setup_jax()
+        import warnings
+
+        from ._sample import ChainTooShortWarning
+        from ._sample_io import format_uncertainty_table, sample_command_body
+
+        meas = _read_data(data, param_out)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
+            doc = sample_command_body(
+                fit_json, meas, walkers, steps, burn, thin, seed, backend, resume, plot, output, progress=sys.stderr.isatty()
+            )
+        typer.echo(json.dumps(doc, indent=2) if as_json else format_uncertainty_table(doc, str(data)))
+        typer.echo(f"wrote {output or fit_json}", err=True)
+
+    _run(body)
 
 
 @app.command()

@@ -167,13 +167,15 @@ def run(pairs: int, bands: int, walkers: int, steps: int, seed: int = 0) -> dict
     for name, ref in refs.items():
         out[f"logprob_{name}_per_walker_us"] = best(lambda: [ref(x) for x in start])
 
-    def timed(fn, vectorize):
-        s = emcee.EnsembleSampler(walkers, x0.size, fn, vectorize=vectorize)
-        s.random_state = np.random.RandomState(seed).get_state()
-        t = time.perf_counter()
-        s.run_mcmc(start, steps)
-        dt = time.perf_counter() - t
-        return walkers * steps / dt, float(np.mean(s.acceptance_fraction)), s.get_chain()
+    def timed(fn, vectorize, repeat=2):
+        best = np.inf
+        for _ in range(repeat):  # best of ``repeat`` identical runs (the machine may be shared)
+            s = emcee.EnsembleSampler(walkers, x0.size, fn, vectorize=vectorize)
+            s.random_state = np.random.RandomState(seed).get_state()
+            t = time.perf_counter()
+            s.run_mcmc(start, steps)
+            best = min(best, time.perf_counter() - t)
+        return walkers * steps / best, float(np.mean(s.acceptance_fraction)), s.get_chain()
 
     out["ctfit_walker_steps_per_s"], acc_j, chain_j = timed(engine, True)
     # emcee's own ceiling: the same run with a trivial (vectorised) log-probability.

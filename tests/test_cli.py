@@ -114,3 +114,24 @@ def test_bad_csv_names_file_line_and_column(tmp_path):
     assert r.exit_code == 2
     assert "bad.csv:3" in r.output and "theta_o" in r.output
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_sample_command_adds_an_uncertainty_section(simulated, tmp_path):
+    d, csv = simulated
+    fit_json = tmp_path / "fit.json"
+    assert run("fit", csv, "--lobes", 2, "--no-diffuse", "-o", fit_json).exit_code == 0
+    out = tmp_path / "sampled.json"
+    r = run("sample", fit_json, csv, "--steps", 150, "--walkers", 24, "--seed", 1, "-o", out)
+    assert r.exit_code == 0, r.output
+    doc = json.loads(out.read_text())
+    unc = doc["uncertainty"]
+    assert len(unc["lobes"]) == 2 and len(unc["F0"]) == len(doc["F0"])
+    for entry in [unc["lobes"][0]["m"], unc["F0"][0], unc["n"][0]]:
+        assert entry["p16"] <= entry["median"] <= entry["p84"]
+    assert doc["fit"] == json.loads(fit_json.read_text())["fit"]  # the fit section is kept
+
+
+def test_resume_needs_a_backend(simulated, tmp_path):
+    d, csv = simulated
+    r = run("fit", csv, "--lobes", 1, "--sample", "--resume")
+    assert r.exit_code == 2 and "--backend" in r.output

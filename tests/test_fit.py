@@ -1,5 +1,6 @@
 """Fitting: recovery from synthetic data, stiff cases, degeneracy reports, implicit gradients."""
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -132,15 +133,21 @@ def test_gradient_of_fitted_parameters_wrt_data_matches_finite_differences():
 
 
 def test_custom_jvp_matches_plain_autodiff():
+    from ctfit._problem import _loss, model_values
+
     st = ctfit.Structure(lobes=2, geometry="smith", diffuse="spectrum")
     truth = material(st, WL8[:4], s=np.asarray(0.7), m=np.array([0.1, 0.3]), w=np.array([0.3, 0.7]), f0=np.full(4, 0.6), rd=np.full(4, 0.05))
     data = simulate(truth, 60, noise=0.01, seed=11)
+
+    @eqx.filter_jit
+    def both(problem, u):
+        plain = jax.jacfwd(lambda uu: _loss(problem, model_values(problem, uu), problem.y))(u)
+        custom = jax.jacfwd(lambda uu: residual(uu, (problem.y, problem)))(u)
+        return plain, custom
+
     for loss in ("absolute", "relative", "sigma", "cosine", "log"):
         problem = make_problem(st, data, fixed_params=truth.params, loss=loss)
         u = {k: jnp.asarray(v) * 1.01 for k, v in from_params(problem.spec, truth.params).items()}
-        from ctfit._problem import _loss, model_values
-
-        plain = jax.jacfwd(lambda uu: _loss(problem, model_values(problem, uu), problem.y))(u)
-        custom = jax.jacfwd(lambda uu: residual(uu, (problem.y, problem)))(u)
+        plain, custom = both(problem, u)
         for k in u:
             np.testing.assert_allclose(custom[k], plain[k], rtol=1e-9, atol=1e-12, err_msg=f"{loss} {k}")

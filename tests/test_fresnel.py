@@ -1,10 +1,10 @@
 """Fresnel reflectance F (Cook & Torrance 1982, appendix; conductor form after Born & Wolf).
 
-References for the external values:
-- Hecht, E. Optics (5th ed., 2017), §4.6.2–4.6.3 (Fresnel equations; reflectance of glass,
-  n = 1.5: R = 0.04 at normal incidence, R_s ≈ 0.092 and R_p ≈ 0.0085 at 45°, Brewster's
-  angle θ_p = arctan 1.5 = 56.31° with R_p = 0 and R_s ≈ 0.148).
-- Born, M. and Wolf, E. Principles of Optics (7th ed., 1999), §1.5.2 eqs. 21, 35 (the same).
+References for the external values (glass, n = 1.5): Fresnel's equations in the form
+R_s = sin²(θ_i − θ_t)/sin²(θ_i + θ_t), R_p = tan²(θ_i − θ_t)/tan²(θ_i + θ_t), sin θ_t = sin θ_i/n
+(Hecht, E., Optics, §4.6 "The Fresnel equations"; Born, M. and Wolf, E., Principles of Optics,
+§1.5.2 "Fresnel formulae"): R = 0.04 at normal incidence; at 45° R_s = 0.0920, R_p = 0.0085,
+unpolarised 0.0502; at Brewster's angle θ_B = arctan 1.5 = 56.31° R_p = 0, R_s = 0.1479.
 """
 
 import jax
@@ -68,6 +68,16 @@ def test_grazing_limit_is_one(dtype):
 
 def test_glass_against_textbook_values():
     """n = 1.5 (Hecht §4.6; Born & Wolf §1.5.2): F0 = 0.04; 45°: (R_s + R_p)/2 = (0.0920 + 0.0085)/2."""
+    # The textbook's sine/tangent form, independent of the paper's g-form used by ctfit.
+    ti = np.pi / 4
+    tt = np.arcsin(np.sin(ti) / 1.5)
+    rs, rp = np.sin(ti - tt) ** 2 / np.sin(ti + tt) ** 2, np.tan(ti - tt) ** 2 / np.tan(ti + tt) ** 2
+    assert (round(rs, 4), round(rp, 4)) == (0.0920, 0.0085)
+    assert float(fresnel_dielectric(jnp.asarray(np.cos(ti)), 1.5)) == pytest.approx(0.5 * (rs + rp), rel=1e-14)
+    for t in np.deg2rad([10.0, 30.0, 60.0, 80.0, 89.0]):
+        tt = np.arcsin(np.sin(t) / 1.5)
+        ref = 0.5 * (np.sin(t - tt) ** 2 / np.sin(t + tt) ** 2 + np.tan(t - tt) ** 2 / np.tan(t + tt) ** 2)
+        assert float(fresnel_dielectric(jnp.asarray(np.cos(t)), 1.5)) == pytest.approx(ref, rel=1e-13)
     n = jnp.asarray(1.5)
     assert float(f0_from_n(n)) == pytest.approx(0.04, rel=1e-15)
     assert float(fresnel_dielectric(jnp.asarray(1.0), n)) == pytest.approx(0.04, rel=1e-15)

@@ -134,17 +134,7 @@ def test_no_nan_on_the_silhouette(structure):
     assert np.all(got >= 0)
 
 
-@pytest.mark.parametrize("structure", SOME[1:2], ids=structure_id)
-def test_gradients_finite_on_the_silhouette(structure):
-    normals = _silhouette_normals()
-
-    @eqx.filter_jit
-    @jax.grad
-    def grads_of(p):
-        return jnp.sum(reflected_intensity(structure, p, normals, Z, LIGHTS, jnp.full(3, 0.01)))
-
-    for leaf in jax.tree_util.tree_leaves(grads_of(make_params(structure))):
-        assert np.all(np.isfinite(np.asarray(leaf)))
+# Gradients at the silhouette, through the renderer: tests/test_render.py::test_rendered_pixel_gradients_are_finite.
 
 
 def test_broadcasts_over_an_image():

@@ -177,22 +177,29 @@ def test_grid_has_one_tile_per_material():
 
 
 def test_rendered_pixel_gradients_are_finite():
-    cu = ctfit.load_material(ROOT / "configs" / "copper-vase.toml")
-    params, spectrum, to_rgb = render_bands(cu, 20.0)
+    """d(displayed pixel)/d(parameters) through eq. 1, the colour matrix, the gamut mapping at a
+    fixed exposure and the sRGB encoding; finite on the whole sphere including exact
+    silhouette normals (N·V = 0, 1e-300, < 0)."""
+    st = Structure(lobes=1, fresnel="f0", diffuse="spectrum")
+    params = Params(s=jnp.asarray(0.8), m=jnp.array([0.1]), w=jnp.array([1.0]), f0=jnp.array([0.6, 0.7, 0.9]), rd=jnp.array([0.1, 0.05, 0.02]))
+    mat = Material(st, params, channels=RGB)
+    _, spectrum, to_rgb = render_bands(mat)
     lights = scene_lights(spectrum)
     surf = surface("sphere", 12)
-    normals = surf.normal[surf.mask]
-    params = jax.tree_util.tree_map(jnp.asarray, params)
+    phi = np.linspace(0, 2 * np.pi, 9)
+    rim = [np.stack([np.cos(phi) * np.sqrt(1 - z * z), np.sin(phi) * np.sqrt(1 - z * z), np.full_like(phi, z)], -1) for z in (0.0, 1e-300, 1e-9, -1e-9)]
+    normals = np.concatenate([surf.normal[surf.mask], *rim])
+    scale = 3e3  # about the paper's scale for this tile (its highlight just over display white)
 
     @eqx.filter_jit
     @eqx.filter_grad
     def grad(p):
-        rgb = shade_linear(cu.structure, p, normals, jnp.asarray(VIEW), lights, 1e-6, to_rgb)
-        shown, _ = ctfit.scale_to_display(rgb)
-        return jnp.sum(shown[len(normals) // 3]) + jnp.sum(rgb[len(normals) // 2])
+        rgb = shade_linear(st, p, normals, jnp.asarray(VIEW), lights, 1e-6, to_rgb)
+        shown = ctfit.eotf_inverse_sRGB(ctfit.desaturate_to_gamut(rgb * scale, upper=1.0))
+        return jnp.sum(shown[len(normals) // 3]) + jnp.sum(shown[-40:]) + jnp.sum(rgb)
 
     g = grad(params)
-    for name in ("m", "w", "f0"):
+    for name in ("s", "m", "f0", "rd"):
         leaf = np.asarray(getattr(g, name))
         assert np.all(np.isfinite(leaf)) and np.any(leaf != 0), name
 
@@ -247,3 +254,26 @@ def test_save_png_round_trip(tmp_path):
     np.testing.assert_array_equal(np.asarray(Image.open(path)), img)
     with pytest.raises(ValueError):
         save_png(img.astype(float), tmp_path / "b.png")
+
+
+def test_compare_rejects_mismatched_bands(simulated):
+    _, data = simulated
+    with pytest.raises(ValueError, match="spectral material"):
+        render_compare(lambert_material(), data, 8, supersample=1)
+
+
+def test_cli_render(tmp_path):
+    from typer.testing import CliRunner
+
+    from ctfit.cli import app
+
+    names = {c.name or c.callback.__name__ for c in app.registered_commands}
+    if "render" not in names:
+        pytest.skip("the `ctfit render` command is not registered in ctfit/cli.py")
+    out = tmp_path / "r.png"
+    cfg = str(ROOT / "configs" / "lunar-dust.toml")
+    res = CliRunner().invoke(app, ["render", cfg, cfg, "-o", str(out), "--size", "16", "--supersample", "1", "--step", "20", "--shape", "vase"])
+    assert res.exit_code == 0, res.output
+    assert out.exists()
+    res = CliRunner().invoke(app, ["render", cfg, "-o", str(out), "--shape", "cube"])
+    assert res.exit_code == 2 and "shape" in res.output

@@ -77,6 +77,19 @@ def test_unknown_noise_scale_is_sampled(diffuse_toy):
     assert np.all(np.abs(draws.std(axis=0) - 1) < 0.1)
     assert res.priors["parameters"]["sigma_noise"]["kind"] == "log-uniform"
     assert "σ_noise" in res.likelihood["log_likelihood"]
+    assert res.diagnostics["residual_scale_ratio"] < 1.5 and not any("scale varies" in w for w in res.warnings)
+
+
+@short
+def test_noise_of_several_scales_is_reported(diffuse_toy):
+    """Relative noise (sd ∝ R_d, ×2.4 between bands) with absolute residuals: one σ_noise does
+    not fit; the result says so."""
+    truth, data, _, _ = diffuse_toy
+    clean = np.repeat(truth.params.rd[None], len(data), axis=0)[np.arange(len(data)), data.band]
+    noisy = clean * (1 + 0.05 * np.random.default_rng(9).standard_normal(len(data)))
+    res = sample(truth, data.replace(brdf=noisy, sigma=None), steps=50, seed=0, loss="absolute", colour=False)
+    assert res.diagnostics["residual_scale_ratio"] > 2
+    assert any("scale varies" in w for w in res.warnings)
 
 
 # --- synthetic Cook–Torrance data ---------------------------------------------------------------
@@ -192,21 +205,24 @@ def test_log_prior_is_flat_in_the_constrained_parameters(diffuse_toy):
     from jax.flatten_util import ravel_pytree
 
     flat0, unravel = ravel_pytree(u0)
+
+    def theta(f):
+        p = to_params(problem.spec, unravel(f), problem.fixed)
+        return jnp.concatenate([jnp.atleast_1d(p.s), p.m, p.w[1:], p.f0])
+
+    @jax.jit
+    def chi2_and_logdet(x):
+        r = ctfit._problem.residual(unravel(x), (problem.y, problem))
+        return jnp.sum(r * r), jnp.linalg.slogdet(jax.jacfwd(theta)(x))[1]
+
     rng = np.random.default_rng(0)
-    for _ in range(3):
-        x = np.asarray(flat0) + 0.3 * rng.standard_normal(flat0.size)
-        u = unravel(jnp.asarray(x))
-        if not np.all(np.diff(np.asarray(u["m"])) > 0):
-            continue
-
-        def theta(f):
-            p = to_params(problem.spec, unravel(f), problem.fixed)
-            return jnp.concatenate([jnp.atleast_1d(p.s), p.m, p.w[1:], p.f0])
-
-        logdet = np.linalg.slogdet(np.asarray(jax.jacfwd(theta)(jnp.asarray(x))))[1]
-        r = np.asarray(ctfit._problem.residual(u, (problem.y, problem)))
-        lp = eng(x[None])[0]
-        np.testing.assert_allclose(lp - (-0.5 * np.sum(r * r)), logdet, rtol=1e-9, atol=1e-9)
+    xs = np.asarray(flat0) + 0.3 * rng.standard_normal((4, flat0.size))
+    xs = xs[[bool(np.all(np.diff(np.asarray(unravel(jnp.asarray(x))["m"])) > 0)) for x in xs]]
+    assert len(xs) >= 2
+    lp = eng(xs)
+    for x, lp_x in zip(xs, lp):
+        chi2, logdet = chi2_and_logdet(jnp.asarray(x))
+        np.testing.assert_allclose(lp_x - (-0.5 * float(chi2)), float(logdet), rtol=1e-9, atol=1e-9)
     # Lobes out of order have probability 0.
     swapped = {**u0, "m": u0["m"][::-1]}
     assert eng(np.asarray(ravel_pytree(swapped)[0])[None])[0] == -np.inf
