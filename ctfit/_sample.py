@@ -71,6 +71,7 @@ from jax.flatten_util import ravel_pytree
 
 from ._brdf import diffuse_reflectance, normal_reflectance
 from ._fresnel import n_from_f0
+from ._material_io import _jsonable
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
 from ._problem import LOSSES, Problem, from_params, make_problem, normal_equations, residual, to_params
@@ -699,21 +700,6 @@ class SampleResult:
         out["warnings"] = list(self.warnings)
         return _jsonable(out)
 
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    return x
 
 
 # --- colour of the draws ------------------------------------------------------------------------
