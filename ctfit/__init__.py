@@ -99,6 +99,15 @@ _EXPORTS = {
     "format_uncertainty_table": "._sample_io",
     "plot_corner": "._sample_io",
     "plot_spectra": "._sample_io",
+    "Light": "._intensity",
+    "reflected_intensity": "._intensity",
+    "Tile": "._render",
+    "render_compare": "._render",
+    "render_linear": "._render",
+    "render_material": "._render",
+    "render_materials": "._render",
+    "save_png": "._render",
+    "tone_map": "._render",
 }
 
 __all__ = sorted(_EXPORTS)
@@ -252,6 +261,19 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         format_uncertainty_table as format_uncertainty_table,
         plot_corner as plot_corner,
         plot_spectra as plot_spectra,
+    )
+    from ._intensity import (
+        Light as Light,
+        reflected_intensity as reflected_intensity,
+    )
+    from ._render import (
+        Tile as Tile,
+        render_compare as render_compare,
+        render_linear as render_linear,
+        render_material as render_material,
+        render_materials as render_materials,
+        save_png as save_png,
+        tone_map as tone_map,
     )
 
 try:

@@ -1,4 +1,4 @@
-"""The ``ctfit`` command: eval, simulate, fit, sample, color.
+"""The ``ctfit`` command: eval, simulate, fit, sample, color, render.
 
 Heavy imports (JAX, colour-science) happen inside the commands, so ``ctfit --version`` is fast.
 Errors in the input (bad files, bad options) print one ``error:`` line naming the file, line
@@ -328,6 +328,36 @@ def sample_cmd(
             )
         typer.echo(json.dumps(doc, indent=2) if as_json else format_uncertainty_table(doc, str(data)))
         typer.echo(f"wrote {output or fit_json}", err=True)
+
+    _run(body)
+
+
+@app.command()
+def render(
+    materials: List[Path] = typer.Argument(..., help="Material TOML or fit-result JSON files, one tile each."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output PNG."),
+    size: int = typer.Option(256, "--size", help="Tile side in pixels."),
+    shape: str = typer.Option("sphere", "--shape", help="sphere or vase."),
+    compare: Optional[Path] = typer.Option(None, "--compare", help="Measurement file: show the one MATERIAL beside a rendering that uses the nearest measured BRDF."),
+    labels: bool = typer.Option(True, "--labels/--no-labels", help="Write each material's name under its tile."),
+    columns: Optional[int] = typer.Option(None, "--columns", help="Tiles per row (default: up to 6)."),
+    step: float = typer.Option(5.0, "--step", help="Wavelength step of spectral rendering over 380–780 nm."),
+    supersample: int = typer.Option(2, "--supersample", help="Samples per pixel along each axis (anti-aliasing)."),
+    ambient: float = typer.Option(0.01, "--ambient", help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
+    exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),
+):
+    """Render materials on spheres or vases under the paper's two lights (Figures 6–7) to a PNG."""
+
+    def body():
+        _setup_jax(float32=True)  # float32 is plenty for images
+        from ._render_cli import render_command_body
+
+        info = render_command_body(
+            materials, output, size, shape, compare, labels,
+            columns=columns, wavelength_step=step, supersample=supersample, ambient=ambient, exposure=exposure,
+        )
+        h, w = info["image_shape"][:2]
+        typer.echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
 
     _run(body)
 

@@ -53,18 +53,16 @@ def _setup(x64: bool):
     return jax
 
 
-def build(jax, material, normals, directions, solid_angles, ambient):
+def build(jax, material, directions, solid_angles, ambient):
     """{method: (jitted fn(params, normals) -> linear sRGB, params)} for one material and scene."""
     import equinox as eqx  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    from ctfit._brdf import ambient_reflectance, diffuse_reflectance, specular_geometric  # noqa: PLC0415
+    from ctfit._brdf import ambient_reflectance, diffuse_reflectance, fresnel, normal_reflectance, specular_geometric  # noqa: PLC0415
     from ctfit._colour import XYZ_to_RGB, rgb_conversion, spectral_weights, spectrum_to_XYZ  # noqa: PLC0415
     from ctfit._colour_shift import average_normal_reflectance, colour_shift_approximation  # noqa: PLC0415
-    from ctfit._fresnel import fresnel_dielectric_f0  # noqa: PLC0415
     from ctfit._geometry import geometry  # noqa: PLC0415
     from ctfit._render import VIEW, _ambient, render_bands, scene_lights, shade_linear  # noqa: PLC0415
-    from ctfit._brdf import fresnel, normal_reflectance  # noqa: PLC0415
 
     st = material.structure
     view = jnp.asarray(VIEW)
@@ -201,7 +199,7 @@ def run(args):
         results = {}
         times = {}
         for scene, (dirs, dws) in scenes.items():
-            methods = build(jax, mat, normals, dirs, dws, AMBIENT_FRACTION)
+            methods = build(jax, mat, dirs, dws, AMBIENT_FRACTION)
             if "_lut_setup_ms" in methods:
                 setup[name] = methods.pop("_lut_setup_ms")
             rgb = {m: np.asarray(fn(p, n_jax), dtype=float) for m, (fn, p) in methods.items()}
