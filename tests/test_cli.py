@@ -135,3 +135,15 @@ def test_resume_needs_a_backend(simulated, tmp_path):
     d, csv = simulated
     r = run("fit", csv, "--lobes", 1, "--sample", "--resume")
     assert r.exit_code == 2 and "--backend" in r.output
+
+
+def test_color_json_has_the_documented_keys():
+    r = run("color", ROOT / "configs" / "gold.toml", "--json")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    for key in ("XYZ", "xy", "sRGB", "dominant_wavelength_nm", "Lab", "hex"):
+        assert key in doc
+    assert 570 < doc["dominant_wavelength_nm"] < 590  # gold is yellow-orange
+    assert 0 < doc["XYZ"][1] < 1
+    r60 = json.loads(run("color", ROOT / "configs" / "gold.toml", "--json", "--angle", 80).stdout)
+    assert r60["XYZ"][1] > doc["XYZ"][1]  # brighter towards grazing (Fresnel)
