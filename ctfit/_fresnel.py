@@ -78,7 +78,7 @@ def _clip_cos(c):
     return c, (1 - c) * (1 + c)
 
 
-def _dielectric(c, a, u, scale):
+def _dielectric(c, a, u, scale, *, tir_possible=True):
     """Unpolarised dielectric F from c = V·H, a = 1 − u², u = 1/n and ``scale`` = a².
 
     ``scale`` is passed separately so the F0 path can write it as 16 F0/(1 + r)⁴, exactly linear
@@ -100,14 +100,18 @@ def _dielectric(c, a, u, scale):
     s2 = jnp.where(grazing, 0, s2)
     c2 = c * c
     g2 = c2 + s2 * a
-    tir = g2 <= 0
-    g = jnp.sqrt(jnp.where(tir, 1, g2))
+    if tir_possible:
+        tir = g2 <= 0
+        g = jnp.sqrt(jnp.where(tir, 1, g2))
+    else:  # a ≥ 0 (n ≥ 1), c > 0 here: g² ≥ c² > 0
+        g = jnp.sqrt(g2)
     gcu = g + c * u
     p = c * g + s2 * u
     inv = 1 / (gcu * gcu * p)
     f = scale * (inv * inv) * (c2 * g2 + s2 * s2 * u * u)
     f = jnp.where(grazing, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
-    f = jnp.where(tir, 1, f)
+    if tir_possible:
+        f = jnp.where(tir, 1, f)
     return jnp.clip(f, 0, 1)
 
 
@@ -133,7 +137,7 @@ def fresnel_dielectric_f0(c, f0):
     u = (1 - f0) / one_plus_r2
     a = 4 * r / one_plus_r2
     scale = 16 * f0 / (one_plus_r2 * one_plus_r2)
-    return _dielectric(c, a, u, scale)
+    return _dielectric(c, a, u, scale, tir_possible=False)
 
 
 def fresnel_dielectric(c, n):

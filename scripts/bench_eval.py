@@ -17,6 +17,9 @@ Every figure comes from the same run on the same machine:
 Also timed: what leaving terms out saves (a d = 0 metal against the same with a diffuse
 spectrum; an s = 0 material against the full one).
 
+Timing: warm (compiled) calls, ``block_until_ready``; every configuration runs in rounds
+interleaved with the others, a few calls in a row per round, and the best call counts.
+
 Usage: ``python scripts/bench_eval.py [--pairs 32258] [--bands 31] [--repeat 7] [--markdown]``
 """
 
@@ -130,17 +133,9 @@ def make_problem(pairs, bands, dtype, seed=0):
     return l, v, f0, rd.astype(dtype)
 
 
-def best_time(fn, repeat, budget_s=2.0):
-    """Best of ``repeat`` warm runs (more, up to ``budget_s``, when a run is short): the least
-    disturbed figure on a shared machine."""
-    fn()  # warm (compile, caches)
-    times = []
-    start = time.perf_counter()
-    while len(times) < repeat or (time.perf_counter() - start < budget_s and len(times) < 200):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+def best_time(fn, repeat):
+    """Best of ``repeat`` warm runs."""
+    return interleaved_best({0: fn}, 1, inner=repeat)[0]
 
 
 # --------------------------------------------------------------------------- ctfit
@@ -178,6 +173,25 @@ def ctfit_params(jnp, structure, f0, rd, s, m, w, dtype):
     return ctfit.Params(**kw)
 
 
+def interleaved_best(runs, rounds, inner=3):
+    """Best time of each closure over ``rounds`` rounds; in each round every closure runs
+    ``inner`` times in a row (the first of them re-warms the caches after the others ran).
+
+    On a machine shared with other jobs this gives every configuration the same chances: a
+    busy moment costs all of them a round, not one of them its figure.
+    """
+    for fn in runs.values():
+        fn()  # warm (compile)
+    best = {k: np.inf for k in runs}
+    for _ in range(rounds):
+        for k, fn in runs.items():
+            for _ in range(inner):
+                t0 = time.perf_counter()
+                fn()
+                best[k] = min(best[k], time.perf_counter() - t0)
+    return best
+
+
 def run(args):
     jax = _setup_jax(x64=True)
     import jax.numpy as jnp
@@ -186,58 +200,49 @@ def run(args):
 
     P, B = args.pairs, args.bands
     N = P * B
-    rows = []
-    extra = []
+    jax_runs, np_runs, errs = {}, {}, {}
+    leave_out = {
+        "metal, d = 0": ctfit.Structure(lobes=1, diffuse=None),
+        "same + diffuse spectrum": ctfit.Structure(lobes=1, diffuse="spectrum"),
+        "s = 0 (diffuse only)": ctfit.Structure(lobes=0, diffuse="spectrum"),
+    }
     for dtype in (np.float32, np.float64):
+        dt = np.dtype(dtype).name
         l, v, f0, rd = make_problem(P, B, dtype)
         s = dtype(0.8)
+        lj, vj = jnp.asarray(l), jnp.asarray(v)
+        # Scattered layout: every value its own direction pair and band.
+        band = np.tile(np.arange(B), P)
+        lp, vp = np.repeat(l, B, axis=0), np.repeat(v, B, axis=0)
+        bj, lpj, vpj = jnp.asarray(band), jnp.asarray(lp), jnp.asarray(vp)
+        f0p, rdp = f0[band], rd[band]
+        m_all = np.array([0.2, 0.45], dtype)
         for lobes in (1, 2):
-            m_all = np.array([0.2, 0.45], dtype)
             w_all = np.array([1.0], dtype) if lobes == 1 else np.array([0.7, 0.3], dtype)
+            mm = m_all[:lobes]
             st = ctfit.Structure(lobes=lobes, diffuse="spectrum")
             grid, pairs, _ = ctfit_functions(jax, st)
             params = ctfit_params(jnp, st, f0, rd, s, m_all, w_all, dtype)
-            lj, vj = jnp.asarray(l), jnp.asarray(v)
-            t_grid = best_time(lambda: grid(params, lj, vj).block_until_ready(), args.repeat)
-            # Scattered layout: every value its own direction pair and band.
-            band = np.tile(np.arange(B), P)
-            lp = np.repeat(l, B, axis=0)
-            vp = np.repeat(v, B, axis=0)
-            bj, lpj, vpj = jnp.asarray(band), jnp.asarray(lp), jnp.asarray(vp)
-            t_pairs = best_time(lambda: pairs(params, lpj, vpj, bj).block_until_ready(), args.repeat)
-            f0p, rdp = f0[band], rd[band]
-            mm, ww = m_all[:lobes], w_all
-            t_np = best_time(lambda: numpy_brdf_per_value(lp, vp, f0p, rdp, s, mm, ww), max(2, args.repeat // 2), budget_s=0)
-            t_npg = best_time(lambda: numpy_brdf_grid(l, v, f0, rd, s, mm, ww), args.repeat)
-            # The four agree (float64 reference; float32 to its own precision).
-            ref = numpy_brdf_grid(l.astype(np.float64), v.astype(np.float64), f0.astype(np.float64), rd.astype(np.float64), float(s), mm.astype(np.float64), ww.astype(np.float64))
+            jax_runs[(dt, lobes, "grid")] = lambda g=grid, p=params: g(p, lj, vj).block_until_ready()
+            jax_runs[(dt, lobes, "pairs")] = lambda f=pairs, p=params: f(p, lpj, vpj, bj).block_until_ready()
+            np_runs[(dt, lobes, "np")] = lambda mm=mm, ww=w_all: numpy_brdf_per_value(lp, vp, f0p, rdp, s, mm, ww)
+            np_runs[(dt, lobes, "npg")] = lambda mm=mm, ww=w_all: numpy_brdf_grid(l, v, f0, rd, s, mm, ww)
+            # The implementations agree (float64 reference; float32 to its own precision).
+            ref = numpy_brdf_grid(*(x.astype(np.float64) for x in (l, v, f0, rd)), float(s), mm.astype(np.float64), w_all.astype(np.float64))
             got = np.asarray(grid(params, lj, vj), dtype=np.float64)
-            err = np.max(np.abs(got - ref) / np.maximum(np.abs(ref), 1e-6))
-            rows.append(
-                dict(dtype=np.dtype(dtype).name, lobes=lobes, grid=N / t_grid, pairs=N / t_pairs, np=N / t_np, npg=N / t_npg, err=err)
-            )
-        # Leaving terms out (one lobe, grid).
-        m1, w1 = np.array([0.2], dtype), np.array([1.0], dtype)
-        lj, vj = jnp.asarray(l), jnp.asarray(v)
-        cases = {
-            "metal, d = 0": ctfit.Structure(lobes=1, diffuse=None),
-            "same + diffuse spectrum": ctfit.Structure(lobes=1, diffuse="spectrum"),
-            "s = 0 (diffuse only)": ctfit.Structure(lobes=0, diffuse="spectrum"),
-        }
-        runs = {}
-        for name, st in cases.items():
+            errs[(dt, lobes)] = np.max(np.abs(got - ref) / np.maximum(np.abs(ref), 1e-6))
+        for name, st in leave_out.items():
             grid, _, _ = ctfit_functions(jax, st)
-            params = ctfit_params(jnp, st, f0, rd, s, m1, w1, dtype)
-            runs[name] = lambda grid=grid, params=params: grid(params, lj, vj).block_until_ready()
-            runs[name]()  # compile
-        # Interleaved rounds, best per case: the three see the same machine state.
-        times = {name: np.inf for name in cases}
-        for _ in range(max(10, 3 * args.repeat)):
-            for name, fn in runs.items():
-                t0 = time.perf_counter()
-                fn()
-                times[name] = min(times[name], time.perf_counter() - t0)
-        extra.append((np.dtype(dtype).name, times))
+            params = ctfit_params(jnp, st, f0, rd, s, m_all[:1], np.array([1.0], dtype), dtype)
+            jax_runs[(dt, name)] = lambda g=grid, p=params: g(p, lj, vj).block_until_ready()
+    t = interleaved_best(jax_runs, max(5, args.repeat))
+    t.update(interleaved_best(np_runs, max(2, args.repeat // 4)))
+    rows = [
+        dict(dtype=dt, lobes=lobes, grid=N / t[(dt, lobes, "grid")], pairs=N / t[(dt, lobes, "pairs")], np=N / t[(dt, lobes, "np")], npg=N / t[(dt, lobes, "npg")], err=errs[(dt, lobes)])
+        for dt in ("float32", "float64")
+        for lobes in (1, 2)
+    ]
+    extra = [(dt, {name: t[(dt, name)] for name in leave_out}) for dt in ("float32", "float64")]
     return rows, extra, N
 
 

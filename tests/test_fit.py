@@ -151,3 +151,22 @@ def test_custom_jvp_matches_plain_autodiff():
         plain, custom = both(problem, u)
         for k in u:
             np.testing.assert_allclose(custom[k], plain[k], rtol=1e-9, atol=1e-12, err_msg=f"{loss} {k}")
+
+
+@pytest.mark.parametrize("n_pairs", [2000, 5000])
+def test_float32_normal_equations_match_float64(n_pairs):
+    """Guards against XLA CPU's float32 reduction miscompile (jaxlib 0.10.2) in the fit's sums."""
+    from ctfit._problem import normal_equations
+
+    st = ctfit.Structure(lobes=2)
+    truth = material(st, WL8, m=np.array([0.1, 0.3]), w=np.array([0.4, 0.6]), f0=np.linspace(0.5, 0.9, 8))
+    data = simulate(truth, n_pairs, noise=0.02, seed=1)
+    out = []
+    for dt in (jnp.float32, jnp.float64):
+        problem = make_problem(st, data, fixed_params=truth.params, loss="relative", dtype=dt)
+        u = {k: jnp.asarray(v, dt) * 1.02 for k, v in from_params(problem.spec, truth.params).items()}
+        out.append([np.asarray(a, float) for a in eqx.filter_jit(normal_equations)(problem, u)])
+    (c32, g32, h32), (c64, g64, h64) = out
+    assert abs(c32 / c64 - 1) < 1e-4
+    assert np.max(np.abs(g32 - g64)) < 1e-4 * np.max(np.abs(g64))
+    assert np.max(np.abs(h32 - h64)) < 1e-4 * np.max(np.abs(h64))

@@ -10,6 +10,7 @@ batch.
 
 import functools
 import itertools
+import os
 
 import jax
 import jax.numpy as jnp
@@ -156,7 +157,14 @@ def _angles(lo, hi, special):
     return hs.one_of(hs.sampled_from(special), hs.floats(lo, hi, allow_nan=False, width=64))
 
 
-@settings(max_examples=20, deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+# 20 examples of 64 configurations each keep the file fast; CTFIT_HYPOTHESIS_EXAMPLES=400 searches deeper.
+@settings(
+    max_examples=int(os.environ.get("CTFIT_HYPOTHESIS_EXAMPLES", "20")),
+    deadline=None,
+    database=None,
+    derandomize=os.environ.get("CTFIT_HYPOTHESIS_EXAMPLES") is None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
 @given(
     data=hs.data(),
     st_index=hs.integers(0, len(HYP_STRUCTURES) - 1),
