@@ -33,6 +33,7 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from ._brdf import normal_reflectance
+from ._diagnostics import residual_structure
 from ._fresnel import n_from_f0
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
@@ -185,12 +186,6 @@ def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int
     return jax.vmap(one)(seeds)
 
 
-@eqx.filter_jit
-def _solve_batch(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
-    """optimistix / structured LM from every seed at once; values, success flags, steps, costs."""
-    return _solve_seeds(problem, seeds, solver_name, max_steps)[:4]
-
-
 def _constrained(problem: Problem, unravel, f):
     """The reported (constrained) parameters as a dict, from the flat free values."""
     spec = problem.spec
@@ -216,12 +211,6 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
     jt = jax.jacfwd(lambda f: _constrained(problem, unravel, f))(flat) if flat.size else None
     params = to_params(problem.spec, u, problem.fixed)
     return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=hess[best], pred=model_values(problem, u), jt=jt, params=params)
-
-
-@eqx.filter_jit
-def _jtj(problem: Problem, u: dict):
-    """JᵀJ at ``u`` (flattened free parameters), from the structured normal equations."""
-    return normal_equations(problem, u)[2]
 
 
 def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -329,6 +318,11 @@ def fit(
     scale2 = 1.0 if loss == "sigma" else rss_like / max(n - p, 1)
     params, order = _sorted_lobes(params)
     stderr = _stderr(out["jtj"], out["jt"], scale2, order)
+    if problem.spec.grid:
+        pred_samples = np.asarray(out["pred"])[data.directions()[1], data.band]
+    else:
+        pred_samples = pred
+    structure_notes = residual_structure(data, pred_samples, floor=floor)
     converged = bool(np.asarray(ok)[best]) and bool(np.all(np.isfinite(pred))) and np.isfinite(cost)
     bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, 1e-300) / n)) + p * math.log(n)
     stats = {
@@ -358,7 +352,7 @@ def fit(
         channels=data.channels,
         name=f"fit of {data.source}",
     )
-    return FitResult(material=material, stats=stats, stderr=stderr, warnings=_warnings(structure, params, stderr), loss=loss, solver=solver)
+    return FitResult(material=material, stats=stats, stderr=stderr, warnings=_warnings(structure, params, stderr) + structure_notes, loss=loss, solver=solver)
 
 
 def select_structure(data: Measurement, candidates: list[Structure], **kwargs) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:

@@ -79,25 +79,6 @@ def _geometry_deg(pairs):
     return geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3])
 
 
-def _directions(data: Measurement):
-    """Unique direction pairs (lexicographic order) and each sample's pair index.
-
-    The same as ``data.directions()`` (``np.unique(axis=0)``), by a lexsort of the four angle
-    columns, which is ~10× faster on large files.
-    """
-    a = np.stack([data.theta_i, data.phi_i, data.theta_o, data.phi_o], axis=1)
-    if len(a) == 0:
-        return a, np.zeros(0, dtype=np.intp)
-    order = np.lexsort(a.T[::-1])
-    s = a[order]
-    new = np.empty(len(s), dtype=bool)
-    new[0] = True
-    np.any(s[1:] != s[:-1], axis=1, out=new[1:])
-    index = np.empty(len(a), dtype=np.intp)
-    index[order] = np.cumsum(new) - 1
-    return s[new], index
-
-
 def _softplus_inv(x):
     x = np.asarray(x, dtype=float)
     return np.where(x > 30, x, np.log(np.expm1(np.maximum(x, 1e-300))))
@@ -186,7 +167,7 @@ def make_problem(
         raise ValueError(f"{data.source}: the data has no 'brdf' column to fit")
     if loss == "sigma" and data.sigma is None:
         raise ValueError(f"{data.source}: loss 'sigma' needs a 'sigma' column")
-    pairs, index = _directions(data)
+    pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data)
     geom = _geometry_deg(jnp.asarray(pairs, dtype=dtype))

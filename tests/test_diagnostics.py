@@ -38,3 +38,10 @@ def test_systematic_offset_is_flagged_with_direction():
     model = ctfit.evaluate(mat, data) * 1.3
     notes = residual_structure(data, model)
     assert notes and all("above the data" in n for n in notes)
+
+
+def test_fit_of_the_retro_reflective_tape_warns_in_its_result():
+    with pytest.warns(DataWarning, match="dropped"):
+        data = ctfit.read_measurement(MEASURED / "retro-gray-tape.dat", param_out="INV_STERADIAN_COSINE_FACTOR")
+    res = ctfit.fit(data, ctfit.Structure(lobes=1, diffuse="F0/pi"), starts=1)
+    assert any("retro-reflection lobe" in w for w in res.warnings), res.warnings
