@@ -276,15 +276,49 @@ def write_section(text: str, path: pathlib.Path):
     path.write_text(new, encoding="utf-8")
 
 
+def plot(rows, path) -> None:
+    """Pareto plot: worst ΔE00 (either scene) against ms per Mpixel, one point per material × method."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), constrained_layout=True)
+    markers = {name: mk for name, mk in zip(sorted({r[0] for r in rows}), "osD^v")}
+    methods = sorted({r[1] for r in rows})
+    colours = dict(zip(methods, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    for name, m, res, ms in rows:
+        worst = max(mx for _, mx in res.values())
+        ax.scatter(ms, max(worst, 1e-5), marker=markers[name], color=colours[m], s=40)
+    for m in methods:
+        ax.scatter([], [], color=colours[m], label=m)
+    for name, mk in markers.items():
+        ax.scatter([], [], marker=mk, color="grey", label=name)
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.text(30, 1.15, "ΔE00 = 1 (just noticeable)", fontsize=8)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("ms per million pixels (two lights, float32, 2-core CPU)")
+    ax.set_ylabel("worst ΔE00 against spectral 1 nm (floored at 1e-5)")
+    ax.set_title("Colour: error against run time")
+    ax.legend(fontsize=7, ncol=2)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=256, help="sphere image side in pixels")
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--x64", action="store_true", help="float64 (default float32, the renderer's default)")
     ap.add_argument("--write-docs", action="store_true", help=f"write the table to docs/benchmarks.md, section {SECTION!r}")
+    ap.add_argument("--plot", type=pathlib.Path, help="write the Pareto plot (PNG) here")
     args = ap.parse_args()
     rows, setup, n = run(args)
     text = table(rows, setup, n, args)
+    if args.plot:
+        plot(rows, args.plot)
+        text += f"\n\n![error against run time]({os.path.relpath(args.plot, ROOT / 'docs')})\n"
     print(text)
     if args.write_docs:
         write_section(text, ROOT / "docs" / "benchmarks.md")
