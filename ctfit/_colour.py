@@ -56,6 +56,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._gamut import desaturate_to_gamut
+from ._numerics import safe_sqrt
 
 __all__ = [
     "DEFAULT_OBSERVER",
@@ -424,11 +425,6 @@ def XYZ_to_Lab(XYZ, white_XYZ):
     return jnp.stack([116 * fy - 16, 500 * (fx - fy), 200 * (fy - fz)], axis=-1)
 
 
-def _safe_sqrt(x):
-    pos = x > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
-
-
 def _safe_atan2_deg(y, x):
     zero = (x == 0) & (y == 0)
     h = jnp.degrees(jnp.arctan2(jnp.where(zero, 0, y), jnp.where(zero, 1, x)))
@@ -443,11 +439,11 @@ def delta_E_CIE2000(Lab1, Lab2):
     """
     L1, a1, b1 = (jnp.asarray(Lab1)[..., i] for i in range(3))
     L2, a2, b2 = (jnp.asarray(Lab2)[..., i] for i in range(3))
-    c_bar = 0.5 * (_safe_sqrt(a1 * a1 + b1 * b1) + _safe_sqrt(a2 * a2 + b2 * b2))
+    c_bar = 0.5 * (safe_sqrt(a1 * a1 + b1 * b1) + safe_sqrt(a2 * a2 + b2 * b2))
     c7 = c_bar**7
-    g = 0.5 * (1 - _safe_sqrt(c7 / (c7 + 25.0**7)))
+    g = 0.5 * (1 - safe_sqrt(c7 / (c7 + 25.0**7)))
     a1p, a2p = (1 + g) * a1, (1 + g) * a2
-    c1p, c2p = _safe_sqrt(a1p * a1p + b1 * b1), _safe_sqrt(a2p * a2p + b2 * b2)
+    c1p, c2p = safe_sqrt(a1p * a1p + b1 * b1), safe_sqrt(a2p * a2p + b2 * b2)
     h1p, h2p = _safe_atan2_deg(b1, a1p), _safe_atan2_deg(b2, a2p)
     chroma = c1p * c2p != 0
     dh = h2p - h1p
@@ -455,7 +451,7 @@ def delta_E_CIE2000(Lab1, Lab2):
     dh = jnp.where(chroma, dh, 0)
     dL = L2 - L1
     dC = c2p - c1p
-    dH = 2 * _safe_sqrt(c1p * c2p) * jnp.sin(jnp.radians(dh / 2))
+    dH = 2 * safe_sqrt(c1p * c2p) * jnp.sin(jnp.radians(dh / 2))
     L_bar = 0.5 * (L1 + L2)
     cp_bar = 0.5 * (c1p + c2p)
     hsum = h1p + h2p
@@ -472,14 +468,14 @@ def delta_E_CIE2000(Lab1, Lab2):
     )
     d_theta = 30 * jnp.exp(-(((h_bar - 275) / 25) ** 2))
     cp7 = cp_bar**7
-    r_c = 2 * _safe_sqrt(cp7 / (cp7 + 25.0**7))
+    r_c = 2 * safe_sqrt(cp7 / (cp7 + 25.0**7))
     l50 = (L_bar - 50) ** 2
     s_l = 1 + 0.015 * l50 / jnp.sqrt(20 + l50)
     s_c = 1 + 0.045 * cp_bar
     s_h = 1 + 0.015 * cp_bar * t
     r_t = -jnp.sin(jnp.radians(2 * d_theta)) * r_c
     tl, tc, th = dL / s_l, dC / s_c, dH / s_h
-    return _safe_sqrt(tl * tl + tc * tc + th * th + r_t * tc * th)
+    return safe_sqrt(tl * tl + tc * tc + th * th + r_t * tc * th)
 
 
 # ---- dominant wavelength and excitation purity (CIE 15:2004 §9.1), NumPy, for reports ----

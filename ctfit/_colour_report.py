@@ -41,6 +41,7 @@ from ._colour import (
 )
 from ._gamut import desaturate_to_gamut, in_gamut
 from ._material import Material
+from ._material_io import _floats
 
 __all__ = ["colour_report", "reflectance_spectrum"]
 
@@ -91,10 +92,6 @@ def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_
     if n_bands is not None:
         r = np.broadcast_to(r, (n_bands,)).copy()
     return quantity, r
-
-
-def _floats(a) -> list:
-    return [float(v) for v in np.asarray(a, dtype=float).ravel()]
 
 
 def _hex(srgb) -> str:

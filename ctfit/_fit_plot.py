@@ -59,7 +59,7 @@ def plot_fit(result, data: Measurement, path) -> None:
         )
         ax.plot(line, evaluate(mat, probe), color=c, lw=1.2, label=f"model, θ_i = {ti:.3g}°")
         if len(x):
-            ax.plot(x, y, "o", ms=3, color=c, alpha=0.7, label=f"data (in plane ±2.5°)")
+            ax.plot(x, y, "o", ms=3, color=c, alpha=0.7, label="data (in plane ±2.5°)")
     ax.set_yscale("log")
     ax.set_xlabel("θ_o in the plane of incidence (°; > 0 towards the mirror side)")
     ax.set_ylabel(f"BRDF (sr⁻¹), band {labels[band]}")

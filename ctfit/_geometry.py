@@ -21,6 +21,8 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array
 
+from ._numerics import safe_sqrt
+
 __all__ = ["Geometry", "geometry", "direction_from_angles_deg", "geometry_from_angles_deg"]
 
 
@@ -41,11 +43,6 @@ class Geometry(eqx.Module):
     tan2_h: Array
     cos_vh: Array
     valid: Array
-
-
-def _safe_sqrt(x):
-    pos = x > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
 
 
 def _components(x):
@@ -103,8 +100,8 @@ def geometry(l, v, n=None) -> Geometry:
     return Geometry(
         cos_l=cos_l,
         cos_v=cos_v,
-        sin_l=_safe_sqrt(sin2_l),
-        sin_v=_safe_sqrt(sin2_v),
+        sin_l=safe_sqrt(sin2_l),
+        sin_v=safe_sqrt(sin2_v),
         cos_h=h_n / h_len,
         tan2_h=sin2_h / (h_n * h_n),
         cos_vh=0.5 * h_len,

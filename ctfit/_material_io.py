@@ -19,19 +19,17 @@ or the line and column of a syntax error.
 
 from __future__ import annotations
 
-import contextlib
 import datetime
 import difflib
 import json
 import math
-import os
 import pathlib
 import re
-import tempfile
 import tomllib
 
 import numpy as np
 
+from ._fileio import atomic_write
 from ._material import DISTRIBUTIONS, FRESNELS, GEOMETRIES, NORMALIZATIONS, Material, Params, Structure
 
 __all__ = [
@@ -498,19 +496,8 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
 
 
 def save_material_json(material: Material, path, extra: dict | None = None) -> pathlib.Path:
-    """Write :func:`material_to_dict` as JSON atomically (a temporary file, then ``os.replace``)."""
+    """Write :func:`material_to_dict` as JSON atomically (:func:`~ctfit._fileio.atomic_write`)."""
     path = pathlib.Path(path)
     text = json.dumps(material_to_dict(material, extra), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+    atomic_write(path, [text])
     return path

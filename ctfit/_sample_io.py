@@ -256,10 +256,8 @@ def _read_data(path):
 
     if isinstance(path, Measurement):
         return path
-    try:
-        from ._readers import read_measurement
-    except ImportError:  # pragma: no cover - older trees: CSV only
-        from ._csvio import read_csv as read_measurement
+    from ._readers import read_measurement
+
     return read_measurement(path)
 
 

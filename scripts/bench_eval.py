@@ -45,35 +45,45 @@ def _setup_jax(x64: bool):
 # --------------------------------------------------------------------------- NumPy reference
 
 
+def _numpy_specular(l, v, s, m, w, normalized):
+    """Everything in s R_s but F, per direction pair: (V·H, s K D G/((N·L)(N·V)), above horizon)."""
+    dt = l.dtype
+    cos_l = l[:, 2]
+    cos_v = v[:, 2]
+    h = l + v
+    h = h / np.sqrt(np.sum(h * h, axis=1))[:, None]
+    cos_h = h[:, 2]
+    c = np.sum(v * h, axis=1)
+    cos_h2 = cos_h * cos_h
+    tan2 = (1 - cos_h2) / cos_h2
+    d = np.zeros_like(cos_l)
+    for mj, wj in zip(m, w):
+        m2 = dt.type(mj * mj)
+        d += dt.type(wj) * np.exp(-tan2 / m2) / (m2 * cos_h2 * cos_h2)
+    g = np.minimum(1, np.minimum(2 * cos_h * cos_v / c, 2 * cos_h * cos_l / c))
+    k = dt.type(0.25 / np.pi if normalized else 1 / np.pi)
+    valid = (cos_l > 0) & (cos_v > 0)
+    return c, np.where(valid, (k * s) * d * g / (cos_l * cos_v), 0), valid
+
+
+def _numpy_fresnel(c, f0):
+    """The paper's unpolarised Fresnel with the effective index n = (1 + √F0)/(1 − √F0)."""
+    r = np.sqrt(f0)
+    n = (1 + r) / (1 - r)
+    gg = np.sqrt(n * n + c * c - 1)
+    return 0.5 * (gg - c) ** 2 / (gg + c) ** 2 * (1 + (c * (gg + c) - 1) ** 2 / (c * (gg - c) + 1) ** 2)
+
+
 def numpy_brdf_per_value(l, v, f0, rd, s, m, w, normalized=True):
     """R = s R_s + (1 − s) R_d, each of the N values with its own l, v (N, 3), f0 and rd (N,).
 
     Straightforward transcription of Cook & Torrance (1982): H = (L + V)/|L + V|, Beckmann D
     (eq. 4), V-cavity G (eq. 8), unpolarised Fresnel with the effective index from F0.
     """
-    dt = l.dtype
     with np.errstate(all="ignore"):
-        cos_l = l[:, 2]
-        cos_v = v[:, 2]
-        h = l + v
-        h = h / np.sqrt(np.sum(h * h, axis=1))[:, None]
-        cos_h = h[:, 2]
-        c = np.sum(v * h, axis=1)
-        cos_h2 = cos_h * cos_h
-        tan2 = (1 - cos_h2) / cos_h2
-        d = np.zeros_like(cos_l)
-        for mj, wj in zip(m, w):
-            m2 = dt.type(mj * mj)
-            d += dt.type(wj) * np.exp(-tan2 / m2) / (m2 * cos_h2 * cos_h2)
-        g = np.minimum(1, np.minimum(2 * cos_h * cos_v / c, 2 * cos_h * cos_l / c))
-        r = np.sqrt(f0)
-        n = (1 + r) / (1 - r)
-        gg = np.sqrt(n * n + c * c - 1)
-        f = 0.5 * (gg - c) ** 2 / (gg + c) ** 2 * (1 + (c * (gg + c) - 1) ** 2 / (c * (gg - c) + 1) ** 2)
-        k = dt.type(0.25 / np.pi if normalized else 1 / np.pi)
-        rs = k * f * d * g / (cos_l * cos_v)
-        out = s * rs + (1 - s) * rd
-        return np.where((cos_l > 0) & (cos_v > 0), out, 0).astype(dt)
+        c, spec, valid = _numpy_specular(l, v, s, m, w, normalized)
+        out = _numpy_fresnel(c, f0) * spec + (1 - s) * rd * valid
+        return out.astype(l.dtype)
 
 
 def numpy_brdf_grid(l, v, f0, rd, s, m, w, normalized=True):
@@ -81,31 +91,11 @@ def numpy_brdf_grid(l, v, f0, rd, s, m, w, normalized=True):
 
     D, G and the cosines once per direction pair; F per pair × band.
     """
-    dt = l.dtype
     with np.errstate(all="ignore"):
-        cos_l = l[:, 2]
-        cos_v = v[:, 2]
-        h = l + v
-        h = h / np.sqrt(np.sum(h * h, axis=1))[:, None]
-        cos_h = h[:, 2]
-        c = np.sum(v * h, axis=1)
-        cos_h2 = cos_h * cos_h
-        tan2 = (1 - cos_h2) / cos_h2
-        d = np.zeros_like(cos_l)
-        for mj, wj in zip(m, w):
-            m2 = dt.type(mj * mj)
-            d += dt.type(wj) * np.exp(-tan2 / m2) / (m2 * cos_h2 * cos_h2)
-        g = np.minimum(1, np.minimum(2 * cos_h * cos_v / c, 2 * cos_h * cos_l / c))
-        k = dt.type(0.25 / np.pi if normalized else 1 / np.pi)
-        spec = (k * s) * d * g / (cos_l * cos_v)
-        spec = np.where((cos_l > 0) & (cos_v > 0), spec, 0)
-        r = np.sqrt(f0)
-        n = ((1 + r) / (1 - r))[None, :]
-        cc = c[:, None]
-        gg = np.sqrt(n * n + cc * cc - 1)
-        f = 0.5 * (gg - cc) ** 2 / (gg + cc) ** 2 * (1 + (cc * (gg + cc) - 1) ** 2 / (cc * (gg - cc) + 1) ** 2)
-        diffuse = ((1 - s) * rd)[None, :] * ((cos_l > 0) & (cos_v > 0))[:, None]
-        return (f * spec[:, None] + diffuse).astype(dt)
+        c, spec, valid = _numpy_specular(l, v, s, m, w, normalized)
+        f = _numpy_fresnel(c[:, None], f0[None, :])
+        diffuse = ((1 - s) * rd)[None, :] * valid[:, None]
+        return (f * spec[:, None] + diffuse).astype(l.dtype)
 
 
 # --------------------------------------------------------------------------- problem
