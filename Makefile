@@ -30,5 +30,10 @@ fit: install
 test: install-test
 	$(BIN)/python -m pytest -n 2 -q
 
+# Every measured report in docs/ (benchmarks, error against run time, stability) and the
+# notebooks, regenerated from one run each; takes about an hour on a 2-core machine.
+report: install-test
+	$(BIN)/python scripts/report.py
+
 clean:
 	rm -rf $(VENV) out .jax_cache

@@ -82,6 +82,7 @@ _EXPORTS = {
     "scale_to_display": "._gamut",
     "srgb_luminance": "._gamut",
     "read_measurement": "._readers",
+    "enable_compilation_cache": "._cache",
     "read_csv": "._csvio",
     "write_csv": "._csvio",
     "DataError": "._errors",
@@ -128,6 +129,7 @@ def __dir__():
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
+    from ._cache import enable_compilation_cache as enable_compilation_cache
     from ._brdf import (
         ambient_reflectance as ambient_reflectance,
         brdf as brdf,

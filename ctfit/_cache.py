@@ -1,4 +1,9 @@
-"""JAX's persistent compilation cache for the command line (a second run skips compilation)."""
+"""JAX's persistent compilation cache, and with it ctfit's store of exported fit programs.
+
+The ``ctfit`` command calls :func:`enable_compilation_cache`; library users may too. A second
+process then skips XLA's compilation (JAX's cache) and the tracing of the fit program
+(``_aot.py`` keeps it in ``ctfit-aot/`` inside the same folder).
+"""
 
 from __future__ import annotations
 

@@ -10,8 +10,9 @@
    (:class:`~ctfit._solvers.StructuredLevenbergMarquardt`, :func:`~ctfit._problem.normal_equations`);
    the lowest finite cost wins. optimistix Gauss–Newton, Dogleg (normal equations with
    Cholesky) or BFGS on request; float64 unless float32 is asked for. Seeding, solve and everything the report
-   needs are one jitted program (``_fit_core``), so a run compiles once (and JAX's persistent
-   cache, where enabled, skips even that).
+   needs are one compiled program (``_fit_core``), so a run compiles once; where JAX's
+   persistent cache is enabled the executable itself is kept on disk (``_aot.py``), so a new
+   process with the same structure, data shape and options skips tracing and compiling.
 3. Standard errors from (JᵀJ)⁻¹ at the optimum (scaled by the residual variance unless the
    loss is sigma-weighted), mapped to the constrained parameters by the delta method, reported
    only where JᵀJ is well conditioned. Near-degenerate solutions are detected and reported.
@@ -32,6 +33,7 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
+from ._aot import cached_call
 from ._brdf import normal_reflectance
 from ._diagnostics import residual_structure
 from ._fresnel import n_from_f0
@@ -43,6 +45,7 @@ from ._problem import LOSSES, Problem, from_params, make_problem, model_values, 
 __all__ = ["fit", "FitResult", "SOLVERS", "select_structure"]
 
 SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
+_PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
 
 
 def _solver(name: str, dtype):
@@ -152,24 +155,52 @@ def _half_squared_norm(flat, data):
     return 0.5 * jnp.sum(r * r)
 
 
+RACE_STEPS = 4
+"""Levenberg–Marquardt steps every seed gets before only the leaders go on (``_structured_lm``)."""
+RACE_MARGIN = 1.5
+"""A seed goes on after the race if its cost is within this factor of the lowest."""
+
+
 def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
-    """optimistix Levenberg–Marquardt on the structured normal equations, one seed after another."""
+    """optimistix Levenberg–Marquardt on the structured normal equations, the seeds raced.
+
+    Every seed gets ``RACE_STEPS`` steps (one after another, ``jax.lax.map``); the seeds whose
+    cost is then within ``RACE_MARGIN`` of the lowest go on to convergence (a fresh solve from
+    where they stopped, unless converged already). The others keep their cost after the race,
+    so they can only lose. With one seed this is a plain solve.
+    """
     flat_seeds = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
     unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
     rtol, atol = (1e-8, 1e-12) if flat_seeds.dtype == jnp.float64 else (1e-5, 1e-8)
     data = (problem, jax.tree_util.Partial(unravel))
     solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton)
 
-    def one(f0):
-        sol = optx.minimise(_half_squared_norm, solver, f0, data, max_steps=max_steps, throw=False)
-        c, _, h = normal_equations(problem, unravel(sol.value))
-        return unravel(sol.value), sol.result == optx.RESULTS.successful, sol.stats["num_steps"], c, h
+    def solve(f0, steps):
+        sol = optx.minimise(_half_squared_norm, solver, f0, data, max_steps=steps, throw=False)
+        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
 
-    return jax.lax.map(one, flat_seeds)
+    def costs_of(values):
+        return jax.lax.map(lambda f: _half_squared_norm(f, data), values)
+
+    if flat_seeds.shape[0] == 1 or max_steps <= RACE_STEPS:
+        values, ok, steps = jax.lax.map(lambda f: solve(f, max_steps), flat_seeds)
+        return jax.vmap(unravel)(values), ok, steps, costs_of(values)
+    values, ok, steps = jax.lax.map(lambda f: solve(f, RACE_STEPS), flat_seeds)
+    costs = costs_of(values)
+    costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
+    go = jnp.logical_and(~ok, costs <= RACE_MARGIN * jnp.min(costs))
+
+    def go_on(args):
+        f, keep, o, k = args
+        v, o2, k2 = jax.lax.cond(keep, lambda: solve(f, max_steps - RACE_STEPS), lambda: (f, o, jnp.zeros_like(k)))
+        return v, o2, k + k2
+
+    values, ok, steps = jax.lax.map(go_on, (values, go, ok, steps))
+    return jax.vmap(unravel)(values), ok, steps, costs_of(values)
 
 
 def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
-    """Every seed at once (vmapped); values, success flags, steps, final costs, JᵀJ."""
+    """Every seed; values, success flags, steps and final costs per seed."""
     if solver_name == "lm":
         return _structured_lm(problem, seeds, max_steps)
     solver = _solver(solver_name, problem.y.dtype)
@@ -180,8 +211,8 @@ def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int
             sol = optx.minimise(fn, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
         else:
             sol = optx.least_squares(residual, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
-        c, _, h = normal_equations(problem, sol.value)
-        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"], c, h
+        r = residual(sol.value, (problem.y, problem))
+        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"], 0.5 * jnp.sum(r * r)
 
     return jax.vmap(one)(seeds)
 
@@ -195,22 +226,23 @@ def _constrained(problem: Problem, unravel, f):
     if f0 is not None:
         out["F0"] = f0
         if spec.structure.fresnel == "f0":
-            out["n"] = n_from_f0(f0)
+            out["n"] = n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
     return out
 
 
-@eqx.filter_jit
 def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, max_steps: int):
     """Seeds, solve, pick the best, and everything the report needs, in one compiled program."""
     seeds = _seed_points(problem, u0, starts, grid)
-    values, ok, steps, costs, hess = _solve_seeds(problem, seeds, solver_name, max_steps)
+    values, ok, steps, costs = _solve_seeds(problem, seeds, solver_name, max_steps)
     costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
     best = jnp.argmin(costs)
     u = jax.tree.map(lambda a: a[best], values)
+    _, _, jtj = normal_equations(problem, u)
     flat, unravel = ravel_pytree(u)
     jt = jax.jacfwd(lambda f: _constrained(problem, unravel, f))(flat) if flat.size else None
     params = to_params(problem.spec, u, problem.fixed)
-    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=hess[best], pred=model_values(problem, u), jt=jt, params=params)
+    params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_aot.py)
+    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, pred=model_values(problem, u), jt=jt, params=params)
 
 
 def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -303,10 +335,10 @@ def fit(
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     k = starts if "m" in u0 else 1
     grid = jnp.asarray(np.log(_m_grid(structure.lobes)), dtype=dtype) if ("m" in u0 and k >= 1) else None
-    out = jax.device_get(_fit_core(problem, u0, grid, k, solver, max_steps))
+    out = jax.device_get(cached_call("fit", _fit_core, problem, u0, grid, k, solver, max_steps))
     costs, ok, steps, best = out["costs"], out["ok"], out["steps"], int(out["best"])
     u = out["u"]
-    params = jax.tree.map(np.asarray, out["params"])
+    params = Params(**{k: None if v is None else np.asarray(v) for k, v in out["params"].items()})
     pred = np.asarray(out["pred"]).reshape(-1)
     y = np.asarray(problem.y).reshape(-1)
     mask = np.asarray(problem.mask).reshape(-1) > 0
@@ -343,7 +375,8 @@ def fit(
     }
     full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     if structure.needs_fresnel_params and structure.fresnel == "f0":
-        r = np.sqrt(np.asarray(full.f0))
+        f0 = np.asarray(full.f0)
+        r = np.sqrt(np.minimum(f0, 1 - np.finfo(f0.dtype).eps))  # F0 = 1 to rounding: n stays finite (~1e16 or ~1e8)
         full = dataclasses.replace(full, n=(1 + r) / (1 - r))  # n_from_f0, in NumPy
     material = Material(
         structure=structure,

@@ -12,6 +12,7 @@ G once per pair and F per (pair, band).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -68,10 +69,16 @@ class Measurement:
     def directions(self) -> tuple[np.ndarray, np.ndarray]:
         """Unique direction pairs (D, 4) as (θ_i, φ_i, θ_o, φ_o), in lexicographic order, and each
         sample's pair index (N,). (A lexsort of the four columns: ~10× faster than
-        ``np.unique(axis=0)`` on large files, same result.)
+        ``np.unique(axis=0)`` on large files, same result.) Computed once per Measurement (the
+        arrays returned are read-only).
         """
+        return self._directions
+
+    @functools.cached_property
+    def _directions(self) -> tuple[np.ndarray, np.ndarray]:
         a = np.stack([self.theta_i, self.phi_i, self.theta_o, self.phi_o], axis=1)
         if len(a) == 0:
+            a.setflags(write=False)
             return a, np.zeros(0, dtype=np.intp)
         order = np.lexsort(a.T[::-1])
         s = a[order]
@@ -80,7 +87,10 @@ class Measurement:
         np.any(s[1:] != s[:-1], axis=1, out=new[1:])
         index = np.empty(len(a), dtype=np.intp)
         index[order] = np.cumsum(new) - 1
-        return s[new], index
+        pairs = s[new]
+        pairs.setflags(write=False)
+        index.setflags(write=False)
+        return pairs, index
 
     def grid(self):
         """The samples as a dense (D, W) grid when every pair has every band exactly once.

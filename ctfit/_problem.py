@@ -167,6 +167,11 @@ def make_problem(
         raise ValueError(f"{data.source}: the data has no 'brdf' column to fit")
     if loss == "sigma" and data.sigma is None:
         raise ValueError(f"{data.source}: loss 'sigma' needs a 'sigma' column")
+    if loss == "sigma":
+        bad = np.flatnonzero(~(np.asarray(data.sigma) > 0) | ~np.isfinite(data.sigma))
+        if bad.size:
+            raise ValueError(f"{data.source}: loss 'sigma' needs every sigma finite and > 0; {bad.size} of {len(data)} samples are not "
+                             f"(the first is sample {bad[0]}, sigma = {data.sigma[bad[0]]!r}); drop them or choose another loss")
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data)

@@ -8,13 +8,21 @@ sampled in the unconstrained coordinates ``u`` of :mod:`ctfit._problem` (the sam
 least-squares fit moves in), with emcee's affine-invariant ensemble sampler and a jit-compiled,
 vmapped JAX log-probability (``vectorize=True``: one call per half-ensemble).
 
-Likelihood (Gaussian, on the fit's own residual weighting r_i = :func:`ctfit._problem._loss`):
+Likelihood (Gaussian, on the fit's residual weighting r_i = :func:`ctfit._problem._loss`, but for
+the relative loss):
 
 - loss ``"sigma"`` (the data has a ``sigma`` column): r_i = (R_i − y_i)/σ_i ~ N(0, 1),
   log L = −½ Σ r_i² (+ a constant);
-- any other loss (``relative``, ``absolute``, ``cosine``, ``log``): r_i ~ N(0, σ_noise²) with
-  the noise scale σ_noise a sampled parameter, log L = −N log σ_noise − ½ Σ r_i²/σ_noise²;
-  its prior is flat in log σ_noise (the Jeffreys prior 1/σ_noise), unless ``priors`` says so.
+- loss ``"relative"`` (no sigma): noise proportional to the model, y_i = R_i (1 + ε_i),
+  ε_i ~ N(0, σ_noise²): r_i = (R_i − y_i)/R_i, log L = −Σ log R_i − N log σ_noise
+  − ½ Σ r_i²/σ_noise². The scale is the model R_i(θ), not the data y_i with the fit's floor
+  max(y_i, floor): a floor shrinks the residuals below it and makes σ_noise too small, and
+  dividing by noisy values biases the residual (posterior intervals far too narrow otherwise);
+- ``absolute``, ``cosine``, ``log``: r_i ~ N(0, σ_noise²), log L = −N log σ_noise
+  − ½ Σ r_i²/σ_noise².
+
+Without sigma the noise scale σ_noise is a sampled parameter; its prior is flat in log σ_noise
+(the Jeffreys prior 1/σ_noise), unless ``priors`` says so.
 
 Priors: flat in the *constrained* parameters over their ranges — m > 0, the lobe weights
 uniform on the simplex (Dirichlet(1)), s ∈ [0, 1], F0 ∈ (0, 1), n > 1 (n > 0 for a
@@ -35,9 +43,10 @@ Lobes are kept ordered by m (no label switching): a draw with m not strictly asc
 probability 0.
 
 Walkers start at the least-squares optimum (polished by a few Levenberg–Marquardt steps on
-the normal equations), spread by the Laplace covariance (JᵀJ)⁻¹ (scaled by the residual
-variance unless the loss is sigma-weighted); draws whose log-probability is not finite are
-drawn again, closer.
+the normal equations; for the relative loss, by least squares weighted by the model, reweighted
+until it settles), spread by the Laplace covariance (JᵀJ)⁻¹ (scaled by the residual variance
+unless the loss is sigma-weighted); draws whose log-probability is not finite are drawn again,
+closer.
 
 References
 ----------
@@ -74,7 +83,7 @@ from ._fresnel import n_from_f0
 from ._material_io import _jsonable
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
-from ._problem import LOSSES, Problem, from_params, make_problem, normal_equations, residual, to_params
+from ._problem import LOSSES, Problem, from_params, make_problem, model_values, normal_equations, residual, to_params
 
 __all__ = ["sample", "SampleResult", "ChainTooShortWarning", "PRIOR_KINDS", "default_walkers"]
 
@@ -127,6 +136,8 @@ class _Layout:
     noise: bool
     conductor: bool
     order_lobes: bool
+    relative: bool = False  # σ_i = σ_noise · R_i(θ): noise proportional to the model
+
 
     @property
     def n_u(self) -> int:
@@ -204,13 +215,16 @@ def _log_prob_one(problem: Problem, layout: _Layout, prior: tuple, x):
     """Log-posterior (up to a constant) of one flat sampling vector ``x``."""
     u = layout.unravel(x)
     params = to_params(problem.spec, u, problem.fixed)
-    r = residual(u, (problem.y, problem))
+    if layout.relative:
+        r, log_l = _relative_residual(problem, model_values(problem, u))
+    else:
+        r, log_l = residual(u, (problem.y, problem)), jnp.zeros((), x.dtype)
     chi2 = jnp.sum(r * r)
     kinds = dict((name, (kind, args)) for name, kind, args in prior)
     if layout.noise:
         log_sn = x[layout.n_u]
         n_obs = jnp.sum(problem.mask)
-        log_l = -n_obs * log_sn - 0.5 * chi2 * jnp.exp(-2 * log_sn)
+        log_l = log_l - n_obs * log_sn - 0.5 * chi2 * jnp.exp(-2 * log_sn)
         kind, args = kinds["sigma_noise"]
         sn = jnp.exp(log_sn)
         log_p = _prior_density(kind, args, sn) + log_sn  # density in σ, times |dσ/dv|
@@ -226,6 +240,23 @@ def _log_prob_one(problem: Problem, layout: _Layout, prior: tuple, x):
         ok = ok & jnp.all(jnp.diff(u["m"]) > 0)  # m = exp(u_m) is monotone in u_m
     total = log_l + log_p
     return jnp.where(ok & jnp.isfinite(total), total, -jnp.inf)
+
+
+def _relative_scale(problem: Problem, values):
+    """max(R_i, tiny) at the observed samples, 1 at missing cells."""
+    tiny = jnp.finfo(values.dtype).tiny
+    return jnp.where(problem.mask > 0, jnp.maximum(values, tiny), jnp.ones((), values.dtype))
+
+
+def _relative_residual(problem: Problem, values):
+    """Noise proportional to the model, y_i = R_i (1 + ε_i): r_i = (R_i − y_i)/R_i and the
+    normalisation −Σ log R_i of the Gaussian with σ_i = σ_noise R_i (the −N log σ_noise part is
+    added by the caller). R_i, not y_i: dividing by the noisy value biases the residual, and a
+    floor (the fit's max(y_i, floor)) shrinks the residuals below it, which makes one σ_noise
+    for all residuals too small (docs/uncertainty.md)."""
+    scale = _relative_scale(problem, values)
+    r = (values - problem.y) / scale * problem.mask
+    return r.reshape(-1), -jnp.sum(jnp.log(scale))
 
 
 _CACHE: dict = {}
@@ -352,15 +383,21 @@ class _Engine:
         self.problem, self.layout, self.prior, self.chunk = problem, layout, prior, int(chunk)
         self.dtype = problem.y.dtype
         self._lp, self.leaves = _jitted_baked("log_prob", problem, (layout, prior), _build_log_prob(layout, prior))
+        self._shape = (self.chunk, layout.ndim)
         self.calls = 0
 
     def __call__(self, coords):
+        if type(coords) is np.ndarray and coords.shape == self._shape and coords.dtype == np.float64:
+            # emcee's stretch move, every call but the first: nothing but the XLA call (the data
+            # arrays stay on the device; emcee's float64 coordinates go in as they are).
+            self.calls += self.chunk
+            return np.asarray(self._lp(self.leaves, coords))
         coords = np.asarray(coords, dtype=float)
         if coords.ndim == 1:
             coords = coords[None]
         k = coords.shape[0]
         self.calls += k
-        if k == self.chunk:  # emcee's stretch move: every call but the first
+        if k == self.chunk:
             return np.asarray(self._lp(self.leaves, coords), dtype=float)
         out = np.empty(k)
         for start in range(0, k, self.chunk):
@@ -371,11 +408,23 @@ class _Engine:
             out[start : start + n] = np.asarray(self._lp(self.leaves, block), dtype=float)[:n]
         return out
 
-    def normal(self, x_u):
+    def normal(self, x_u, problem: Problem | None = None):
+        """½‖r‖², Jᵀr, JᵀJ of ``problem``'s residual (default: the engine's) at a flat u."""
+        problem = self.problem if problem is None else problem
         p = self.layout.n_u
-        dense = int(self.problem.y.size) * p <= 20_000_000
-        fn, leaves = _jitted("normal", self.problem, (self.layout, dense), _build_normal(self.layout, dense))
+        dense = int(problem.y.size) * p <= 20_000_000
+        fn, leaves = _jitted("normal", problem, (self.layout, dense), _build_normal(self.layout, dense))
         return tuple(np.asarray(a, dtype=float) for a in fn(leaves, jnp.asarray(x_u, dtype=self.dtype)))
+
+    def values(self, x_u) -> np.ndarray:
+        """The model at every sample (the problem's layout) at a flat u."""
+        layout = self.layout
+
+        def build(rebuild):
+            return lambda leaves, x: model_values(rebuild(leaves), layout.unravel(x))
+
+        fn, leaves = _jitted("values", self.problem, (layout,), build)
+        return np.asarray(fn(leaves, jnp.asarray(x_u, dtype=self.dtype)), dtype=float)
 
     def residuals(self, x_u) -> np.ndarray:
         """The flat residual vector (the fit's weighting) at a flat u."""
@@ -490,11 +539,11 @@ def _describe_priors(prior: tuple, layout: _Layout, fixed_names: tuple[str, ...]
 # --- start: polish, Laplace covariance ----------------------------------------------------------
 
 
-def _polish(engine: _Engine, x: np.ndarray, max_steps: int = 30) -> tuple[np.ndarray, float, np.ndarray]:
+def _polish(normal, x: np.ndarray, max_steps: int = 30) -> tuple[np.ndarray, float, np.ndarray]:
     """A few Levenberg–Marquardt steps from the flat u ``x`` (the fit's optimum: usually already
-    converged). Returns the polished x, its cost ½‖r‖² and JᵀJ there."""
+    converged) on ``normal(x)`` = (½‖r‖², Jᵀr, JᵀJ). Returns the polished x, its cost and JᵀJ."""
     x = np.asarray(x, dtype=float)
-    cost, grad, hess = engine.normal(x)
+    cost, grad, hess = normal(x)
     cost = float(cost)
     lam = 1e-6
     for _ in range(max_steps):
@@ -507,7 +556,7 @@ def _polish(engine: _Engine, x: np.ndarray, max_steps: int = 30) -> tuple[np.nda
         except np.linalg.LinAlgError:
             lam *= 10
             continue
-        c_new, g_new, h_new = engine.normal(x + step)
+        c_new, g_new, h_new = normal(x + step)
         c_new = float(c_new)
         if np.isfinite(c_new) and c_new <= cost:
             small = cost - c_new <= 1e-14 * max(cost, 1e-300) or np.max(np.abs(step)) < 1e-10
@@ -520,6 +569,33 @@ def _polish(engine: _Engine, x: np.ndarray, max_steps: int = 30) -> tuple[np.nda
             if lam > 1e8:
                 break
     return x, cost, hess
+
+
+def _weighted_problem(problem: Problem, values: np.ndarray) -> Problem:
+    """The problem with loss "sigma" and σ_i = max(R_i, tiny): residuals (R − y)/R at fixed R."""
+    scale = np.asarray(_relative_scale(problem, jnp.asarray(values, dtype=problem.y.dtype)))
+    spec = dataclasses.replace(problem.spec, loss="sigma")
+    return dataclasses.replace(problem, spec=spec, sigma=jnp.asarray(scale, dtype=problem.y.dtype))
+
+
+def _polish_relative(engine: _Engine, x: np.ndarray, rounds: int = 10):
+    """Start for noise proportional to the model: weighted least squares with σ_i ∝ R_i(θ),
+    reweighted at the new θ until it settles (iteratively reweighted least squares). The
+    weighted residual is the likelihood's r_i; the fixed point is near the mode (they differ by
+    the derivative of the weights and of −Σ log R_i: small terms for small noise), and JᵀJ
+    there is the Laplace curvature. Returns x, cost, JᵀJ and the normal-equations function."""
+    x = np.asarray(x, dtype=float)
+    n_obs = float(np.sum(np.asarray(engine.problem.mask)))
+    for _ in range(rounds):
+        q = _weighted_problem(engine.problem, engine.values(x))
+        normal = functools.partial(engine.normal, problem=q)
+        x_new, cost, hess = _polish(normal, x)
+        moved = np.abs(x_new - x)
+        x = x_new
+        sd = np.sqrt(np.maximum(np.diag(_laplace_cov(hess, 2 * cost / max(n_obs - x.size, 1))[0]), 1e-300))
+        if np.all(moved <= 1e-3 * sd):
+            break
+    return x, cost, hess, normal
 
 
 def _sort_lobes(layout: _Layout, x: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -540,8 +616,14 @@ def _sort_lobes(layout: _Layout, x: np.ndarray) -> tuple[np.ndarray, bool]:
 
 def _residual_spread(engine: _Engine, x_u: np.ndarray) -> float | None:
     """rms residual of the quarter of the samples (sorted by value) where it is largest, over the
-    quarter where it is smallest: ≈ 1 when one noise scale fits every residual."""
-    r = engine.residuals(x_u)
+    quarter where it is smallest: ≈ 1 when one noise scale fits every residual. The residuals
+    are the likelihood's ((R − y)/R for noise proportional to the model)."""
+    if engine.layout.relative:
+        problem = engine.problem
+        values = jnp.asarray(engine.values(x_u), dtype=problem.y.dtype)
+        r = np.asarray(_relative_residual(problem, values)[0], dtype=float)
+    else:
+        r = engine.residuals(x_u)
     y = np.asarray(engine.problem.y, dtype=float).reshape(-1)
     keep = np.asarray(engine.problem.mask, dtype=float).reshape(-1) > 0
     r, y = r[keep], y[keep]
@@ -902,6 +984,7 @@ def sample(
         noise=noise,
         conductor=st.fresnel == "conductor",
         order_lobes=st.lobes > 1 and "m" in u0,
+        relative=loss == "relative",
     )
     prior = _normalise_priors(priors, layout, st)
     ndim = layout.ndim
@@ -911,11 +994,16 @@ def sample(
     engine = _Engine(problem, layout, prior, nwalkers // 2)
 
     # Optimum and Laplace covariance.
-    x_u, cost, hess = _polish(engine, np.asarray(ravel_pytree(u0)[0], dtype=float))
+    x_fit = np.asarray(ravel_pytree(u0)[0], dtype=float)
+    if layout.relative:  # the likelihood's mode is not the fit's (which divides by max(y, floor))
+        x_u, cost, hess, normal = _polish_relative(engine, x_fit)
+    else:
+        normal = engine.normal
+        x_u, cost, hess = _polish(normal, x_fit)
     if layout.order_lobes:  # keep lobes ascending in m (the polish may have swapped them)
         x_u, changed = _sort_lobes(layout, x_u)
         if changed:
-            cost, _, hess = engine.normal(x_u)
+            cost, _, hess = normal(x_u)
             cost = float(cost)
     n_obs = int(np.sum(np.asarray(problem.mask)))
     scale2 = 1.0 if not noise else 2 * cost / max(n_obs - x_u.size, 1)
@@ -1025,7 +1113,7 @@ def sample(
     else:
         res_text = {
             "absolute": "r_i = R_i − y_i",
-            "relative": f"r_i = (R_i − y_i)/max(y_i, floor), floor = {float(problem.floor):.6g}",
+            "relative": "r_i = (R_i − y_i)/R_i, R_i the model at θ (max(R_i, tiny))",
             "cosine": "r_i = (R_i − y_i) cos θ_i",
             "log": "r_i = log(1 + R_i cos θ_i) − log(1 + y_i cos θ_i)",
         }[loss]
@@ -1037,6 +1125,19 @@ def sample(
             "noise": "σ_noise sampled (parameter sigma_noise); prior as in priors.parameters.sigma_noise",
             "n_samples": n_obs,
         }
+        if loss == "relative":
+            likelihood.update(
+                log_likelihood="−Σ log R_i − N log σ_noise − ½ Σ r_i²/σ_noise² + const",
+                noise=(
+                    "proportional to the model: y_i ~ N(R_i, (σ_noise R_i)²), σ_noise (a relative noise) sampled "
+                    "(parameter sigma_noise); prior as in priors.parameters.sigma_noise"
+                ),
+                note=(
+                    "the fit's relative loss divides by max(y_i, floor) (floor = "
+                    f"{float(problem.floor):.6g}); the likelihood divides by the model, without a floor, so its mode "
+                    "is near, not at, the fit's optimum, and samples far below the peak count with their relative noise"
+                ),
+            )
     diagnostics = {
         "walkers": nwalkers,
         "ndim": ndim,

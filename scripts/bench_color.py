@@ -37,6 +37,7 @@ import sys
 import time
 
 import numpy as np
+from _docs import write_section
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
@@ -263,19 +264,6 @@ def table(rows, setup, n_pixels, args) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_section(text: str, path: pathlib.Path):
-    """Replace this benchmark's section of ``path`` (or append it); other sections are kept."""
-    old = path.read_text(encoding="utf-8") if path.exists() else ""
-    lines = old.splitlines(keepends=True)
-    start = next((i for i, ln in enumerate(lines) if ln.rstrip("\n") == SECTION), None)
-    if start is None:
-        new = old + ("" if old.endswith("\n\n") or not old else "\n" if old.endswith("\n") else "\n\n") + text
-    else:
-        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
-        new = "".join(lines[:start]) + text + ("\n" if end < len(lines) else "") + "".join(lines[end:])
-    path.write_text(new, encoding="utf-8")
-
-
 def plot(rows, path) -> None:
     """Pareto plot: worst ΔE00 (either scene) against ms per Mpixel, one point per material × method."""
     import matplotlib
@@ -313,15 +301,22 @@ def main():
     ap.add_argument("--x64", action="store_true", help="float64 (default float32, the renderer's default)")
     ap.add_argument("--write-docs", action="store_true", help=f"write the table to docs/benchmarks.md, section {SECTION!r}")
     ap.add_argument("--plot", type=pathlib.Path, help="write the Pareto plot (PNG) here")
+    ap.add_argument("--docs", type=pathlib.Path, help=f"write the section {SECTION!r} of DIR/benchmarks.md and its plot to DIR/figures/")
+    ap.add_argument("--small", action="store_true", help="a quick version (64-pixel spheres, 2 repeats)")
     args = ap.parse_args()
+    if args.small:
+        args.size, args.repeat = 64, 2
+    if args.docs:
+        args.plot = args.plot or args.docs / "figures" / "colour_error_vs_time.png"
+        args.plot.parent.mkdir(parents=True, exist_ok=True)
     rows, setup, n = run(args)
     text = table(rows, setup, n, args)
     if args.plot:
         plot(rows, args.plot)
-        text += f"\n\n![error against run time]({os.path.relpath(args.plot, ROOT / 'docs')})\n"
+        text += f"\n\n![error against run time]({os.path.relpath(args.plot, args.docs or ROOT / 'docs')})\n"
     print(text)
-    if args.write_docs:
-        write_section(text, ROOT / "docs" / "benchmarks.md")
+    if args.write_docs or args.docs:
+        write_section((args.docs or ROOT / "docs") / "benchmarks.md", SECTION, text)
 
 
 if __name__ == "__main__":

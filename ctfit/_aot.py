@@ -1,0 +1,171 @@
+"""Compiled programs kept on disk, so that a new process skips tracing, lowering and compiling.
+
+JAX's persistent compilation cache (``_cache.py``) saves only the XLA compile: every new process
+still traces the Python program and lowers it to HLO to compute the cache key, which for a fit
+(optimistix's solver loop, the structured normal equations, the seeds) costs seconds. Here the
+*executable itself* is stored, keyed by everything that determines it:
+
+- the function's name and the source of the ctfit package (any edit invalidates every entry);
+- the versions of jax, jaxlib, equinox, optimistix, lineax and numpy, the backend, its
+  platform version, the device kind and the CPU's feature flags (executables are compiled for
+  the host's instruction set);
+- the static part of the arguments (structure, spec, solver options: their ``repr``) and the
+  shape and dtype of every array argument.
+
+An entry is used only when its key matches exactly; if it cannot be read, loaded or called
+(a truncated file, a jaxlib that cannot deserialise it), it is discarded and the program is
+compiled as usual. Entries are written atomically. The store lives in ``ctfit-aot/`` inside
+the directory of JAX's persistent cache, and only when that cache is enabled (the ``ctfit``
+command enables it; library users call :func:`ctfit._cache.enable_compilation_cache`).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.metadata
+import os
+import pathlib
+import platform
+import tempfile
+import warnings
+from typing import Callable
+
+import equinox as eqx
+import jax
+
+_FORMAT = 1
+_memory: dict[str, Callable] = {}
+
+
+@functools.cache
+def _source_digest() -> str:
+    h = hashlib.sha256()
+    for p in sorted(pathlib.Path(__file__).parent.glob("*.py")):
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def _cpu_flags() -> str:
+    try:
+        for line in pathlib.Path("/proc/cpuinfo").read_text(errors="replace").splitlines():
+            if line.startswith(("flags", "Features")):
+                return line
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+@functools.cache
+def _environment_digest() -> str:
+    versions = []
+    for dist in ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy"):
+        try:
+            versions.append(f"{dist}={importlib.metadata.version(dist)}")
+        except importlib.metadata.PackageNotFoundError:
+            versions.append(f"{dist}=?")
+    backend = jax.extend.backend.get_backend()
+    device = jax.devices()[0]
+    parts = [f"format={_FORMAT}", *versions, backend.platform, backend.platform_version, device.device_kind, _cpu_flags(), _source_digest()]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def _store() -> pathlib.Path | None:
+    where = jax.config.jax_compilation_cache_dir
+    return pathlib.Path(where) / "ctfit-aot" if where else None
+
+
+def _abstract(x):
+    if eqx.is_array(x):
+        return jax.ShapeDtypeStruct(x.shape, x.dtype)
+    return x
+
+
+def _key(name: str, args: tuple) -> str | None:
+    """The entry's key, or None when the static part has no stable ``repr`` (e.g. a closure)."""
+    text = repr(jax.tree.map(_abstract, args))
+    if " at 0x" in text:
+        return None
+    config = (jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision, jax.config.jax_numpy_rank_promotion)
+    h = hashlib.sha256("\n".join([_environment_digest(), name, repr(config), text]).encode())
+    return h.hexdigest()
+
+
+def _load(path: pathlib.Path):
+    return jax.export.deserialize(bytearray(path.read_bytes()))
+
+
+def _save(path: pathlib.Path, exported) -> None:
+    blob = exported.serialize()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(blob)
+        os.replace(tmp, path)
+    except BaseException:
+        pathlib.Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _plain(treedef) -> bool:
+    """Whether a tree structure uses only containers that survive pickling (no custom nodes)."""
+    probe = jax.tree.unflatten(treedef, [0] * treedef.num_leaves)
+
+    def ok(x):
+        if isinstance(x, dict):
+            return all(isinstance(k, str) and ok(v) for k, v in x.items())
+        if type(x) in (list, tuple):
+            return all(ok(v) for v in x)
+        return x is None or x == 0
+
+    return ok(probe)
+
+
+def cached_call(name: str, fn: Callable, *args):
+    """``fn(*args)`` through a compiled executable kept in memory and, when enabled, on disk.
+
+    ``fn`` is traced with the arrays of ``args`` (anything :func:`equinox.is_array` accepts) as
+    inputs and everything else static, as :func:`equinox.filter_jit` would. The result is the
+    same as ``eqx.filter_jit(fn)(*args)``. The output must be built of dicts, lists, tuples,
+    ``None`` and arrays only (its structure is stored with the executable, and JAX cannot
+    store the structure of an Equinox module).
+    """
+    key = _key(name, args)
+    if key is None:
+        return eqx.filter_jit(fn)(*args)
+    dynamic, static = eqx.partition(args, eqx.is_array)
+    leaves, in_def = jax.tree.flatten(dynamic)
+    run = _memory.get(key)
+    store = _store()
+    path = store / f"{name}-{key[:32]}.jaxexport" if store is not None else None
+    if run is None and path is not None and path.is_file():
+        try:
+            run = jax.jit(_load(path).call)
+            out = run(*leaves)
+        except Exception as err:  # noqa: BLE001 — a stale or damaged entry: trace instead
+            warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
+            path.unlink(missing_ok=True)
+            run = None
+        else:
+            _memory[key] = run
+            return out
+    if run is None:
+        # The program takes a flat list of arrays and returns plain containers, which is what
+        # jax.export can store.
+        def flat(*ls):
+            out = fn(*eqx.combine(jax.tree.unflatten(in_def, list(ls)), static))
+            if not _plain(jax.tree.structure(out)):
+                raise TypeError(f"cached_call({name!r}): the output must be built of dicts, lists, tuples, None and arrays")
+            return out
+
+        exported = jax.export.export(jax.jit(flat))(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
+        run = jax.jit(exported.call)
+        _memory[key] = run
+        if path is not None:
+            try:
+                _save(path, exported)
+            except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
+                warnings.warn(f"could not write the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
+    return run(*leaves)

@@ -1,0 +1,90 @@
+"""Regenerate every measured report in ``docs/`` (``make report``), each from its own run.
+
+Runs, one after another so that their timings do not disturb each other:
+
+- ``bench_eval.py``     → docs/benchmarks.md, "## Model evaluation" (model throughput vs NumPy)
+- ``bench_fit.py``      → docs/benchmarks.md, "## Fitting" (fit vs SciPy; MERL-sized fit)
+- ``coverage.py`` (sigma, absolute and relative likelihoods) and ``bench_sample.py``
+                        → docs/benchmarks.md, "## Sampling" (emcee speed vs NumPy; coverage)
+- ``bench_color.py``    → docs/benchmarks.md, "## Colour: error against run time", and its plot
+- ``fit_tradeoffs.py``  → docs/fitting-tradeoffs.md (error against run time; the recommended default)
+- ``stability.py``      → docs/stability.md (stiff and extreme cases)
+- ``run_notebooks.py``  → notebooks/*.ipynb executed in place, with their outputs
+
+``--small`` runs the quick version of each into ``--docs DIR`` (a scratch folder: the
+committed docs are written only by the full run) and leaves the notebooks alone; ``--only``
+picks steps by name. A step that fails stops the report with its exit status.
+
+Run: ``make report`` or ``.venv/bin/python scripts/report.py [--small --docs DIR] [--only NAME ...]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCRIPTS = ROOT / "scripts"
+
+
+def steps(docs: pathlib.Path, small: bool, scratch: pathlib.Path) -> list[tuple[str, list[list[str]]]]:
+    """(name, commands) for every report; each command is an argument list for Python."""
+    d = ["--docs", str(docs)]
+    q = ["--small"] if small else []
+    coverage = []
+    if not small:
+        for loss in ("sigma", "absolute", "relative"):
+            coverage.append([str(SCRIPTS / "coverage.py"), "--loss", loss, "--json", str(scratch / f"coverage-{loss}.json"), "-q"])
+    sample = [str(SCRIPTS / "bench_sample.py"), *d, *q]
+    if not small:
+        sample += ["--coverage", *(str(scratch / f"coverage-{loss}.json") for loss in ("sigma", "absolute", "relative"))]
+    return [
+        ("bench_eval", [[str(SCRIPTS / "bench_eval.py"), *d, *q]]),
+        ("bench_fit", [[str(SCRIPTS / "bench_fit.py"), *d, *q] + (["--no-merl"] if small else [])]),
+        ("bench_sample", [*coverage, sample]),
+        ("bench_color", [[str(SCRIPTS / "bench_color.py"), *d, *q]]),
+        ("fit_tradeoffs", [[str(SCRIPTS / "fit_tradeoffs.py"), *d, *q]]),
+        ("stability", [[str(SCRIPTS / "stability.py"), *d, *q]]),
+        ("notebooks", [] if small else [[str(SCRIPTS / "run_notebooks.py")]]),
+    ]
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--small", action="store_true", help="quick versions, into --docs (required with --small)")
+    ap.add_argument("--docs", type=pathlib.Path, default=None, help="where the Markdown goes (default: the repository's docs/)")
+    ap.add_argument("--only", nargs="+", default=None, help="run only these steps (names as listed by --list)")
+    ap.add_argument("--list", action="store_true", help="print the steps and their commands, run nothing")
+    args = ap.parse_args(argv)
+    if args.small and args.docs is None:
+        ap.error("--small writes only into a scratch folder: give --docs DIR")
+    docs = (args.docs or ROOT / "docs").resolve()
+    with tempfile.TemporaryDirectory(prefix="ctfit-report-") as tmp:
+        plan = steps(docs, args.small, pathlib.Path(tmp))
+        names = [n for n, _ in plan]
+        unknown = sorted(set(args.only or ()) - set(names))
+        if unknown:
+            ap.error(f"unknown step(s) {unknown}; the steps are {names}")
+        for name, commands in plan:
+            if args.only and name not in args.only:
+                continue
+            for cmd in commands:
+                line = " ".join([pathlib.Path(sys.executable).name, *(pathlib.Path(c).name if c.startswith(str(SCRIPTS)) else c for c in cmd)])
+                if args.list:
+                    print(f"{name}: {line}")
+                    continue
+                print(f"== {name}: {line}", flush=True)
+                t = time.perf_counter()
+                done = subprocess.run([sys.executable, *cmd], cwd=ROOT)
+                print(f"== {name}: exit {done.returncode} after {time.perf_counter() - t:.0f} s", flush=True)
+                if done.returncode != 0:
+                    return done.returncode
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,112 @@
+"""ctfit/_aot.py: fit programs kept on disk (jax.export), so a new process skips tracing."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ctfit import _aot
+
+
+class _Box(eqx.Module):
+    a: jax.Array
+    scale: float = eqx.field(static=True)
+
+
+def _fn(box, x, power):
+    return {"y": box.a * box.scale + x**power, "parts": [jnp.sum(x), None]}
+
+
+@pytest.fixture
+def store(tmp_path, monkeypatch):
+    monkeypatch.setattr(_aot, "_store", lambda: tmp_path)
+    monkeypatch.setattr(_aot, "_memory", {})
+    return tmp_path
+
+
+def _args():
+    return _Box(jnp.arange(3.0), 2.0), jnp.array([1.0, 2.0, 3.0]), 2
+
+
+def test_same_result_as_filter_jit(store):
+    got = _aot.cached_call("toy", _fn, *_args())
+    want = eqx.filter_jit(_fn)(*_args())
+    np.testing.assert_array_equal(got["y"], want["y"])
+    np.testing.assert_array_equal(got["parts"][0], want["parts"][0])
+    assert got["parts"][1] is None
+    assert len(list(store.glob("toy-*.jaxexport"))) == 1
+
+
+def test_a_new_process_loads_the_program_without_tracing(store, monkeypatch):
+    first = _aot.cached_call("toy", _fn, *_args())
+    monkeypatch.setattr(_aot, "_memory", {})  # as in a new process
+
+    def no_tracing(*a, **k):
+        raise AssertionError("traced again although the program is on disk")
+
+    monkeypatch.setattr(jax.export, "export", no_tracing)
+    again = _aot.cached_call("toy", _fn, *_args())
+    np.testing.assert_array_equal(again["y"], first["y"])
+
+
+def test_static_values_and_shapes_are_part_of_the_key(store):
+    box, x, power = _args()
+    _aot.cached_call("toy", _fn, box, x, power)
+    y3 = _aot.cached_call("toy", _fn, box, x, 3)["y"]
+    np.testing.assert_array_equal(y3, box.a * 2.0 + x**3)
+    y_scale = _aot.cached_call("toy", _fn, _Box(box.a, 5.0), x, power)["y"]
+    np.testing.assert_array_equal(y_scale, box.a * 5.0 + x**2)
+    y_long = _aot.cached_call("toy", _fn, _Box(jnp.arange(4.0), 2.0), jnp.ones(4), power)["y"]
+    np.testing.assert_array_equal(y_long, jnp.arange(4.0) * 2.0 + 1.0)
+    assert len(list(store.glob("toy-*.jaxexport"))) == 4
+
+
+def test_a_damaged_entry_is_replaced_with_a_warning(store, monkeypatch):
+    _aot.cached_call("toy", _fn, *_args())
+    (path,) = store.glob("toy-*.jaxexport")
+    path.write_bytes(b"not a program")
+    monkeypatch.setattr(_aot, "_memory", {})
+    with pytest.warns(RuntimeWarning, match="ignoring the compiled-program cache entry"):
+        got = _aot.cached_call("toy", _fn, *_args())
+    np.testing.assert_array_equal(got["y"], jnp.arange(3.0) * 2.0 + jnp.array([1.0, 4.0, 9.0]))
+    assert path.read_bytes() != b"not a program"  # rewritten with the fresh program
+
+
+def test_module_outputs_are_refused(store):
+    with pytest.raises(TypeError, match="output must be built of"):
+        _aot.cached_call("toy_module", lambda box: box, _Box(jnp.ones(2), 1.0))
+
+
+def test_closures_are_not_cached(store):
+    offset = jnp.ones(3)
+    got = _aot.cached_call("toy_closure", lambda x, f: f(x), jnp.zeros(3), lambda x: x + offset)
+    np.testing.assert_array_equal(got, np.ones(3))
+    assert not list(store.glob("toy_closure-*"))
+
+
+def test_no_store_without_a_cache_directory(monkeypatch):
+    monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(_aot, "_store", lambda: None)
+    got = _aot.cached_call("toy", _fn, *_args())
+    np.testing.assert_array_equal(got["y"], jnp.arange(3.0) * 2.0 + jnp.array([1.0, 4.0, 9.0]))
+
+
+def test_fit_through_the_store_matches_fit_in_memory(store, monkeypatch):
+    """A fit whose program comes from disk gives the same result as the one that wrote it."""
+    import ctfit
+    from ctfit._simulate import simulate
+
+    st = ctfit.Structure(lobes=1)
+    truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.6, 0.8])), wavelength_nm=np.array([450.0, 650.0]))
+    data = simulate(truth, 120, noise=0.01, seed=3)
+    first = ctfit.fit(data, st)
+    assert list(store.glob("fit-*.jaxexport"))
+    monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(jax.export, "export", lambda *a, **k: (_ for _ in ()).throw(AssertionError("traced again")))
+    again = ctfit.fit(data, st)
+    np.testing.assert_array_equal(again.material.params.m, first.material.params.m)
+    np.testing.assert_array_equal(again.material.params.f0, first.material.params.f0)
+    assert again.stats["cost"] == first.stats["cost"]

@@ -1,0 +1,75 @@
+"""The notebooks in notebooks/ run top to bottom without an error, their own asserts included.
+
+Each notebook is executed in memory (nothing is written back) in a fresh ``python3`` kernel with
+the working directory notebooks/, exactly as ``scripts/run_notebooks.py`` runs them, within
+``NOTEBOOK_TIMEOUT_S`` seconds for the whole notebook (environment variable
+``CTFIT_NOTEBOOK_TIMEOUT`` to change it). The kernel is a separate process: pytest's
+``filterwarnings = error`` does not apply inside it.
+"""
+
+import importlib.util
+import os
+import time
+
+import pytest
+
+from conftest import MEASURED, ROOT
+
+pytest.importorskip("nbclient")
+pytest.importorskip("nbformat")
+pytest.importorskip("ipykernel")
+
+import nbformat  # noqa: E402
+from nbclient import NotebookClient  # noqa: E402
+from nbclient.exceptions import CellExecutionError, CellTimeoutError  # noqa: E402
+
+pytestmark = pytest.mark.slow
+
+NOTEBOOKS = ROOT / "notebooks"
+EXPECTED = ("fitted_vs_tabulated", "measured_data", "quickstart")
+NOTEBOOK_TIMEOUT_S = float(os.environ.get("CTFIT_NOTEBOOK_TIMEOUT", "120"))
+
+
+def _runner():
+    spec = importlib.util.spec_from_file_location("run_notebooks", ROOT / "scripts" / "run_notebooks.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_notebooks_are_there():
+    assert {p.stem for p in NOTEBOOKS.glob("*.ipynb")} >= set(EXPECTED)
+
+
+def _listing():
+    return {p.name: p.stat().st_mtime_ns for p in NOTEBOOKS.iterdir()}
+
+
+@pytest.mark.parametrize("name", sorted({p.stem for p in NOTEBOOKS.glob("*.ipynb")} | set(EXPECTED)))
+def test_notebook_runs(name, monkeypatch):
+    path = NOTEBOOKS / f"{name}.ipynb"
+    if name == "measured_data" and not MEASURED.is_dir():
+        pytest.skip(f"the real measurements are not here ({MEASURED})")
+    # Jupyter's own paths, in this process too (no platformdirs migration warning under filterwarnings = error).
+    monkeypatch.setenv("JUPYTER_PLATFORM_DIRS", "1")
+    nb = nbformat.read(path, as_version=4)
+    before = _listing()
+    deadline = time.monotonic() + NOTEBOOK_TIMEOUT_S
+    client = NotebookClient(
+        nb,
+        timeout=int(NOTEBOOK_TIMEOUT_S),
+        # the time left for the whole notebook bounds each cell
+        timeout_func=lambda cell: max(1, int(deadline - time.monotonic())),
+        kernel_name="python3",
+        resources={"metadata": {"path": str(NOTEBOOKS)}},
+        record_timing=False,
+    )
+    try:
+        client.execute(env=_runner().kernel_env(), cwd=str(NOTEBOOKS))
+    except CellTimeoutError as err:
+        pytest.fail(f"{path.name} did not finish within {NOTEBOOK_TIMEOUT_S:g} s: {err}")
+    except CellExecutionError as err:
+        pytest.fail(f"{path.name} failed:\n{err}")
+    errors = [o for c in nb.cells for o in c.get("outputs", []) if o.get("output_type") == "error"]
+    assert not errors, errors
+    assert _listing() == before, "executing the notebook wrote into notebooks/"
