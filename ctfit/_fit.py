@@ -40,7 +40,7 @@ from ._fresnel import n_from_f0
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
 from ._solvers import StructuredLevenbergMarquardt
-from ._problem import LOSSES, Problem, from_params, make_problem, model_values, normal_equations, residual, to_params
+from ._problem import LOSSES, Problem, _loss, from_params, make_problem, model_values, normal_equations, residual, to_params
 
 __all__ = ["fit", "FitResult", "SOLVERS", "select_structure"]
 
@@ -155,6 +155,11 @@ def _half_squared_norm(flat, data):
     return 0.5 * jnp.sum(r * r)
 
 
+STATIONARY_TOLERANCE = {"float64": 1e-6, "float32": 1e-3}
+"""``converged`` needs one more Gauss–Newton step to promise less than this relative decrease
+of the cost: the solver's own tests (small steps, small changes) also pass where it has stalled,
+e.g. float32 rounding making every step look useless far from the minimum."""
+
 RACE_STEPS = 4
 """Levenberg–Marquardt steps every seed gets before only the leaders go on (``_structured_lm``)."""
 RACE_MARGIN = 1.5
@@ -217,6 +222,26 @@ def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int
     return jax.vmap(one)(seeds)
 
 
+def _gauss_newton_decrease(jtj, jtr, cost, scale):
+    """Relative decrease of ½‖r‖² that one Gauss–Newton step from here predicts,
+    ½ gᵀ(JᵀJ)⁺g / max(cost, ε·scale), with ``scale`` the cost of a zero model (so that an exact
+    fit, cost → 0, does not divide rounding by rounding).
+
+    Zero at a minimum (g = Jᵀr = 0). Directions the data does not determine (tiny eigenvalues
+    of JᵀJ, relative to the largest, below the dtype's rounding) are left out, so a degenerate
+    but stationary point still reads as stationary.
+    """
+    if jtj.size == 0:
+        return jnp.zeros((), cost.dtype)
+    evals, evecs = jnp.linalg.eigh(jtj)
+    cut = jnp.max(jnp.abs(evals)) * jnp.finfo(jtj.dtype).eps * jtj.shape[0] * 10
+    keep = evals > cut
+    proj = evecs.T @ jtr
+    dec = 0.5 * jnp.sum(jnp.where(keep, proj**2 / jnp.where(keep, evals, 1), 0))
+    eps = jnp.finfo(cost.dtype).eps
+    return dec / jnp.maximum(cost, jnp.maximum(eps * scale, jnp.finfo(cost.dtype).tiny))
+
+
 def _constrained(problem: Problem, unravel, f):
     """The reported (constrained) parameters as a dict, from the flat free values."""
     spec = problem.spec
@@ -237,12 +262,12 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
     costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
     best = jnp.argmin(costs)
     u = jax.tree.map(lambda a: a[best], values)
-    _, _, jtj = normal_equations(problem, u)
+    cost, jtr, jtj = normal_equations(problem, u)
     flat, unravel = ravel_pytree(u)
     jt = jax.jacfwd(lambda f: _constrained(problem, unravel, f))(flat) if flat.size else None
     params = to_params(problem.spec, u, problem.fixed)
     params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_aot.py)
-    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, pred=model_values(problem, u), jt=jt, params=params)
+    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, gn_decrease=_gauss_newton_decrease(jtj, jtr, cost, 0.5 * jnp.sum(_loss(problem, jnp.zeros_like(problem.y), problem.y) ** 2)), pred=model_values(problem, u), jt=jt, params=params)
 
 
 def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -355,7 +380,9 @@ def fit(
     else:
         pred_samples = pred
     structure_notes = residual_structure(data, pred_samples, floor=floor)
-    converged = bool(np.asarray(ok)[best]) and bool(np.all(np.isfinite(pred))) and np.isfinite(cost)
+    gn_decrease = float(out["gn_decrease"])
+    stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
+    converged = bool(np.asarray(ok)[best]) and bool(np.all(np.isfinite(pred))) and np.isfinite(cost) and stationary
     bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, 1e-300) / n)) + p * math.log(n)
     stats = {
         "converged": converged,
@@ -372,6 +399,7 @@ def fit(
         "dtype": jnp.dtype(dtype).name,
         "starts": int(np.asarray(costs).size),
         "relative_floor": floor,
+        "gauss_newton_decrease": gn_decrease,
     }
     full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     if structure.needs_fresnel_params and structure.fresnel == "f0":
@@ -385,7 +413,11 @@ def fit(
         channels=data.channels,
         name=f"fit of {data.source}",
     )
-    return FitResult(material=material, stats=stats, stderr=stderr, warnings=_warnings(structure, params, stderr) + structure_notes, loss=loss, solver=solver)
+    notes = _warnings(structure, params, stderr)
+    if not stationary:
+        hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more --max-steps, or another start)"
+        notes.append(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}")
+    return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)
 
 
 def select_structure(data: Measurement, candidates: list[Structure], **kwargs) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:

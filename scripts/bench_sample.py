@@ -356,7 +356,7 @@ def _coverage_module():
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--pairs", type=int, default=None, help="one size only (direction pairs)")
-    ap.add_argument("--sizes", default="100,250,500,1000,2000", help="direction pairs, comma separated")
+    ap.add_argument("--sizes", default="100,250,500,1000,2000,4000,8000", help="direction pairs, comma separated")
     ap.add_argument("--bands", type=int, default=8)
     ap.add_argument("--walkers", type=int, default=32)
     ap.add_argument("--steps", type=int, default=100)

@@ -490,7 +490,7 @@ def markdown(res, doc: pathlib.Path, fig: pathlib.Path) -> str:
         f"Synthetic truth from `ctfit.simulate`: a metal (Beckmann lobes, V-cavity G, effective-index Fresnel, no diffuse part; one lobe m = 0.2, "
         f"two lobes m = (0.2, 0.4), w = (0.6, 0.4), three lobes m = (0.1, 0.25, 0.5), w = (0.4, 0.35, 0.25); F0 rising linearly from 0.5 at 400 nm "
         f"to 0.95 at 700 nm), {NOISE:.0%} relative Gaussian noise, the samples carry σ; samples = direction pairs × bands. "
-        f"One axis varies at a time around the standard case: {std.lobes} lobes, {std.bands} bands, {std.label()} samples, "
+        f"One axis varies at a time around the standard case: {std.lobes} lobe{'s' if std.lobes > 1 else ''}, {std.bands} bands, {std.label()} samples, "
         f"Levenberg–Marquardt, float64, loss `auto` (σ-weighted for this data). "
         "ctfit: `ctfit.fit` (3 grid seeds, max_steps 256), called twice in one process with JAX's persistent compilation cache off — "
         "**first call** (tracing + XLA compilation + solve) and **warm** (best of up to 3 further calls); "

@@ -287,6 +287,10 @@ def run_case(case: Case, dtype_name: str, data, clean) -> dict:
             first = time.perf_counter() - t0
             res = ctfit.fit(data, st, start=start, dtype=dtype)
             model = np.asarray(ctfit.evaluate(res.material, data, dtype=dtype), dtype=float)
+    except ValueError as exc:  # ctfit refuses the input with a message: what the user sees, not a crash
+        row.update(converged=False, steps=None, error=None, param_error={}, time_s=None, first_s=None,
+                   non_finite={}, reports=[f"refused (ValueError): {exc}"], python_warnings=[])
+        return row
     except Exception as exc:  # a crash is a result too: reported as such
         row.update(converged=False, steps=None, error=None, param_error={}, time_s=None, first_s=None,
                    non_finite={"exception": 1}, reports=[f"raised {type(exc).__name__}: {exc}"], python_warnings=[])
