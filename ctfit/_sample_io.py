@@ -217,10 +217,10 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
         lines.append(f"  lobe {j}: m = {_fmt(lobe['m'])}   weight = {_fmt(lobe['weight'])}")
     band_keys = [k for k in ("F0", "n", "k", "Rd") if isinstance(u.get(k), list)]
     if band_keys:
-        wl = doc.get("wavelength_nm") or doc.get("channels") or list(range(len(u[band_keys[0]])))
+        wl = doc.get("wavelength_nm") or doc.get("channels") or [f"band {i}" for i in range(len(u[band_keys[0]]))]
         lines.append("  " + f"{'band':>10}" + "".join(f"  {k:>32}" for k in band_keys))
         for i, w in enumerate(wl):
-            lab = f"{w:g} nm" if isinstance(w, (int, float)) else str(w)
+            lab = f"{w:g} nm" if isinstance(w, (int, float)) else str(w)  # band indices, without a wavelength, say "band i"
             lines.append("  " + f"{lab:>10}" + "".join(f"  {_fmt(u[k][i]):>32}" for k in band_keys))
     if isinstance(u.get("Rd"), dict):
         lines.append(f"  Rd = {_fmt(u['Rd'])}")

@@ -352,6 +352,9 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     assert load_material(fit_json).meta["uncertainty"]["diagnostics"]["steps"] == 200
     table = format_uncertainty_table(doc, "metal")
     assert "lobe 0: m =" in table and "τ_max" in table
+    # Only the uncertainty section (no wavelengths beside it): bands are numbered, not "0 nm".
+    bare = format_uncertainty_table({"uncertainty": u}, "metal")
+    assert "band 0" in bare and " 0 nm" not in bare
 
     # Plots of a result directly (a diffuse-only material has no global parameter but R_d).
     res = sample(truth, data, steps=100, seed=0, colour=False)
