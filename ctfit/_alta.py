@@ -19,7 +19,8 @@ cos θ_v: divided by cos θ_v here; samples with the viewer on the horizon, θ_v
 channels R, G, B, in sr⁻¹). Angles are converted to degrees and rounded to 1e-9° (so that
 π/12 written to 32 digits reads as 15°, not 14.999999999999998°); the cosine factor uses the
 unrounded angle. One-band data have no wavelength; they get the placeholder band
-``wavelength_nm = [550.0]``, and ``meta["wavelength_nm"]`` says so.
+``wavelength_nm = [550.0]`` with ``band_unknown=True`` (labelled "unknown band", never shown as
+550 nm or turned into a colour), and ``meta["wavelength_nm"]`` says so.
 
 Confidence intervals (``#VS``) become ``sigma``: ``#VS 1`` gives a half-width ``dt`` per value
 (the interval is value ± dt), ``#VS 2`` lower and upper bounds; σ is the half-width of the
@@ -92,7 +93,7 @@ def read_alta(path, *, param_out: str | None = None) -> Measurement:
         bands = dict(channels=("R", "G", "B"), band=np.tile(np.arange(3), len(values)))
     else:
         rep = lambda a: a
-        bands = dict(wavelength_nm=np.array([PLACEHOLDER_WAVELENGTH_NM]), band=np.zeros(len(values), np.int64))
+        bands = dict(wavelength_nm=np.array([PLACEHOLDER_WAVELENGTH_NM]), band=np.zeros(len(values), np.int64), band_unknown=True)
         meta["wavelength_nm"] = f"unknown (single band); {PLACEHOLDER_WAVELENGTH_NM:g} used as placeholder"
     return Measurement(
         theta_i=rep(theta_i),

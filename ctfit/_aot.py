@@ -16,7 +16,9 @@ An entry is used only when its key matches exactly; if it cannot be read, loaded
 (a truncated file, a jaxlib that cannot deserialise it), it is discarded and the program is
 compiled as usual. Entries are written atomically. The store lives in ``ctfit-aot/`` inside
 the directory of JAX's persistent cache, and only when that cache is enabled (the ``ctfit``
-command enables it; library users call :func:`ctfit._cache.enable_compilation_cache`).
+command enables it; library users call :func:`ctfit._cache.enable_compilation_cache`). Since
+its programs are run, the folder is made with mode 0700 and is not used (one warning) when it
+belongs to another user or others can write to it.
 """
 
 from __future__ import annotations
@@ -27,15 +29,19 @@ import importlib.metadata
 import os
 import pathlib
 import platform
-import tempfile
+import stat
 import warnings
 from typing import Callable
 
 import equinox as eqx
 import jax
 
+from ._cache import warn_once
+from ._fileio import atomic_write
+
 _FORMAT = 1
 _memory: dict[str, Callable] = {}
+_stores: dict[str, pathlib.Path | None] = {}  # cache folder → its checked store
 
 
 @functools.cache
@@ -72,8 +78,35 @@ def _environment_digest() -> str:
 
 
 def _store() -> pathlib.Path | None:
+    """``ctfit-aot/`` in JAX's cache folder, made (mode 0700) on first use; None without a cache,
+    or (with one :class:`~ctfit._cache.CacheWarning`) when the folder cannot be trusted."""
     where = jax.config.jax_compilation_cache_dir
-    return pathlib.Path(where) / "ctfit-aot" if where else None
+    if not where:
+        return None
+    if where not in _stores:
+        _stores[where] = _trusted(pathlib.Path(where) / "ctfit-aot")
+    return _stores[where]
+
+
+def _trusted(store: pathlib.Path) -> pathlib.Path | None:
+    """``store`` if only this user can write there: programs loaded from it are run, so nobody else
+    may plant one. Otherwise warn and go without it."""
+    try:
+        store.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = store.lstat()
+    except OSError as e:
+        problem = f"cannot be created ({e.strerror or e})"
+    else:
+        if not stat.S_ISDIR(st.st_mode):
+            problem = "is not a folder"
+        elif hasattr(os, "getuid") and st.st_uid != os.getuid():
+            problem = "belongs to another user"
+        elif st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+            problem = f"can be written by other users (mode {stat.filemode(st.st_mode)}); run chmod go-w on it"
+        else:
+            return store
+    warn_once(f"compiled-program store off: {store} {problem}; fits trace their programs again in every run")
+    return None
 
 
 def _abstract(x):
@@ -97,16 +130,7 @@ def _load(path: pathlib.Path):
 
 
 def _save(path: pathlib.Path, exported) -> None:
-    blob = exported.serialize()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(blob)
-        os.replace(tmp, path)
-    except BaseException:
-        pathlib.Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write(path, [exported.serialize()])
 
 
 def _plain(treedef) -> bool:

@@ -11,10 +11,12 @@ under the illuminant, not scaled (a perfect white reflector has Y = 1, sRGB (1, 
 
 Spectral materials are evaluated on the observer's 1 nm grid (360–830 nm): their parameters
 are interpolated linearly between the listed wavelengths and held at the end values outside
-(``../shared/FORMATS.md``), then F is computed per nanometre — so no colour-matching function
+(``docs/formats.md``), then F is computed per nanometre — so no colour-matching function
 or illuminant is resampled except the 5 nm CIE illuminant tables (linearly, as colour-science
 does). RGB materials (channels R, G, B) give linear RGB of ``colourspace`` directly; their
-white is the colourspace's white and ``illuminant`` is not used.
+white is the colourspace's white and ``illuminant`` is not used. A material whose one band has
+an unknown wavelength (``Material.band_unknown``, a fit of an ALTA file) has no colour: the
+report refuses it.
 """
 
 from __future__ import annotations
@@ -128,6 +130,10 @@ def colour_report(
     - ``quantity`` (``"F(theta)"`` or ``"pi*Rd"``), ``material``, ``angle_deg``,
       ``illuminant``, ``observer``, ``colourspace``, ``chromatic_adaptation``.
     """
+    if material.band_unknown:
+        raise ValueError(
+            f"material {material.name!r}: its band's wavelength is unknown (single-band data), so there is no colour to report"
+        )
     colour = _colour()
     if material.is_rgb:
         conv = rgb_conversion(colourspace, None, None)

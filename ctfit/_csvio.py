@@ -29,6 +29,8 @@ _KNOWN = (*ANGLES, "wavelength_nm", "channel", "brdf", "sigma")
 _META = re.compile(r"#\s*([A-Za-z_][\w.-]*)\s*:\s?(.*)")
 _RADIAN_MAX = math.pi / 2 + 1e-9  # largest θ that still looks like radians
 _RADIAN_ROWS = 3  # more rows than this with a nonzero θ, all ≤ π/2: "looks like radians"
+_TWO_PI = 2 * math.pi + 1e-9  # largest |φ| that still looks like radians
+_SEPARATORS = {";": "semicolon", "\t": "tab"}
 _CHANNEL_CODE = np.full(256, 255, np.uint8)
 _CHANNEL_CODE[[ord(c) for c in CHANNELS]] = [0, 1, 2]
 _WRITE_ROWS = 100_000
@@ -89,6 +91,12 @@ class _Header:
         names = [n.strip().strip('"').strip() for n in header.split(",")]
         self.names, self.line = names, line
         err = lambda msg, name=None, i=None: DataError(msg, path=path, line=line, column=name, index=i)
+        sep = next((word for c, word in _SEPARATORS.items() if c in header), None)
+        if len(names) == 1 and sep is not None:
+            raise err(
+                f"the header has one column, {header[:60]!r}: the file seems to be {sep}-separated; "
+                "ctfit reads comma-separated CSV (docs/measurement-formats.md)"
+            )
         if _is_number(names[0]):
             raise DataError(
                 "no header row: this line looks like data; the first line after the # lines must name the columns, "
@@ -257,7 +265,8 @@ def _fmt(x: float) -> str:
 
 
 def _check_units(values: dict, meta: dict, meta_lines: dict, cols: _Header, header_line: int, path):
-    """Radian-looking angles are an error unless ``# angle_unit: degrees`` confirms degrees."""
+    """Radian-looking angles are an error unless ``# angle_unit: degrees`` confirms degrees:
+    every θ ≤ π/2, or (θ in degrees) every φ within ±2π with some not whole numbers."""
     unit = meta.get("angle_unit")
     if unit is not None and unit.lower() not in ("degrees", "degree", "deg"):
         raise DataError(
@@ -278,6 +287,32 @@ def _check_units(values: dict, meta: dict, meta_lines: dict, cols: _Header, head
             line=header_line,
             **cols.column("theta_i"),
         )
+    _check_phi_units(values, cols, header_line, path)
+
+
+def _check_phi_units(values: dict, cols: _Header, header_line: int, path):
+    """φ in radians beside θ in degrees: every |φ| ≤ 2π, some φ not whole, θ up to more than 2π.
+
+    Whole-numbered φ within ±2π (0 and 180 in-plane data has larger ones anyway; 0 alone, or
+    0, 1, 2 degrees) reads as degrees."""
+    theta_max = max(values["theta_i"].max(), values["theta_o"].max())
+    phi = np.stack([values["phi_i"], values["phi_o"]])
+    if theta_max <= _TWO_PI or np.abs(phi).max() > _TWO_PI or np.count_nonzero(np.any(phi != 0, axis=0)) <= _RADIAN_ROWS:
+        return
+    fractional = np.abs(phi - np.round(phi)) > 1e-9
+    if not fractional.any():
+        return
+    which, row = np.unravel_index(np.argmax(fractional.T.reshape(-1)), fractional.T.shape)[::-1]
+    name = ("phi_i", "phi_o")[which]
+    raise DataError(
+        f"{_fmt(values[name][row])}: every phi_i and phi_o is within ±2π (±{2 * math.pi:.4f}) and some are not whole "
+        f"numbers, while theta goes up to {theta_max:g}: phi looks like radians, but ctfit reads degrees. Convert phi "
+        f"(degrees = radians × 180/π ≈ radians × {180 / math.pi:.4f}), or, if it really is in degrees, add the line "
+        "'# angle_unit: degrees' before the header",
+        path=path,
+        line=header_line + 1 + int(row),
+        **cols.column(name),
+    )
 
 
 def _measurement(values: dict, channel, meta: dict, path) -> Measurement:

@@ -39,8 +39,9 @@ from ._diagnostics import residual_structure
 from ._fresnel import n_from_f0
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
-from ._solvers import StructuredLevenbergMarquardt
-from ._problem import LOSSES, Problem, _loss, from_params, make_problem, model_values, normal_equations, residual, to_params
+from ._solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, active_set, predicted_decrease
+from ._validate import check_fittable, n_free_parameters, nonfinite_reason, rms
+from ._problem import LOSSES, Problem, _loss, bounds, from_params, make_problem, model_values, normal_equations, residual, to_params
 
 __all__ = ["fit", "FitResult", "SOLVERS", "select_structure"]
 
@@ -139,8 +140,7 @@ def _seed_points(problem: Problem, u0: dict, k: int, grid=None) -> dict:
     seeds = dict(jax.tree.map(lambda a: jnp.broadcast_to(a, (order.shape[0],) + jnp.shape(a)), u0))
     seeds["m"] = grid[order]
     if "f0" in u0:
-        f0 = jnp.clip(jax.nn.sigmoid(u0["f0"]) * scales[order], 0.005, 0.995)
-        seeds["f0"] = jnp.log(f0) - jnp.log1p(-f0)
+        seeds["f0"] = jnp.clip(u0["f0"] * scales[order], 0.005, 0.995)
     return seeds
 
 
@@ -166,6 +166,12 @@ RACE_MARGIN = 1.5
 """A seed goes on after the race if its cost is within this factor of the lowest."""
 
 
+def _flat_bounds(problem: Problem, u: dict):
+    """The box bounds of the free coordinates, flattened as ``ravel_pytree(u)`` orders them."""
+    lower, upper = bounds(problem.spec, u)
+    return ravel_pytree(lower)[0], ravel_pytree(upper)[0]
+
+
 def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     """optimistix Levenberg–Marquardt on the structured normal equations, the seeds raced.
 
@@ -178,7 +184,10 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
     rtol, atol = (1e-8, 1e-12) if flat_seeds.dtype == jnp.float64 else (1e-5, 1e-8)
     data = (problem, jax.tree_util.Partial(unravel))
-    solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton)
+    lower, upper = _flat_bounds(problem, jax.tree.map(lambda a: a[0], seeds))
+    descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
+    gtol = STATIONARY_TOLERANCE[flat_seeds.dtype.name] * 1e-3
+    solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton, descent=descent, gtol=gtol)
 
     def solve(f0, steps):
         sol = optx.minimise(_half_squared_norm, solver, f0, data, max_steps=steps, throw=False)
@@ -231,13 +240,7 @@ def _gauss_newton_decrease(jtj, jtr, cost, scale):
     of JᵀJ, relative to the largest, below the dtype's rounding) are left out, so a degenerate
     but stationary point still reads as stationary.
     """
-    if jtj.size == 0:
-        return jnp.zeros((), cost.dtype)
-    evals, evecs = jnp.linalg.eigh(jtj)
-    cut = jnp.max(jnp.abs(evals)) * jnp.finfo(jtj.dtype).eps * jtj.shape[0] * 10
-    keep = evals > cut
-    proj = evecs.T @ jtr
-    dec = 0.5 * jnp.sum(jnp.where(keep, proj**2 / jnp.where(keep, evals, 1), 0))
+    dec = predicted_decrease(jtj, jtr)
     eps = jnp.finfo(cost.dtype).eps
     return dec / jnp.maximum(cost, jnp.maximum(eps * scale, jnp.finfo(cost.dtype).tiny))
 
@@ -271,10 +274,15 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
     u = jax.tree.map(lambda a: a[best], values)
     cost, jtr, jtj = normal_equations(problem, u)
     flat, unravel = ravel_pytree(u)
+    lower, upper = _flat_bounds(problem, u)
+    on_bound = active_set(flat, jtr, lower, upper)  # held on a bound: a result, not a failure
+    keep = ~on_bound
+    jtr = jnp.where(keep, jtr, 0)
+    jtj = jnp.where(keep[:, None] & keep[None, :], jtj, 0)
     jt = jax.jacfwd(lambda f: _constrained(problem, unravel, f))(flat) if flat.size else None
     params = to_params(problem.spec, u, problem.fixed)
     params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_aot.py)
-    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, gn_decrease=_gauss_newton_decrease(jtj, jtr, cost, 0.5 * jnp.sum(_loss(problem, jnp.zeros_like(problem.y), problem.y) ** 2)), pred=model_values(problem, u), jt=jt, params=params)
+    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, on_bound=on_bound, gn_decrease=_gauss_newton_decrease(jtj, jtr, cost, 0.5 * jnp.sum(_loss(problem, jnp.zeros_like(problem.y), problem.y) ** 2)), pred=model_values(problem, u), jt=jt, params=params)
 
 
 def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -284,30 +292,56 @@ def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
     return dataclasses.replace(params, m=np.asarray(params.m)[order], w=np.asarray(params.w)[order]), order
 
 
-def _stderr(jtj, jt: dict | None, scale2: float, order) -> dict | None:
-    """Standard errors of the constrained parameters from JᵀJ and their Jacobian ``jt``."""
+def _stderr(jtj, jt: dict | None, scale2: float, order, on_bound=None) -> dict | None:
+    """Standard errors of the constrained parameters from JᵀJ and their Jacobian ``jt``.
+
+    Coordinates held on a bound (``on_bound``) are left out of JᵀJ; a parameter that depends
+    on no free coordinate (it sits on its bound) gets NaN: it has no standard error, the bound
+    is the result."""
     jtj = np.asarray(jtj)
     if jtj.size == 0 or jt is None:
         return None
-    try:
-        cond = np.linalg.cond(jtj)
-    except np.linalg.LinAlgError:
-        return None
-    if not np.isfinite(cond) or cond > 1e12:
-        return None
-    cov_u = np.linalg.inv(jtj) * scale2
+    free = np.ones(jtj.shape[0], bool) if on_bound is None else ~np.asarray(on_bound, bool)
+    free &= ~undetermined(jtj)
+    sub = jtj[np.ix_(free, free)]
+    if sub.size:
+        try:
+            cond = np.linalg.cond(sub)
+        except np.linalg.LinAlgError:
+            return None
+        if not np.isfinite(cond) or cond > 1e12:
+            return None
+    cov_u = np.zeros_like(jtj)
+    if sub.size:
+        cov_u[np.ix_(free, free)] = np.linalg.inv(sub) * scale2
     se = {}
     for k, jk in jt.items():
         jk = np.asarray(jk).reshape(-1, jtj.shape[0])
         var = np.einsum("ij,jk,ik->i", jk, cov_u, jk)
         v = np.sqrt(np.maximum(var, 0))
+        v = np.where(np.any(jk[:, ~free] != 0, axis=1) & ~np.any(jk[:, free] != 0, axis=1), np.nan, v)
         if k in ("m", "w") and order is not None:
             v = v[order]
         se[k] = v
     return {("weight" if k == "w" else k): v for k, v in se.items()}
 
 
-def _warnings(structure: Structure, params: Params, stderr) -> list[str]:
+def undetermined(jtj) -> np.ndarray:
+    """Coordinates the data does not constrain at all: their row of JᵀJ is zero (to rounding,
+    relative to the largest diagonal entry), e.g. R_d when s = 1 or the m of a lobe of weight 0."""
+    d = np.abs(np.diag(np.asarray(jtj)))
+    return d <= np.finfo(np.asarray(jtj).dtype).eps * 1e-2 * (np.max(d) if d.size else 0.0)
+
+
+def _coordinate_names(u: dict) -> list[str]:
+    """The parameter name of every flat coordinate (``ravel_pytree`` order: sorted names)."""
+    return [k for k in sorted(u) for _ in range(int(np.size(u[k])))]
+
+
+_PUBLIC = {"s": "s", "m": "m", "w": "weight", "f0": "F0", "n": "n", "k": "k", "rd": "R_d"}
+
+
+def _warnings(structure: Structure, params: Params, stderr, not_determined=()) -> list[str]:
     out = []
     if params.m is not None and len(params.m) > 1:
         m = np.asarray(params.m)
@@ -315,18 +349,30 @@ def _warnings(structure: Structure, params: Params, stderr) -> list[str]:
             if abs(b - a) <= 0.02 * max(a, b):
                 out.append(f"degenerate: two lobes with nearly equal m ({a:.4g}, {b:.4g}); one lobe may suffice")
         for j, w in enumerate(np.asarray(params.w)):
-            if w < 1e-3:
+            if w == 0.0:
+                out.append(f"degenerate: lobe {j} has weight 0 (on its bound): the data needs fewer lobes, and this lobe's m = {m[j]:.4g} means nothing")
+            elif w < 1e-3:
                 out.append(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} → 0; fewer lobes may suffice")
+            elif stderr is not None and "weight" in stderr and w < 2 * np.asarray(stderr["weight"])[j]:
+                out.append(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} ± {np.asarray(stderr['weight'])[j]:.2g}, "
+                           "not significantly above 0; fewer lobes may suffice")
     if params.s is not None:
         s = float(params.s)
-        if s < 1e-4:
-            out.append(f"s = {s:.2g} is at its lower bound: the data shows no specular part")
+        if s == 0.0:
+            out.append("s = 0 (on its bound): the data shows no specular part, and m, F0 are not determined by it")
+        elif s == 1.0:
+            out.append("s = 1 (on its bound): the data shows no diffuse part")
+        elif s < 1e-4:
+            out.append(f"s = {s:.2g} is near its lower bound: the data shows almost no specular part")
         elif s > 1 - 1e-4:
-            out.append(f"s = {s:.6g} is at its upper bound: the data shows no diffuse part")
+            out.append(f"s = {s:.6g} is near its upper bound: the data shows almost no diffuse part")
     if params.f0 is not None:
         f0 = np.asarray(params.f0)
         if np.any(f0 < 1e-6) or np.any(f0 > 1 - 1e-6):
             out.append("F0 at a bound (0 or 1) in some bands: the effective index is at its limit there")
+    if not_determined:
+        names = ", ".join(_PUBLIC[k] for k in dict.fromkeys(not_determined))
+        out.append(f"degenerate: the data does not determine {names} (no standard error there): the model has more freedom than the data shows")
     if stderr is None:
         out.append("standard errors not computed: JᵀJ is singular or ill-conditioned (cond > 1e12)")
     return out
@@ -363,6 +409,7 @@ def fit(
         start = default
     else:  # anything the structure needs but ``start`` lacks comes from the defaults
         start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
+    check_fittable(data, structure, fixed=fixed, loss=loss, dtype=dtype)
     problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype)
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     k = starts if "m" in u0 else 1
@@ -381,7 +428,7 @@ def fit(
     rss_like = 2 * cost
     scale2 = 1.0 if loss == "sigma" else rss_like / max(n - p, 1)
     params, order = _sorted_lobes(params)
-    stderr = _stderr(out["jtj"], out["jt"], scale2, order)
+    stderr = _stderr(out["jtj"], out["jt"], scale2, order, out["on_bound"])
     if problem.spec.grid:
         pred_samples = np.asarray(out["pred"])[data.directions()[1], data.band]
     else:
@@ -389,13 +436,14 @@ def fit(
     structure_notes = residual_structure(data, pred_samples, floor=floor)
     gn_decrease = float(out["gn_decrease"])
     stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
-    converged = bool(np.asarray(ok)[best]) and bool(np.all(np.isfinite(pred))) and np.isfinite(cost) and stationary
+    not_finite = nonfinite_reason(cost, rms(err), pred, dtype)  # a result that is not finite has not converged
+    converged = bool(np.asarray(ok)[best]) and not_finite is None and stationary
     bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, 1e-300) / n)) + p * math.log(n)
     stats = {
         "converged": converged,
         "steps": int(np.asarray(steps)[best]),
         "cost": cost,
-        "rmse": float(np.sqrt(np.mean(err**2))),
+        "rmse": rms(err),
         "rel_rmse": float(np.sqrt(np.mean((err / np.maximum(np.abs(y[mask]), floor)) ** 2))),
         "time_s": time.perf_counter() - t0,
         "n_samples": n,
@@ -417,8 +465,11 @@ def fit(
         wavelength_nm=data.wavelength_nm,
         channels=data.channels,
         name=f"fit of {data.source}",
+        band_unknown=data.band_unknown,
     )
-    notes = _warnings(structure, params, stderr)
+    names = _coordinate_names(u)
+    not_determined = [names[i] for i in np.flatnonzero(undetermined(out["jtj"]) & ~np.asarray(out["on_bound"], bool))]
+    notes = ([not_finite] if not_finite else []) + _warnings(structure, params, stderr, not_determined)
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more --max-steps, or another start)"
         notes.append(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}")
@@ -426,8 +477,12 @@ def fit(
 
 
 def select_structure(data: Measurement, candidates: list[Structure], **kwargs) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
-    """Fit each candidate structure and keep the one with the lowest BIC (Schwarz 1978)."""
-    results = [(st, fit(data, st, **kwargs)) for st in candidates]
+    """Fit each candidate structure and keep the one with the lowest BIC (Schwarz 1978).
+
+    Candidates with more free parameters than the data has samples are left out (all of them
+    too many: the first one's error)."""
+    enough = [st for st in candidates if n_free_parameters(st, data.n_bands, kwargs.get("fixed", ())) <= len(data)]
+    results = [(st, fit(data, st, **kwargs)) for st in (enough or candidates[:1])]
     ok = [(st, r) for st, r in results if np.isfinite(r.stats["bic"])]
     best = min(ok or results, key=lambda sr: sr[1].stats["bic"])[1]
     return best, results

@@ -69,7 +69,7 @@ def format_fit_table(res, label: str = "") -> str:
             lines.append(f"  lobe {j}: m = {_pm(m, sm)}   weight = {_pm(w, sw)}")
     if st.needs_fresnel_params:
         f0 = np.asarray(_f0(mat))
-        labels = [f"{w:g} nm" for w in mat.wavelength_nm] if mat.channels is None else list(mat.channels)
+        labels = mat.band_labels
         cols = ["band", "F0", "n"] + (["k"] if st.fresnel == "conductor" else [])
         lines.append("  " + "  ".join(f"{c:>18}" for c in cols))
         for i, lab in enumerate(labels):

@@ -109,6 +109,8 @@ class Material:
 
     ``wavelength_nm`` (for spectral materials) or ``channels`` (e.g. ("R", "G", "B")) names the
     bands of the per-band parameters. ``name`` and ``meta`` are free text carried along.
+    ``band_unknown``: one band whose wavelength is not known (a fit of single-band data, e.g. an
+    ALTA file); ``wavelength_nm`` is then a placeholder, and the material has no colour.
     """
 
     structure: Structure
@@ -117,16 +119,30 @@ class Material:
     channels: tuple[str, ...] | None = None
     name: str = ""
     meta: dict = dataclasses.field(default_factory=dict)
+    band_unknown: bool = False
+
+    def __post_init__(self):
+        if self.band_unknown and (self.wavelength_nm is None or len(self.wavelength_nm) != 1):
+            raise ValueError(f"material {self.name!r}: band_unknown needs exactly one wavelength band (a placeholder)")
 
     @property
     def is_rgb(self) -> bool:
         return self.channels is not None
 
+    @property
+    def band_labels(self) -> list[str]:
+        """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""
+        if self.band_unknown:
+            return ["unknown band"]
+        if self.channels is not None:
+            return list(self.channels)
+        return [] if self.wavelength_nm is None else [f"{w:g} nm" for w in self.wavelength_nm]
+
     def params_at(self, wavelength_nm=None, channels=None) -> Params:
         """Per-band parameters resampled to other bands.
 
         Spectral: linear interpolation between the listed wavelengths, held at the end values
-        outside (``../shared/FORMATS.md``). RGB: the channels are picked by name.
+        outside (``docs/formats.md``). RGB: the channels are picked by name.
         """
         p = self.params
         if channels is not None:

@@ -1,13 +1,13 @@
 """Material files: TOML configs and fit-result JSON to and from :class:`~ctfit.Material`.
 
-The format is specified in ``../shared/FORMATS.md`` and documented in ``docs/formats.md``
-("Material file (TOML) and fit result (JSON)"). ctfit extends it with:
+The format is documented in ``docs/formats.md`` ("Material file (TOML) and fit result
+(JSON)"). ctfit extends it with:
 
 - ``fresnel = "f0" | "n" | "conductor"``: which Fresnel quantity is the parameter (inferred
   when absent: ``k`` given → conductor, else ``F0`` → f0, else ``n``); results always say it.
-- ``optical_constants = "measurements/Cu.csv"``: wavelengths, n, k and F0 from an optical
-  constants CSV (see :func:`read_optical_constants`), relative to the file's folder or, failing
-  that, to the repository root. Fresnel is then "conductor" unless ``fresnel`` says otherwise.
+- ``optical_constants = "Cu"``: wavelengths, n, k and F0 from a table that ships with ctfit,
+  or ``"path/to/table.csv"``, an optical constants CSV relative to the file's folder (see
+  :func:`read_optical_constants`). Fresnel is then "conductor" unless ``fresnel`` says otherwise.
 - ``channels = ["R", "G", "B"]`` in place of ``wavelength_nm`` for RGB materials.
 - ``F0``, ``n``, ``k`` may be single numbers, meaning the same value in every band.
 - ``name``; every other key (``fit``, ``uncertainty``, ...) is kept in ``Material.meta`` and
@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import datetime
 import difflib
+import importlib.resources
 import json
 import math
 import pathlib
@@ -41,12 +42,12 @@ __all__ = [
     "read_optical_constants",
 ]
 
-_REPO_ROOT = pathlib.Path(__file__).resolve().parent.parent
+_TABLES = importlib.resources.files("ctfit") / "data" / "optical_constants"  # package data
 _TOL = 1e-9
 _MAX_LOBES = 8
 _MODEL_KEYS = (
     "name", "s", "d", "lobes", "distribution", "geometry", "normalization", "fresnel",
-    "wavelength_nm", "channels", "optical_constants", "F0", "n", "k", "Rd",
+    "wavelength_nm", "channels", "optical_constants", "F0", "n", "k", "Rd", "band_unknown",
 )  # fmt: skip
 _FRESNEL_KEYS = {"f0": ("F0",), "n": ("n",), "conductor": ("n", "k")}
 
@@ -63,7 +64,13 @@ def _f0_from_n(n):
 
 
 def _f0_from_nk(n, k):
-    return ((n - 1) ** 2 + k * k) / ((n + 1) ** 2 + k * k)
+    with np.errstate(over="ignore", invalid="ignore"):
+        f0 = ((n - 1) ** 2 + k * k) / ((n + 1) ** 2 + k * k)
+    if np.all(np.isfinite(f0)):
+        return f0
+    scale = np.maximum(np.abs(n) + 1, np.abs(k))  # n or k beyond ~1e154: the squares overflow
+    a, b, c = (n - 1) / scale, k / scale, (n + 1) / scale
+    return np.where(np.isfinite(f0), f0, (a * a + b * b) / (c * c + b * b))
 
 
 def _n_from_f0(f0):
@@ -76,7 +83,9 @@ def _n_from_f0(f0):
 
 
 def read_optical_constants(path) -> dict:
-    """Read an optical constants CSV (``measurements/*.csv``, ``docs/formats.md``).
+    """Read an optical constants CSV (``docs/formats.md``): a path, or the name of a table that
+    ships with ctfit (``"Cu"``, ``"Au"``, ``"Ag"``, ``"Al"``, ``"Fe"``, ``"stainless-steel"``;
+    a name has no folder and no suffix).
 
     ``#`` lines first (``# key: value`` pairs go to ``meta``), then the header
     ``wavelength_nm,n,k[,F0]`` and one wavelength per row, strictly increasing. A missing
@@ -84,7 +93,7 @@ def read_optical_constants(path) -> dict:
 
     Returns ``{"wavelength_nm", "n", "k", "F0"}`` as float64 arrays plus ``"meta"`` (a dict).
     """
-    path = pathlib.Path(path)
+    path = _bundled_table(path) if _is_table_name(path) else pathlib.Path(path)
     lines = _read_text(path).splitlines()
     meta, header, rows = {}, None, []
     for lineno, line in enumerate(lines, 1):
@@ -119,6 +128,24 @@ def read_optical_constants(path) -> dict:
         raise MaterialError(f"{path}: wavelength_nm must be strictly increasing")
     out["meta"] = meta
     return out
+
+
+def _is_table_name(name) -> bool:
+    """A bare name (``"Cu"``) rather than a path: a string without folder or suffix."""
+    return isinstance(name, str) and bool(name) and pathlib.PurePath(name).name == name and "." not in name and "\\" not in name
+
+
+def _table_names() -> list[str]:
+    """The optical constants tables that ship with ctfit (package data), by name."""
+    return sorted(p.name[: -len(".csv")] for p in _TABLES.iterdir() if p.name.endswith(".csv"))
+
+
+def _bundled_table(name: str):
+    """The package-data file of table ``name`` (an ``importlib.resources`` Traversable)."""
+    resource = _TABLES / f"{name}.csv"
+    if not resource.is_file():
+        raise MaterialError(f"{name!r}: no such optical constants table; ctfit ships {', '.join(_table_names())}")
+    return resource
 
 
 def _read_text(path: pathlib.Path) -> str:
@@ -260,14 +287,14 @@ class _Parser:
         order = sorted(range(len(ms)), key=ms.__getitem__)  # results list lobes in ascending m
         return [ms[j] for j in order], [ws[j] for j in order]
 
-    def resolve(self, name: str) -> pathlib.Path:
-        rel = pathlib.Path(name)
-        bases = [pathlib.Path(self.base_dir) if self.base_dir is not None else pathlib.Path.cwd(), _REPO_ROOT]
-        tried = [rel] if rel.is_absolute() else [b / rel for b in bases]
-        for candidate in tried:
-            if candidate.is_file():
-                return candidate
-        raise self.error("optical_constants", f"no file {name!r} (looked for {', '.join(map(str, tried))})")
+    def resolve(self, name: str):
+        """A table's name, or a CSV path relative to the file's folder (or the working directory)."""
+        if _is_table_name(name):
+            return name
+        path = pathlib.Path(self.base_dir if self.base_dir is not None else pathlib.Path.cwd()) / name
+        if not path.is_file():
+            raise self.error("optical_constants", f"no file {name!r} (looked for {path}); ctfit ships {', '.join(_table_names())}")
+        return path
 
     def bands(self):
         """(wavelength_nm, channels, band key, optical constants table or None)."""
@@ -335,6 +362,11 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
     normalization = p.choice("normalization", NORMALIZATIONS, "normalized")
     wl, channels, band_key, table = p.bands()
     nbands = len(wl) if wl is not None else len(channels)
+    band_unknown = data.get("band_unknown", False)
+    if not isinstance(band_unknown, bool):
+        raise p.error("band_unknown", f"must be true or false, got {band_unknown!r}")
+    if band_unknown and (wl is None or nbands != 1):
+        raise p.error("band_unknown", f"true needs exactly one wavelength_nm (a placeholder), got {nbands} {band_key}")
 
     diffuse, rd = None, None
     if d == 0:
@@ -367,7 +399,7 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
         rd=rd,
         **spectral,
     )
-    return Material(structure, params, wavelength_nm=wl, channels=channels, name=name, meta=meta)
+    return Material(structure, params, wavelength_nm=wl, channels=channels, name=name, meta=meta, band_unknown=band_unknown)
 
 
 def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tuple[str, dict]:
@@ -395,7 +427,8 @@ def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tup
                 raise p.error(key, f'missing: fresnel = "{mode}" needs {" and ".join(_FRESNEL_KEYS[mode])}')
         if "k" in data and mode != "conductor":
             raise p.error("k", f'only with fresnel = "conductor", not "{mode}"')
-        bounds = {"F0": (0, 1, False), "n": (0, math.inf, True), "k": (0, math.inf, False)}
+        # a conductor's n may be 0 (a fit on its bound, F0 = 1); a real index must be > 0
+        bounds = {"F0": (0, 1, False), "n": (0, math.inf, mode != "conductor"), "k": (0, math.inf, False)}
         values = {
             key: p.spectrum(key, nbands, band_key, *bounds[key], allow_null=key not in _FRESNEL_KEYS[mode])
             for key in keys
@@ -453,8 +486,12 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     (``k`` for a conductor); lobes in ascending m. A part whose fraction is exactly 0 (s = 0 or
     d = 0, e.g. a fit at its bound) is left out, as the format requires; the BRDF is unchanged.
     ``material.meta`` and then ``extra`` (e.g. ``fit``, ``uncertainty``) follow; they may not
-    reuse a model key. Non-finite numbers become null.
+    reuse a model key. Non-finite numbers (fit statistics, the effective index of F0 = 1) become
+    null. What is written always reads back (:func:`material_from_dict`): a material whose
+    parameters are not finite (a failed fit), or that would not read back for another reason,
+    raises :class:`MaterialError` instead.
     """
+    _check_finite(material)
     st, p = material.structure, material.params
     out: dict = {"name": material.name}
     s = float(p.s) if st.has_s else (1.0 if st.has_specular else 0.0)
@@ -462,6 +499,8 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     specular, diffuse = st.has_specular and s > 0, st.diffuse if s < 1 else None
     if specular:
         m, w = _floats(p.m), _floats(p.w)
+        if abs(math.fsum(w) - 1) > _TOL:  # float32 weights sum to 1 only to ~1e-7; the format asks 1e-9
+            w = [x / math.fsum(w) for x in w]
         out["lobes"] = [{"m": m[j], "weight": w[j]} for j in sorted(range(len(m)), key=m.__getitem__)]
     out["distribution"], out["geometry"], out["normalization"] = st.distribution, st.geometry, st.normalization
     if material.channels is not None:
@@ -470,6 +509,8 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
         out["wavelength_nm"] = _floats(material.wavelength_nm)
     else:
         raise MaterialError(f"material {material.name!r} has neither wavelength_nm nor channels")
+    if material.band_unknown:
+        out["band_unknown"] = True
     if specular or diffuse == "F0/pi":
         out["fresnel"] = st.fresnel
         if st.fresnel == "f0":
@@ -492,7 +533,25 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
         if key in _MODEL_KEYS:
             raise MaterialError(f"material {material.name!r}: extra key {key!r} would replace a model key")
         out[key] = value
-    return _jsonable(out)
+    out = _jsonable(out)
+    try:
+        material_from_dict(out, source=f"material {material.name!r}")
+    except MaterialError as err:
+        raise MaterialError(f"{err} (while saving: the document would not read back)") from None
+    return out
+
+
+def _check_finite(material: Material) -> None:
+    """A parameter that is not finite (a fit that failed) has no material document."""
+    st = material.structure
+    fresnel = {"f0": ("f0",), "n": ("n",), "conductor": ("n", "k")}[st.fresnel] if st.needs_fresnel_params else ()
+    for name, key in (("s", "s"), ("m", "lobes[].m"), ("w", "lobes[].weight"), ("f0", "F0"), ("n", "n"), ("k", "k"), ("rd", "Rd")):
+        value = getattr(material.params, name) if name in ("s", "m", "w", "rd") or name in fresnel else None
+        if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
+            raise MaterialError(
+                f"material {material.name!r}: parameter {key} is not finite ({_floats(value)}): the fit failed, "
+                "there is no material to save"
+            )
 
 
 def save_material_json(material: Material, path, extra: dict | None = None) -> pathlib.Path:

@@ -30,6 +30,9 @@ class Measurement:
     - ``brdf``: float array (N,) in sr⁻¹, or None (geometry only, e.g. for ``ctfit eval``).
     - ``sigma``: float array (N,) in sr⁻¹, or None.
     - ``meta``: ``# key: value`` metadata; ``source``: where it came from (a path), for messages.
+    - ``band_unknown``: the data has one band whose wavelength is not known (ALTA files without
+      wavelengths); ``wavelength_nm`` then holds a placeholder that must not be shown as a
+      wavelength or turned into a colour.
     """
 
     theta_i: np.ndarray
@@ -43,10 +46,13 @@ class Measurement:
     sigma: np.ndarray | None = None
     meta: dict = dataclasses.field(default_factory=dict)
     source: str = "<memory>"
+    band_unknown: bool = False
 
     def __post_init__(self):
         if (self.wavelength_nm is None) == (self.channels is None):
             raise ValueError("a Measurement has either wavelength_nm or channels, not both or neither")
+        if self.band_unknown and self.n_bands != 1:
+            raise ValueError(f"band_unknown is for single-band data; this one has {self.n_bands} bands")
         n = len(self.theta_i)
         for name in ("phi_i", "theta_o", "phi_o", "band", "brdf", "sigma"):
             a = getattr(self, name)
@@ -62,6 +68,9 @@ class Measurement:
 
     @property
     def band_labels(self) -> list[str]:
+        """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""
+        if self.band_unknown:
+            return ["unknown band"]
         if self.channels is not None:
             return list(self.channels)
         return [f"{w:g} nm" for w in self.wavelength_nm]
@@ -92,6 +101,16 @@ class Measurement:
         index.setflags(write=False)
         return pairs, index
 
+    @functools.cached_property
+    def repeats(self) -> bool:
+        """Whether some (direction pair, band) cell has more than one sample (repeated measurements)."""
+        pairs, index = self.directions()
+        flat = index * self.n_bands + np.asarray(self.band, dtype=np.intp)
+        cells = len(pairs) * self.n_bands
+        if cells <= 4 * len(flat):  # a count per cell: O(N), no sort
+            return bool(np.bincount(flat, minlength=cells).max(initial=0) > 1)
+        return len(np.unique(flat)) != len(flat)
+
     def grid(self):
         """The samples as a dense (D, W) grid when every pair has every band exactly once.
 
@@ -100,11 +119,9 @@ class Measurement:
         """
         pairs, index = self.directions()
         d, w = len(pairs), self.n_bands
-        if d * w != len(self):
+        if d * w != len(self) or self.repeats:
             return None
         flat = index * w + self.band
-        if len(np.unique(flat)) != len(flat):
-            return None
         order = np.argsort(flat, kind="stable")
         return pairs, order
 

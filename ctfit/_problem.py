@@ -1,14 +1,13 @@
 """The least-squares problem: free parameters, their constraints, the data layout and the residual.
 
-Free parameters live in an unconstrained pytree ``u`` (a dict) and map to the model's
-:class:`~ctfit.Params` by
+Free parameters live in a pytree ``u`` (a dict) of coordinates from the one parameter table
+(:mod:`ctfit._parameters`). A problem's ``spec.space`` says which:
 
-- m_j = exp(u_m)                      (m > 0)
-- w = softmax(0, u_w)                 (weights on the simplex; J − 1 free values)
-- s = sigmoid(u_s)                    (s in [0, 1], d = 1 − s)
-- F0(λ) = sigmoid(u_F0)               (F0 in (0, 1): effective index n = (1+√F0)/(1−√F0) > 1)
-- n(λ) = softplus(u_n) (conductor), 1 + softplus(u_n) (real index); k(λ) = softplus(u_k)
-- R_d = softplus(u_rd)                (R_d ≥ 0, a spectrum or one constant)
+- "box" (the fit): s, F0, n, k, R_d themselves, log m, and stick-breaking fractions of the
+  lobe weights (:func:`_weights`), each inside closed bounds that the projected Levenberg–Marquardt
+  solver keeps; a parameter may end on its bound (s = 1, F0 = 0, a weight 0).
+- "unconstrained" (the sampler): m = exp(u), w = softmax(0, u), s and F0 = sigmoid(u),
+  n = n_min + softplus(u), k and R_d = softplus(u).
 
 Parameters not free are taken from ``fixed`` (a :class:`~ctfit.Params`). Parameters the
 structure does not have are not in ``u`` at all.
@@ -35,8 +34,9 @@ from ._brdf import _combine, specular_geometric
 from ._geometry import Geometry, geometry_from_angles_deg
 from ._material import Params, Structure
 from ._measurement import Measurement
+from ._parameters import box_bounds, clip_box, n_lower, parameter
 
-__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "residual", "model_values", "normal_equations"]
+__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations"]
 
 LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
@@ -51,6 +51,7 @@ class Spec:
     free: tuple[str, ...]
     loss: str
     grid: bool
+    space: str = "box"
 
 
 class Problem(eqx.Module):
@@ -79,60 +80,89 @@ def _geometry_deg(pairs):
     return geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3])
 
 
-def _softplus_inv(x):
-    x = np.asarray(x, dtype=float)
-    return np.where(x > 30, x, np.log(np.expm1(np.maximum(x, 1e-300))))
+def _weights(u_w, space: str):
+    """Lobe weights from J − 1 free values (see the module docstring).
+
+    Box: stick-breaking fractions v ∈ [0, 1]^(J−1), w_0 = 1 − v_1, w_j = v_1⋯v_j (1 − v_(j+1)),
+    w_(J−1) = v_1⋯v_(J−1): every lobe's weight reaches 0 on a bound of the box."""
+    if space == "box":
+        ones = jnp.ones((1,), u_w.dtype)
+        return jnp.cumprod(jnp.concatenate([ones, u_w])) * jnp.concatenate([1 - u_w, ones])
+    return jax.nn.softmax(jnp.concatenate([jnp.zeros((1,), u_w.dtype), u_w]))
 
 
-def _logit(p):
-    p = np.clip(np.asarray(p, dtype=float), 1e-12, 1 - 1e-12)
-    return np.log(p) - np.log1p(-p)
+def _stick_fractions(w) -> np.ndarray:
+    """Inverse of the box map of :func:`_weights`: v_j = (Σ_(i≥j) w_i) / (Σ_(i≥j−1) w_i)."""
+    w = np.clip(np.asarray(w, dtype=float), 0, None)
+    w = w / np.sum(w)
+    rest = np.cumsum(w[::-1])[::-1]  # r_j = Σ_(i≥j) w_i
+    return np.clip(rest[1:] / np.maximum(rest[:-1], 1e-300), 0.0, 1.0)
 
 
 def to_params(spec: Spec, u: dict, fixed: Params) -> Params:
-    """Constrained model parameters from the unconstrained free values ``u``."""
+    """Model parameters from the free coordinates ``u`` (``spec.space``: "box" or "unconstrained").
+
+    Box coordinates are held inside their bounds (:func:`~ctfit._parameters.clip_box`), so any
+    solver's trial point gives a valid model; the projected solver never leaves them anyway.
+    """
     st = spec.structure
 
-    def pick(name, transform):
-        return transform(u[name]) if name in u else getattr(fixed, name)
+    def pick(name):
+        if name not in u:
+            return getattr(fixed, name)
+        row = parameter(name)
+        if spec.space == "box":
+            lo, hi = box_bounds(name, st.fresnel)
+            return row.box(clip_box(u[name], lo, hi))
+        offset = n_lower(st.fresnel) if name == "n" else 0.0
+        return offset + row.free(u[name])
 
     w = None
     if st.has_specular:
         if "w" in u:
-            w = jax.nn.softmax(jnp.concatenate([jnp.zeros((1,), u["w"].dtype), u["w"]]))
+            w = _weights(clip_box(u["w"], *box_bounds("w")) if spec.space == "box" else u["w"], spec.space)
         elif st.lobes == 1 and fixed.w is None:
             w = jnp.ones((1,), u["m"].dtype if "m" in u else jnp.result_type(float))
         else:
             w = fixed.w
-    n_lower = 0.0 if st.fresnel == "conductor" else 1.0
     return Params(
-        s=pick("s", jax.nn.sigmoid) if st.has_s else None,
-        m=pick("m", jnp.exp) if st.has_specular else None,
+        s=pick("s") if st.has_s else None,
+        m=pick("m") if st.has_specular else None,
         w=w,
-        f0=pick("f0", jax.nn.sigmoid) if st.fresnel == "f0" and st.needs_fresnel_params else None,
-        n=pick("n", lambda x: n_lower + jax.nn.softplus(x)) if st.fresnel != "f0" and st.needs_fresnel_params else None,
-        k=pick("k", jax.nn.softplus) if st.fresnel == "conductor" and st.needs_fresnel_params else None,
-        rd=pick("rd", jax.nn.softplus) if st.diffuse in ("spectrum", "constant") else None,
+        f0=pick("f0") if st.fresnel == "f0" and st.needs_fresnel_params else None,
+        n=pick("n") if st.fresnel != "f0" and st.needs_fresnel_params else None,
+        k=pick("k") if st.fresnel == "conductor" and st.needs_fresnel_params else None,
+        rd=pick("rd") if st.diffuse in ("spectrum", "constant") else None,
     )
 
 
 def from_params(spec: Spec, params: Params) -> dict:
-    """Unconstrained values ``u`` for the free parameters of ``params`` (inverse of :func:`to_params`)."""
+    """Free coordinates ``u`` of ``params`` (inverse of :func:`to_params`; box coordinates are
+    clipped into their bounds)."""
     u = {}
     for name in spec.free:
         v = np.asarray(getattr(params, name), dtype=float)
-        if name == "m":
-            u[name] = np.log(v)
-        elif name == "w":
+        row = parameter(name)
+        if name == "w":
             v = np.clip(v, 1e-12, None)
-            u[name] = np.log(v[1:]) - np.log(v[0])
-        elif name in ("s", "f0"):
-            u[name] = _logit(v)
-        elif name == "n":
-            u[name] = _softplus_inv(v - (0.0 if spec.structure.fresnel == "conductor" else 1.0))
+            u[name] = _stick_fractions(v) if spec.space == "box" else np.log(v[1:]) - np.log(v[0])
+        elif spec.space == "box":
+            lo, hi = box_bounds(name, spec.structure.fresnel)
+            u[name] = np.clip(row.box_inverse(np.maximum(v, 1e-300) if name == "m" else v), lo, hi)
         else:
-            u[name] = _softplus_inv(v)
+            offset = n_lower(spec.structure.fresnel) if name == "n" else 0.0
+            u[name] = row.free_inverse(v - offset)
     return u
+
+
+def bounds(spec: Spec, u: dict) -> tuple[dict, dict]:
+    """Lower and upper bounds of the box coordinates ``u`` (same pytree, arrays of u's shapes)."""
+    lo, hi = {}, {}
+    for name, v in u.items():
+        a, b = box_bounds(name, spec.structure.fresnel)
+        lo[name] = jnp.full(jnp.shape(v), a, jnp.result_type(v))
+        hi[name] = jnp.full(jnp.shape(v), b, jnp.result_type(v))
+    return lo, hi
 
 
 def free_names(structure: Structure, fixed: tuple[str, ...] = ()) -> tuple[str, ...]:
@@ -159,8 +189,12 @@ def make_problem(
     fixed: tuple[str, ...] = (),
     loss: str = "relative",
     dtype=jnp.float64,
+    space: str = "box",
 ) -> Problem:
-    """Lay ``data`` out for the model (grid when dense, pairs otherwise) and fix the spec."""
+    """Lay ``data`` out for the model (grid when dense, pairs otherwise) and fix the spec.
+
+    ``space``: the coordinates of the free parameters, "box" (the fit) or "unconstrained" (the
+    sampler); see the module docstring."""
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     if data.brdf is None:
@@ -174,7 +208,7 @@ def make_problem(
                              f"(the first is sample {bad[0]}, sigma = {data.sigma[bad[0]]!r}); drop them or choose another loss")
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
-    grid = n_pairs * n_bands <= 1.5 * len(data)
+    grid = n_pairs * n_bands <= 1.5 * len(data) and not data.repeats  # a grid cell holds one sample
     geom = _geometry_deg(jnp.asarray(pairs, dtype=dtype))
     y_pos = data.brdf[data.brdf > 0]
     floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
@@ -195,7 +229,7 @@ def make_problem(
         sig = data.sigma if data.sigma is not None else np.ones(len(data))
         cos_i = cos_pair[index]
         pair, band = jnp.asarray(index), jnp.asarray(data.band)
-    spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid)
+    spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
     return Problem(
         spec=spec,

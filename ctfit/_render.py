@@ -24,7 +24,10 @@ The scene (``docs/rendering.md`` states it with the reasons for each choice):
   XYZ = Σ I_r(λ) x̄ȳz̄(λ) Δλ / Σ ȳ Δλ. So D65 enters once, through the lights; a perfect white
   reflector lit at normal incidence by one light of unit dω has the XYZ of the D65 white, which
   CAT02 maps to linear sRGB (1, 1, 1). RGB materials (channels R, G, B) are shaded in their
-  channels directly with white lights (1, 1, 1): their values are linear sRGB.
+  channels directly with white lights (1, 1, 1): their values are linear sRGB. A material whose
+  one band has an unknown wavelength (``Material.band_unknown``, a fit of an ALTA file) is
+  shaded in that band under white lights and shown grey, with a :class:`~ctfit.DataWarning`
+  and "band unknown:" before its label.
 - **Tone mapping, per tile** (the paper's rule, applied to each picture):
   :func:`ctfit.scale_to_display` scales the tile so that its brightest colour is shown at the
   maximum luminance its chromaticity allows, after desaturating negative channels at constant
@@ -45,6 +48,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NamedTuple
@@ -55,6 +59,7 @@ import numpy as np
 
 from ._brdf import ambient_reflectance
 from ._colour import eotf_inverse_sRGB, rgb_conversion, spectral_weights
+from ._errors import DataWarning
 from ._gamut import desaturate_to_gamut, scale_to_display
 from ._intensity import Light, reflected_intensity
 from ._material import Material
@@ -201,7 +206,11 @@ def render_bands(material: Material, wavelength_step: float = 5.0, wavelength_nm
     Spectral materials: ``wavelength_nm``, or 380–780 nm every ``wavelength_step`` nm; the
     parameters interpolated there, the D65 spectrum (Y = 1), and the matrix taking an intensity
     spectrum to linear sRGB. RGB materials: their R, G, B parameters, white (1, 1, 1), identity.
+    A material whose one band has an unknown wavelength (``band_unknown``): that band, white
+    light 1, and grey (the band's intensity in R, G and B alike).
     """
+    if material.band_unknown:
+        return material.params, np.ones(1), np.ones((1, 3))
     if material.is_rgb:
         return material.params_at(channels=("R", "G", "B")), np.ones(3), np.eye(3)
     if wavelength_nm is None:
@@ -271,6 +280,8 @@ def render_linear(
     compiled function per structure, band count and number of object samples).
     """
     surf = surface(shape, size, supersample)
+    if material.band_unknown:
+        warnings.warn(f"material {material.name!r}: its band's wavelength is unknown; rendered in grey", DataWarning, stacklevel=2)
     params, spectrum, to_rgb = render_bands(material, wavelength_step, wavelength_nm)
     lights = scene_lights(spectrum, directions, solid_angles)
     normals = surf.normal[surf.mask]
@@ -397,11 +408,15 @@ def _fit_text(draw, text: str, font, width: int) -> str:
     return text + "…"
 
 
+def _label(name: str, material: Material) -> str:
+    return f"band unknown: {name}" if material.band_unknown else name  # first: a long name is cut at its end
+
+
 def _names(materials, labels):
     if labels is False:
         return None
     if labels is None or labels is True:
-        return [m.name or f"material {i + 1}" for i, m in enumerate(materials)]
+        return [_label(m.name or f"material {i + 1}", m) for i, m in enumerate(materials)]
     labels = [str(x) for x in labels]
     if len(labels) != len(materials):
         raise ValueError(f"{len(labels)} labels for {len(materials)} materials")
@@ -578,6 +593,9 @@ def render_compare(
     (both tiles), ``max_distance`` (the measured tile).
     """
     max_distance = options.pop("max_distance", 0.35)
+    if data.band_unknown != material.band_unknown:
+        unknown, known = (data.source, material.name) if data.band_unknown else (material.name, data.source)
+        raise ValueError(f"{unknown}: its band's wavelength is unknown, so it cannot be shown beside {known}, whose bands are known")
     if data.channels is not None:
         model = render_linear(material, size, shape, **options)
     else:
@@ -586,7 +604,7 @@ def render_compare(
     left, scale = tone_map(model, background=background, exposure=exposure)
     right, _ = tone_map(measured, scale=scale, background=background)
     if labels is None:
-        names = [f"model: {material.name}", f"measured, nearest pair ({coverage:.0%})"]
+        names = [_label(f"model: {material.name}", material), f"measured, nearest pair ({coverage:.0%})"]
     elif labels is False:
         names = None
     else:
@@ -603,7 +621,9 @@ def save_png(image: np.ndarray, path) -> Path:
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[-1] not in (3, 4) or a.dtype != np.uint8:
         raise ValueError(f"expected an (H, W, 3) uint8 image, got {a.shape} {a.dtype}")
+    from ._fileio import atomic_save  # noqa: PLC0415
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(a).save(path, format="PNG")
+    atomic_save(path, lambda buffer: Image.fromarray(a).save(buffer, format="PNG"))
     return path

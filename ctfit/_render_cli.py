@@ -31,13 +31,15 @@ def render_command_body(
 
     Without ``compare``: one tile per material (:func:`ctfit.render_materials`). With
     ``compare`` (a measurement file): exactly one material, shown beside the nearest-measured
-    rendering of the data (:func:`ctfit.render_compare`). Bad input raises ``ValueError``
+    rendering of the data (:func:`ctfit.render_compare`). ``output`` is checked before the
+    rendering (:func:`ctfit._outputs.check_output`). Bad input raises ``ValueError``
     (or :class:`ctfit.MaterialError`, :class:`ctfit.DataError`, both ``ValueError``s) with a
     message naming the file or option.
 
     The summary: ``{"output", "materials", "shape", "size", "image_shape", "compare"}``.
     """
     from ._material_io import load_material  # noqa: PLC0415
+    from ._outputs import check_output  # noqa: PLC0415
     from ._render import EXPOSURES, SHAPES, render_compare, render_materials, save_png  # noqa: PLC0415
 
     if not materials:
@@ -58,6 +60,7 @@ def render_command_body(
         raise ValueError(f"--columns must be ≥ 1, got {columns}")
     if Path(output).suffix.lower() != ".png":
         raise ValueError(f"{output}: the output is a PNG file; give a name ending in .png")
+    check_output(output, [*materials, compare])
     mats = [load_material(p) for p in materials]
     options = {"supersample": supersample, "ambient": ambient}
     if compare is not None:

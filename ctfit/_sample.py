@@ -80,6 +80,7 @@ from jax.flatten_util import ravel_pytree
 
 from ._brdf import diffuse_reflectance, normal_reflectance
 from ._fresnel import n_from_f0
+from ._interrupt import deferred, note_resumable
 from ._material_io import _jsonable
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
@@ -89,7 +90,7 @@ __all__ = ["sample", "SampleResult", "ChainTooShortWarning", "PRIOR_KINDS", "def
 
 PRIOR_KINDS = ("flat", "uniform", "normal", "lognormal", "log-uniform")
 
-# Sampled name in u → public name (FORMATS.md keys), and the public name's allowed range.
+# Sampled name in u → public name (docs/formats.md keys), and the public name's allowed range.
 _PUBLIC = {"s": "s", "m": "m", "w": "weight", "f0": "F0", "n": "n", "k": "k", "rd": "Rd"}
 _ALIASES = {"w": "weight", "weights": "weight", "f0": "F0", "rd": "Rd", "R_d": "Rd", "sigma": "sigma_noise"}
 _RANGE_TEXT = {
@@ -819,6 +820,8 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
     """
     from ._colour import DEFAULT_OBSERVER, _cmfs, rgb_conversion, spectral_weights
 
+    if material.band_unknown:
+        raise ValueError("the band's wavelength is unknown (single-band data), so there is no colour")
     st = material.structure
     key = next(k for k in ("F0", "n", "Rd") if k in chain)
     n_all = chain[key].shape[0]
@@ -926,6 +929,7 @@ def sample(
     seed: int = 0,
     backend=None,
     resume: bool = False,
+    overwrite: bool = False,
     progress: bool = False,
     priors: dict | None = None,
     loss: str | None = None,
@@ -945,7 +949,8 @@ def sample(
     same seed gives the same chain. ``backend``: path of an HDF5 file holding the chain
     (emcee's ``HDFBackend``); with ``resume=True`` a run found there is continued to ``steps``
     (only the missing steps are run; the random state is restored, so the result equals an
-    uninterrupted run). ``progress``: emcee's tqdm bar. ``priors``: {name: (kind, *args)}.
+    uninterrupted run); a file that exists already is refused unless ``resume`` or
+    ``overwrite`` (start again) is given. ``progress``: emcee's tqdm bar. ``priors``: {name: (kind, *args)}.
     ``colour``: also summarise the reflectance colour (sRGB, CIELAB under D65) of the draws.
 
     Raises :class:`ChainTooShortWarning` (a warning) when steps − burn < 50 τ_max.
@@ -957,6 +962,10 @@ def sample(
         raise ValueError(f"steps and thin must be ≥ 1, got steps={steps}, thin={thin}")
     if resume and backend is None:
         raise ValueError("resume=True needs a backend (the HDF5 file of the run to continue)")
+    if backend is not None:
+        from ._outputs import check_backend
+
+        check_backend(backend, resume=resume, overwrite=overwrite, flags=("resume=True", "overwrite=True"), option="backend")
     material, loss, fixed = _resolve(fit_result_or_material, loss, fixed)
     if loss == "auto":
         loss = "sigma" if data.sigma is not None else "relative"
@@ -969,7 +978,7 @@ def sample(
         from ._fresnel import f0_from_n
 
         start = dataclasses.replace(start, f0=np.asarray(f0_from_n(start.n)))
-    problem = make_problem(st, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype)
+    problem = make_problem(st, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, space="unconstrained")
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     if not u0:
         raise ValueError("nothing to sample: every parameter of the material is fixed")
@@ -1024,22 +1033,27 @@ def sample(
     fingerprint = _fingerprint(problem, labels)
     if backend is not None:
         path = pathlib.Path(backend)
-        be = emcee.backends.HDFBackend(str(path), name="ctfit")
+        be = _open_backend(path, overwrite=overwrite)
         if resume and path.exists() and be.initialized and be.iteration > 0:
             if be.shape != (nwalkers, ndim):
                 raise ValueError(
                     f"{path}: the stored run has (walkers, ndim) = {be.shape}, this one {(nwalkers, ndim)}; "
-                    "pass the same walkers, or resume=False to start again"
+                    "pass the same walkers, or start again (overwrite=True; ctfit: --overwrite)"
                 )
             stored = _read_attr(path, "ctfit_fingerprint")
             if stored is not None and stored != fingerprint:
-                raise ValueError(f"{path}: the stored run was sampled for other data, loss or parameters; pass resume=False")
+                raise ValueError(
+                    f"{path}: the stored run was sampled for other data, loss or parameters; "
+                    "start again (overwrite=True; ctfit: --overwrite)"
+                )
             done = int(be.iteration)
             if done > steps:
                 raise ValueError(f"{path}: the stored run already has {done} steps, more than steps={steps}")
         else:
-            be.reset(nwalkers, ndim)
-            _write_attrs(path, {"ctfit_fingerprint": fingerprint, "ctfit_labels": json.dumps(labels), "ctfit_seed": int(seed)})
+            with deferred():  # a Ctrl-C in the ctfit command waits: no half-made file
+                be.reset(nwalkers, ndim)
+                _write_attrs(path, {"ctfit_fingerprint": fingerprint, "ctfit_labels": json.dumps(labels), "ctfit_seed": int(seed)})
+        note_resumable(path)
     sampler = emcee.EnsembleSampler(nwalkers, ndim, logp, vectorize=True, backend=be)
     if done == 0:
         rng = np.random.default_rng(seed)
@@ -1174,6 +1188,34 @@ def sample(
         optimum=optimum,
         warnings=notes,
     )
+
+
+def _open_backend(path: pathlib.Path, *, overwrite: bool):
+    """emcee's HDF5 backend on ``path`` (checked by :func:`~ctfit._outputs.check_backend`)."""
+    import h5py
+
+    if overwrite and path.is_file() and not h5py.is_hdf5(path):
+        with deferred(), h5py.File(path, "w"):  # start again in a file h5py cannot open (through a link, if one)
+            pass
+    return _whole_steps_backend()(str(path), name="ctfit")
+
+
+@functools.cache
+def _whole_steps_backend():
+    import emcee
+
+    class WholeStepsHDFBackend(emcee.backends.HDFBackend):
+        """Steps written whole: a Ctrl-C in the ``ctfit`` command waits for the one under way."""
+
+        def save_step(self, *args, **kwargs):
+            with deferred():
+                return super().save_step(*args, **kwargs)
+
+        def grow(self, *args, **kwargs):
+            with deferred():
+                return super().grow(*args, **kwargs)
+
+    return WholeStepsHDFBackend
 
 
 def _write_attrs(path: pathlib.Path, attrs: dict) -> None:

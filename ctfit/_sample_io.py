@@ -45,6 +45,14 @@ def _pyplot():
     return plt
 
 
+def _save_figure(fig, path: pathlib.Path, **options) -> None:
+    """``fig.savefig`` through an atomic write (the format from the file's suffix, PNG without one)."""
+    from ._fileio import atomic_save
+
+    fmt = path.suffix[1:].lower() or "png"
+    atomic_save(path, lambda buffer: fig.savefig(buffer, format=fmt, dpi=110, **options))
+
+
 def _global_columns(result) -> tuple[np.ndarray, list[str], list[float]]:
     """Draws (n, p), labels and optimum values of s, m_j, w_j (with F0 at the first, middle and
     last bands when there is only one of them; R_d bands for a diffuse-only material)."""
@@ -134,7 +142,7 @@ def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathl
         y=1.02,
     )
     path = pathlib.Path(path)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    _save_figure(fig, path, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -192,7 +200,7 @@ def plot_spectra(result, path, *, truth: dict | None = None, title: str | None =
     fig.suptitle(title or f"posterior bands: median, 68 % and 95 % intervals ({d['draws']} draws)", fontsize=11)
     fig.tight_layout()
     path = pathlib.Path(path)
-    fig.savefig(path, dpi=110)
+    _save_figure(fig, path)
     plt.close(fig)
     return path
 
@@ -284,7 +292,7 @@ def _stem(path: pathlib.Path) -> str:
     return name
 
 
-def _run(target, data, *, walkers, steps, burn, thin, seed, backend, resume, progress, priors):
+def _run(target, data, *, walkers, steps, burn, thin, seed, backend, resume, progress, priors, overwrite=False):
     from ._sample import sample
 
     return sample(
@@ -297,6 +305,7 @@ def _run(target, data, *, walkers, steps, burn, thin, seed, backend, resume, pro
         seed=seed,
         backend=None if backend is None else str(backend),
         resume=resume,
+        overwrite=overwrite,
         progress=progress,
         priors=priors,
     )
@@ -317,6 +326,7 @@ def sample_command_body(
     *,
     progress: bool = False,
     priors: dict | None = None,
+    overwrite: bool = False,
 ) -> dict:
     """``ctfit sample FIT.json DATA``: sample, write the fit JSON with its ``uncertainty`` section.
 
@@ -325,17 +335,25 @@ def sample_command_body(
     the file's ``fit`` section, else sigma/relative), writes ``output`` (default: ``fit_json``
     itself, updated in place) atomically — every key of the input kept, ``uncertainty``
     replaced — and, with ``plot_dir``, ``<stem>.corner.png`` and ``<stem>.spectra.png``.
+    ``overwrite``: start a new chain in an existing ``backend`` (see :func:`ctfit.sample`).
     Returns the document written (JSON-ready).
     """
     from ._material_io import load_material, material_to_dict, save_material_json
+    from ._outputs import check_output, check_output_folder
 
     fit_json = pathlib.Path(fit_json)
     material = load_material(fit_json)
     if str(fit_json).endswith(".toml") and output is None:
         raise ValueError(f"{fit_json}: a TOML material is not overwritten; pass an output JSON path")
-    meas = _read_data(data)
-    res = _run(material, meas, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend, resume=resume, progress=progress, priors=priors)
     target = pathlib.Path(output) if output is not None else fit_json
+    check_output(target, [data] if isinstance(data, (str, os.PathLike)) else [], option="-o" if output is not None else "")
+    if plot_dir is not None:
+        check_output_folder(plot_dir, "--plot")
+    meas = _read_data(data)
+    res = _run(
+        material, meas, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend, resume=resume,
+        progress=progress, priors=priors, overwrite=overwrite,
+    )  # fmt: skip
     unc = res.to_dict()
     if plot_dir is not None:
         unc["plots"] = _plots(res, plot_dir, _stem(target))
@@ -360,16 +378,21 @@ def fit_sample_body(
     progress: bool = False,
     priors: dict | None = None,
     plot_stem: str = "fit",
+    overwrite: bool = False,
 ) -> dict:
     """``ctfit fit DATA --sample``: sample a fresh :class:`~ctfit.FitResult` on its measurement.
 
     Returns the fit-result document with ``fit`` and ``uncertainty`` sections; writes it
-    atomically to ``output`` when given, and the plots to ``plot_dir``.
+    atomically to ``output`` when given, and the plots to ``plot_dir``. ``overwrite``: start a
+    new chain in an existing ``backend`` (see :func:`ctfit.sample`).
     """
     from ._fit_io import fit_result_to_dict
     from ._material_io import material_to_dict, save_material_json
 
-    res = _run(fit_result, data, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend, resume=resume, progress=progress, priors=priors)
+    res = _run(
+        fit_result, data, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend, resume=resume,
+        progress=progress, priors=priors, overwrite=overwrite,
+    )  # fmt: skip
     unc = res.to_dict()
     if plot_dir is not None:
         unc["plots"] = _plots(res, plot_dir, _stem(pathlib.Path(output)) if output is not None else plot_stem)

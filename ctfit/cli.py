@@ -8,13 +8,15 @@ and column where known, and exit with status 2; a fit that does not converge exi
 from __future__ import annotations
 
 import json
+import re
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 from typing import List, Optional
 
 import typer
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
 
 
 class UserError(Exception):
@@ -54,10 +56,16 @@ def _load_material(path: Path):
 
 
 def _read_data(path: Path, param_out: str | None = None):
+    """Read a measurement; ``--param-out`` serves only an ALTA file without its own #PARAM_OUT line."""
+    from ._errors import DataError
     from ._readers import read_measurement
 
-    is_alta = path.suffix.lower() in (".alta", ".dat")
-    return read_measurement(path, param_out=param_out) if (param_out and is_alta) else read_measurement(path)
+    try:
+        return read_measurement(path)
+    except DataError as e:
+        if param_out is None or not e.reason.startswith("no #PARAM_OUT line"):
+            raise
+    return read_measurement(path, param_out=param_out)
 
 
 _PARAM_OUT_HELP = "ALTA files without a #PARAM_OUT line: the unit of their values (INV_STERADIAN or INV_STERADIAN_COSINE_FACTOR)."
@@ -79,16 +87,49 @@ def _parse_wavelengths(text: str | None):
         raise UserError(f"--wavelengths: expected START:STOP:STEP or a comma-separated list, got {text!r}") from None
 
 
+_CLI_PHRASES = {"pass resume=False": "leave out --resume", "resume=False": "leave out --resume", "param_out=...": "--param-out"}
+_CLI_NAMES = {  # library argument → the option that sets it, for library messages shown by the CLI
+    "param_out": "--param-out",
+    "max_steps": "--max-steps",
+    "max_theta": "--max-theta",
+    "n_pairs": "--samples",
+    "noise": "--noise",
+    "walkers": "--walkers",
+    "steps": "--steps",
+    "thin": "--thin",
+    "burn": "--burn",
+}
+_CLI_NAME = re.compile(r"(?<![\w-])(" + "|".join(_CLI_NAMES) + r")(?==|\s+must\b)")
+
+
+def _cli_message(text: str) -> str:
+    """A library message with its Python argument names (``param_out=``) turned into options."""
+    for phrase, option in _CLI_PHRASES.items():
+        text = text.replace(phrase, option)
+    return _CLI_NAME.sub(lambda m: _CLI_NAMES[m[1]], text)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """``warnings.showwarning`` for the CLI: one ``warning: MESSAGE`` line, no source location."""
+    from ._progress import echo
+
+    echo(f"warning: {_cli_message(str(message))}", err=True)
+
+
 def _run(fn):
-    """Run a command body, turning input errors into one line and exit status 2."""
-    try:
-        return fn()
-    except UserError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2)
-    except (ValueError, OSError, KeyError) as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2)
+    """Run a command body: warnings as one line each, input errors as one line and exit status 2."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            return fn()
+        except UserError as e:
+            typer.echo(f"error: {e}", err=True)
+            raise typer.Exit(2)
+        except (ValueError, OSError, KeyError) as e:
+            typer.echo(f"error: {_cli_message(str(e))}", err=True)
+            raise typer.Exit(2)
 
 
 @app.command("eval")
@@ -102,6 +143,9 @@ def eval_cmd(
     """The material's BRDF at every row of DATA, written as a measurement CSV."""
 
     def body():
+        from ._outputs import check_output
+
+        check_output(output, [material, data])
         _setup_jax(float32)
         from ._csvio import write_csv
         from ._simulate import evaluate
@@ -121,15 +165,18 @@ def eval_cmd(
 def simulate(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
     output: Path = typer.Option(..., "-o", "--output", help="Output CSV."),
-    samples: int = typer.Option(2000, "--samples", help="Direction pairs (each measured in every band)."),
+    samples: int = typer.Option(2000, "--samples", min=1, help="Direction pairs (each measured in every band)."),
     seed: int = typer.Option(0, "--seed"),
-    noise: float = typer.Option(0.0, "--noise", help="Relative Gaussian noise (0.02 = 2 %); adds a sigma column."),
+    noise: float = typer.Option(0.0, "--noise", min=0.0, help="Relative Gaussian noise (0.02 = 2 %); adds a sigma column."),
     wavelengths: Optional[str] = typer.Option(None, "--wavelengths", help="START:STOP:STEP or a list, nm (default: the material's within 400–700)."),
-    max_theta: float = typer.Option(85.0, "--max-theta", help="Largest polar angle of light and viewer, degrees."),
+    max_theta: float = typer.Option(85.0, "--max-theta", min=0.0, max=90.0, help="Largest polar angle of light and viewer, degrees."),
 ):
     """Synthetic goniometric measurements of MATERIAL (denser near the mirror direction)."""
 
     def body():
+        from ._outputs import check_output
+
+        check_output(output, [material])
         _setup_jax()
         from ._csvio import write_csv
         from ._simulate import simulate as sim
@@ -160,7 +207,7 @@ def _structure_from_options(base, lobes: int, geometry, fresnel, diffuse):
 
 @app.command()
 def fit(
-    data: List[Path] = typer.Argument(..., help="Measurement files (CSV, ALTA, MERL .binary) or folders of them."),
+    data: List[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary) or folders of them."),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several: a folder)."),
     as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
     material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),
@@ -171,125 +218,263 @@ def fit(
     loss: str = typer.Option("auto", "--loss", help="auto, absolute, relative, sigma, cosine or log."),
     solver: str = typer.Option("lm", "--solver", help="lm, gauss-newton, dogleg or bfgs."),
     float32: bool = typer.Option(False, "--float32", help="Fit in float32 (default float64)."),
-    starts: int = typer.Option(3, "--starts", help="Seeds from the grid over m, solved at once."),
-    param_out: Optional[str] = typer.Option(None, "--param-out", help=_PARAM_OUT_HELP),
+    starts: int = typer.Option(3, "--starts", min=1, help="Seeds from the grid over m, solved at once."),
+    max_steps: int = typer.Option(256, "--max-steps", min=1, help="Solver steps per start (more for a fit that stops short of a minimum)."),
+    param_out: Optional[str] = typer.Option(None, "--param-out", help=_PARAM_OUT_HELP + " A file's own line wins."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit (one file: this path; several: a folder)."),
     sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
-    walkers: Optional[int] = typer.Option(None, "--walkers", help="With --sample: walkers (default max(2·ndim + 2, 32))."),
-    steps: int = typer.Option(2000, "--steps", help="With --sample: steps per walker."),
-    burn: Optional[int] = typer.Option(None, "--burn", help="With --sample: steps discarded."),
-    thin: int = typer.Option(1, "--thin", help="With --sample: keep every THIN-th step."),
+    walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
+    steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
+    burn: Optional[int] = typer.Option(None, "--burn", min=0, help="With --sample: steps discarded (fewer than --steps)."),
+    thin: int = typer.Option(1, "--thin", min=1, help="With --sample: keep every THIN-th step."),
     seed: int = typer.Option(0, "--seed", help="With --sample: random seed."),
     backend: Optional[Path] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder)."),
     resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="With --sample: start the chain in --backend again (a stored chain is kept otherwise)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars (they show only on a terminal)."),
 ):
-    """Fit the Cook–Torrance parameters to DATA; prints a table of parameters ± standard errors."""
-    status = {"code": 0}
+    """Fit the Cook–Torrance parameters to DATA; prints a table of parameters ± standard errors.
 
-    def body():
-        if geometry not in (None, "v-cavity", "smith"):
-            raise UserError(f"--geometry must be v-cavity or smith, got {geometry!r}")
-        if fresnel not in (None, "effective-n", "conductor"):
-            raise UserError(f"--fresnel must be effective-n or conductor, got {fresnel!r}")
-        if lobes != "auto" and not (lobes.isdigit() and 1 <= int(lobes) <= 8):
-            raise UserError(f"--lobes must be 1..8 or 'auto', got {lobes!r}")
-        if resume and backend is None:
-            raise UserError("--resume needs --backend")
-        _setup_jax(float32)
-        import jax.numpy as jnp
-
-        from ._fit import fit as run_fit, select_structure
-        from ._fit_io import fit_result_to_dict, format_fit_table, start_from_material
-        from ._material_io import save_material_json
-
-        files = _expand(data)
-        base = _load_material(material) if material else None
-        dtype = jnp.float32 if float32 else jnp.float64
-        results = []
-        for path in files:
-            meas = _read_data(path, param_out)
-            if lobes == "auto" and base is None:
-                cands = [
-                    _structure_from_options(None, j, geometry, fresnel, d) for j in (1, 2, 3) for d in (False, True)
-                ]
-                res, table = select_structure(meas, cands, loss=loss, solver=solver, dtype=dtype, starts=starts)
-                if not as_json:
-                    typer.echo(_bic_table(table, res))
-            else:
-                st = _structure_from_options(base.structure if base else None, int(lobes) if lobes != "auto" else 1, geometry, fresnel, diffuse)
-                start, fixed = start_from_material(base, st, meas) if base else (None, ())
-                res = run_fit(meas, st, start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts)
-            res.material.meta["data"] = str(path)
-            results.append((path, res))
-            many = len(files) > 1
-            target = None if output is None else (output / (Path(path).stem + ".fit.json") if many else output)
-            for folder in ([output] if many and output else []) + ([backend] if many and backend and sample_ else []):
-                folder.mkdir(parents=True, exist_ok=True)
-            if sample_:
-                import warnings
-
-                from ._sample import ChainTooShortWarning
-                from ._sample_io import fit_sample_body, format_uncertainty_table
-
-                be = None if backend is None else (backend / (Path(path).stem + ".h5") if many else backend)
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
-                    doc = fit_sample_body(
-                        res, meas, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=be,
-                        resume=resume, output=target, plot_dir=None if plot is None else (plot if many else plot.parent),
-                        plot_stem=Path(path).stem, progress=sys.stderr.isatty(),
-                    )
-                if as_json:
-                    typer.echo(json.dumps(doc, indent=2))
-                else:
-                    typer.echo(format_fit_table(res, str(path)))
-                    typer.echo(format_uncertainty_table(doc, str(path)))
-            else:
-                if as_json:
-                    typer.echo(json.dumps(fit_result_to_dict(res), indent=2))
-                else:
-                    typer.echo(format_fit_table(res, str(path)))
-                if target is not None:
-                    save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
-            if target is not None:
-                typer.echo(f"wrote {target}", err=True)
-            if plot is not None:
-                from ._fit_plot import plot_fit
-
-                target = plot if len(files) == 1 else plot / (Path(path).stem + ".fit.png")
-                if len(files) > 1:
-                    plot.mkdir(parents=True, exist_ok=True)
-                plot_fit(res, meas, target)
-                typer.echo(f"wrote {target}", err=True)
-            if not res.converged:
-                status["code"] = 1
-
-    _run(body)
-    if status["code"]:
-        typer.echo("error: the fit did not converge (see the table)", err=True)
-        raise typer.Exit(status["code"])
+    Several files (or folders): each is fitted on its own; a file that cannot be read or fitted
+    is reported as 'error: FILE: reason' and the others go on; a summary follows on stderr.
+    Exit status: 0 every fit converged, 1 some fit did not converge, 2 a file failed or the
+    options are wrong.
+    """
+    opts = SimpleNamespace(**locals())
+    code = _run(lambda: _fit_command(opts))
+    if code:
+        raise typer.Exit(code)
 
 
-def _expand(paths):
-    files = []
+def _fit_command(o) -> int:
+    """The ``fit`` command: options and outputs checked first, then every file; the exit status."""
+    from ._progress import progress_enabled
+
+    _check_fit_options(o)
+    files = _expand(o.data)
+    _setup_jax(o.float32)
+    _check_fit_choices(o)
+    plan = _fit_plan(files, o)
+    base = _load_material(o.material) if o.material else None
+    outcomes = _fit_each(files, o, base, plan, progress_enabled(o.quiet))
+    return _fit_exit_status(outcomes)
+
+
+def _check_fit_options(o) -> None:
+    """Refuse bad option values before any work (typer's ``min=`` checks the counts)."""
+    if o.geometry not in (None, "v-cavity", "smith"):
+        raise UserError(f"--geometry must be v-cavity or smith, got {o.geometry!r}")
+    if o.fresnel not in (None, "effective-n", "conductor"):
+        raise UserError(f"--fresnel must be effective-n or conductor, got {o.fresnel!r}")
+    if o.lobes != "auto" and not (o.lobes.isdigit() and 1 <= int(o.lobes) <= 8):
+        raise UserError(f"--lobes must be 1..8 or 'auto', got {o.lobes!r}")
+    if (o.resume or o.overwrite) and o.backend is None:
+        raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
+    if o.walkers is not None and o.walkers % 2:
+        raise UserError(f"--walkers must be even (emcee moves one half of the walkers against the other), got {o.walkers}")
+    if o.burn is not None and o.burn >= o.steps:
+        raise UserError(f"--burn must be less than --steps ({o.steps}), got {o.burn}")
+
+
+def _check_fit_choices(o) -> None:
+    """Refuse an unknown --loss or --solver before the first file (the library's lists)."""
+    from ._fit import SOLVERS
+    from ._problem import LOSSES
+
+    if o.loss not in ("auto", *LOSSES):
+        raise UserError(f"--loss must be auto or one of {', '.join(LOSSES)}, got {o.loss!r}")
+    if o.solver not in SOLVERS:
+        raise UserError(f"--solver must be one of {', '.join(SOLVERS)}, got {o.solver!r}")
+
+
+def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
+    """Every file's targets (json, plot, backend; None: not written) and name, checked before any work.
+
+    One file: the paths given; several: distinct files in the folders given (``result_targets``).
+    """
+    from ._outputs import check_backend, check_output, check_output_folder, result_targets
+
+    many = len(files) > 1
+
+    def targets(value, option, suffix, check):
+        if value is None:
+            return dict.fromkeys(files)
+        found = result_targets(files, check_output_folder(value, option=option), suffix) if many else {files[0]: Path(value)}
+        return {p: check(target) for p, target in found.items()}
+
+    def chain(target):
+        return check_backend(target, files, resume=o.resume, overwrite=o.overwrite)
+
+    json_ = targets(o.output, "-o", ".fit.json", lambda t: check_output(t, files, option="-o"))
+    plot = targets(o.plot, "--plot", ".fit.png", lambda t: check_output(t, files, option="--plot"))
+    backend = targets(o.backend if o.sample_ else None, "--backend", ".h5", chain)
+    names = result_targets(files, Path(), "") if many else {files[0]: Path(files[0].stem)}
+    return {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
+
+
+def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[str, str]]:
+    """Fit every file; several: a failure is one error line and the rest go on. [(outcome, what)]."""
+    from ._progress import bar, echo
+
+    outcomes = []
+    for path in bar(files, desc="files", enabled=show and len(files) > 1):
+        try:
+            converged = _fit_file(path, o, base, plan[path], show)
+            outcomes.append(("converged" if converged else "not converged", str(path)))
+        except (UserError, ValueError, OSError, KeyError) as e:
+            if len(files) == 1:
+                raise
+            message = _cli_message(str(e))
+            line = message if message.startswith(f"{path}:") else f"{path}: {message}"
+            echo(f"error: {line}", err=True)
+            outcomes.append(("failed", line))
+    return outcomes
+
+
+def _fit_exit_status(outcomes: list[tuple[str, str]]) -> int:
+    """Print the summary (several files); 0: all converged, 1: some did not, 2: some failed."""
+    from ._progress import echo
+
+    count = {k: sum(v == k for v, _ in outcomes) for k in ("converged", "not converged", "failed")}
+    if len(outcomes) > 1:
+        head = f"summary: {len(outcomes)} files: {count['converged']} converged, {count['not converged']} did not converge, {count['failed']} failed"
+        echo("\n".join([head, *(f"  {v:<14} {what}" for v, what in outcomes)]), err=True)
+    elif count["not converged"]:
+        echo("error: the fit did not converge (see the table)", err=True)
+    return 2 if count["failed"] else (1 if count["not converged"] else 0)
+
+
+def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool) -> bool:
+    """Read, fit, print and write one file's results; whether the fit converged."""
+    meas = _read_data(path, o.param_out)
+    res = _fit_measurement(meas, o, base, show)
+    res.material.meta["data"] = str(path)
+    target, note = t.json, None
+    if target is not None and not res.converged:
+        from ._outputs import unconverged_target
+
+        target, note = unconverged_target(target)
+    if o.sample_:
+        _sample_and_report(res, meas, path, o, t, target, show)
+    else:
+        _report_fit(res, path, o, target)
+    _wrote(target, note)
+    if t.plot is not None:
+        from ._fit_plot import plot_fit
+
+        plot_fit(res, meas, t.plot)
+        _wrote(t.plot)
+    return bool(res.converged)
+
+
+def _fit_measurement(meas, o, base, show: bool):
+    """One fit: the structure of the options (or --material), or with --lobes auto the lowest BIC."""
+    import jax.numpy as jnp
+
+    from ._fit import fit as run_fit
+    from ._fit_io import start_from_material
+    from ._progress import echo
+
+    kw = dict(loss=o.loss, solver=o.solver, dtype=jnp.float32 if o.float32 else jnp.float64, starts=o.starts, max_steps=o.max_steps)
+    if o.lobes == "auto" and base is None:
+        cands = [_structure_from_options(None, j, o.geometry, o.fresnel, d) for j in (1, 2, 3) for d in (False, True)]
+        res, table = _select_structure(meas, cands, kw, show)
+        if not o.as_json:
+            echo(_bic_table(table, res))
+        return res
+    lobes = int(o.lobes) if o.lobes != "auto" else 1
+    st = _structure_from_options(base.structure if base else None, lobes, o.geometry, o.fresnel, o.diffuse)
+    start, fixed = start_from_material(base, st, meas) if base else (None, ())
+    return run_fit(meas, st, start=start, fixed=fixed, **kw)
+
+
+def _select_structure(meas, cands, kw: dict, show: bool):
+    """``select_structure`` of the library, candidate by candidate under a progress bar.
+
+    The same rule (tests/test_cli_batch.py compares the two): candidates with more free
+    parameters than samples are left out, the lowest finite BIC wins.
+    """
+    import numpy as np
+
+    from ._fit import fit as run_fit
+    from ._progress import bar
+    from ._validate import n_free_parameters
+
+    enough = [st for st in cands if n_free_parameters(st, meas.n_bands) <= len(meas)] or cands[:1]
+    table = [(st, run_fit(meas, st, **kw)) for st in bar(enough, desc="structures", enabled=show)]
+    finite = [(st, r) for st, r in table if np.isfinite(r.stats["bic"])]
+    return min(finite or table, key=lambda sr: sr[1].stats["bic"])[1], table
+
+
+def _report_fit(res, path: Path, o, target) -> None:
+    """The table (or JSON) on stdout; the fit-result JSON written to ``target``."""
+    from ._fit_io import fit_result_to_dict, format_fit_table
+    from ._material_io import save_material_json
+    from ._progress import echo
+
+    echo(json.dumps(fit_result_to_dict(res), indent=2) if o.as_json else format_fit_table(res, str(path)))
+    if target is not None:
+        save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
+
+
+def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target, show: bool) -> None:
+    """--sample: the posterior of the fit, its tables (or JSON) on stdout, written to ``target``."""
+    import warnings
+
+    from ._fit_io import format_fit_table
+    from ._progress import echo
+    from ._sample import ChainTooShortWarning
+    from ._sample_io import fit_sample_body, format_uncertainty_table
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
+        doc = fit_sample_body(
+            res, meas, walkers=o.walkers, steps=o.steps, burn=o.burn, thin=o.thin, seed=o.seed, backend=t.backend,
+            resume=o.resume, overwrite=o.overwrite, output=target, plot_dir=None if t.plot is None else t.plot.parent,
+            plot_stem=t.name, progress=show,
+        )
+    if o.as_json:
+        echo(json.dumps(doc, indent=2))
+    else:
+        echo(format_fit_table(res, str(path)))
+        echo(format_uncertainty_table(doc, str(path)))
+
+
+def _wrote(target, note: str | None = None) -> None:
+    """'wrote TARGET' on stderr, on its own line after what went to stdout (and a note before it)."""
+    from ._progress import echo
+
+    if note:
+        echo(f"warning: {note}", err=True)
+    if target is not None:
+        echo(f"wrote {target}", err=True)
+
+
+def _expand(paths) -> list[Path]:
+    """The measurement files named, folders expanded (sorted); each file once."""
+    files: dict[Path, None] = {}
     for p in paths:
         if p.is_dir():
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".csv", ".binary", ".alta", ".dat"))
             if not found:
                 raise UserError(f"{p}: folder has no measurement files (.csv, .binary, .alta, .dat)")
-            files += found
+            files.update(dict.fromkeys(found))
         elif not p.exists():
             raise UserError(f"{p}: no such file")
         else:
-            files.append(p)
-    return files
+            files[p] = None
+    return list(files)
 
 
 def _bic_table(table, best) -> str:
-    lines = ["model selection (lowest BIC wins):", f"  {'lobes':>5} {'diffuse':>8} {'params':>6} {'rel_rmse':>10} {'BIC':>14}"]
+    lines = [
+        "model selection (lowest BIC wins):",
+        f"  {'lobes':>5} {'diffuse':>8} {'params':>6} {'rel_rmse':>10} {'BIC':>14} {'converged':>10}",
+    ]
     for st, r in table:
         mark = "  <- kept" if r is best else ""
-        lines.append(f"  {st.lobes:>5} {str(st.has_diffuse):>8} {r.stats['n_params']:>6} {r.stats['rel_rmse']:>10.4g} {r.stats['bic']:>14.6g}{mark}")
+        s = r.stats
+        lines.append(f"  {st.lobes:>5} {str(st.has_diffuse):>8} {s['n_params']:>6} {s['rel_rmse']:>10.4g} {s['bic']:>14.6g} {str(bool(r.converged)):>10}{mark}")
     return "\n".join(lines)
 
 
@@ -299,24 +484,34 @@ def sample_cmd(
     data: Path = typer.Argument(..., help="The measurement the material was fitted to."),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
     as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
-    walkers: Optional[int] = typer.Option(None, "--walkers", help="Walkers (default max(2·ndim + 2, 32), even)."),
-    steps: int = typer.Option(2000, "--steps", help="Steps per walker in all (also with --resume)."),
-    burn: Optional[int] = typer.Option(None, "--burn", help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
-    thin: int = typer.Option(1, "--thin", help="Keep every THIN-th step."),
+    walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
+    steps: int = typer.Option(2000, "--steps", min=1, help="Steps per walker in all (also with --resume)."),
+    burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
+    thin: int = typer.Option(1, "--thin", min=1, help="Keep every THIN-th step."),
     seed: int = typer.Option(0, "--seed"),
     backend: Optional[Path] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file (its chain is lost)."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Folder for the corner and spectral-band PNGs."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=_PARAM_OUT_HELP),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar (shown only on a terminal)."),
 ):
     """Posterior sampling (emcee) of a fitted material: medians and 68 %/95 % intervals, written into the fit JSON."""
 
     def body():
-        if resume and backend is None:
-            raise UserError("--resume needs --backend")
+        from ._outputs import check_backend, check_output, check_output_folder
+
+        if (resume or overwrite) and backend is None:
+            raise UserError(f"{'--resume' if resume else '--overwrite'} needs --backend")
+        target = check_output(output or fit_json, [data], option="-o" if output else "")
+        if backend is not None:
+            check_backend(backend, [fit_json, data, target], resume=resume, overwrite=overwrite)
+        if plot is not None:
+            check_output_folder(plot, "--plot")
         _setup_jax()
         import warnings
 
+        from ._progress import progress_enabled
         from ._sample import ChainTooShortWarning
         from ._sample_io import format_uncertainty_table, sample_command_body
 
@@ -324,8 +519,9 @@ def sample_cmd(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
             doc = sample_command_body(
-                fit_json, meas, walkers, steps, burn, thin, seed, backend, resume, plot, output, progress=sys.stderr.isatty()
-            )
+                fit_json, meas, walkers, steps, burn, thin, seed, backend, resume, plot, output,
+                progress=progress_enabled(quiet), overwrite=overwrite,
+            )  # fmt: skip
         typer.echo(json.dumps(doc, indent=2) if as_json else format_uncertainty_table(doc, str(data)))
         typer.echo(f"wrote {output or fit_json}", err=True)
 
@@ -336,19 +532,22 @@ def sample_cmd(
 def render(
     materials: List[Path] = typer.Argument(..., help="Material TOML or fit-result JSON files, one tile each."),
     output: Path = typer.Option(..., "-o", "--output", help="Output PNG."),
-    size: int = typer.Option(256, "--size", help="Tile side in pixels."),
+    size: int = typer.Option(256, "--size", min=8, help="Tile side in pixels."),
     shape: str = typer.Option("sphere", "--shape", help="sphere or vase."),
     compare: Optional[Path] = typer.Option(None, "--compare", help="Measurement file: show the one MATERIAL beside a rendering that uses the nearest measured BRDF."),
     labels: bool = typer.Option(True, "--labels/--no-labels", help="Write each material's name under its tile."),
-    columns: Optional[int] = typer.Option(None, "--columns", help="Tiles per row (default: up to 6)."),
-    step: float = typer.Option(5.0, "--step", help="Wavelength step of spectral rendering over 380–780 nm."),
-    supersample: int = typer.Option(2, "--supersample", help="Samples per pixel along each axis (anti-aliasing)."),
-    ambient: float = typer.Option(0.01, "--ambient", help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
+    columns: Optional[int] = typer.Option(None, "--columns", min=1, help="Tiles per row (default: up to 6)."),
+    step: float = typer.Option(5.0, "--step", min=0.0, help="Wavelength step of spectral rendering over 380–780 nm."),
+    supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
+    ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
     exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),
 ):
     """Render materials on spheres or vases under the paper's two lights (Figures 6–7) to a PNG."""
 
     def body():
+        from ._outputs import check_output
+
+        check_output(output, [*materials, compare])
         _setup_jax(float32=True)  # float32 is plenty for images
         from ._render_cli import render_command_body
 
@@ -387,13 +586,26 @@ def color(
     _run(body)
 
 
-def main():  # console-script entry point
-    try:
-        app()
-    except KeyboardInterrupt:
-        typer.echo("interrupted", err=True)
-        sys.exit(130)
+def _interrupted_message() -> str:
+    """``interrupted``; after a chain was started in an HDF5 backend, the command that resumes it."""
+    import shlex
 
+    from ._interrupt import resumable
+
+    args = sys.argv[1:]
+    has_backend = any(a == "--backend" or a.startswith("--backend=") for a in args)
+    if has_backend and (resumable() is not None or "--resume" in args):
+        again = [a for a in args if a != "--overwrite"] + ([] if "--resume" in args else ["--resume"])
+        return "interrupted; resume with: ctfit " + shlex.join(again)
+    return "interrupted"
+
+
+def main():  # console-script entry point
+    """Run the command; Ctrl-C at any moment exits with status 130 and one line (``_interrupt.py``)."""
+    from ._interrupt import install
+
+    install(_interrupted_message)
+    app()
 
 if __name__ == "__main__":
     main()

@@ -142,7 +142,7 @@ def _setup_problem(pairs: int, bands: int, seed: int = 0):
     st = ctfit.Structure(lobes=1)
     truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=f0), wavelength_nm=wl)
     data = simulate(truth, pairs, noise=0.02, seed=seed)
-    problem = make_problem(st, data, fixed_params=truth.params, loss="sigma")
+    problem = make_problem(st, data, fixed_params=truth.params, loss="sigma", space="unconstrained")
     u0 = {k: jnp.asarray(v) for k, v in from_params(problem.spec, truth.params).items()}
     names = tuple(sorted(u0))  # ("f0", "m"): flat = (u_F0..., u_m)
     layout = _Layout(names, tuple(np.shape(u0[k]) for k in names), False, False, False)

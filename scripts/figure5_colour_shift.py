@@ -14,7 +14,7 @@ are reflectance colours (a perfect mirror is white, sRGB (1, 1, 1)); the scene i
 the paper does — the brightest swatch at the maximum luminance its chromaticity allows —
 which here is the white at 90°, so the scale is 1.
 
-Copper: ``measurements/Cu.csv`` when present (Johnson & Christy 1972 via refractiveindex.info),
+Copper: ``ctfit/data/optical_constants/Cu.csv`` when present (Johnson & Christy 1972 via refractiveindex.info),
 else the ``refractiveindex`` package (shelf main, book Cu, page Johnson).
 
 Usage: python scripts/figure5_colour_shift.py [-o docs/figures/figure5_copper_colour_shift.png]
@@ -49,7 +49,7 @@ from ctfit._colour_shift import (  # noqa: E402
 from ctfit._fresnel import f0_from_nk  # noqa: E402
 from ctfit._gamut import scale_to_display  # noqa: E402
 
-SOURCE_CSV = ROOT / "measurements" / "Cu.csv"
+SOURCE_CSV = ROOT / "ctfit" / "data" / "optical_constants" / "Cu.csv"
 OUT = ROOT / "docs" / "figures" / "figure5_copper_colour_shift.png"
 
 

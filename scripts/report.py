@@ -13,7 +13,9 @@ Runs, one after another so that their timings do not disturb each other:
 
 ``--small`` runs the quick version of each into ``--docs DIR`` (a scratch folder: the
 committed docs are written only by the full run) and leaves the notebooks alone; ``--only``
-picks steps by name. A step that fails stops the report with its exit status.
+picks steps by name. A step that fails stops the report with its exit status. On a terminal a
+progress bar over the steps stays at the bottom (stderr) and each step's output scrolls above
+it; ``--quiet`` (or no terminal) leaves the output as it is.
 
 Run: ``make report`` or ``.venv/bin/python scripts/report.py [--small --docs DIR] [--only NAME ...]``.
 """
@@ -21,11 +23,14 @@ Run: ``make report`` or ``.venv/bin/python scripts/report.py [--small --docs DIR
 from __future__ import annotations
 
 import argparse
+import os
 import pathlib
 import subprocess
 import sys
 import tempfile
 import time
+
+from ctfit._progress import bar, echo, progress_enabled
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPTS = ROOT / "scripts"
@@ -53,12 +58,24 @@ def steps(docs: pathlib.Path, small: bool, scratch: pathlib.Path) -> list[tuple[
     ]
 
 
+def run_step(cmd: list[str], show: bool) -> int:
+    """Run one command (Python arguments); with a progress bar its output is passed on above the bar."""
+    if not show:
+        return subprocess.run([sys.executable, *cmd], cwd=ROOT).returncode
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    with subprocess.Popen([sys.executable, *cmd], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env) as proc:
+        for line in proc.stdout:
+            echo(line.rstrip("\n"))
+    return proc.returncode
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--small", action="store_true", help="quick versions, into --docs (required with --small)")
     ap.add_argument("--docs", type=pathlib.Path, default=None, help="where the Markdown goes (default: the repository's docs/)")
     ap.add_argument("--only", nargs="+", default=None, help="run only these steps (names as listed by --list)")
     ap.add_argument("--list", action="store_true", help="print the steps and their commands, run nothing")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar (shown only on a terminal)")
     args = ap.parse_args(argv)
     if args.small and args.docs is None:
         ap.error("--small writes only into a scratch folder: give --docs DIR")
@@ -69,20 +86,19 @@ def main(argv=None) -> int:
         unknown = sorted(set(args.only or ()) - set(names))
         if unknown:
             ap.error(f"unknown step(s) {unknown}; the steps are {names}")
-        for name, commands in plan:
-            if args.only and name not in args.only:
+        todo = [(name, cmd) for name, commands in plan if not args.only or name in args.only for cmd in commands]
+        show = progress_enabled(args.quiet) and not args.list
+        for name, cmd in bar(todo, desc="report", enabled=show, leave=True):
+            line = " ".join([pathlib.Path(sys.executable).name, *(pathlib.Path(c).name if c.startswith(str(SCRIPTS)) else c for c in cmd)])
+            if args.list:
+                print(f"{name}: {line}")
                 continue
-            for cmd in commands:
-                line = " ".join([pathlib.Path(sys.executable).name, *(pathlib.Path(c).name if c.startswith(str(SCRIPTS)) else c for c in cmd)])
-                if args.list:
-                    print(f"{name}: {line}")
-                    continue
-                print(f"== {name}: {line}", flush=True)
-                t = time.perf_counter()
-                done = subprocess.run([sys.executable, *cmd], cwd=ROOT)
-                print(f"== {name}: exit {done.returncode} after {time.perf_counter() - t:.0f} s", flush=True)
-                if done.returncode != 0:
-                    return done.returncode
+            echo(f"== {name}: {line}")
+            t = time.perf_counter()
+            code = run_step(cmd, show)
+            echo(f"== {name}: exit {code} after {time.perf_counter() - t:.0f} s")
+            if code != 0:
+                return code
     return 0
 
 

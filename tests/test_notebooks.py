@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from conftest import MEASURED, ROOT, load_script
+from conftest import ROOT, load_script
 
 pytest.importorskip("nbclient")
 pytest.importorskip("nbformat")
@@ -40,8 +40,6 @@ def _listing():
 @pytest.mark.parametrize("name", sorted({p.stem for p in NOTEBOOKS.glob("*.ipynb")} | set(EXPECTED)))
 def test_notebook_runs(name, monkeypatch):
     path = NOTEBOOKS / f"{name}.ipynb"
-    if name == "measured_data" and not MEASURED.is_dir():
-        pytest.skip(f"the real measurements are not here ({MEASURED})")
     # Jupyter's own paths, in this process too (no platformdirs migration warning under filterwarnings = error).
     monkeypatch.setenv("JUPYTER_PLATFORM_DIRS", "1")
     nb = nbformat.read(path, as_version=4)

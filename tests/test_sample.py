@@ -191,7 +191,7 @@ def test_relative_noise_likelihood_is_that_of_noise_proportional_to_the_model(me
     from jax.flatten_util import ravel_pytree
 
     truth, data, _ = metal
-    problem = make_problem(truth.structure, data.replace(sigma=None), fixed_params=truth.params, loss="relative")
+    problem = make_problem(truth.structure, data.replace(sigma=None), fixed_params=truth.params, loss="relative", space="unconstrained")
     u0 = {k: jnp.asarray(v) for k, v in from_params(problem.spec, truth.params).items()}
     layout = _Layout(("f0", "m"), ((4,), (1,)), True, False, False, relative=True)
     eng = _Engine(problem, layout, _normalise_priors(None, layout, truth.structure), 4)
@@ -235,7 +235,7 @@ def test_relative_noise_scale_is_not_shrunk_by_the_floor(metal):
 
 def _engine(material, data, loss, priors=None):
     st = material.structure
-    problem = make_problem(st, data, fixed_params=material.params, loss=loss)
+    problem = make_problem(st, data, fixed_params=material.params, loss=loss, space="unconstrained")
     u0 = {k: jnp.asarray(v) for k, v in from_params(problem.spec, material.params).items()}
     names = tuple(sorted(u0))
     layout = _Layout(names, tuple(np.shape(u0[k]) for k in names), loss != "sigma", st.fresnel == "conductor", st.lobes > 1)

@@ -1,0 +1,260 @@
+"""``ctfit fit`` over several files: per-file errors, summary, exit status, distinct and kept results,
+--param-out, option checks before any work, progress bars, warnings and 'wrote' lines."""
+
+import json
+import re
+import warnings
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import ctfit
+from ctfit.cli import _read_data, app
+
+WL = np.array([450.0, 650.0])
+BAR = re.compile(r"files:\s+\d+%")
+runner = CliRunner()
+
+
+def run(*args, **kw):
+    return runner.invoke(app, [str(a) for a in args], **kw)
+
+
+def one_lobe(m=0.25, n_pairs=120, seed=0, wavelengths=WL):
+    f0 = np.linspace(0.6, 0.9, len(wavelengths))
+    mat = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([m]), w=np.array([1.0]), f0=f0), wavelength_nm=wavelengths)
+    return ctfit.simulate(mat, n_pairs, noise=0.01, seed=seed)
+
+
+def write(folder, name, **kw):
+    folder.mkdir(parents=True, exist_ok=True)
+    ctfit.write_csv(one_lobe(**kw), folder / name)
+    return folder / name
+
+
+def write_alta(path, param_out_line, cosine=False, horizon_row=False):
+    """A one-band measurement as ALTA text (ISOTROPIC_TL_TV_PROJ_DPHI), values × cos θ_o with ``cosine``."""
+    m = one_lobe(n_pairs=80, wavelengths=np.array([550.0]))
+    th_i, th_o = np.deg2rad(m.theta_i), np.deg2rad(m.theta_o)
+    dphi = np.deg2rad(m.phi_o - m.phi_i)
+    values = m.brdf * (np.cos(th_o) if cosine else 1.0)
+    rows = [f"{a:.17g} {t * np.cos(d):.17g} {t * np.sin(d):.17g} {v:.17g}" for a, t, d, v in zip(th_i, th_o, dphi, values)]
+    if horizon_row:
+        rows.append(f"0.1 {np.pi / 2:.17g} 0.0 0.5")
+    head = ["#DIM 3 1", "#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI"] + ([f"#PARAM_OUT {param_out_line}"] if param_out_line else [])
+    path.write_text("\n".join(head + rows) + "\n")
+    return path, values
+
+
+def summary(stderr):
+    return [line for line in stderr.splitlines() if line.startswith("  ")]
+
+
+def test_batch_goes_on_after_a_bad_file_and_summarises(tmp_path):
+    data = tmp_path / "data"
+    write(data, "a.csv", seed=1)
+    (data / "b.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,95,180,450,0.5\n")
+    write(data, "c.csv", seed=2)
+    out = tmp_path / "fits"
+    r = run("fit", data, "--no-diffuse", "-o", out)
+    assert r.exit_code == 2, r.output
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith(f"error: {data / 'b.csv'}:2") and "theta_o" in errors[0]
+    assert "summary: 3 files: 2 converged, 0 did not converge, 1 failed" in r.stderr
+    lines = summary(r.stderr)
+    assert [line.split()[0] for line in lines] == ["converged", "failed", "converged"]
+    assert "theta_o" in lines[1]
+    assert sorted(p.name for p in out.iterdir()) == ["a.fit.json", "c.fit.json"]
+    assert r.stdout.count("fit of ") == 2
+
+
+def test_exit_1_when_a_fit_does_not_converge_and_none_failed(tmp_path):
+    data = tmp_path / "data"
+    write(data, "a.csv", seed=1)
+    write(data, "b.csv", seed=2)
+    r = run("fit", data, "--no-diffuse", "--max-steps", 1)
+    assert r.exit_code == 1, r.output
+    assert "0 converged, 2 did not converge, 0 failed" in r.stderr
+    assert [line.split()[:2] for line in summary(r.stderr)] == [["not", "converged"]] * 2
+
+
+def test_same_file_names_in_two_folders_get_distinct_results(tmp_path):
+    a = write(tmp_path / "a", "x.csv", m=0.2, seed=1)
+    b = write(tmp_path / "b", "x.csv", m=0.4, seed=2)
+    out, plots = tmp_path / "fits", tmp_path / "plots"
+    r = run("fit", a, b, "--no-diffuse", "-o", out, "--plot", plots)
+    assert r.exit_code == 0, r.output
+    docs = {p.name: json.loads(p.read_text()) for p in out.iterdir()}
+    assert sorted(docs) == ["a-x.fit.json", "b-x.fit.json"]
+    assert docs["a-x.fit.json"]["lobes"][0]["m"] == pytest.approx(0.2, rel=0.02)
+    assert docs["b-x.fit.json"]["lobes"][0]["m"] == pytest.approx(0.4, rel=0.02)
+    assert sorted(p.name for p in plots.iterdir()) == ["a-x.fit.png", "b-x.fit.png"]
+
+
+def test_a_fit_that_does_not_converge_keeps_a_converged_result(tmp_path):
+    csv = write(tmp_path, "d.csv")
+    target = tmp_path / "d.fit.json"
+    assert run("fit", csv, "--no-diffuse", "-o", target).exit_code == 0
+    good = target.read_bytes()
+    r = run("fit", csv, "--no-diffuse", "-o", target, "--max-steps", 1)
+    assert r.exit_code == 1, r.output
+    assert target.read_bytes() == good
+    beside = tmp_path / "d.fit.not-converged.json"
+    assert json.loads(beside.read_text())["fit"]["converged"] is False
+    assert f"{target} holds a converged fit and is kept" in r.stderr
+    assert f"wrote {beside}" in r.stderr.splitlines()
+
+
+def test_param_out_applies_only_to_files_without_the_line(tmp_path):
+    own, values = write_alta(tmp_path / "own.alta", "INV_STERADIAN")
+    # The file's own line wins over --param-out (before: "contradicts param_out=...", exit 2).
+    m = _read_data(own, "INV_STERADIAN_COSINE_FACTOR")
+    assert m.meta["alta_param_out"] == "INV_STERADIAN"
+    np.testing.assert_allclose(m.brdf, values)
+    bare, cos_values = write_alta(tmp_path / "bare.alta", None, cosine=True)
+    m = _read_data(bare, "INV_STERADIAN_COSINE_FACTOR")
+    assert m.meta["alta_param_out"] == "INV_STERADIAN_COSINE_FACTOR"
+    np.testing.assert_allclose(m.brdf, one_lobe(n_pairs=80, wavelengths=np.array([550.0])).brdf, rtol=1e-12)
+    r = run("fit", own, bare, "--no-diffuse", "--param-out", "INV_STERADIAN_COSINE_FACTOR")
+    assert r.exit_code == 0, r.output
+    assert "2 converged" in r.stderr
+
+
+def test_a_missing_param_out_names_the_option(tmp_path):
+    bare, _ = write_alta(tmp_path / "bare.alta", None)
+    r = run("fit", bare)
+    assert r.exit_code == 2
+    assert "--param-out" in r.stderr and "param_out=" not in r.stderr
+
+
+@pytest.mark.parametrize(
+    "args, option",
+    [
+        (("fit", "{csv}", "--starts", 0), "--starts"),
+        (("fit", "{csv}", "--starts", -2), "--starts"),
+        (("fit", "{csv}", "--max-steps", 0), "--max-steps"),
+        (("fit", "{csv}", "--sample", "--steps", 0), "--steps"),
+        (("fit", "{csv}", "--sample", "--walkers", 1), "--walkers"),
+        (("fit", "{csv}", "--sample", "--walkers", 33), "--walkers"),
+        (("fit", "{csv}", "--sample", "--thin", 0), "--thin"),
+        (("fit", "{csv}", "--sample", "--burn", -1), "--burn"),
+        (("fit", "{csv}", "--sample", "--steps", 10, "--burn", 10), "--burn"),
+        (("fit", "{csv}", "--lobes", 0), "--lobes"),
+        (("fit", "{csv}", "--loss", "huber"), "--loss"),
+        (("fit", "{csv}", "--solver", "newton"), "--solver"),
+        (("sample", "{csv}", "{csv}", "--steps", 0), "--steps"),
+        (("sample", "{csv}", "{csv}", "--walkers", 0), "--walkers"),
+        (("simulate", "{toml}", "--samples", 0), "--samples"),
+        (("simulate", "{toml}", "--noise", -0.1), "--noise"),
+        (("simulate", "{toml}", "--max-theta", 95), "--max-theta"),
+        (("simulate", "{toml}", "--max-theta", 90), "--max-theta"),
+        (("render", "{toml}", "--size", 0), "--size"),
+        (("render", "{toml}", "--supersample", 0), "--supersample"),
+        (("render", "{toml}", "--columns", 0), "--columns"),
+    ],
+)
+def test_bad_counts_are_refused_before_any_work(tmp_path, args, option):
+    from conftest import ROOT
+
+    csv = tmp_path / "d.csv"
+    csv.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,450,0.5\n")
+    args = [str(a).format(csv=csv, toml=ROOT / "configs" / "gold.toml") for a in args]
+    out = tmp_path / "out.json"
+    r = run(*args, "-o", out)
+    assert r.exit_code == 2, r.output
+    assert option in r.output and "Traceback" not in r.output
+    assert not out.exists()
+
+
+def test_lobes_auto_shows_convergence_and_keeps_the_library_choice(tmp_path):
+    csv = write(tmp_path, "d.csv", n_pairs=150)
+    out = tmp_path / "auto.json"
+    r = run("fit", csv, "--lobes", "auto", "-o", out)
+    assert r.exit_code == 0, r.output
+    header, *rows = [line for line in r.stdout.splitlines() if line.startswith("  ")][:7]
+    assert header.split() == ["lobes", "diffuse", "params", "rel_rmse", "BIC", "converged"]
+    assert all(row.split()[5] in ("True", "False") for row in rows)
+    kept = [row.split() for row in rows if row.endswith("<- kept")]
+    assert len(kept) == 1
+    best, _ = ctfit.select_structure(ctfit.read_measurement(csv), [ctfit.Structure(lobes=j, diffuse=d) for j in (1, 2, 3) for d in (None, "F0/pi")])
+    doc = json.loads(out.read_text())
+    assert len(doc["lobes"]) == best.material.structure.lobes == int(kept[0][0])
+    assert kept[0][1] == str(best.material.structure.has_diffuse)
+
+
+def test_progress_bars_off_without_a_terminal_and_on_when_forced(tmp_path, monkeypatch):
+    data = tmp_path / "data"
+    write(data, "a.csv", seed=1)
+    write(data, "b.csv", seed=2)
+    monkeypatch.delenv("CTFIT_PROGRESS", raising=False)
+    r = run("fit", data, "--no-diffuse")
+    assert r.exit_code == 0, r.output
+    assert "\r" not in r.stderr and not BAR.search(r.stderr)
+    monkeypatch.setenv("CTFIT_PROGRESS", "1")
+    out = tmp_path / "fits"
+    r = run("fit", data, "--no-diffuse", "-o", out)
+    assert r.exit_code == 0, r.output
+    assert BAR.search(r.stderr) and "0/2" in r.stderr
+    # A 'wrote' line clears the bar first: what a terminal shows on that line is the message alone.
+    wrote = [line.split("\r")[-1] for line in r.stderr.split("\n") if "wrote" in line]
+    assert wrote == [f"wrote {out / 'a.fit.json'}", f"wrote {out / 'b.fit.json'}"]
+    r = run("fit", data, "--no-diffuse", "--quiet")
+    assert r.exit_code == 0 and not BAR.search(r.stderr)
+
+
+def test_sampling_progress_obeys_quiet(tmp_path, monkeypatch):
+    csv = write(tmp_path, "d.csv", n_pairs=60)
+    monkeypatch.setenv("CTFIT_PROGRESS", "1")
+    args = ("fit", csv, "--no-diffuse", "--sample", "--steps", 40, "--walkers", 8)
+    r = run(*args)
+    assert r.exit_code == 0, r.output
+    assert "40/40" in r.stderr
+    r = run(*args, "-q")
+    assert r.exit_code == 0, r.output
+    assert "40/40" not in r.stderr and "\r" not in r.stderr
+
+
+def test_table_on_stdout_wrote_on_stderr_after_it(tmp_path):
+    csv = write(tmp_path, "d.csv")
+    target = tmp_path / "d.fit.json"
+    r = run("fit", csv, "--no-diffuse", "-o", target)
+    assert r.exit_code == 0, r.output
+    assert "fit of" in r.stdout and "wrote " not in r.stdout
+    assert r.stderr.splitlines() == [f"wrote {target}"]
+    lines = r.output.splitlines()  # stdout and stderr in the order written
+    assert lines[-1] == f"wrote {target}" and any(line.startswith("  converged:") for line in lines[:-1])
+
+
+def test_warnings_print_as_one_clean_line(tmp_path):
+    path, _ = write_alta(tmp_path / "tape.alta", "INV_STERADIAN_COSINE_FACTOR", cosine=True, horizon_row=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")  # as outside pytest, whose filters turn warnings into errors
+        r = run("fit", path, "--no-diffuse")
+    assert r.exit_code == 0, r.output
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert lines == [f"warning: {path}: 1 samples with theta_o ≥ 90° dropped (a cosine-weighted value cannot be divided by cos θ_o = 0)"]
+
+
+def test_outputs_are_checked_before_any_work(tmp_path):
+    csv = write(tmp_path, "d.csv")
+    before = csv.read_bytes()
+    r = run("fit", csv, "-o", csv)
+    assert r.exit_code == 2 and "is the input" in r.stderr and "fit of" not in r.stdout
+    assert csv.read_bytes() == before
+    (tmp_path / "file").write_text("x")
+    r = run("fit", csv, write(tmp_path / "more", "e.csv"), "-o", tmp_path / "file")
+    assert r.exit_code == 2 and "several results need a folder" in r.stderr and "fit of" not in r.stdout
+
+
+def test_a_stored_chain_needs_resume_or_overwrite(tmp_path):
+    csv = write(tmp_path, "d.csv", n_pairs=60)
+    chain = tmp_path / "run.h5"
+    args = ("fit", csv, "--no-diffuse", "--sample", "--steps", 30, "--walkers", 8, "--backend", chain)
+    assert run(*args).exit_code == 0
+    r = run(*args)
+    assert r.exit_code == 2 and "--resume" in r.stderr and "--overwrite" in r.stderr and "fit of" not in r.stdout
+    r = run(*args, "--overwrite")
+    assert r.exit_code == 0, r.output
+    r = run("fit", csv, "--overwrite")
+    assert r.exit_code == 2 and "--overwrite needs --backend" in r.stderr

@@ -1,0 +1,81 @@
+"""Messages of the ctfit command: every option they name exists, library errors name the CLI
+option, flags show as flags in --help."""
+
+import ast
+import re
+
+import pytest
+import typer.main
+from typer.testing import CliRunner
+
+from ctfit.cli import _cli_message, app
+
+from conftest import ROOT
+
+OPTION = re.compile(r"(?<![\w-])--[a-z][a-z0-9]*(?:-[a-z0-9]+)*")
+
+
+def cli_options() -> set[str]:
+    """Every option the typer app defines, over all its commands (and --help)."""
+    group = typer.main.get_command(app)
+    commands = [group, *group.commands.values()]
+    return {o for c in commands for p in c.params for o in (*p.opts, *p.secondary_opts)} | {"--help"}
+
+
+def named_options() -> dict[str, list[str]]:
+    """Every --option token in a string literal of the ctfit package: {option: [file:line, …]}."""
+    found = {}
+    for path in sorted((ROOT / "ctfit").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str):
+                for option in OPTION.findall(node.value):
+                    found.setdefault(option, []).append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    return found
+
+
+def test_the_collector_sees_messages_and_options():
+    named, defined = named_options(), cli_options()
+    assert {"--param-out", "--max-steps", "--lobes", "--resume"} <= set(named)
+    assert {"--starts", "--max-steps", "--quiet", "-q", "--no-diffuse", "--samples"} <= defined
+
+
+def test_every_option_named_in_a_message_exists():
+    defined = cli_options()
+    missing = {option: where for option, where in named_options().items() if option not in defined}
+    assert not missing, f"options named in messages but not defined by the ctfit command: {missing}"
+
+
+@pytest.mark.parametrize(
+    "library, cli",
+    [
+        ("x.dat: no #PARAM_OUT line: the unit of the values is unknown. Add one (…) or pass param_out=...", "or pass --param-out"),
+        ("x.dat:7: #PARAM_OUT INV_STERADIAN contradicts param_out='A'", "contradicts --param-out='A'"),
+        ("max_theta must be in (0, 90) degrees, got 90.0", "--max-theta must be in (0, 90) degrees, got 90.0"),
+        ("walkers must be even and ≥ 2·ndim = 14, got 8", "--walkers must be even and ≥ 2·ndim = 14, got 8"),
+        ("run.h5: the stored run already has 30 steps, more than steps=20", "run.h5: the stored run already has 30 steps, more than --steps=20"),
+        ("run.h5: the stored run was sampled for other data; pass resume=False", "run.h5: the stored run was sampled for other data; leave out --resume"),
+    ],
+)
+def test_library_argument_names_become_options(library, cli):
+    assert cli in _cli_message(library)
+
+
+def test_a_library_error_reaches_the_user_with_the_option_name(tmp_path):
+    r = CliRunner().invoke(app, ["simulate", str(ROOT / "configs" / "gold.toml"), "-o", str(tmp_path / "x.csv"), "--max-theta", "90"])
+    assert r.exit_code == 2
+    assert r.stderr.strip().startswith("error: --max-theta must be in") and "max_theta" not in r.stderr
+
+
+@pytest.mark.parametrize("command", [[], ["eval"], ["simulate"], ["fit"], ["sample"], ["render"], ["color"]])
+def test_flags_show_as_flags_in_help(command):
+    r = CliRunner().invoke(app, [*command, "--help"])
+    assert r.exit_code == 0, r.output
+    assert "--help" in r.stdout
+    assert not re.search(r"<bool>|BOOLEAN", r.stdout, flags=re.I), r.stdout
+
+
+def test_fit_help_lists_each_flag_without_a_value():
+    text = CliRunner().invoke(app, ["fit", "--help"]).stdout
+    for flag in ("--json", "--float32", "--sample", "--resume", "--quiet", "--diffuse / --no-diffuse"):
+        line = next(line for line in text.splitlines() if line.strip().startswith(flag) or f", {flag}" in line)
+        assert "<" not in line.split(flag, 1)[1].split("  ")[0], line

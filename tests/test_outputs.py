@@ -1,0 +1,474 @@
+"""No command loses or damages a user's file: output checks, atomic writes, the cache without a
+HOME, HDF5 chains kept, and Ctrl-C (exit 130, one line, resumable)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+import threading
+import time
+import warnings
+from pathlib import Path
+
+import jax
+import pytest
+from typer.testing import CliRunner
+
+from ctfit import _aot, _cache, _fileio
+from ctfit._outputs import (
+    OutputError,
+    check_backend,
+    check_output,
+    check_output_folder,
+    result_targets,
+    unconverged_target,
+)
+from ctfit.cli import app
+
+from conftest import ROOT
+
+MATERIAL = ROOT / "configs" / "copper-vase.toml"
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def read_only(path: Path, text: str = "keep me\n") -> Path:
+    path.write_text(text)
+    path.chmod(0o444)
+    return path
+
+
+# --- check_output, check_output_folder ----------------------------------------------------------
+
+
+def test_output_equal_to_an_input_is_refused(tmp_path):
+    data = tmp_path / "data.csv"
+    data.write_text("x\n")
+    (tmp_path / "sub").mkdir()
+    os.link(data, tmp_path / "hard.csv")
+    (tmp_path / "soft.csv").symlink_to(data)
+    for same in (data, tmp_path / "sub" / ".." / "data.csv", tmp_path / "hard.csv", tmp_path / "soft.csv"):
+        with pytest.raises(OutputError, match=r"^-o .*: is the input .*data.csv"):
+            check_output(same, [MATERIAL, data])
+    assert check_output(tmp_path / "out.csv", [MATERIAL, data]) == tmp_path / "out.csv"
+
+
+def test_read_only_target_is_refused_even_for_root(tmp_path):
+    target = read_only(tmp_path / "result.json")
+    with pytest.raises(OutputError, match=r"-o .*result.json: the file is read-only \(mode -r--r--r--\)"):
+        check_output(target)
+    link = tmp_path / "link.json"
+    link.symlink_to(target)
+    with pytest.raises(OutputError, match=r"link.json: the file is read-only"):
+        check_output(link)
+    assert target.read_text() == "keep me\n"
+
+
+def test_missing_folders_are_made_and_impossible_ones_name_the_users_path(tmp_path):
+    out = tmp_path / "a" / "b" / "out.csv"
+    check_output(out)
+    assert out.parent.is_dir() and not out.exists()
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    with pytest.raises(OutputError, match=r"^--plot .*file/x/y.png: .*file is a file, not a folder") as err:
+        check_output(blocker / "x" / "y.png", option="--plot")
+    assert ".tmp" not in str(err.value)
+    with pytest.raises(OutputError, match="is a folder; give a file name"):
+        check_output(tmp_path)
+
+
+def test_devices_and_links_are_accepted(tmp_path):
+    assert check_output("/dev/null", ["/dev/null"]) == Path("/dev/null")
+    link = tmp_path / "link.csv"
+    link.symlink_to(tmp_path / "new" / "real.csv")  # dangling: the write creates the target
+    check_output(link)
+    assert (tmp_path / "new").is_dir()
+
+
+def test_output_folder(tmp_path):
+    assert check_output_folder(tmp_path / "x" / "y", "--backend").is_dir()
+    (tmp_path / "f").write_text("")
+    with pytest.raises(OutputError, match=r"^--plot .*f: is a file, not a folder"):
+        check_output_folder(tmp_path / "f", "--plot")
+
+
+# --- check_backend ------------------------------------------------------------------------------
+
+
+def test_an_existing_chain_needs_resume_or_overwrite(tmp_path):
+    import h5py
+
+    chain = tmp_path / "run.h5"
+    with h5py.File(chain, "w") as f:
+        f["x"] = [1.0]
+    with pytest.raises(OutputError, match=r"--backend .*run.h5: the file exists; .* --resume, .* --overwrite"):
+        check_backend(chain, resume=False, overwrite=False)
+    with pytest.raises(OutputError, match="resume=True.* overwrite=True"):
+        check_backend(chain, resume=False, overwrite=False, flags=("resume=True", "overwrite=True"))
+    assert check_backend(chain, resume=True, overwrite=False) == chain
+    assert check_backend(chain, resume=False, overwrite=True) == chain
+    with pytest.raises(OutputError, match="exclude each other"):
+        check_backend(chain, resume=True, overwrite=True)
+    text = tmp_path / "notes.txt"
+    text.write_text("not a chain")
+    with pytest.raises(OutputError, match="is not an HDF5 file"):
+        check_backend(text, resume=True, overwrite=False)
+    empty = tmp_path / "empty.h5"
+    empty.write_bytes(b"")
+    assert check_backend(empty, resume=False, overwrite=False) == empty
+    assert check_backend(tmp_path / "new.h5", resume=False, overwrite=False) == tmp_path / "new.h5"
+
+
+def test_the_library_refuses_to_wipe_a_chain(tmp_path):
+    import ctfit
+
+    chain = tmp_path / "run.h5"
+    chain.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
+    before = chain.read_bytes()
+    with pytest.raises(OutputError, match="resume=True.* overwrite=True"):
+        ctfit.sample(None, None, backend=chain)  # refused before the material or data are looked at
+    assert chain.read_bytes() == before
+
+
+# --- result_targets, unconverged_target ---------------------------------------------------------
+
+
+def test_result_targets_are_distinct_and_deterministic(tmp_path):
+    out = tmp_path / "out"
+    files = [Path("a/x.csv"), Path("b/x.csv"), Path("b/y.csv"), Path("p/q/z.csv"), Path("r/q/z.csv"), Path("c/X.csv")]
+    got = result_targets(files, out, ".fit.json")
+    assert [t.name for t in got.values()] == ["a-x.fit.json", "b-x.fit.json", "y.fit.json", "p-q-z.fit.json", "r-q-z.fit.json", "c-X.fit.json"]
+    assert all(t.parent == out for t in got.values())
+    assert result_targets(files, out, ".fit.json") == got
+    png = result_targets(files, out, ".fit.png")  # the same names for another suffix
+    assert [t.name[: -len(".fit.png")] for t in png.values()] == [t.name[: -len(".fit.json")] for t in got.values()]
+    # The same stem in the same folder (x.csv, x.alta): numbered.
+    same = result_targets([Path("d/x.csv"), Path("d/x.alta"), Path("x.dat")], out, ".fit.json")
+    names = [t.name for t in same.values()]
+    assert len(set(names)) == 3 and names[0] != names[1]
+    assert result_targets([Path("only.csv")], out, ".fit.json") == {Path("only.csv"): out / "only.fit.json"}
+
+
+def test_a_converged_result_is_kept_when_a_new_fit_does_not_converge(tmp_path):
+    target = tmp_path / "x.fit.json"
+    assert unconverged_target(target) == (target, None)
+    target.write_text(json.dumps({"name": "x", "fit": {"converged": True}}))
+    where, note = unconverged_target(target)
+    assert where == tmp_path / "x.fit.not-converged.json"
+    assert "x.fit.json holds a converged fit and is kept" in note and str(where) in note
+    target.write_text(json.dumps({"name": "x", "fit": {"converged": False}}))
+    where, note = unconverged_target(target)
+    assert where == target and "replaced by a fit that did not converge" in note
+    target.write_text("not json")
+    assert unconverged_target(target)[0] == target
+
+
+# --- atomic_write ---------------------------------------------------------------------------------
+
+
+def test_a_link_stays_a_link(tmp_path):
+    real = tmp_path / "real.json"
+    real.write_text("old")
+    link = tmp_path / "link.json"
+    link.symlink_to(real)
+    _fileio.atomic_write(link, ["new"])
+    assert link.is_symlink() and os.readlink(link) == str(real)
+    assert real.read_text() == "new"
+
+
+def test_a_fifo_is_written_into_not_replaced(tmp_path):
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    _fileio.atomic_write(fifo, [b"through ", b"the pipe"])
+    reader.join(10)
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert got == [b"through the pipe"]
+
+
+def test_read_only_files_are_not_replaced_and_modes_are_kept(tmp_path):
+    ro = read_only(tmp_path / "ro.csv")
+    with pytest.raises(PermissionError, match="read-only") as err:
+        _fileio.atomic_write(ro, ["new"])
+    assert err.value.filename == str(ro)
+    assert ro.read_text() == "keep me\n"
+    private = tmp_path / "private.json"
+    private.write_text("old")
+    private.chmod(0o600)
+    _fileio.atomic_write(private, ["new"])
+    assert stat.S_IMODE(private.stat().st_mode) == 0o600 and private.read_text() == "new"
+
+
+def test_write_errors_name_the_users_file_and_leave_nothing(tmp_path):
+    missing = tmp_path / "no" / "such" / "out.csv"
+    with pytest.raises(FileNotFoundError) as err:
+        _fileio.atomic_write(missing, ["x"])
+    assert err.value.filename == str(missing) and ".tmp" not in str(err.value)
+
+    target = tmp_path / "out.csv"
+    target.write_text("old")
+
+    def interrupted():
+        yield "half"
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _fileio.atomic_write(target, interrupted())
+    assert target.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+
+
+# --- the cache without a usable HOME -------------------------------------------------------------
+
+
+@pytest.fixture
+def cache_config(monkeypatch):
+    """Restore JAX's cache settings and the warn-once memory after the test."""
+    saved = jax.config.jax_compilation_cache_dir
+    monkeypatch.setattr(_cache, "_warned", set())
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    yield
+    jax.config.update("jax_compilation_cache_dir", saved)
+
+
+@pytest.mark.parametrize("home", ["file", "", None])
+def test_no_usable_home_means_no_cache_and_one_warning(tmp_path, monkeypatch, cache_config, home):
+    monkeypatch.chdir(tmp_path)
+    if home == "file":  # root may create any folder: a path under a regular file cannot be one
+        (tmp_path / "file").write_text("")
+        monkeypatch.setenv("HOME", str(tmp_path / "file"))
+    elif home == "":
+        monkeypatch.setenv("HOME", "")
+    else:
+        monkeypatch.delenv("HOME")
+        monkeypatch.setattr(Path, "home", classmethod(lambda cls: (_ for _ in ()).throw(RuntimeError("no home"))))
+    with pytest.warns(_cache.CacheWarning, match="compilation cache off") as got:
+        assert _cache.enable_compilation_cache() is None
+    assert len(got) == 1
+    assert jax.config.jax_compilation_cache_dir is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _cache.enable_compilation_cache() is None  # once per process
+    assert not Path(".cache").exists()  # an empty HOME is not the current folder
+
+
+def test_a_writable_cache_folder_is_used(tmp_path, cache_config):
+    where = _cache.enable_compilation_cache(tmp_path / "c")
+    assert where == tmp_path / "c" and jax.config.jax_compilation_cache_dir == str(where)
+    assert stat.S_IMODE(where.stat().st_mode) == 0o700
+
+
+def test_the_program_store_is_private(tmp_path, monkeypatch, cache_config):
+    import jax.numpy as jnp
+
+    monkeypatch.setattr(_aot, "_stores", {})
+    monkeypatch.setattr(_aot, "_memory", {})
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "mine"))
+    store = _aot._store()
+    assert store == tmp_path / "mine" / "ctfit-aot" and stat.S_IMODE(store.stat().st_mode) == 0o700
+
+    shared = tmp_path / "shared" / "ctfit-aot"
+    shared.mkdir(parents=True)
+    shared.chmod(0o777)
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "shared"))
+    with pytest.warns(_cache.CacheWarning, match=r"ctfit-aot can be written by other users .*chmod go-w"):
+        assert _aot._store() is None
+    got = _aot.cached_call("toy", lambda x: {"y": 2 * x}, jnp.arange(3.0))
+    assert list(got["y"]) == [0.0, 2.0, 4.0]
+    assert not list(shared.iterdir())  # nothing written to (or loaded from) the shared folder
+
+
+# --- the commands: checks come before any work ---------------------------------------------------
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """Fail the test if a command gets as far as setting up JAX."""
+    import ctfit.cli
+
+    def setup(*a, **k):
+        raise AssertionError("the command started its work before checking its outputs")
+
+    monkeypatch.setattr(ctfit.cli, "_setup_jax", setup)
+
+
+def test_commands_refuse_an_output_that_is_an_input(tmp_path, no_work):
+    data = tmp_path / "data.csv"
+    data.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,500,1\n")
+    mat = tmp_path / "m.toml"
+    mat.write_bytes(MATERIAL.read_bytes())
+    before = data.read_bytes(), mat.read_bytes()
+    for args, victim in [
+        (("eval", mat, data, "-o", data), data),
+        (("eval", mat, data, "-o", mat), mat),
+        (("simulate", mat, "-o", mat), mat),
+        (("render", mat, "-o", mat), mat),
+        (("sample", mat, data, "-o", data), data),
+        (("sample", mat, data, "-o", tmp_path / "x.json", "--backend", data), data),
+    ]:
+        r = run(*args)
+        assert r.exit_code == 2, (args, r.output)
+        assert r.output.startswith("error: ") and f"is the input {victim}" in r.output, r.output
+    assert (data.read_bytes(), mat.read_bytes()) == before
+
+
+def test_commands_refuse_read_only_and_unmakeable_outputs(tmp_path, no_work):
+    ro = read_only(tmp_path / "ro.csv")
+    r = run("simulate", MATERIAL, "-o", ro)
+    assert r.exit_code == 2 and "ro.csv: the file is read-only" in r.output
+    assert ro.read_text() == "keep me\n"
+    (tmp_path / "file").write_text("")
+    r = run("simulate", MATERIAL, "-o", tmp_path / "file" / "out.csv")
+    assert r.exit_code == 2 and f"-o {tmp_path / 'file' / 'out.csv'}:" in r.output and ".tmp" not in r.output
+    r = run("sample", MATERIAL, tmp_path / "data.csv", "-o", tmp_path / "o.json", "--plot", tmp_path / "file")
+    assert r.exit_code == 2 and "--plot" in r.output and "not a folder" in r.output
+
+
+def test_sample_keeps_an_existing_chain(tmp_path, no_work):
+    chain = tmp_path / "run.h5"
+    chain.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
+    fit_json = tmp_path / "fit.json"
+    fit_json.write_text("{}")
+    # DATA does not exist: the refusal comes before anything is read.
+    r = run("sample", fit_json, tmp_path / "missing.csv", "--backend", chain)
+    assert r.exit_code == 2 and "--resume" in r.output and "--overwrite" in r.output, r.output
+    assert chain.read_bytes().startswith(b"\x89HDF") and len(chain.read_bytes()) == 108
+    r = run("sample", fit_json, tmp_path / "missing.csv", "--overwrite")
+    assert r.exit_code == 2 and "--overwrite needs --backend" in r.output
+
+
+def test_outputs_through_links_and_devices(tmp_path):
+    real = tmp_path / "real.csv"
+    real.write_text("old")
+    link = tmp_path / "link.csv"
+    link.symlink_to(real)
+    args = ("--samples", 20, "--wavelengths", "500:600:100")
+    r = run("simulate", MATERIAL, "-o", link, *args)
+    assert r.exit_code == 0, r.output
+    assert link.is_symlink() and real.read_text().startswith("# ")
+    r = run("simulate", MATERIAL, "-o", "/dev/null", *args)
+    assert r.exit_code == 0, r.output
+    assert stat.S_ISCHR(os.stat("/dev/null").st_mode)
+
+
+# --- in a new process: HOME, Ctrl-C -------------------------------------------------------------
+
+
+def _env(tmp_path, **extra):
+    env = {k: v for k, v in os.environ.items() if k not in ("JAX_COMPILATION_CACHE_DIR", "HOME")}
+    env.update(HOME=str(tmp_path / "home"), MPLBACKEND="Agg", JAX_PLATFORMS="cpu", **extra)
+    return env
+
+
+def _ctfit(*args):
+    return [sys.executable, "-m", "ctfit.cli", *map(str, args)]
+
+
+def test_a_home_that_cannot_hold_a_cache_gives_one_warning(tmp_path):
+    (tmp_path / "home").write_text("a file, not a folder")
+    out = tmp_path / "out.csv"
+    r = subprocess.run(
+        _ctfit("simulate", MATERIAL, "-o", out, "--samples", 20, "--wavelengths", "500:600:100"),
+        env=_env(tmp_path), capture_output=True, text=True, timeout=300,
+    )
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert [line for line in lines if "cache" in line.lower()] == [lines[0]] and "compilation cache off" in lines[0]
+    assert lines[-1].startswith("wrote 40 samples") and len(lines) == 2
+    assert out.read_text().startswith("# ")
+
+
+def _interrupt_when(proc, ready, settle: float = 1.0, timeout: float = 240.0):
+    """SIGINT to ``proc`` ``settle`` seconds after ``ready()`` holds; its (returncode, stderr)."""
+    t0 = time.monotonic()
+    while not ready():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() - t0 < timeout
+        time.sleep(0.02)
+    time.sleep(settle)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, err
+
+
+_SCRIPT = """
+import hashlib, os, signal, sys
+from ctfit._interrupt import deferred, install
+install(lambda: "interrupted: " + sys.argv[1])
+print("ready", flush=True)
+if sys.argv[1] == "in C":  # the main thread stays in C code without the GIL: the watcher exits
+    hashlib.pbkdf2_hmac("sha256", b"x", b"y", 10**9)
+else:  # a deferred write ends before the exit
+    with deferred():
+        os.kill(os.getpid(), signal.SIGINT)
+        open(sys.argv[2], "w").write("whole")
+    open(sys.argv[2], "a").write(", and after")
+"""
+
+
+@pytest.mark.parametrize("where", ["in C", "deferred"])
+def test_ctrl_c_exits_at_once_unless_a_write_is_under_way(tmp_path, where):
+    marker = tmp_path / "marker"
+    proc = subprocess.Popen([sys.executable, "-c", _SCRIPT, where, str(marker)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout.readline() == "ready\n"
+    if where == "in C":
+        time.sleep(0.3)
+        proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert (proc.returncode, err) == (130, f"interrupted: {where}\n")
+    assert (marker.read_text() if where == "deferred" else None) == ("whole" if where == "deferred" else None)
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_a_cold_compile_exits_130_with_one_line(tmp_path):
+    csv = tmp_path / "d.csv"
+    assert run("simulate", MATERIAL, "-o", csv, "--samples", 200, "--wavelengths", "400:700:100").exit_code == 0
+    cache = tmp_path / "cache"  # empty: the fit traces and compiles from scratch
+    out = tmp_path / "fit.json"
+    proc = subprocess.Popen(
+        _ctfit("fit", csv, "-o", out), env=_env(tmp_path, JAX_COMPILATION_CACHE_DIR=str(cache)),
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    code, err = _interrupt_when(proc, cache.exists, settle=3.0)  # the cache folder is made just before the work
+    assert (code, err) == (130, "interrupted\n")
+    assert not out.exists()
+    assert not [p for p in tmp_path.rglob("*.tmp")]
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_sampling_says_how_to_resume_and_resuming_works(tmp_path):
+    csv = tmp_path / "d.csv"
+    fit_json = tmp_path / "d.fit.json"
+    assert run("simulate", MATERIAL, "-o", csv, "--samples", 200, "--wavelengths", "400:700:100", "--noise", 0.02).exit_code == 0
+    assert run("fit", csv, "-o", fit_json).exit_code == 0
+    chain, post = tmp_path / "run.h5", tmp_path / "post.json"
+    args = ["sample", fit_json, csv, "--steps", 3000, "--backend", chain, "-o", post]
+    env = _env(tmp_path, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "cache"))
+    proc = subprocess.Popen(_ctfit(*args), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    first = {}
+
+    def stepping():  # the chain file grows as steps are written (its size: no HDF5 lock taken)
+        if not chain.exists():
+            return False
+        first.setdefault("size", chain.stat().st_size)
+        return chain.stat().st_size > 4 * first["size"]
+
+    code, err = _interrupt_when(proc, stepping, settle=0.5)
+    hint = "interrupted; resume with: ctfit " + " ".join(map(str, args)) + " --resume"
+    assert (code, err) == (130, hint + "\n")
+    assert not post.exists()
+
+    again = subprocess.run(_ctfit(*args, "--resume", "--json"), env=env, capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert again.returncode == 0, again.stderr
+    diag = json.loads(again.stdout)["uncertainty"]["diagnostics"]
+    assert 0 < diag["resumed_from"] < 3000 and diag["resumed_from"] + diag["steps_run_now"] == diag["steps"] == 3000
+    assert json.loads(post.read_text())["uncertainty"]["diagnostics"]["steps"] == 3000
