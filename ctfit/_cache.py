@@ -9,12 +9,15 @@ a folder that cannot be created or written (no HOME, a read-only one) gives one
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import sys
 import tempfile
 import warnings
 from pathlib import Path
 
-__all__ = ["CacheWarning", "enable_compilation_cache", "warn_once"]
+__all__ = ["CacheWarning", "enable_compilation_cache", "matplotlib_config_fallback", "warn_once"]
 
 _warned: set[str] = set()
 
@@ -30,14 +33,19 @@ def warn_once(message: str) -> None:
         warnings.warn(message, CacheWarning, stacklevel=3)
 
 
-def _default() -> Path | None:
+def _home() -> Path | None:
     home = os.environ.get("HOME")
     if home is None:
         try:
             home = str(Path.home())  # the password database
         except (RuntimeError, KeyError):
             return None
-    return Path(home) / ".cache" / "ctfit" / "jax" if os.path.isabs(home) else None
+    return Path(home) if os.path.isabs(home) else None
+
+
+def _default() -> Path | None:
+    home = _home()
+    return None if home is None else home / ".cache" / "ctfit" / "jax"
 
 
 def _usable(where: Path) -> str | None:
@@ -73,3 +81,18 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return where
+
+
+def matplotlib_config_fallback() -> str | None:
+    """Give matplotlib a temporary configuration folder (removed at exit) when HOME cannot hold
+    one, so that it runs without printing two lines about it; return the folder, or None when
+    nothing was needed (``MPLCONFIGDIR`` set, matplotlib already imported, or a usable folder)."""
+    if "MPLCONFIGDIR" in os.environ or "matplotlib" in sys.modules:
+        return None
+    base = os.environ.get("XDG_CONFIG_HOME") or (None if _home() is None else str(_home() / ".config"))
+    if base and os.path.isabs(base) and _usable(Path(base) / "matplotlib") is None:
+        return None
+    folder = tempfile.mkdtemp(prefix="ctfit-matplotlib-")
+    atexit.register(shutil.rmtree, folder, True)
+    os.environ["MPLCONFIGDIR"] = folder
+    return folder

@@ -172,13 +172,47 @@ def _flat_bounds(problem: Problem, u: dict):
     return ravel_pytree(lower)[0], ravel_pytree(upper)[0]
 
 
+def _with_aux(flat, data):
+    return _half_squared_norm(flat, data), None
+
+
+def _run_solver(solver, y0, data, budget):
+    """optimistix's iteration (``solver.init``, then ``step`` until ``terminate``) for at most
+    ``budget`` steps — a *traced* count, so one compiled loop serves every phase of the race.
+    Returns (value, converged, steps); the solver's own tests decide ``converged``."""
+    f_struct = jax.ShapeDtypeStruct((), y0.dtype)
+    state = solver.init(_with_aux, y0, data, {}, f_struct, None, frozenset())
+    dynamic, static = eqx.partition(state, eqx.is_array)
+
+    def stop_and_result(y, st):
+        done, result = solver.terminate(_with_aux, y, data, {}, st, frozenset())
+        return done, optx.RESULTS.where(jnp.all(jnp.isfinite(y)), result, optx.RESULTS.nonfinite)
+
+    done, result = stop_and_result(y0, state)
+
+    def cond(carry):
+        _, k, _, done, result = carry
+        return ~done & (result == optx.RESULTS.successful) & (k < budget)
+
+    def body(carry):
+        y, k, dyn, _, _ = carry
+        st = eqx.combine(static, dyn)
+        y, st, _ = solver.step(_with_aux, y, data, {}, st, frozenset())
+        done, result = stop_and_result(y, st)
+        return y, k + 1, eqx.partition(st, eqx.is_array)[0], done, result
+
+    y, k, _, done, result = jax.lax.while_loop(cond, body, (y0, jnp.zeros((), jnp.int32), dynamic, done, result))
+    return y, done & (result == optx.RESULTS.successful), k
+
+
 def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     """optimistix Levenberg–Marquardt on the structured normal equations, the seeds raced.
 
-    Every seed gets ``RACE_STEPS`` steps (one after another, ``jax.lax.map``); the seeds whose
-    cost is then within ``RACE_MARGIN`` of the lowest go on to convergence (a fresh solve from
-    where they stopped, unless converged already). The others keep their cost after the race,
-    so they can only lose. With one seed this is a plain solve.
+    Every seed gets ``RACE_STEPS`` steps; the seeds whose cost is then within ``RACE_MARGIN``
+    of the lowest go on to convergence (a fresh solve from where they stopped, unless converged
+    already). The others keep their cost after the race, so they can only lose. With one seed
+    this is a plain solve. Both phases are one scan over (seed, phase) tasks around *one*
+    instance of the solver loop, which keeps the compiled program small.
     """
     flat_seeds = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
     unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
@@ -188,29 +222,30 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
     gtol = STATIONARY_TOLERANCE[flat_seeds.dtype.name] * 1e-3
     solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton, descent=descent, gtol=gtol)
+    n = flat_seeds.shape[0]
+    race = n > 1 and max_steps > RACE_STEPS
+    tasks = jnp.arange(2 * n if race else n)
 
-    def solve(f0, steps):
-        sol = optx.minimise(_half_squared_norm, solver, f0, data, max_steps=steps, throw=False)
-        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"]
+    def task(carry, i):
+        values, ok, steps, costs = carry
+        j = i % n
+        if race:
+            second = i >= n
+            go = ~ok[j] & (costs[j] <= RACE_MARGIN * jnp.min(costs))
+            budget = jnp.where(second, jnp.where(go, max_steps - RACE_STEPS, 0), RACE_STEPS)
+        else:
+            budget = jnp.asarray(max_steps)
+        v, o, k = _run_solver(solver, values[j], data, budget)
+        c = _half_squared_norm(v, data)
+        keep = k > 0  # a seed that did not go on keeps what it had
+        values = values.at[j].set(jnp.where(keep, v, values[j]))
+        ok = ok.at[j].set(jnp.where(keep, o, ok[j]))
+        costs = costs.at[j].set(jnp.where(keep, jnp.where(jnp.isfinite(c), c, jnp.inf), costs[j]))
+        return (values, ok, steps.at[j].add(k), costs), None
 
-    def costs_of(values):
-        return jax.lax.map(lambda f: _half_squared_norm(f, data), values)
-
-    if flat_seeds.shape[0] == 1 or max_steps <= RACE_STEPS:
-        values, ok, steps = jax.lax.map(lambda f: solve(f, max_steps), flat_seeds)
-        return jax.vmap(unravel)(values), ok, steps, costs_of(values)
-    values, ok, steps = jax.lax.map(lambda f: solve(f, RACE_STEPS), flat_seeds)
-    costs = costs_of(values)
-    costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
-    go = jnp.logical_and(~ok, costs <= RACE_MARGIN * jnp.min(costs))
-
-    def go_on(args):
-        f, keep, o, k = args
-        v, o2, k2 = jax.lax.cond(keep, lambda: solve(f, max_steps - RACE_STEPS), lambda: (f, o, jnp.zeros_like(k)))
-        return v, o2, k + k2
-
-    values, ok, steps = jax.lax.map(go_on, (values, go, ok, steps))
-    return jax.vmap(unravel)(values), ok, steps, costs_of(values)
+    init = (flat_seeds, jnp.zeros(n, bool), jnp.zeros(n, jnp.int32), jnp.full(n, jnp.inf, flat_seeds.dtype))
+    (values, ok, steps, costs), _ = jax.lax.scan(task, init, tasks)
+    return jax.vmap(unravel)(values), ok, steps, costs
 
 
 def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
@@ -410,7 +445,7 @@ def fit(
     else:  # anything the structure needs but ``start`` lacks comes from the defaults
         start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     check_fittable(data, structure, fixed=fixed, loss=loss, dtype=dtype)
-    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype)
+    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True)
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     k = starts if "m" in u0 else 1
     grid = jnp.asarray(np.log(_m_grid(structure.lobes)), dtype=dtype) if ("m" in u0 and k >= 1) else None
@@ -432,7 +467,7 @@ def fit(
     if problem.spec.grid:
         pred_samples = np.asarray(out["pred"])[data.directions()[1], data.band]
     else:
-        pred_samples = pred
+        pred_samples = pred[: len(data)]
     structure_notes = residual_structure(data, pred_samples, floor=floor)
     gn_decrease = float(out["gn_decrease"])
     stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]

@@ -56,8 +56,13 @@ def signed_in_plane_angle(theta_o, phi_o, phi_i, tol_deg: float = _PLANE_TOL_DEG
 
 
 def plot_fit(result, data: Measurement, path) -> None:
-    """Write the data-vs-fit figure of ``result`` (a :class:`~ctfit.FitResult`) to ``path`` (PNG)."""
-    make_fit_figure(result, data).savefig(path, dpi=110)
+    """Write the data-vs-fit figure of ``result`` (a :class:`~ctfit.FitResult`) to ``path`` (PNG), atomically."""
+    from pathlib import Path
+
+    from ._fileio import atomic_save
+
+    fig = make_fit_figure(result, data)
+    atomic_save(path, lambda buffer: fig.savefig(buffer, format=Path(path).suffix[1:].lower() or "png", dpi=110))
 
 
 def make_fit_figure(result, data: Measurement):

@@ -172,7 +172,7 @@ def result_targets(inputs, folder, suffix: str) -> dict[Path, Path]:
     a number. The names depend only on the inputs, in order, so two suffixes (``.fit.json``,
     ``.fit.png``) pair up. Keys are the inputs as given; the same input twice has one target.
     """
-    paths = [Path(p) for p in inputs]
+    paths = list(dict.fromkeys(Path(p) for p in inputs))
     folder = Path(folder)
     return {p: folder / (n + suffix) for p, n in zip(paths, _names(paths))}
 

@@ -24,6 +24,7 @@ passes instead of one per parameter.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import equinox as eqx
 import jax
@@ -71,7 +72,6 @@ class Problem(eqx.Module):
     band: jax.Array | None
     floor: jax.Array
     fixed: Params
-    n_samples: int = eqx.field(static=True)
     fixed_bands: int = eqx.field(static=True)
 
 
@@ -190,11 +190,14 @@ def make_problem(
     loss: str = "relative",
     dtype=jnp.float64,
     space: str = "box",
+    pad: bool = False,
 ) -> Problem:
     """Lay ``data`` out for the model (grid when dense, pairs otherwise) and fix the spec.
 
     ``space``: the coordinates of the free parameters, "box" (the fit) or "unconstrained" (the
-    sampler); see the module docstring."""
+    sampler); see the module docstring. ``pad``: round the number of direction pairs and of
+    samples up to a size bucket (:func:`bucket`) with masked-out entries, so that measurements
+    of other sizes in the same bucket share one compiled program."""
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     if data.brdf is None:
@@ -209,12 +212,14 @@ def make_problem(
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data) and not data.repeats  # a grid cell holds one sample
+    if pad and n_pairs:
+        pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], (bucket(n_pairs) - n_pairs, 4))])
     geom = _geometry_deg(jnp.asarray(pairs, dtype=dtype))
     y_pos = data.brdf[data.brdf > 0]
     floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
     if grid:
-        shape = (n_pairs, n_bands)
+        shape = (len(pairs), n_bands)
         y = np.zeros(shape)
         sig = np.ones(shape)
         mask = np.zeros(shape)
@@ -225,10 +230,12 @@ def make_problem(
         cos_i = np.broadcast_to(cos_pair[:, None], shape)
         pair = band = None
     else:
-        y, mask = data.brdf, np.ones(len(data))
-        sig = data.sigma if data.sigma is not None else np.ones(len(data))
-        cos_i = cos_pair[index]
-        pair, band = jnp.asarray(index), jnp.asarray(data.band)
+        extra = bucket(len(data)) - len(data) if pad and len(data) else 0
+        padded = lambda a, fill: np.concatenate([np.asarray(a), np.full(extra, fill, np.asarray(a).dtype)])  # noqa: E731
+        y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data)), 0.0)
+        sig = padded(data.sigma, 1.0) if data.sigma is not None else np.ones(len(y))
+        cos_i = padded(cos_pair[index], 1.0)
+        pair, band = jnp.asarray(padded(index, 0)), jnp.asarray(padded(data.band, 0))
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
     return Problem(
@@ -242,9 +249,24 @@ def make_problem(
         band=band,
         floor=jnp.asarray(floor, dtype=dtype),
         fixed=jax.tree.map(to, fixed_params),
-        n_samples=len(data),
         fixed_bands=n_bands,
     )
+
+
+BUCKET_MIN = 256
+"""The smallest size bucket (:func:`bucket`)."""
+
+
+def bucket(n: int) -> int:
+    """The size bucket of ``n``: the smallest ⌈256 · 2^(k/2)⌉ ≥ n (k = 0, 1, …). Buckets grow by
+    √2, so padding costs at most 41 % more work and a new file size usually needs no new
+    compiled program."""
+    k = max(0, math.ceil(2 * math.log2(max(n, 1) / BUCKET_MIN) - 1e-9))
+    while math.ceil(BUCKET_MIN * 2 ** (k / 2)) < n:
+        k += 1
+    while k > 0 and math.ceil(BUCKET_MIN * 2 ** ((k - 1) / 2)) >= n:
+        k -= 1
+    return math.ceil(BUCKET_MIN * 2 ** (k / 2))
 
 
 def _gather_bands(params: Params, band) -> Params:

@@ -3,6 +3,9 @@
 Heavy imports (JAX, colour-science) happen inside the commands, so ``ctfit --version`` is fast.
 Errors in the input (bad files, bad options) print one ``error:`` line naming the file, line
 and column where known, and exit with status 2; a fit that does not converge exits with 1.
+Warnings print as one line ``warning: MESSAGE``; ``fit`` over several files goes on after a
+file's error and ends with a summary (docs/fitting.md). Outputs are checked before any work
+(``_outputs.py``); Ctrl-C exits with status 130 and one line, ``interrupted`` (``_interrupt.py``).
 """
 
 from __future__ import annotations
@@ -602,9 +605,11 @@ def _interrupted_message() -> str:
 
 def main():  # console-script entry point
     """Run the command; Ctrl-C at any moment exits with status 130 and one line (``_interrupt.py``)."""
+    from ._cache import matplotlib_config_fallback
     from ._interrupt import install
 
     install(_interrupted_message)
+    matplotlib_config_fallback()  # no HOME: the compilation cache's one warning says it all
     app()
 
 if __name__ == "__main__":

@@ -244,7 +244,7 @@ def test_outputs_are_checked_before_any_work(tmp_path):
     assert csv.read_bytes() == before
     (tmp_path / "file").write_text("x")
     r = run("fit", csv, write(tmp_path / "more", "e.csv"), "-o", tmp_path / "file")
-    assert r.exit_code == 2 and "several results need a folder" in r.stderr and "fit of" not in r.stdout
+    assert r.exit_code == 2 and "is a file" in r.stderr and "fit of" not in r.stdout
 
 
 def test_a_stored_chain_needs_resume_or_overwrite(tmp_path):

@@ -22,7 +22,6 @@ import ctfit
 import ctfit._fit as _fit
 from ctfit import DataError, DataWarning, Material, Measurement, Params, Structure
 from ctfit._colour_report import colour_report
-from ctfit._csvio import write_csv
 from ctfit._fit_io import fit_result_to_dict, format_fit_table
 from ctfit._material_io import MaterialError, load_material, material_from_dict, material_to_dict, save_material_json
 from ctfit._render import render_compare, render_materials
@@ -114,7 +113,7 @@ def test_fewer_samples_than_free_parameters():
 def test_select_structure_leaves_out_candidates_with_too_many_parameters():
     m = tiny_measurement(4, 1)
     best, table = ctfit.select_structure(m, [Structure(lobes=1), Structure(lobes=3, diffuse="F0/pi")])
-    assert [st for st, _ in table] == [Structure(lobes=1)] and best is table[0][1]
+    assert [structure for structure, _ in table] == [Structure(lobes=1)] and best is table[0][1]
     with pytest.raises(ValueError, match="4 samples, 7 free parameters"):
         ctfit.select_structure(m, [Structure(lobes=3, diffuse="F0/pi")])
 

@@ -154,6 +154,7 @@ def test_result_targets_are_distinct_and_deterministic(tmp_path):
     names = [t.name for t in same.values()]
     assert len(set(names)) == 3 and names[0] != names[1]
     assert result_targets([Path("only.csv")], out, ".fit.json") == {Path("only.csv"): out / "only.fit.json"}
+    assert result_targets(["d/x.csv", "d/x.csv"], out, ".fit.json") == {Path("d/x.csv"): out / "x.fit.json"}
 
 
 def test_a_converged_result_is_kept_when_a_new_fit_does_not_converge(tmp_path):
@@ -225,6 +226,30 @@ def test_write_errors_name_the_users_file_and_leave_nothing(tmp_path):
         _fileio.atomic_write(target, interrupted())
     assert target.read_text() == "old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+
+
+def test_images_and_figures_are_written_atomically(tmp_path):
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ctfit._render import save_png
+    from ctfit._sample_io import _save_figure
+
+    for name, write in [
+        ("tile.png", lambda p: save_png(np.zeros((4, 4, 3), np.uint8), p)),
+        ("corner.png", lambda p: _save_figure(plt.figure(figsize=(1, 1)), p)),
+    ]:
+        real, link = tmp_path / ("real-" + name), tmp_path / name
+        real.write_bytes(b"old")
+        link.symlink_to(real)
+        write(link)
+        assert link.is_symlink() and real.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        ro = read_only(tmp_path / ("ro-" + name))
+        with pytest.raises(PermissionError, match="read-only"):
+            write(ro)
+        assert ro.read_text() == "keep me\n"
+    plt.close("all")
+    assert not list(tmp_path.glob(".*.tmp"))
 
 
 # --- the cache without a usable HOME -------------------------------------------------------------
@@ -374,17 +399,20 @@ def _ctfit(*args):
 
 
 def test_a_home_that_cannot_hold_a_cache_gives_one_warning(tmp_path):
+    """Neither JAX's cache nor matplotlib's configuration folder (imported by render) can live
+    in HOME: one warning line, then the command's own line."""
     (tmp_path / "home").write_text("a file, not a folder")
-    out = tmp_path / "out.csv"
+    out = tmp_path / "out.png"
     r = subprocess.run(
-        _ctfit("simulate", MATERIAL, "-o", out, "--samples", 20, "--wavelengths", "500:600:100"),
+        _ctfit("render", MATERIAL, "-o", out, "--size", 16, "--supersample", 1, "--step", 50),
         env=_env(tmp_path), capture_output=True, text=True, timeout=300,
     )
     assert r.returncode == 0, r.stderr
     lines = r.stderr.strip().splitlines()
-    assert [line for line in lines if "cache" in line.lower()] == [lines[0]] and "compilation cache off" in lines[0]
-    assert lines[-1].startswith("wrote 40 samples") and len(lines) == 2
-    assert out.read_text().startswith("# ")
+    assert len(lines) == 2, r.stderr
+    assert lines[0].startswith("warning: compilation cache off: cannot write to ") and str(tmp_path / "home") in lines[0]
+    assert lines[1].startswith("wrote ")
+    assert out.read_bytes()[:4] == b"\x89PNG"
 
 
 def _interrupt_when(proc, ready, settle: float = 1.0, timeout: float = 240.0):
@@ -398,6 +426,21 @@ def _interrupt_when(proc, ready, settle: float = 1.0, timeout: float = 240.0):
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     return proc.returncode, err
+
+
+def test_the_interrupted_line(monkeypatch):
+    from ctfit import _interrupt
+    from ctfit.cli import _interrupted_message
+
+    monkeypatch.setitem(_interrupt._state, "resumable", None)
+    monkeypatch.setattr(sys, "argv", ["ctfit", "sample", "f.json", "d.csv", "--backend", "my run.h5", "--overwrite"])
+    assert _interrupted_message() == "interrupted"  # no chain written yet: nothing to resume
+    _interrupt.note_resumable("my run.h5")
+    assert _interrupted_message() == "interrupted; resume with: ctfit sample f.json d.csv --backend 'my run.h5' --resume"
+    monkeypatch.setattr(sys, "argv", ["ctfit", "fit", "a.csv", "b.csv", "--sample", "--backend=chains", "--resume"])
+    assert _interrupted_message() == "interrupted; resume with: ctfit fit a.csv b.csv --sample --backend=chains --resume"
+    monkeypatch.setattr(sys, "argv", ["ctfit", "fit", "a.csv"])
+    assert _interrupted_message() == "interrupted"
 
 
 _SCRIPT = """
