@@ -51,6 +51,9 @@ _EXPORTS = {
     "FitResult": "._fit",
     "fit": "._fit",
     "select_structure": "._fit",
+    "fit_batch": "._fit_batch",
+    "TexelFits": "._fit_texels",
+    "fit_texels": "._fit_texels",
     "fit_result_to_dict": "._fit_io",
     "format_fit_table": "._fit_io",
     "DEFAULT_OBSERVER": "._colour",
@@ -187,6 +190,13 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         FitResult as FitResult,
         fit as fit,
         select_structure as select_structure,
+    )
+    from ._fit_batch import (
+        fit_batch as fit_batch,
+    )
+    from ._fit_texels import (
+        TexelFits as TexelFits,
+        fit_texels as fit_texels,
     )
     from ._fit_io import (
         fit_result_to_dict as fit_result_to_dict,

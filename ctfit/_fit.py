@@ -36,7 +36,7 @@ from jax.flatten_util import ravel_pytree
 from ._aot import cached_call
 from ._brdf import normal_reflectance
 from ._diagnostics import residual_structure
-from ._fresnel import n_from_f0
+from ._fresnel import f0_from_nk, n_from_f0
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
 from ._solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, active_set, predicted_decrease
@@ -128,8 +128,10 @@ def _score_grid(problem: Problem, u0: dict, grid):
     return jax.vmap(score)(grid)
 
 
-def _seed_points(problem: Problem, u0: dict, k: int, grid=None) -> dict:
-    """The ``k`` best starting points from a grid over log m, each with its best per-band scale.
+def _seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool = False) -> dict:
+    """The ``k`` best starting points from a grid over log m, each with its best per-band scale
+    (F0 scaled; for n, k: the index of the scaled normal reflectance, :func:`_index_seed`), and
+    with ``keep_start`` the start ``u0`` itself as one more seed.
 
     Traceable (used inside the jitted fit); ``grid`` is the (G, lobes) grid of log m.
     """
@@ -141,7 +143,28 @@ def _seed_points(problem: Problem, u0: dict, k: int, grid=None) -> dict:
     seeds["m"] = grid[order]
     if "f0" in u0:
         seeds["f0"] = jnp.clip(u0["f0"] * scales[order], 0.005, 0.995)
+    elif "n" in u0:
+        k0 = u0.get("k", jnp.zeros_like(u0["n"]))
+        f0 = jnp.clip(f0_from_nk(u0["n"], k0) * scales[order], 1e-4, 0.995)
+        n, kk = _index_seed(f0, jnp.broadcast_to(u0["n"], f0.shape), problem.spec.structure.fresnel == "conductor")
+        seeds["n"] = n
+        if "k" in u0:
+            seeds["k"] = kk
+    if keep_start:
+        seeds = jax.tree.map(lambda a, b: jnp.concatenate([a, jnp.asarray(b)[None]]), seeds, u0)
     return seeds
+
+
+def _index_seed(f0, n, conductor: bool):
+    """n, k whose normal reflectance is ``f0``: for a conductor, n kept and k from
+    F0 = ((n−1)² + k²)/((n+1)² + k²) where that has a root, else k = 0 and the dielectric n of
+    F0 (paper §4); for a real index, that n alone."""
+    n_diel = n_from_f0(f0)
+    if not conductor:
+        return n_diel, None
+    k2 = (f0 * (n + 1) ** 2 - (n - 1) ** 2) / (1 - f0)
+    has_k = k2 > 0
+    return jnp.where(has_k, n, n_diel), jnp.sqrt(jnp.where(has_k, k2, 0.0))
 
 
 def _gauss_newton(flat, data):
@@ -300,9 +323,10 @@ def _constrained(problem: Problem, unravel, f):
     return out
 
 
-def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, max_steps: int):
-    """Seeds, solve, pick the best, and everything the report needs, in one compiled program."""
-    seeds = _seed_points(problem, u0, starts, grid)
+def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, max_steps: int, keep_start: bool = False):
+    """Seeds, solve, pick the best, and everything the report needs, in one compiled program.
+    ``keep_start``: the start ``u0`` is a seed too (a start the caller chose)."""
+    seeds = _seed_points(problem, u0, starts, grid, keep_start)
     values, ok, steps, costs = _solve_seeds(problem, seeds, solver_name, max_steps)
     costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
     best = jnp.argmin(costs)
@@ -368,6 +392,18 @@ def undetermined(jtj) -> np.ndarray:
     return d <= np.finfo(np.asarray(jtj).dtype).eps * 1e-2 * (np.max(d) if d.size else 0.0)
 
 
+def _labelled(u: dict, flags) -> list[str]:
+    """Public labels ("s", "F0[2]", "weight[1]") of the flat coordinates where ``flags`` is set."""
+    out, i = [], 0
+    for k in sorted(u):
+        size = int(np.size(u[k]))
+        for j in range(size):
+            if flags[i]:
+                out.append(_PUBLIC[k] + (f"[{j}]" if np.ndim(u[k]) else ""))
+            i += 1
+    return out
+
+
 def _coordinate_names(u: dict) -> list[str]:
     """The parameter name of every flat coordinate (``ravel_pytree`` order: sorted names)."""
     return [k for k in sorted(u) for _ in range(int(np.size(u[k])))]
@@ -413,6 +449,56 @@ def _warnings(structure: Structure, params: Params, stderr, not_determined=()) -
     return out
 
 
+@dataclasses.dataclass
+class _Prepared:
+    """One measurement made ready for ``_fit_core`` (checked, started, laid out): what :func:`fit`
+    and :func:`~ctfit._fit_batch.fit_batch` share."""
+
+    data: Measurement
+    structure: Structure
+    loss: str
+    dtype: object
+    start: Params
+    fixed: tuple[str, ...]
+    problem: Problem
+    u0: dict
+    grid: object
+    k: int
+    given_start: bool
+
+    def options(self, solver: str, max_steps: int) -> tuple:
+        """The arguments of ``_fit_core`` after (problem, u0, grid)."""
+        return (self.k, solver, max_steps, self.given_start)
+
+    def padded(self, pad_to: tuple[int, int]) -> _Prepared:
+        """The same fit with its problem padded to ``pad_to`` (direction pairs, samples)."""
+        problem = make_problem(self.structure, self.data, fixed_params=self.start, fixed=self.fixed, loss=self.loss, dtype=self.dtype, pad=True, pad_to=pad_to)
+        return dataclasses.replace(self, problem=problem)
+
+
+def _prepare(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int) -> _Prepared:
+    """The checks, start, problem (padded to its size bucket), free start ``u0`` and m grid of a fit."""
+    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
+        raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
+    structure = structure or Structure(lobes=1, diffuse="F0/pi")
+    if loss == "auto":
+        loss = "sigma" if data.sigma is not None else "relative"
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be 'auto' or one of {LOSSES}, got {loss!r}")
+    default = _default_start(structure, data)
+    given_start = start is not None
+    if start is None:
+        start = default
+    else:  # anything the structure needs but ``start`` lacks comes from the defaults
+        start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
+    check_fittable(data, structure, fixed=fixed, loss=loss, dtype=dtype)
+    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True)
+    u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
+    k = starts if "m" in u0 else 1
+    grid = jnp.asarray(np.log(_m_grid(structure.lobes)), dtype=dtype) if ("m" in u0 and k >= 1) else None
+    return _Prepared(data, structure, loss, dtype, start, tuple(fixed), problem, u0, grid, k, given_start)
+
+
 def fit(
     data: Measurement,
     structure: Structure | None = None,
@@ -432,24 +518,14 @@ def fit(
     Per-band parameters of ``start`` must already be on the data's bands.
     """
     t0 = time.perf_counter()
-    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
-        raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
-    structure = structure or Structure(lobes=1, diffuse="F0/pi")
-    if loss == "auto":
-        loss = "sigma" if data.sigma is not None else "relative"
-    if loss not in LOSSES:
-        raise ValueError(f"loss must be 'auto' or one of {LOSSES}, got {loss!r}")
-    default = _default_start(structure, data)
-    if start is None:
-        start = default
-    else:  # anything the structure needs but ``start`` lacks comes from the defaults
-        start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
-    check_fittable(data, structure, fixed=fixed, loss=loss, dtype=dtype)
-    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True)
-    u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
-    k = starts if "m" in u0 else 1
-    grid = jnp.asarray(np.log(_m_grid(structure.lobes)), dtype=dtype) if ("m" in u0 and k >= 1) else None
-    out = jax.device_get(cached_call("fit", _fit_core, problem, u0, grid, k, solver, max_steps))
+    prep = _prepare(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
+    out = jax.device_get(cached_call("fit", _fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
+    return _finish(prep, out, solver, t0)
+
+
+def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
+    """The :class:`FitResult` of a prepared fit from ``_fit_core``'s output (host arrays); ``t0``: when it began."""
+    data, structure, loss, dtype, problem = prep.data, prep.structure, prep.loss, prep.dtype, prep.problem
     costs, ok, steps, best = out["costs"], out["ok"], out["steps"], int(out["best"])
     u = out["u"]
     params = Params(**{k: None if v is None else np.asarray(v) for k, v in out["params"].items()})
@@ -490,6 +566,8 @@ def fit(
         "starts": int(np.asarray(costs).size),
         "relative_floor": floor,
         "gauss_newton_decrease": gn_decrease,
+        "on_bound": _labelled(u, np.asarray(out["on_bound"], bool)),
+        "no_stderr": [f"{k}[{i}]" for k, v in (stderr or {}).items() for i in np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))],
     }
     full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     if structure.needs_fresnel_params and structure.fresnel == "f0":
@@ -511,13 +589,47 @@ def fit(
     return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)
 
 
-def select_structure(data: Measurement, candidates: list[Structure], **kwargs) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
+def select_structure(
+    data: Measurement, candidates: list[Structure], *, progress=None, **kwargs
+) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
     """Fit each candidate structure and keep the one with the lowest BIC (Schwarz 1978).
 
+    Candidates nest: a candidate that contains an earlier one (one lobe more, or a diffuse part
+    added) also starts from that one's fit, embedded so that it gives the same model (the new
+    lobe with weight 0, or s = 1), so its cost is never above the smaller candidate's.
     Candidates with more free parameters than the data has samples are left out (all of them
-    too many: the first one's error)."""
+    too many: the first one's error). ``progress`` wraps the candidate loop (e.g. a progress
+    bar); ``kwargs`` go to :func:`fit`."""
     enough = [st for st in candidates if n_free_parameters(st, data.n_bands, kwargs.get("fixed", ())) <= len(data)]
-    results = [(st, fit(data, st, **kwargs)) for st in (enough or candidates[:1])]
+    results: list[tuple[Structure, FitResult]] = []
+    for st in (progress or (lambda it: it))(enough or candidates[:1]):
+        inner = [r for sm, r in results if _contains(st, sm) and np.isfinite(r.stats["cost"])]
+        start = None
+        if inner and "start" not in kwargs:
+            start = _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st)
+        results.append((st, fit(data, st, start=start, **kwargs)))
     ok = [(st, r) for st, r in results if np.isfinite(r.stats["bic"])]
     best = min(ok or results, key=lambda sr: sr[1].stats["bic"])[1]
     return best, results
+
+
+def _contains(big: Structure, small: Structure) -> bool:
+    """Whether ``small``'s models are ``big``'s with one lobe's weight 0 or with s = 1."""
+    same = all(getattr(big, a) == getattr(small, a) for a in ("distribution", "geometry", "fresnel", "normalization"))
+    one_more_lobe = big.lobes == small.lobes + 1 and big.diffuse == small.diffuse and small.lobes >= 1
+    diffuse_added = big.lobes == small.lobes >= 1 and small.diffuse is None and big.diffuse is not None
+    return same and (one_more_lobe or diffuse_added)
+
+
+def _embedded_start(inner: FitResult, big: Structure) -> Params:
+    """``inner``'s fitted parameters as a start of the larger structure ``big``, same model:
+    the new lobe gets weight 0 and the slope of the m grid farthest (in log) from the fitted
+    ones; a new diffuse part gets s = 1 (its R_d then starts at the default)."""
+    p, small = inner.material.params, inner.material.structure
+    m, w = np.asarray(p.m, dtype=float), np.asarray(p.w, dtype=float)
+    if big.lobes > small.lobes:
+        grid = np.geomspace(0.01, 0.8, 9)
+        new = grid[np.argmax(np.min(np.abs(np.log(grid)[:, None] - np.log(m)[None, :]), axis=1))]
+        m, w = np.append(m, new), np.append(w, 0.0)
+    s = np.asarray(p.s) if small.has_s else (np.asarray(1.0) if big.has_s else None)
+    return Params(s=s, m=m, w=w, f0=p.f0 if big.fresnel == "f0" else None, n=p.n if big.fresnel != "f0" else None, k=p.k, rd=p.rd)

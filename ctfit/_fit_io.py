@@ -86,6 +86,8 @@ def format_fit_table(res, label: str = "") -> str:
         f"  cost: {s['cost']:.6g}   rmse: {s['rmse']:.4g} sr⁻¹   rel_rmse: {s['rel_rmse']:.4g}   "
         f"samples: {s['n_samples']}   params: {s['n_params']}   time: {s['time_s']:.2f} s"
     )
+    if s.get("on_bound"):
+        lines.append(f"  on a bound (a result, no standard error): {', '.join(s['on_bound'])}")
     for w in res.warnings:
         lines.append(f"  warning: {w}")
     return "\n".join(lines)

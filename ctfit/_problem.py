@@ -191,13 +191,16 @@ def make_problem(
     dtype=jnp.float64,
     space: str = "box",
     pad: bool = False,
+    pad_to: tuple[int, int] | None = None,
 ) -> Problem:
     """Lay ``data`` out for the model (grid when dense, pairs otherwise) and fix the spec.
 
     ``space``: the coordinates of the free parameters, "box" (the fit) or "unconstrained" (the
     sampler); see the module docstring. ``pad``: round the number of direction pairs and of
     samples up to a size bucket (:func:`bucket`) with masked-out entries, so that measurements
-    of other sizes in the same bucket share one compiled program."""
+    of other sizes in the same bucket share one compiled program. ``pad_to``: pad to these sizes
+    (direction pairs, samples; at least the data's) instead of the buckets, so that
+    measurements of different buckets can be stacked into one batch (``pad`` is implied)."""
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     if data.brdf is None:
@@ -212,8 +215,11 @@ def make_problem(
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data) and not data.repeats  # a grid cell holds one sample
+    pad = pad or pad_to is not None
+    if pad_to is not None and (pad_to[0] < n_pairs or pad_to[1] < len(data)):
+        raise ValueError(f"{data.source}: pad_to={pad_to} is smaller than the data ({n_pairs} direction pairs, {len(data)} samples)")
     if pad and n_pairs:
-        pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], (bucket(n_pairs) - n_pairs, 4))])
+        pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
     geom = _geometry_deg(jnp.asarray(pairs, dtype=dtype))
     y_pos = data.brdf[data.brdf > 0]
     floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
@@ -230,7 +236,7 @@ def make_problem(
         cos_i = np.broadcast_to(cos_pair[:, None], shape)
         pair = band = None
     else:
-        extra = bucket(len(data)) - len(data) if pad and len(data) else 0
+        extra = (pad_to[1] if pad_to else bucket(len(data))) - len(data) if pad and len(data) else 0
         padded = lambda a, fill: np.concatenate([np.asarray(a), np.full(extra, fill, np.asarray(a).dtype)])  # noqa: E731
         y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data)), 0.0)
         sig = padded(data.sigma, 1.0) if data.sigma is not None else np.ones(len(y))

@@ -316,13 +316,23 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
 
 
 def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[str, str]]:
-    """Fit every file; several: a failure is one error line and the rest go on. [(outcome, what)]."""
+    """Fit every file; several: a failure is one error line and the rest go on. [(outcome, what)].
+
+    Several files fitted with one structure (not ``--lobes auto``, not ``--sample``) are fitted
+    together by ``fit_batch`` (one compiled, vmapped program per layout) and then reported file
+    by file, as they would be one at a time."""
     from ._progress import bar, echo
 
+    together = _fit_together(files, o, base, show) if len(files) > 1 and not o.sample_ and not (o.lobes == "auto" and base is None) else None
     outcomes = []
     for path in bar(files, desc="files", enabled=show and len(files) > 1):
         try:
-            converged = _fit_file(path, o, base, plan[path], show)
+            if together is None:
+                converged = _fit_file(path, o, base, plan[path], show)
+            elif isinstance(together[path], Exception):
+                raise together[path]
+            else:
+                converged = _report_file(path, *together[path], o, plan[path], show)
             outcomes.append(("converged" if converged else "not converged", str(path)))
         except (UserError, ValueError, OSError, KeyError) as e:
             if len(files) == 1:
@@ -350,7 +360,34 @@ def _fit_exit_status(outcomes: list[tuple[str, str]]) -> int:
 def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool) -> bool:
     """Read, fit, print and write one file's results; whether the fit converged."""
     meas = _read_data(path, o.param_out)
-    res = _fit_measurement(meas, o, base, show)
+    return _report_file(path, meas, _fit_measurement(meas, o, base, show), o, t, show)
+
+
+def _fit_together(files: list[Path], o, base, show: bool) -> dict:
+    """Every file read and all fitted by ``fit_batch``: path → (measurement, FitResult), or the
+    exception that stopped that file (reading it, its start, or its fit)."""
+    from ._fit_batch import fit_batch
+    from ._fit_io import start_from_material
+    from ._progress import bar
+
+    st = _structure_from_options(base.structure if base else None, int(o.lobes) if o.lobes != "auto" else 1, o.geometry, o.fresnel, o.diffuse)
+    done: dict = {}
+    ready, fixed = [], ()
+    for path in bar(files, desc="reading", enabled=show):
+        try:
+            meas = _read_data(path, o.param_out)
+            start, fixed = start_from_material(base, st, meas) if base else (None, ())
+            ready.append((path, meas, start))
+        except (UserError, ValueError, OSError, KeyError) as e:
+            done[path] = e
+    fits = fit_batch([m for _, m, _ in ready], st, start=[s for _, _, s in ready], fixed=fixed, return_errors=True, **_fit_kwargs(o))
+    for (path, meas, _), res in zip(ready, fits):
+        done[path] = res if isinstance(res, Exception) else (meas, res)
+    return done
+
+
+def _report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool) -> bool:
+    """Print and write one file's results; whether the fit converged."""
     res.material.meta["data"] = str(path)
     target, note = t.json, None
     if target is not None and not res.converged:
@@ -372,13 +409,11 @@ def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool) -> bool:
 
 def _fit_measurement(meas, o, base, show: bool):
     """One fit: the structure of the options (or --material), or with --lobes auto the lowest BIC."""
-    import jax.numpy as jnp
-
     from ._fit import fit as run_fit
     from ._fit_io import start_from_material
     from ._progress import echo
 
-    kw = dict(loss=o.loss, solver=o.solver, dtype=jnp.float32 if o.float32 else jnp.float64, starts=o.starts, max_steps=o.max_steps)
+    kw = _fit_kwargs(o)
     if o.lobes == "auto" and base is None:
         cands = [_structure_from_options(None, j, o.geometry, o.fresnel, d) for j in (1, 2, 3) for d in (False, True)]
         res, table = _select_structure(meas, cands, kw, show)
@@ -391,22 +426,20 @@ def _fit_measurement(meas, o, base, show: bool):
     return run_fit(meas, st, start=start, fixed=fixed, **kw)
 
 
+def _fit_kwargs(o) -> dict:
+    """The options of ``fit`` (and ``fit_batch``) that the command line sets."""
+    import jax.numpy as jnp
+
+    return dict(loss=o.loss, solver=o.solver, dtype=jnp.float32 if o.float32 else jnp.float64, starts=o.starts, max_steps=o.max_steps)
+
+
 def _select_structure(meas, cands, kw: dict, show: bool):
-    """``select_structure`` of the library, candidate by candidate under a progress bar.
-
-    The same rule (tests/test_cli_batch.py compares the two): candidates with more free
-    parameters than samples are left out, the lowest finite BIC wins.
-    """
-    import numpy as np
-
-    from ._fit import fit as run_fit
+    """The library's ``select_structure`` (nested starts, lowest BIC), candidate by candidate
+    under a progress bar."""
+    from ._fit import select_structure
     from ._progress import bar
-    from ._validate import n_free_parameters
 
-    enough = [st for st in cands if n_free_parameters(st, meas.n_bands) <= len(meas)] or cands[:1]
-    table = [(st, run_fit(meas, st, **kw)) for st in bar(enough, desc="structures", enabled=show)]
-    finite = [(st, r) for st, r in table if np.isfinite(r.stats["bic"])]
-    return min(finite or table, key=lambda sr: sr[1].stats["bic"])[1], table
+    return select_structure(meas, cands, progress=lambda it: bar(it, desc="structures", enabled=show), **kw)
 
 
 def _report_fit(res, path: Path, o, target) -> None:

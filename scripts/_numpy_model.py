@@ -1,17 +1,23 @@
 """The Cook–Torrance model and its least-squares residual in plain NumPy: the SciPy peer of the
 fit benchmarks (``bench_fit.py``, ``fit_tradeoffs.py``).
 
-Same model as ctfit for a metal: normalised Cook–Torrance, Σ_j w_j Beckmann D(m_j), the paper's
-V-cavity G, the paper's unpolarised Fresnel with the effective index from F0 (k = 0), d = 0.
-Same parameterisation as ``ctfit._problem``: u = (logit F0 (W bands), log m (J lobes),
-w_1..w_{J−1} as logits against w_0 (softmax)), and the same residual weightings (``ctfit._problem.LOSSES``).
+Same model as ctfit: normalised Cook–Torrance, Σ_j w_j Beckmann D(m_j), the paper's V-cavity G,
+the paper's unpolarised Fresnel with the effective index from F0 (k = 0); a metal (d = 0) or, with
+``diffuse=True``, the paper's homogeneous material R = s R_s + (1 − s) F0/π. Unconstrained
+coordinates, as SciPy's ``least_squares(method="lm")`` needs: u = (logit F0 (W bands), log m
+(J lobes), w_1..w_{J−1} as logits against w_0 (softmax)[, logit s]); ctfit's own fit varies box
+coordinates inside bounds instead (``ctfit._parameters``), the sampler these ones. The residual
+weightings are ctfit's (``ctfit._problem.LOSSES``).
+
+Imports NumPy only, so that a SciPy process timed as a whole (``bench_fit.py``) pays for nothing
+else; :func:`read_csv_numpy` reads a spectral measurement CSV for it.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["np_geometry", "np_fresnel_f0", "NumpyProblem", "NUMPY_LOSSES"]
+__all__ = ["np_geometry", "np_fresnel_f0", "NumpyProblem", "NumpyData", "read_csv_numpy", "NUMPY_LOSSES"]
 
 NUMPY_LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
 
@@ -50,14 +56,47 @@ def np_fresnel_f0(c, f0):
     return np.clip(num / den, 0, 1)
 
 
+class NumpyData:
+    """The fields of a :class:`ctfit.Measurement` that :class:`NumpyProblem` reads, without ctfit."""
+
+    def __init__(self, theta_i, phi_i, theta_o, phi_o, band, n_bands: int, brdf, sigma=None):
+        self.theta_i, self.phi_i, self.theta_o, self.phi_o = (np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o))
+        self.band, self.n_bands = np.asarray(band, dtype=np.int64), int(n_bands)
+        self.brdf, self.sigma = np.asarray(brdf, dtype=float), None if sigma is None else np.asarray(sigma, dtype=float)
+
+    def directions(self):
+        """Unique direction pairs (P, 4) and each sample's index into them (as ctfit's)."""
+        rows = np.stack([self.theta_i, np.mod(self.phi_i, 360), self.theta_o, np.mod(self.phi_o, 360)], axis=1)
+        pairs, index = np.unique(rows, axis=0, return_inverse=True)
+        return pairs, index.reshape(-1)
+
+
+def read_csv_numpy(path) -> NumpyData:
+    """A spectral measurement CSV (``docs/measurement-formats.md``: ``#`` lines, a header naming
+    theta_i, phi_i, theta_o, phi_o, wavelength_nm, brdf[, sigma]) read with ``numpy.loadtxt``;
+    no checks beyond NumPy's (the files are the benchmark's own)."""
+    with open(path, encoding="utf-8") as f:
+        skip = 0
+        for line in f:
+            skip += 1
+            if line.strip() and not line.lstrip().startswith("#"):
+                names = [c.strip().strip('"') for c in line.split(",")]
+                break
+    cols = np.loadtxt(path, delimiter=",", skiprows=skip, ndmin=2, dtype=float).T
+    col = dict(zip(names, cols))
+    wl, band = np.unique(col["wavelength_nm"], return_inverse=True)
+    return NumpyData(col["theta_i"], col["phi_i"], col["theta_o"], col["phi_o"], band, len(wl), col["brdf"], col.get("sigma"))
+
+
 class NumpyProblem:
-    """r(u) on the samples for a ``lobes``-lobe metal, u = (logit F0 (W), log m (J), logit w (J − 1)).
+    """r(u) on the samples for a ``lobes``-lobe material, u = (logit F0 (W), log m (J), logit w (J − 1)
+    [, logit s with ``diffuse``]).
 
     ``loss`` as in ctfit: absolute f − y; relative (f − y)/max(y, 10⁻³ max y); sigma (f − y)/σ;
     cosine (f − y) cos θ_i; log ln(1 + f cos θ_i) − ln(1 + y cos θ_i).
     """
 
-    def __init__(self, data, lobes: int = 2, loss: str = "sigma"):
+    def __init__(self, data, lobes: int = 2, loss: str = "sigma", diffuse: bool = False):
         if loss not in NUMPY_LOSSES:
             raise ValueError(f"loss must be one of {NUMPY_LOSSES}, got {loss!r}")
         pairs, index = data.directions()
@@ -67,29 +106,37 @@ class NumpyProblem:
         self.g_red = np.minimum(1 / (g["cos_l"] * g["cos_v"]), np.minimum(2 * g["cos_h"] / g["cos_vh"] / g["cos_l"], 2 * g["cos_h"] / g["cos_vh"] / g["cos_v"]))
         self.tan2 = np.minimum(g["tan2"], 1e12)
         self.index, self.band = index, data.band
+        self.grid = len(pairs) * data.n_bands <= 1.5 * len(index)
         self.y, self.sigma = data.brdf, data.sigma
         self.w_bands = data.n_bands
-        self.lobes, self.loss = lobes, loss
+        self.lobes, self.loss, self.diffuse = lobes, loss, diffuse
         y_pos = self.y[self.y > 0]
         self.floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
         self.cos_i = np.cos(np.deg2rad(pairs[:, 0]))[index]
 
     def params(self, u):
-        """(F0 (W,), m (J,), w (J,)) from the free values ``u``."""
+        """(F0 (W,), m (J,), w (J,)) from the free values ``u``; with ``diffuse``, s as a fourth."""
         w_b, j = self.w_bands, self.lobes
         f0 = 1 / (1 + np.exp(-u[:w_b]))
         m = np.exp(u[w_b : w_b + j])
-        w = np.exp(np.concatenate([[0.0], u[w_b + j :]]))
-        return f0, m, w / w.sum()
+        w = np.exp(np.concatenate([[0.0], u[w_b + j : w_b + 2 * j - 1]]))
+        out = (f0, m, w / w.sum())
+        return out + (1 / (1 + np.exp(-u[w_b + 2 * j - 1])),) if self.diffuse else out
 
     def model(self, u):
-        f0, m, w = self.params(u)
+        f0, m, w, *s = self.params(u)
         t = self.tan2[:, None]
         d = np.exp(-t / m**2) * (1 + t) ** 2 / m**2
-        s = (0.25 / np.pi) * self.g_red * (d @ w)
-        s = np.where(self.geom["valid"], s, 0.0)
-        rgrid = np_fresnel_f0(self.geom["cos_vh"][:, None], f0[None, :]) * s[:, None]
-        return rgrid[self.index, self.band]
+        spec = (0.25 / np.pi) * self.g_red * (d @ w)
+        valid = self.geom["valid"]
+        spec = np.where(valid, spec, 0.0)
+        if self.grid:  # F per (pair, band) cell, as ctfit lays out dense data
+            f = (np_fresnel_f0(self.geom["cos_vh"][:, None], f0[None, :]) * spec[:, None])[self.index, self.band]
+        else:  # F per sample: scattered data, every sample its own pair
+            f = np_fresnel_f0(self.geom["cos_vh"][self.index], f0[self.band]) * spec[self.index]
+        if self.diffuse:
+            f = s[0] * f + np.where(valid[self.index], (1 - s[0]) * f0[self.band] / np.pi, 0.0)
+        return f
 
     def residual(self, u):
         f, y = self.model(u), self.y

@@ -241,8 +241,10 @@ def _non_finite(res, model) -> dict[str, int]:
         v = getattr(p, k)
         if v is not None:
             out[f"params.{k}"] = int(np.sum(~np.isfinite(np.asarray(v, dtype=float))))
+    by_design = set(res.stats.get("no_stderr", ()))  # a parameter on its bound, or one the data does not determine
     for k, v in (res.stderr or {}).items():
-        out[f"stderr.{k}"] = int(np.sum(~np.isfinite(np.asarray(v, dtype=float))))
+        bad = np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))
+        out[f"stderr.{k}"] = int(sum(f"{k}[{i}]" not in by_design for i in bad))
     out["model"] = int(np.sum(~np.isfinite(model)))
     for k, v in res.stats.items():
         if isinstance(v, (int, float)) and not isinstance(v, bool):

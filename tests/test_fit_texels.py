@@ -1,0 +1,73 @@
+"""``fit_texels``: one goniometer geometry, many texels' values, fitted a chunk at a time."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ctfit
+
+RGB = ("R", "G", "B")
+ST = ctfit.Structure(lobes=1, diffuse="F0/pi")
+N_TEXELS = 64
+
+
+def texel_material(s, m, f0):
+    return ctfit.Material(ST, ctfit.Params(s=np.asarray(s), m=np.array([m]), w=np.array([1.0]), f0=np.asarray(f0)), channels=RGB)
+
+
+@pytest.fixture(scope="module")
+def texels():
+    """67 direction pairs × 3 channels (201 samples); 64 texels of known s, m, F0 with 1 % noise."""
+    geometry = ctfit.simulate(texel_material(0.9, 0.2, (0.9, 0.7, 0.5)), 67, seed=1)
+    rng = np.random.default_rng(7)
+    truth = dict(s=rng.uniform(0.6, 0.95, N_TEXELS), m=rng.uniform(0.08, 0.5, N_TEXELS), f0=rng.uniform(0.2, 0.95, (N_TEXELS, 3)))
+    values = np.stack([np.asarray(ctfit.evaluate(texel_material(truth["s"][t], truth["m"][t], truth["f0"][t]), geometry)) for t in range(N_TEXELS)])
+    return geometry, values * (1 + 0.01 * rng.standard_normal(values.shape)), truth
+
+
+def test_texels_recover_their_parameters_chunk_by_chunk(texels, tmp_path):
+    geometry, values, truth = texels
+    stored = np.lib.format.open_memmap(tmp_path / "values.npy", mode="w+", shape=values.shape)  # read a chunk at a time
+    stored[:] = values
+    res = ctfit.fit_texels(geometry, stored, ST, chunk=24)  # 3 chunks, the last one filled up
+    assert len(res) == N_TEXELS and res.converged.all()
+    assert res.params.m.shape == (N_TEXELS, 1) and res.params.f0.shape == (N_TEXELS, 3) and res.params.s.shape == (N_TEXELS,)
+    np.testing.assert_allclose(res.params.m[:, 0], truth["m"], rtol=0.02)
+    np.testing.assert_allclose(res.params.f0, truth["f0"], atol=0.03)
+    np.testing.assert_allclose(res.params.s, truth["s"], atol=0.03)
+    assert np.all(res.stats["rel_rmse"] < 0.015) and np.median(res.stats["rel_rmse"]) == pytest.approx(0.01, rel=0.2)  # the 1 % noise
+    assert res.stats["texels_per_s"] > 0 and res.stats["dtype"] == "float64"
+    np.testing.assert_allclose(res.params.n, np.asarray(ctfit.n_from_f0(res.params.f0)), rtol=1e-12)
+    for t in (5, N_TEXELS - 1):  # one of the first chunk, the last texel (last chunk)
+        alone = res.fit_result(t)
+        assert alone.converged
+        np.testing.assert_allclose(alone.material.params.m, res.params.m[t], rtol=1e-6)
+        np.testing.assert_allclose(alone.material.params.f0, res.params.f0[t], rtol=1e-6)
+        assert alone.stats["cost"] == pytest.approx(res.stats["cost"][t], rel=1e-8)
+        assert alone.stats["rel_rmse"] == pytest.approx(res.stats["rel_rmse"][t], rel=1e-6)
+        assert res.material(t).params.m == pytest.approx(res.params.m[t])
+
+
+def test_fit_batch_with_values_is_the_texel_fit(texels):
+    geometry, values, truth = texels
+    res = ctfit.fit_batch([geometry], ST, values=values[:8], dtype=jnp.float32)
+    assert isinstance(res, ctfit.TexelFits) and len(res) == 8 and res.stats["dtype"] == "float32"
+    assert res.params.m.dtype == np.float32
+    np.testing.assert_allclose(res.params.m[:, 0], truth["m"][:8], rtol=0.03)
+    np.testing.assert_allclose(res.params.f0, truth["f0"][:8], atol=0.03)
+
+
+def test_texels_that_cannot_be_fitted_are_named(texels):
+    geometry, values, _ = texels
+    with pytest.raises(ValueError, match=r"values must have shape \(texels, 201\)"):
+        ctfit.fit_texels(geometry, values[:, :-1], ST)
+    bad = values[:10].copy()
+    bad[7, 3] = np.nan
+    with pytest.raises(ValueError, match="texel 7, sample 3: brdf = nan is not a finite number"):
+        ctfit.fit_texels(geometry, bad, ST, chunk=4)
+    bad[7, 3] = 1.0
+    bad[9] = 0.0
+    with pytest.raises(ValueError, match="texel 9: every brdf is ≤ 0"):
+        ctfit.fit_texels(geometry, bad, ST, chunk=4)
+    with pytest.raises(ValueError, match="loss 'sigma'"):
+        ctfit.fit_texels(geometry, values, ST, loss="sigma")
