@@ -174,16 +174,20 @@ def _half_angle_panel(ax, mat, data, labels) -> None:
         ax.plot(th[sel], data.brdf[sel], "o", ms=3, color=c, alpha=0.7, label=f"data{name}")
         data_y.append(data.brdf[sel])
         curves.append(curve)
-    data_y, curves = np.concatenate(data_y), np.concatenate(curves)
-    positive = np.concatenate([data_y, curves])
-    positive = positive[positive > 0]
-    if len(positive) and positive.max() > 30 * positive.min():
-        note = _log_limits(ax, data_y, curves)
-    else:
-        note = _linear_limits(ax, data_y, curves)
+    note = _auto_limits(ax, np.concatenate(data_y), np.concatenate(curves))
     ax.set_xlabel("θ_h, angle between N and H (°)")
     ax.set_ylabel("BRDF (sr⁻¹)")
     ax.set_title("BRDF against θ_h (1-D data, V = L)" + note, fontsize=10)
+
+
+def _auto_limits(ax, data_y, model_y) -> str:
+    """A log y-axis when the positive values span more than 30×, else a linear one; the note
+    on points outside the shown range."""
+    positive = np.concatenate([data_y, model_y])
+    positive = positive[positive > 0]
+    if len(positive) and positive.max() > 30 * positive.min():
+        return _log_limits(ax, data_y, model_y)
+    return _linear_limits(ax, data_y, model_y)
 
 
 def _residual_panel(ax, result, data, model, x, xlabel, labels) -> None:
@@ -215,14 +219,7 @@ def _spectra_panel(ax, data, model, labels) -> None:
         ax.plot(xs[data.band[rows]], data.brdf[rows], "o", color=c, ms=4, label=f"data {what}")
         ax.plot(xs[data.band[rows]], model[rows], "-x", color=c, label=f"model (θ_i {ti:.3g}°, θ_o {to:.3g}°, Δφ {np.mod(po - pi_, 360):.3g}°)")
         shown.append((data.brdf[rows], model[rows]))
-    data_y = np.concatenate([d for d, _ in shown])
-    model_y = np.concatenate([m for _, m in shown])
-    positive = np.concatenate([data_y, model_y])
-    positive = positive[positive > 0]
-    if len(positive) and positive.max() > 30 * positive.min():
-        note = _log_limits(ax, data_y, model_y)
-    else:
-        note = _linear_limits(ax, data_y, model_y)
+    note = _auto_limits(ax, np.concatenate([d for d, _ in shown]), np.concatenate([m for _, m in shown]))
     ax.set_xlabel("wavelength (nm)" if data.channels is None else "channel")
     if data.channels is not None:
         ax.set_xticks(xs, labels)

@@ -15,6 +15,8 @@ import equinox as eqx
 import numpy as np
 from jaxtyping import Array
 
+from ._measurement import band_labels
+
 __all__ = ["Structure", "Params", "Material", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS"]
 
 DISTRIBUTIONS = ("beckmann", "gaussian")
@@ -132,11 +134,7 @@ class Material:
     @property
     def band_labels(self) -> list[str]:
         """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""
-        if self.band_unknown:
-            return ["unknown band"]
-        if self.channels is not None:
-            return list(self.channels)
-        return [] if self.wavelength_nm is None else [f"{w:g} nm" for w in self.wavelength_nm]
+        return band_labels(self.wavelength_nm, self.channels, self.band_unknown)
 
     def params_at(self, wavelength_nm=None, channels=None) -> Params:
         """Per-band parameters resampled to other bands.

@@ -19,6 +19,16 @@ import numpy as np
 __all__ = ["Measurement"]
 
 
+def band_labels(wavelength_nm, channels, band_unknown: bool = False) -> list[str]:
+    """One label per band: "450 nm", a channel name, or "unknown band" (one band whose
+    wavelength is not known)."""
+    if band_unknown:
+        return ["unknown band"]
+    if channels is not None:
+        return list(channels)
+    return [] if wavelength_nm is None else [f"{w:g} nm" for w in wavelength_nm]
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class Measurement:
     """BRDF samples.
@@ -69,11 +79,7 @@ class Measurement:
     @property
     def band_labels(self) -> list[str]:
         """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""
-        if self.band_unknown:
-            return ["unknown band"]
-        if self.channels is not None:
-            return list(self.channels)
-        return [f"{w:g} nm" for w in self.wavelength_nm]
+        return band_labels(self.wavelength_nm, self.channels, self.band_unknown)
 
     def directions(self) -> tuple[np.ndarray, np.ndarray]:
         """Unique direction pairs (D, 4) as (θ_i, φ_i, θ_o, φ_o), in lexicographic order, and each

@@ -1,33 +1,47 @@
-"""Benchmark of the fit: ctfit (whole process, cold and warm compilation cache) against
-``scipy.optimize.least_squares(method="lm")`` on a NumPy implementation of the same model, plus
-a MERL-sized fit in process.
+"""Benchmark of the fit as users run it: ``ctfit fit`` against its peers, whole processes on both
+sides, in one run; writes the section "## Fitting" of ``docs/benchmarks.md`` with ``--docs DIR``.
 
-The standard case: a two-lobe metal (m = 0.2, 0.4; weights 0.6, 0.4; an F0 spectrum rising from
-0.5 to 0.95) at 31 wavelengths 400–700 nm, 6452 direction pairs × 31 bands = 200,012 samples
-(grid layout) with 2 % relative Gaussian noise, simulated with ``seed=1``; loss sigma-weighted.
+Every figure is a whole process (interpreter start to exit) timed from outside with the
+kernel's accounting of the finished child (``_whole_process.py``: wall time, peak resident
+memory); each is the median of ``--repeat`` runs, the columns of a case run in interleaved
+rounds so that a drifting machine load touches them alike. Data files are written once into a
+scratch folder (``_bench_fit_data.py`` describes them).
 
-- ctfit: ``python -c`` loads the data (NumPy .npz), enables JAX's persistent compilation cache
-  (a fresh temporary directory: run 1 is cold, run 2 warm), calls ``ctfit._fit.fit`` with the
-  defaults (grid seeding, 3 starts, structured Levenberg–Marquardt, float64) and prints its
-  result; the wall time of the whole process (interpreter start to exit) is reported.
-- SciPy: the same residual r = (R − y)/σ with the same parameterisation (log m, the logit of the
-  second weight, logit F0 per band) written in NumPy, from ctfit's best grid seed (the start
-  ctfit's solver uses for its best run), MINPACK LM with its default finite-difference Jacobian
-  and default tolerances; timed in this process (``least_squares`` call only).
-- MERL-sized: 1.5 million direction pairs × 3 RGB channels (4.5 million samples), one lobe, no
-  sigma (relative loss), in process, float32 and float64; first call (compiling) and second.
+- **Floor**: the interpreter alone, a bare JAX process (import, one tiny jitted call) and
+  ``ctfit --version``.
+- **Scattered samples** (20,000 and 200,000; ``--small``: 2,000): SciPy
+  (``_scipy_fit.py``: NumPy reads the CSV, ``least_squares(method="lm")`` on the NumPy model
+  ``_numpy_model.py``, from ctfit's default start) against ``ctfit fit FILE --lobes 2 --json``
+  with an empty cache folder per run (cold), with a cache an earlier run filled (warm), and on a
+  file of another sample count (19,000) with a copy of that cache (new size). A further process
+  calls ``ctfit.fit`` twice with the warm cache: the first call loads the stored program, the
+  second only solves.
+- **Batch**: 256 files × 2,000 samples of one geometry (``--small``: 8), one ``ctfit fit DIR -o
+  OUT`` process against one SciPy process looping over the files.
+- **MERL-sized**: a MERL ``.binary`` file (every cell above the horizon: 1,096,216 pairs × RGB;
+  ``--small``: 100,000 pairs), ``ctfit fit FILE --no-diffuse`` warm: time and peak memory.
+- **Per texel**: ``ctfit.fit_batch(geometry, values=...)`` on 100,000 texels × 201 samples (67
+  direction pairs × RGB, one lobe; ``--small``: 2,000 texels), float32 and float64, in this
+  process: texels per second of a call after the compiling one.
+- **Mitsuba**: Mitsuba 3's ``roughconductor`` (Dr.Jit ``llvm_ad_rgb``, Adam, log loss, lr 0.05,
+  1,000 iterations; ``_mitsuba_fit.py``) on 20,000 RGB direction pairs Mitsuba rendered (Cu,
+  α = 0.15) against ``ctfit fit FILE --fresnel conductor --geometry smith --no-diffuse`` (warm):
+  time and accuracy. Skipped with the reason printed where Dr.Jit cannot run, and in ``--small``.
 
-``--quick`` runs a small version (1000 pairs; MERL-sized case at 100,000 pairs).
-Run: ``.venv/bin/python scripts/bench_fit.py [--quick] [--no-merl]``.
+Run: ``.venv/bin/python scripts/bench_fit.py [--small] [--repeat N] [--docs DIR] [--no-merl]
+[--no-mitsuba] [--no-texels] [--no-batch]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
+import glob
+import hashlib
 import json
 import os
 import platform
-import subprocess
+import shutil
 import sys
 import tempfile
 import time
@@ -36,220 +50,497 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+SCRIPTS = ROOT / "scripts"
+sys.path.insert(0, str(SCRIPTS))
 
-CHILD = r"""
-import sys, time, json
-t0 = time.perf_counter()
-import numpy as np
+import _bench_fit_data as data  # noqa: E402
+from _whole_process import median, run  # noqa: E402
+
+SECTION = "## Fitting"
+PY = sys.executable
+CTFIT = str(Path(sys.executable).with_name("ctfit"))
+JAX_FLOOR = "import jax; jax.jit(lambda x: x + 1)(1.0).block_until_ready()"
+IN_PROCESS = r"""
+import json, sys, time
 import jax
 jax.config.update("jax_enable_x64", True)
-from ctfit._cache import enable_compilation_cache
-enable_compilation_cache()
-from ctfit import Measurement, Structure
-from ctfit._fit import fit
-z = np.load(sys.argv[1])
-data = Measurement(theta_i=z["theta_i"], phi_i=z["phi_i"], theta_o=z["theta_o"], phi_o=z["phi_o"], band=z["band"],
-                   wavelength_nm=z["wavelength_nm"], brdf=z["brdf"], sigma=z["sigma"], source=sys.argv[1])
-t1 = time.perf_counter()
-r = fit(data, Structure(lobes=2))
-t2 = time.perf_counter()
-p = r.material.params
-out = {"fit_s": t2 - t1, "startup_s": t1 - t0, "cost": r.stats["cost"], "steps": r.stats["steps"],
-       "converged": r.converged, "m": np.asarray(p.m).tolist(), "w": np.asarray(p.w).tolist(), "f0": np.asarray(p.f0).tolist()}
-# After the timed process: a second call (in memory) and one start (SciPy's start), warm.
-t = time.perf_counter(); fit(data, Structure(lobes=2)); out["fit_again_s"] = time.perf_counter() - t
-fit(data, Structure(lobes=2), starts=1)
-t = time.perf_counter(); r1 = fit(data, Structure(lobes=2), starts=1); out["fit_one_start_s"] = time.perf_counter() - t
-out["cost_one_start"] = r1.stats["cost"]
-out["after_s"] = time.perf_counter() - t2
-print(json.dumps(out))
+import ctfit
+ctfit.enable_compilation_cache()
+d = ctfit.read_measurement(sys.argv[1])
+st = ctfit.Structure(lobes=2, diffuse="F0/pi")
+t = time.perf_counter(); ctfit.fit(d, st); first = time.perf_counter() - t
+t = time.perf_counter(); r = ctfit.fit(d, st); second = time.perf_counter() - t
+print(json.dumps(dict(first_s=first, second_s=second, cost=r.stats["cost"])))
 """
-
-WL31 = np.linspace(400.0, 700.0, 31)
-F0_TRUE = np.linspace(0.5, 0.95, 31)
-M_TRUE, W_TRUE = np.array([0.2, 0.4]), np.array([0.6, 0.4])
+LLVM_CANDIDATES = ("/usr/lib/x86_64-linux-gnu/libLLVM-19.so", "/usr/lib/x86_64-linux-gnu/libLLVM-18.so", "/usr/lib/x86_64-linux-gnu/libLLVM-17.so")
 
 
-def standard_case(n_pairs: int):
-    import ctfit
-    from ctfit._simulate import simulate
+class Bench:
+    """The scratch folder, the environment of the children and the repetition count."""
 
-    st = ctfit.Structure(lobes=2)
-    mat = ctfit.Material(st, ctfit.Params(m=M_TRUE, w=W_TRUE, f0=F0_TRUE), wavelength_nm=WL31, name="two-lobe metal")
-    return simulate(mat, n_pairs, noise=0.02, seed=1)
+    def __init__(self, tmp: Path, repeat: int):
+        self.tmp, self.repeat = tmp, repeat
+        self.env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+        self.count = 0
+
+    def folder(self, name: str) -> Path:
+        self.count += 1
+        path = self.tmp / f"{name}-{self.count}"
+        path.mkdir(parents=True)
+        return path
+
+    def ctfit(self, args: list[str], cache: Path, what: str):
+        """``ctfit ARGS`` with ``cache`` as its cache folder; (Run, parsed --json output or None).
+        Exit status 1 (a fit did not converge) is a result, not a failure."""
+        r = run([CTFIT, *args], env=dict(self.env, JAX_COMPILATION_CACHE_DIR=str(cache)), cwd=self.tmp)
+        if r.returncode not in (0, 1):
+            r.check(what)
+        return r, (json.loads(r.stdout) if "--json" in args else None)
+
+    def cold(self, args: list[str], what: str):
+        """A run with a fresh, empty cache folder (removed after)."""
+        cache = self.folder("cold-cache")
+        try:
+            return self.ctfit(args, cache, what)
+        finally:
+            shutil.rmtree(cache, ignore_errors=True)
+
+    def copy_of(self, cache: Path) -> Path:
+        dest = self.folder("cache-copy")
+        shutil.copytree(cache, dest, dirs_exist_ok=True)
+        return dest
 
 
-# The NumPy model (same as ctfit: normalised Cook–Torrance, Beckmann, V-cavity G, effective-index F)
-# lives in _numpy_model.py, shared with fit_tradeoffs.py.
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _numpy_model import NumpyProblem, np_fresnel_f0, np_geometry  # noqa: E402, F401
+# --------------------------------------------------------------------------- cases
 
 
-def run_ctfit_process(npz: Path, cache: Path) -> dict:
-    env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(cache), JAX_PLATFORMS="cpu")
-    t = time.perf_counter()
-    out = subprocess.run([sys.executable, "-c", CHILD, str(npz)], env=env, capture_output=True, text=True, cwd=ROOT)
-    wall = time.perf_counter() - t
-    if out.returncode != 0:
-        raise RuntimeError(out.stderr[-3000:])
-    res = json.loads(out.stdout.strip().splitlines()[-1])
-    res["wall_s"] = wall - res["after_s"]  # the process up to the end of its first fit
+def floor(b: Bench) -> dict:
+    cmds = {"python": [PY, "-c", "pass"], "jax": [PY, "-c", JAX_FLOOR], "version": [CTFIT, "--version"]}
+    times = {k: [] for k in cmds}
+    for _ in range(b.repeat):
+        for k, cmd in cmds.items():
+            times[k].append(run(cmd, env=b.env).check(" ".join(cmd[:2])).wall_s)
+    out = {k: median(v) for k, v in times.items()}
+    print(f"floor: python {out['python']:.2f} s, bare JAX process {out['jax']:.2f} s, ctfit --version {out['version']:.2f} s", flush=True)
+    return out
+
+
+def scipy_start(path: Path, lobes: int, n_bands: int, diffuse: bool) -> Path:
+    path.write_text(json.dumps({"x0": data.default_start_x0(lobes, n_bands, diffuse)}))
+    return path
+
+
+def scipy_run(b: Bench, start: Path, files: list[Path], grid: bool = False):
+    cmd = [PY, str(SCRIPTS / "_scipy_fit.py"), str(start), *map(str, files), "--lobes", "2", "--diffuse", "--loss", "relative"]
+    r = run(cmd + (["--grid"] if grid else []), env=b.env).check("the SciPy process")
+    return r, [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
+
+
+def _ctfit_params(doc: dict) -> dict:
+    return dict(m=[lobe["m"] for lobe in doc["lobes"]], w=[lobe["weight"] for lobe in doc["lobes"]], s=doc["s"], f0=doc["F0"])
+
+
+def recovery(p: dict) -> dict:
+    """Errors against the scattered truth: max relative error of m, max |Δw|, |Δs|, max |ΔF0|."""
+    m, w, f0 = (np.asarray(p[k], dtype=float) for k in ("m", "w", "f0"))
+    m, w = m[np.argsort(m)], w[np.argsort(m)]
+    return dict(m=float(np.max(np.abs(m / data.M_TRUE - 1))), w=float(np.max(np.abs(w - data.W_TRUE))), s=abs(p["s"] - data.S_TRUE),
+                f0=float(np.max(np.abs(f0 - data.F0_TRUE))))
+
+
+def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool) -> dict:
+    """SciPy against ctfit cold, warm and (``new_n``) on a file of another size, one size."""
+    folder = b.folder(f"scattered-{n}")
+    path = data.write_scattered(folder / f"scattered-{n}.csv", n, seed)
+    other = data.write_scattered(folder / f"scattered-{new_n}.csv", new_n, seed + 1) if new_n else None
+    start = scipy_start(folder / "start.json", 2, len(data.WL31), True)
+    args = ["fit", str(path), "--lobes", "2", "--json", "-q"]
+    warm_cache = b.folder("warm-cache")
+    cold, first = b.ctfit(args, warm_cache, "ctfit (cold, priming)")  # the first cold run fills the warm cache
+    primed = b.copy_of(warm_cache) if other else None
+    runs = {k: [] for k in ("scipy", "scipy_grid", "cold", "warm", "new")}
+    runs["cold"].append(cold.wall_s)
+    res = {}
+    for i in range(b.repeat):
+        r, (sp,) = scipy_run(b, start, [path])
+        runs["scipy"].append(r.wall_s)
+        res["scipy"] = sp
+        if grid_peer:
+            r, (res["scipy_grid"],) = scipy_run(b, start, [path], grid=True)
+            runs["scipy_grid"].append(r.wall_s)
+        r, res["warm"] = b.ctfit(args, warm_cache, "ctfit (warm)")
+        runs["warm"].append(r.wall_s)
+        res["warm_peak_mb"] = r.peak_mb
+        if i > 0:
+            r, _ = b.cold(args, "ctfit (cold)")
+            runs["cold"].append(r.wall_s)
+        if other:
+            cache = b.copy_of(primed)
+            r, res["new"] = b.ctfit(["fit", str(other), "--lobes", "2", "--json", "-q"], cache, "ctfit (new size)")
+            runs["new"].append(r.wall_s)
+            shutil.rmtree(cache, ignore_errors=True)
+    inproc = run([PY, "-c", IN_PROCESS, str(path)], env=dict(b.env, JAX_COMPILATION_CACHE_DIR=str(warm_cache))).check("ctfit.fit in process")
+    out = {k: median(v) for k, v in runs.items() if v}
+    out.update(n=n, new_n=new_n, cold_fit_s=first["fit"]["time_s"], warm_fit_s=res["warm"]["fit"]["time_s"],
+               in_process=json.loads(inproc.stdout.strip().splitlines()[-1]), scipy_cost=res["scipy"]["cost"], scipy_nfev=res["scipy"]["nfev"],
+               ctfit_cost=res["warm"]["fit"]["cost"], ctfit_steps=res["warm"]["fit"]["steps"], converged=res["warm"]["fit"]["converged"],
+               scipy_rec=recovery(res["scipy"]), ctfit_rec=recovery(_ctfit_params(res["warm"])), peak_mb=res["warm_peak_mb"],
+               scipy_fit_s=res["scipy"]["fit_s"], runs=len(runs["warm"]))
+    if "scipy_grid" in res:
+        out["scipy_grid_cost"] = res["scipy_grid"]["cost"]
+    print(f"scattered {n:,}: SciPy {out['scipy']:.2f} s (cost {out['scipy_cost']:.10g}, {out['scipy_nfev']} evaluations)"
+          + (f", SciPy on the grid {out['scipy_grid']:.2f} s" if "scipy_grid" in out else "")
+          + f"; ctfit cold {out['cold']:.2f} s, warm {out['warm']:.2f} s (cost {out['ctfit_cost']:.10g}, {out['ctfit_steps']} steps, converged "
+          f"{out['converged']})" + (f", new size ({new_n:,}) {out['new']:.2f} s" if other else "")
+          + f"; in process: fit() {out['in_process']['first_s']:.2f} s then {out['in_process']['second_s']:.2f} s", flush=True)
+    for p in glob.glob(str(b.tmp / "cache-copy-*")):
+        shutil.rmtree(p, ignore_errors=True)
+    return out
+
+
+def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
+    folder = b.folder("batch")
+    files = data.write_batch(folder / "files", n_files, n_samples, seed)
+    start = scipy_start(folder / "start.json", 2, len(data.WL31), True)
+    cache = b.folder("batch-cache")
+    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "-q", "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
+    t_scipy, t_ctfit = [], []
+    for _ in range(b.repeat):
+        r, sp = scipy_run(b, start, files)
+        t_scipy.append(r.wall_s)
+        out = b.folder("batch-out")
+        r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "-q", "-o", str(out)], cache, "ctfit fit DIR")
+        t_ctfit.append(r.wall_s)
+        peak = r.peak_mb
+    docs = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.json"))}
+    sp_cost = {Path(x["file"]).stem: x["cost"] for x in sp}
+    ct_cost = {k.split(".")[0]: d["fit"]["cost"] for k, d in docs.items()}
+    rel = np.array([(ct_cost[k] - sp_cost[k]) / sp_cost[k] for k in sp_cost if k in ct_cost])
+    conv = sum(bool(d["fit"]["converged"]) for d in docs.values())
+    res = dict(files=n_files, samples=n_samples, scipy=median(t_scipy), ctfit=median(t_ctfit), peak_mb=peak, results=len(docs), converged=conv,
+               same=int(np.sum(np.abs(rel) <= 1e-6)), ctfit_lower=int(np.sum(rel < -1e-6)), scipy_lower=int(np.sum(rel > 1e-6)),
+               worst=float(np.max(np.abs(rel))) if rel.size else float("nan"))
+    print(f"batch {n_files} × {n_samples:,}: SciPy loop {res['scipy']:.2f} s, ctfit fit DIR {res['ctfit']:.2f} s ({res['scipy'] / res['ctfit']:.1f}×); "
+          f"{res['results']} results, {conv} converged; cost equal (1e-6) in {res['same']}, lower for ctfit in {res['ctfit_lower']}, "
+          f"for SciPy in {res['scipy_lower']}", flush=True)
     return res
 
 
-def recovery(m, w, f0) -> str:
-    m, w = np.asarray(m), np.asarray(w)
-    return (f"m = {np.round(m, 5).tolist()} (max rel. error {np.max(np.abs(m / M_TRUE - 1)):.2e}), "
-            f"w = {np.round(w, 5).tolist()} (max abs. error {np.max(np.abs(w - W_TRUE)):.1e}), "
-            f"max |ΔF0| = {np.max(np.abs(np.asarray(f0) - F0_TRUE)):.1e}")
+def merl(b: Bench, pairs: int | None, seed: int) -> dict:
+    folder = b.folder("merl")
+    path = folder / "metal.binary"
+    samples = data.write_merl_file(path, pairs, seed)
+    args = ["fit", str(path), "--lobes", "1", "--no-diffuse", "--json", "-q"]
+    cache = b.folder("merl-cache")
+    cold, _ = b.ctfit(args, cache, "ctfit on the MERL file (priming)")
+    walls, peaks = [], []
+    for _ in range(b.repeat):
+        r, doc = b.ctfit(args, cache, "ctfit on the MERL file")
+        walls.append(r.wall_s)
+        peaks.append(r.peak_mb)
+    res = dict(samples=samples, pairs=samples // 3, cold=cold.wall_s, cold_peak_mb=cold.peak_mb, warm=median(walls), peak_mb=max(peaks),
+               fit_s=doc["fit"]["time_s"], m=doc["lobes"][0]["m"], f0=doc["F0"], converged=doc["fit"]["converged"], steps=doc["fit"]["steps"])
+    print(f"MERL-sized ({samples:,} samples): warm {res['warm']:.2f} s (fit() {res['fit_s']:.2f} s), peak {res['peak_mb']:.0f} MiB; "
+          f"cold {res['cold']:.2f} s, peak {res['cold_peak_mb']:.0f} MiB; m = {res['m']:.5f}, F0 = {np.round(res['f0'], 4).tolist()}", flush=True)
+    return res
 
 
-def merl_case(n_pairs: int, dtypes) -> list[dict]:
+def texels(n_texels: int, seed: int) -> dict:
+    """Texels per second of ``ctfit.fit_batch(geometry, values=...)``, in this process."""
     import jax
     import jax.numpy as jnp
 
     import ctfit
-    from ctfit._fit import fit
-    from ctfit._simulate import simulate
 
-    st = ctfit.Structure(lobes=1)
-    mat = ctfit.Material(st, ctfit.Params(m=np.array([0.15]), w=np.array([1.0]), f0=np.array([0.9, 0.7, 0.5])), channels=("R", "G", "B"), name="rgb metal")
-    data = simulate(mat, n_pairs, noise=0.02, seed=2).replace(sigma=None)  # MERL files have no uncertainties
+    if not hasattr(ctfit, "fit_batch"):
+        print("per-texel: skipped: ctfit.fit_batch not available", flush=True)
+        return dict(skipped="ctfit.fit_batch not available")
+    jax.config.update("jax_enable_x64", True)
+    geometry, values, m, f0 = data.texel_case(n_texels, 67, seed)
     rows = []
-    for dt in dtypes:
-        if dt == "float64":
-            jax.config.update("jax_enable_x64", True)
-        for call in (1, 2):
-            t = time.perf_counter()
-            r = fit(data, st, dtype=getattr(jnp, dt))
-            rows.append(dict(dtype=dt, call=call, time_s=time.perf_counter() - t, samples=len(data), steps=r.stats["steps"], cost=r.stats["cost"],
-                             m=float(np.asarray(r.material.params.m)[0]), f0=np.asarray(r.material.params.f0).round(4).tolist(), converged=r.converged))
-            print(f"  MERL-sized {dt} call {call}: {rows[-1]['time_s']:.2f} s, {rows[-1]['steps']} steps, m = {rows[-1]['m']:.5f}, F0 = {rows[-1]['f0']}", flush=True)
+    for dt in ("float32", "float64"):
+        warmup = min(n_texels, 1024)
+        t = time.perf_counter()
+        ctfit.fit_batch(geometry, data.METAL, values=values[:warmup], dtype=getattr(jnp, dt))
+        first = time.perf_counter() - t
+        t = time.perf_counter()
+        res = ctfit.fit_batch(geometry, data.METAL, values=values, dtype=getattr(jnp, dt))
+        el = time.perf_counter() - t
+        fm = np.asarray(res.params.m)[:, 0]
+        ff = np.asarray(res.params.f0)
+        rows.append(dict(dtype=dt, texels=n_texels, samples=values.shape[1], first_s=first, warmup=warmup, time_s=el, per_s=n_texels / el,
+                         converged=float(np.mean(np.asarray(res.stats["converged"]))), m_err=float(np.median(np.abs(fm / m - 1))),
+                         f0_err=float(np.median(np.max(np.abs(ff - f0), axis=1)))))
+        r = rows[-1]
+        print(f"per-texel {dt}: {n_texels:,} texels in {el:.2f} s = {r['per_s']:,.0f} texels/s (first call, {warmup} texels, compiling: {first:.2f} s); "
+              f"converged {r['converged']:.1%}, median |Δm|/m {r['m_err']:.1e}, median max |ΔF0| {r['f0_err']:.1e}", flush=True)
+    return dict(rows=rows)
+
+
+def _llvm() -> str | None:
+    given = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if given:
+        return given
+    return next((p for p in LLVM_CANDIDATES if os.path.exists(p)), None)
+
+
+def mitsuba(b: Bench, n_pairs: int, seed: int) -> dict:
+    """The Mitsuba peer against ctfit (warm), or ``skipped`` with the reason."""
+    try:
+        import mitsuba  # noqa: F401
+    except ImportError as e:
+        return _skip(f"mitsuba is not installed ({e})")
+    llvm = _llvm()
+    if llvm is None:
+        return _skip("Dr.Jit's LLVM backend needs libLLVM ≥ 17 (e.g. `apt-get install libllvm19`, then DRJIT_LIBLLVM_PATH="
+                     "/usr/lib/x86_64-linux-gnu/libLLVM-19.so); LLVM 14/15 abort with \"Cannot select fmaximum\"")
+    env = dict(b.env, DRJIT_LIBLLVM_PATH=llvm)
+    folder = b.folder("mitsuba")
+    try:
+        case = data.mitsuba_case(folder, n_pairs, seed, env)
+    except RuntimeError as e:
+        return _skip(str(e))
+    truth = case["truth"]
+    args = ["fit", str(case["csv"]), "--fresnel", "conductor", "--geometry", "smith", "--no-diffuse", "--json", "-q"]
+    cache = b.folder("mitsuba-cache")
+    b.ctfit(args, cache, "ctfit on Mitsuba's data (priming)")
+    t_peer, t_ctfit = [], []
+    for _ in range(b.repeat):
+        r = run([PY, str(SCRIPTS / "_mitsuba_fit.py"), "fit", str(case["npz"])], env=env).check("the Mitsuba peer")
+        t_peer.append(r.wall_s)
+        peer = json.loads(r.stdout.strip().splitlines()[-1])
+        r, doc = b.ctfit(args, cache, "ctfit on Mitsuba's data")
+        t_ctfit.append(r.wall_s)
+    import ctfit
+
+    f0_true = np.asarray(truth["f0"])
+    peer_f0 = np.asarray(ctfit.f0_from_nk(np.asarray(peer["eta"]), np.asarray(peer["k"])), dtype=float)
+    res = dict(pairs=n_pairs, truth=truth, peer=median(t_peer), ctfit=median(t_ctfit), peer_fit_s=peer["fit_s"], ctfit_fit_s=doc["fit"]["time_s"],
+               peer_df0=float(np.max(np.abs(peer_f0 - f0_true))), ctfit_df0=float(np.max(np.abs(np.asarray(doc["F0"]) - f0_true))),
+               peer_da=abs(peer["alpha"] / truth["alpha"] - 1), ctfit_da=abs(doc["lobes"][0]["m"] / truth["alpha"] - 1),
+               converged=doc["fit"]["converged"], llvm=Path(llvm).name)
+    print(f"Mitsuba ({n_pairs:,} pairs × RGB): peer {res['peer']:.2f} s (max |ΔF0| {res['peer_df0']:.1e}, |Δα|/α {res['peer_da']:.1e}); "
+          f"ctfit {res['ctfit']:.2f} s (max |ΔF0| {res['ctfit_df0']:.1e}, |Δα|/α {res['ctfit_da']:.1e})", flush=True)
+    return res
+
+
+def _skip(reason: str) -> dict:
+    print(f"Mitsuba peer: skipped: {reason}", flush=True)
+    return dict(skipped=reason)
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _s(x: float) -> str:
+    return f"{x:.2f} s"
+
+
+def _ratio(x: float) -> str:
+    return f"{x:.1f}×" if x >= 1 else f"{x:.2f}×"
+
+
+def targets(fl: dict, cases: list[dict], bat: dict | None, mer: dict | None, mit: dict | None) -> list[tuple[str, str, str, str]]:
+    """(target, measured, met, what dominates) rows."""
+    rows = []
+    by_n = {c["n"]: c for c in cases}
+    big, small = max(by_n), min(by_n)
+
+    def split(c):
+        ip = c["in_process"]
+        rest = c["warm"] - c["warm_fit_s"]
+        parts = {"the bare JAX process (interpreter, import, first dispatch)": fl["jax"], "the rest of start-up (ctfit's imports, reading the file, output)":
+                 max(rest - fl["jax"], 0.0), "loading the stored program": max(ip["first_s"] - ip["second_s"], 0.0), "the solve": ip["second_s"]}
+        name = max(parts, key=parts.get)
+        return f"{name} ({parts[name]:.2f} s of {c['warm']:.2f} s; " + ", ".join(f"{k.split(' (')[0]} {v:.2f} s" for k, v in parts.items() if k != name) + ")"
+
+    for n, goal in ((big, 10.0), (small, 2.0)):
+        if len(by_n) == 1 and n == big and goal == 10.0 and big < 100_000:
+            continue
+        c = by_n[n]
+        sp = c["scipy"] / c["warm"]
+        need = c["scipy"] / goal
+        rows.append((f"{n:,} scattered samples, warm: ≥ {goal:g}× SciPy", f"{_ratio(sp)} ({_s(c['warm'])} vs {_s(c['scipy'])})",
+                     "yes" if sp >= goal else f"no: needs ≤ {_s(need)}, {c['warm'] - need:.2f} s over", "" if sp >= goal else split(c)))
+    c = by_n[small]
+    r = c["cold"] / c["scipy"]
+    compile_s = c["cold_fit_s"] - c["warm_fit_s"]
+    rows.append((f"{small:,}, cold: ≤ 1.5× SciPy's time", f"{_ratio(r)} ({_s(c['cold'])} vs {_s(c['scipy'])})",
+                 "yes" if r <= 1.5 else f"no: {c['cold'] - 1.5 * c['scipy']:.2f} s over", "" if r <= 1.5 else f"tracing and compiling ({compile_s:.2f} s more in fit() than warm)"))
+    if "new" in c:
+        d = c["new"] - c["warm"]
+        rows.append((f"new sample count ({c['new_n']:,}): within 0.3 s of warm", f"{d:+.2f} s ({_s(c['new'])} vs {_s(c['warm'])})",
+                     "yes" if d <= 0.3 else f"no: {d - 0.3:.2f} s over", ""))
+    if bat:
+        r = bat["scipy"] / bat["ctfit"]
+        rows.append((f"{bat['files']} files × {bat['samples']:,} samples, one process: ≥ 20× a SciPy loop", f"{_ratio(r)} ({_s(bat['ctfit'])} vs {_s(bat['scipy'])})",
+                     "yes" if r >= 20 else f"no: needs ≤ {_s(bat['scipy'] / 20)}", ""))
+    if mer:
+        ok_t, ok_m = mer["warm"] <= 5.0, mer["peak_mb"] * 1.048576 <= 600
+        rows.append((f"MERL-sized ({mer['samples']:,} samples): ≤ 5 s warm, ≤ 600 MB peak", f"{_s(mer['warm'])}, {mer['peak_mb'] * 1.048576:.0f} MB",
+                     "yes" if ok_t and ok_m else "no: " + ", ".join(x for x, ok in ((f"{mer['warm'] - 5:.2f} s over", ok_t), (f"{mer['peak_mb'] * 1.048576 - 600:.0f} MB over", ok_m)) if not ok),
+                     "" if ok_t else f"fit() {mer['fit_s']:.2f} s of {mer['warm']:.2f} s"))
+    if mit and "skipped" not in mit:
+        fast = mit["ctfit"] < mit["peer"]
+        acc_f0, acc_a = mit["peer_df0"] / max(mit["ctfit_df0"], 1e-300), mit["peer_da"] / max(mit["ctfit_da"], 1e-300)
+        ok = fast and acc_f0 >= 10 and acc_a >= 10
+        rows.append(("Mitsuba peer: faster as a whole process, at ≥ 10× its accuracy",
+                     f"{_ratio(mit['peer'] / mit['ctfit'])} faster ({_s(mit['ctfit'])} vs {_s(mit['peer'])}); ΔF0 {acc_f0:.0f}×, α {acc_a:.0f}× more accurate",
+                     "yes" if ok else "no: " + ", ".join(x for x, good in (("slower", fast), (f"α only {acc_a:.1f}×", acc_a >= 10), (f"F0 only {acc_f0:.1f}×", acc_f0 >= 10)) if not good), ""))
     return rows
 
 
-SECTION = "## Fitting"
-
-
-def section(args, data, runs, scipy, merl) -> str:
-    """The Markdown section of docs/benchmarks.md, from this run's figures."""
-    import datetime
-
+def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) -> str:
     import jax
+    import scipy
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    cold, warm = runs
-    lines = [
-        SECTION,
-        "",
-        f"`scripts/bench_fit.py{' --quick' if args.quick else ''}` ({datetime.date.today().isoformat()}; {os.cpu_count()}-core "
-        f"{platform.machine()} CPU, load average {load:.1f} at the end of the run; Python {platform.python_version()}, JAX "
-        f"{jax.__version__} on CPU, float64). Standard case: two-lobe metal (m = 0.2, 0.4; w = 0.6, 0.4; F0 0.5 → 0.95), "
-        f"{data.n_bands} wavelengths 400–700 nm, {len(data) // data.n_bands:,} direction pairs × {data.n_bands} bands = "
-        f"{len(data):,} samples, 2 % noise, loss sigma. Peer: `scipy.optimize.least_squares(method=\"lm\")` on a NumPy "
-        "implementation of the same model, loss and parameterisation (`scripts/_numpy_model.py`), finite-difference "
-        "Jacobian, started from ctfit's best grid seed, in the same run. ctfit runs as a whole new process each time "
-        "(interpreter start to the end of the fit), first with an empty cache directory, then again with the cache "
-        "the first run left: JAX's persistent compilation cache and ctfit's store of exported fit programs "
-        "(`ctfit/_aot.py`), both enabled by the `ctfit` command.",
-        "",
-        "| run | wall time | final cost ½‖r‖² |",
-        "|---|---|---|",
-        f"| ctfit, whole process, empty cache | {cold['wall_s']:.2f} s (`fit()` {cold['fit_s']:.2f} s, imports + load {cold['startup_s']:.2f} s) | {cold['cost']:.6f} |",
-        f"| ctfit, whole process, cache from the first run | {warm['wall_s']:.2f} s (`fit()` {warm['fit_s']:.2f} s, imports + load {warm['startup_s']:.2f} s) | {warm['cost']:.6f} |",
-        f"| ctfit `fit()` called again in the same process (3 starts, the default) | {warm['fit_again_s']:.2f} s | {warm['cost']:.6f} |",
-        f"| ctfit `fit(..., starts=1)` in the same process (SciPy's start) | {warm['fit_one_start_s']:.2f} s | {warm['cost_one_start']:.6f} |",
-    ]
-    if scipy:
-        lines.append(f"| SciPy `least_squares(method=\"lm\")` | {scipy['time_s']:.2f} s ({scipy['nfev']} evaluations) | {scipy['cost']:.6f} |")
-    lines += ["", "ctfit recovery: " + warm["recovery"] + "."]
-    if scipy:
-        t = scipy["time_s"]
-        lines += [
-            "SciPy recovery: " + scipy["recovery"] + ".",
-            "",
-            f"Speed-up over SciPy: {t / cold['wall_s']:.1f}× (whole process, empty cache), {t / warm['wall_s']:.1f}× (whole "
-            f"process, cache from the first run), {t / warm['fit_again_s']:.1f}× (`fit()` again in process), "
-            f"{t / warm['fit_one_start_s']:.1f}× (`fit()` from SciPy's start). A new process cannot be faster than "
-            f"importing JAX and ctfit and reading the data ({warm['startup_s']:.2f} s here); SciPy's fit takes "
-            f"{t / warm['startup_s']:.1f}× that, so the ≥ 10× target for a whole process "
-            f"{'is met' if t / warm['wall_s'] >= 10 else 'is out of reach on this machine'}.",
-        ]
-    if merl:
-        lines += ["", f"MERL-sized case ({merl[0]['samples']:,} samples: direction pairs × 3 RGB channels, one lobe, relative loss, in process):", "",
-                  "| dtype | call | time | steps | m | F0 (R, G, B) | converged |", "|---|---|---|---|---|---|---|"]
-        for r in merl:
-            lines.append(f"| {r['dtype']} | {'first (compiles)' if r['call'] == 1 else 'second'} | {r['time_s']:.2f} s | {r['steps']} | {r['m']:.5f} | {', '.join(f'{x:.4f}' for x in r['f0'])} | {r['converged']} |")
-        lines += ["", "Truth: m = 0.15, F0 = (0.9, 0.7, 0.5)."]
-    return "\n".join(lines) + "\n"
+    cpu = _cpu_name()
+    reps = args.repeat
+    L = [SECTION, "",
+         f"`scripts/bench_fit.py{' --small' if args.small else ''} --repeat {reps}` ({datetime.date.today().isoformat()}; {os.cpu_count()}-core "
+         f"{cpu}, shared with other jobs: load average {load:.1f} at the end; Python {platform.python_version()}, JAX {jax.__version__} on CPU, NumPy "
+         f"{np.__version__}, SciPy {scipy.__version__}; the run took {(time.perf_counter() - started) / 60:.0f} min). Every time is a **whole process** "
+         f"(interpreter start to exit, measured from outside), the median of {reps} runs; the columns of a case alternate run by run. ctfit runs "
+         "as users run it, `ctfit fit FILE`, float64, with its cache folder (`JAX_COMPILATION_CACHE_DIR`: JAX's compilation cache and "
+         "ctfit's store of compiled fit programs) empty (**cold**: a new folder for every run, the first run on a machine) or filled by an "
+         "earlier run (**warm**). SciPy runs as its users would write it: a process that reads the same CSV with NumPy and calls "
+         "`scipy.optimize.least_squares(method=\"lm\")` (MINPACK, finite-difference Jacobian, default tolerances) on a NumPy "
+         "implementation of the same model and loss (`scripts/_numpy_model.py`; every sample its own F, as the data is scattered), "
+         "started from ctfit's default start (m = 0.1, 0.3; w = ½, ½; F0 = 0.5; s = 0.5 — the point ctfit's own grid seeding starts "
+         "from; ctfit's seeding and its 3 raced starts are inside its time)."]
+    if changed:
+        L += ["", "**Warning: ctfit's source changed during this run, so warm runs may have compiled again; these figures are not reliable.**"]
+    L += ["", "Floor — what any process of each kind costs here:", "", "| process | wall time |", "|---|---|",
+          f"| Python interpreter alone (`python -c pass`) | {_s(fl['python'])} |",
+          f"| bare JAX process (import, one tiny jitted call) | {_s(fl['jax'])} |",
+          f"| `ctfit --version` | {_s(fl['version'])} |", ""]
+    L += ["### Scattered samples", "",
+          "Every row its own direction pair, one of 31 bands (400–700 nm) at random; two lobes (m = 0.2, 0.4; w = 0.6, 0.4), s = 0.9 with "
+          "R_d = F0/π, F0 0.5 → 0.95, 2 % noise, relative loss (`ctfit fit FILE --lobes 2`).", "",
+          "| | " + " | ".join(f"{c['n']:,} samples" for c in cases) + " |", "|---|" + "---|" * len(cases)]
+
+    def row(label, fn):
+        L.append(f"| {label} | " + " | ".join(fn(c) for c in cases) + " |")
+
+    row("SciPy, whole process", lambda c: _s(c["scipy"]) + f" (fit {c['scipy_fit_s']:.2f} s, {c['scipy_nfev']} evaluations)")
+    if any("scipy_grid" in c for c in cases):
+        row("SciPy with F on the whole pair × band grid (31× the Fresnel work)", lambda c: _s(c["scipy_grid"]) if "scipy_grid" in c else "—")
+    row("ctfit, cold", lambda c: _s(c["cold"]) + f" (fit() {c['cold_fit_s']:.2f} s)")
+    row("ctfit, warm", lambda c: _s(c["warm"]) + f" (fit() {c['warm_fit_s']:.2f} s; peak {c['peak_mb']:.0f} MiB)")
+    row("ctfit, new sample count, warm cache", lambda c: f"{_s(c['new'])} ({c['new_n']:,} samples)" if "new" in c else "—")
+    row("in one warm process: `ctfit.fit` first call (loads the stored program) / second call", lambda c: f"{c['in_process']['first_s']:.2f} s / {c['in_process']['second_s']:.2f} s")
+    row("speed-up, warm (SciPy / ctfit)", lambda c: _ratio(c["scipy"] / c["warm"]))
+    row("cold / SciPy", lambda c: _ratio(c["cold"] / c["scipy"]))
+    row("final cost ½‖r‖², SciPy", lambda c: f"{c['scipy_cost']:.10g}")
+    row("final cost ½‖r‖², ctfit", lambda c: f"{c['ctfit_cost']:.10g}")
+    row("errors, SciPy: m (rel.), w, s, F0 (max abs.)", lambda c: "{m:.1e}, {w:.1e}, {s:.1e}, {f0:.1e}".format(**c["scipy_rec"]))
+    row("errors, ctfit", lambda c: "{m:.1e}, {w:.1e}, {s:.1e}, {f0:.1e}".format(**c["ctfit_rec"]))
+    if bat:
+        L += ["", "### Many files", "",
+              f"{bat['files']} files × {bat['samples']:,} scattered samples of one geometry (each its own truth and noise): one `ctfit fit DIR -o OUT "
+              "--lobes 2` process (warm) against one SciPy process looping over the files.", "",
+              "| SciPy loop | ctfit fit DIR | speed-up | ctfit peak memory | results | same cost (10⁻⁶) | lower cost: ctfit / SciPy |", "|---|---|---|---|---|---|---|",
+              f"| {_s(bat['scipy'])} | {_s(bat['ctfit'])} | {_ratio(bat['scipy'] / bat['ctfit'])} | {bat['peak_mb']:.0f} MiB | {bat['results']} "
+              f"({bat['converged']} converged) | {bat['same']} | {bat['ctfit_lower']} / {bat['scipy_lower']} |"]
+    if mer:
+        L += ["", "### MERL-sized", "",
+              f"A MERL `.binary` table of a one-lobe RGB metal (m = 0.15, F0 = 0.9, 0.7, 0.5, 2 % noise), {mer['pairs']:,} cells measured "
+              f"(× R, G, B = {mer['samples']:,} samples{'; a full table has 1,096,216 cells above the horizon' if mer['pairs'] < 1_000_000 else ', every cell above the horizon'}): "
+              "`ctfit fit FILE --lobes 1 --no-diffuse`.", "",
+              "| run | wall time | fit() | peak memory | m | F0 (R, G, B) | converged |", "|---|---|---|---|---|---|---|",
+              f"| warm | {_s(mer['warm'])} | {mer['fit_s']:.2f} s | {mer['peak_mb'] * 1.048576:.0f} MB | {mer['m']:.5f} | {', '.join(f'{x:.4f}' for x in mer['f0'])} | {mer['converged']} |",
+              f"| cold | {_s(mer['cold'])} | | {mer['cold_peak_mb'] * 1.048576:.0f} MB | | | |"]
+    L += ["", "### Per texel", ""]
+    if tex is None or "skipped" in tex:
+        L.append(f"Skipped: {tex['skipped'] if tex else 'not run (--no-texels)'}.")
+    else:
+        r0 = tex["rows"][0]
+        L += [f"`ctfit.fit_batch(geometry, values=...)` in one process: {r0['texels']:,} texels × {r0['samples']} samples (67 direction pairs × R, G, B), "
+              "one lobe, no diffuse part, F0 per channel; each texel its own m (0.1–0.3) and F0 (0.3–0.95), 2 % noise. Time of a call after a first, "
+              f"compiling one on {r0['warmup']:,} texels.", "",
+              "| dtype | texels per second | time | first call (compiles) | converged | median rel. error of m | median max ΔF0 |", "|---|---|---|---|---|---|---|"]
+        for r in tex["rows"]:
+            L.append(f"| {r['dtype']} | {r['per_s']:,.0f} | {_s(r['time_s'])} | {_s(r['first_s'])} | {r['converged']:.1%} | {r['m_err']:.1e} | {r['f0_err']:.1e} |")
+    L += ["", "### Against Mitsuba 3", ""]
+    if mit is None or "skipped" in mit:
+        L.append(f"Skipped: {mit['skipped'] if mit else 'not run (--no-mitsuba)'}.")
+    else:
+        t = mit["truth"]
+        L += [f"{mit['pairs']:,} direction pairs × RGB rendered by Mitsuba's `roughconductor` (Beckmann, copper: Mitsuba's η = "
+              f"{', '.join(f'{x:.3f}' for x in t['eta'])}, k = {', '.join(f'{x:.3f}' for x in t['k'])}, α = 0.15; {t['zeros']:.0%} of the values exactly 0). "
+              "The peer is the graphics community's own way to fit it: Dr.Jit autodiff through the same BSDF (`llvm_ad_rgb`, float32), "
+              "`mi.ad.Adam(lr=0.05)`, log loss, 1,000 iterations, α, η and k free, started from α = 0.3, η = 1.5, k = 2 "
+              f"(`scripts/_mitsuba_fit.py`; {mit['llvm']}). ctfit: `ctfit fit FILE --fresnel conductor --geometry smith --no-diffuse` (warm; its Smith G1 "
+              "is exact, Mitsuba's a rational approximation).", "",
+              "| | whole process | fit | max ΔF0 over R, G, B | relative α error |", "|---|---|---|---|---|",
+              f"| Mitsuba + Dr.Jit + Adam | {_s(mit['peer'])} | {mit['peer_fit_s']:.2f} s | {mit['peer_df0']:.1e} | {mit['peer_da']:.1e} |",
+              f"| ctfit | {_s(mit['ctfit'])} | {mit['ctfit_fit_s']:.2f} s | {mit['ctfit_df0']:.1e} | {mit['ctfit_da']:.1e} |"]
+    L += ["", "### Targets (issue 11)", "", "| target | measured | met | what dominates |", "|---|---|---|---|"]
+    L += [f"| {a} | {b} | {c} | {d} |" for a, b, c, d in targets(fl, cases, bat, mer, mit)]
+    L += ["", f"The floor caps a whole process: no ctfit run can be shorter than the bare JAX process ({_s(fl['jax'])} here), so a speed-up "
+          f"target of k× over a SciPy process of T seconds is out of reach whenever T/k is below it."]
+    return "\n".join(L) + "\n"
 
 
-def main():
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _source_digest() -> str:
+    h = hashlib.sha256()
+    for p in sorted((ROOT / "ctfit").glob("*.py")):
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", "--small", dest="quick", action="store_true", help="small version (1000 pairs; MERL-sized case at 100,000 pairs)")
+    ap.add_argument("--quick", "--small", dest="small", action="store_true", help="small version (2,000 samples, 8 files, MERL 100,000 pairs, 2,000 texels, no Mitsuba)")
+    ap.add_argument("--repeat", type=int, default=None, help="runs per figure (median); default 3, 1 with --small")
     ap.add_argument("--no-merl", action="store_true", help="skip the MERL-sized case")
-    ap.add_argument("--no-scipy", action="store_true", help="skip SciPy")
+    ap.add_argument("--no-batch", action="store_true", help="skip the many-files case")
+    ap.add_argument("--no-texels", action="store_true", help="skip the per-texel case")
+    ap.add_argument("--no-mitsuba", action="store_true", help="skip the Mitsuba peer")
     ap.add_argument("--docs", type=Path, help=f"write the section {SECTION!r} of DIR/benchmarks.md")
-    args = ap.parse_args()
-    n_pairs = 1000 if args.quick else 6452
+    args = ap.parse_args(argv)
+    args.repeat = args.repeat or (1 if args.small else 3)
+    started, digest = time.perf_counter(), _source_digest()
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    data = standard_case(n_pairs)
-    print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs; python {platform.python_version()}, jax {jax.__version__}")
-    print(f"standard case: two-lobe metal, {data.n_bands} bands, {len(data)} samples, 2 % noise, loss sigma")
-    with tempfile.TemporaryDirectory() as tmp:
-        npz = Path(tmp) / "standard.npz"
-        np.savez(npz, theta_i=data.theta_i, phi_i=data.phi_i, theta_o=data.theta_o, phi_o=data.phi_o, band=data.band,
-                 wavelength_nm=data.wavelength_nm, brdf=data.brdf, sigma=data.sigma)
-        cache = Path(tmp) / "jax-cache"
-        runs = []
-        for label in ("empty", "warm"):
-            r = run_ctfit_process(npz, cache)
-            r["recovery"] = recovery(r["m"], r["w"], r["f0"])
-            runs.append(r)
-            print(f"ctfit process ({label} cache): {r['wall_s']:.2f} s wall (fit() {r['fit_s']:.2f} s, imports + load {r['startup_s']:.2f} s), "
-                  f"cost {r['cost']:.6f}, {r['steps']} LM iterations, converged {r['converged']}; fit() again {r['fit_again_s']:.2f} s, "
-                  f"one start {r['fit_one_start_s']:.2f} s (cost {r['cost_one_start']:.6f})", flush=True)
-        print("ctfit recovery: " + runs[-1]["recovery"])
-
-    scipy = None
-    if not args.no_scipy:
-        import jax.numpy as jnp
-        from scipy.optimize import least_squares
-
-        from ctfit._fit import _default_start, _m_grid, _seed_points
-        from ctfit._problem import from_params, make_problem
-
-        st_seed = __import__("ctfit").Structure(lobes=2)
-        start = _default_start(st_seed, data)
-        pb = make_problem(st_seed, data, fixed_params=start, loss="sigma")
-        u0 = {k: jnp.asarray(v) for k, v in from_params(pb.spec, start).items()}
-        seed = jax.tree.map(lambda a: np.asarray(a)[0], _seed_points(pb, u0, 1, jnp.asarray(np.log(_m_grid(2)))))
-        x0 = np.concatenate([seed["f0"], seed["m"], seed["w"]])
-        nprob = NumpyProblem(data)
-        t = time.perf_counter()
-        sol = least_squares(nprob.residual, x0, method="lm")
-        t_scipy = time.perf_counter() - t
-        w_b = data.n_bands
-        w = np.exp(np.concatenate([[0.0], sol.x[w_b + 2 :]]))
-        scipy = dict(time_s=t_scipy, cost=sol.cost, nfev=sol.nfev, recovery=recovery(np.exp(sol.x[w_b : w_b + 2]), w / w.sum(), 1 / (1 + np.exp(-sol.x[:w_b]))))
-        print(f"SciPy least_squares(method='lm'): {t_scipy:.2f} s, cost {sol.cost:.6f}, {sol.nfev} function evaluations, status {sol.status}")
-        print("SciPy recovery: " + scipy["recovery"])
-        print(f"speed-up: {t_scipy / runs[0]['wall_s']:.1f}× (empty-cache process), {t_scipy / runs[1]['wall_s']:.1f}× (warm process), "
-              f"{t_scipy / runs[1]['fit_again_s']:.1f}× (fit() again in process), {t_scipy / runs[1]['fit_one_start_s']:.1f}× (one start)")
-
-    merl = None
-    if not args.no_merl:
-        merl = merl_case(100_000 if args.quick else 1_500_000, ("float32", "float64"))
+    print(f"machine: {_cpu_name()}, {os.cpu_count()} CPUs; python {platform.python_version()}, jax {jax.__version__}; {args.repeat} runs per figure", flush=True)
+    with tempfile.TemporaryDirectory(prefix="ctfit-bench-fit-") as tmp:
+        b = Bench(Path(tmp), args.repeat)
+        fl = floor(b)
+        sizes = [(2_000, 1_900)] if args.small else [(20_000, 19_000), (200_000, None)]
+        cases = [scattered(b, n, new, seed=1 + i, grid_peer=not args.small and n <= 20_000) for i, (n, new) in enumerate(sizes)]
+        bat = None if args.no_batch else batch(b, 8 if args.small else 256, 2_000, seed=7)
+        mer = None if args.no_merl else merl(b, 100_000 if args.small else None, seed=2)
+        tex = None if args.no_texels else texels(2_000 if args.small else 100_000, seed=3)
+        if args.no_mitsuba:
+            mit = None
+        elif args.small:
+            mit = _skip("not in --small (Dr.Jit's compile and 1,000 iterations are the full run's business)")
+        else:
+            mit = mitsuba(b, 20_000, seed=4)
+    changed = _source_digest() != digest
+    if changed:
+        print("warning: ctfit's source changed during the run: warm figures may include compiling", flush=True)
+    text = section(args, fl, cases, bat, mer, tex, mit, started, changed)
+    print(text)
     if args.docs:
         from _docs import write_section
 
-        text = section(args, data, runs, scipy, merl)
-        print(text)
         write_section(args.docs / "benchmarks.md", SECTION, text)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
