@@ -125,7 +125,7 @@ def _score_grid(problem: Problem, u0: dict, grid):
             cost = jnp.sum(wgt * (scale[problem.band] * v - y) ** 2)
         return jnp.where(jnp.isfinite(cost), cost, jnp.inf), scale
 
-    return jax.vmap(score)(grid)
+    return jax.lax.map(score, grid)  # one grid point at a time: memory O(N), not O(grid × N)
 
 
 def _seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool = False) -> dict:
