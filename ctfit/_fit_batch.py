@@ -4,18 +4,20 @@ Each measurement is prepared as :func:`~ctfit.fit` prepares it (checks, start, p
 start, grid of m). Measurements whose problems have the same layout — structure, loss, grid or
 pairs layout, bands, which data columns exist, dtype — form a group; inside a group every
 problem is padded to the group's largest number of direction pairs and samples (masked-out
-entries, as ``make_problem(pad=True)`` pads to a size bucket), stacked along a new leading axis,
-and solved by ``jax.vmap`` of the same program a single fit runs (``_fit_core``). Groups are
+entries, as ``make_problem(pad=True)`` pads to a size bucket) and stacked along a new leading
+axis, and one program maps the single fit's program (``_fit_core``) over them: ``width``
+members side by side (``jax.vmap``), those groups in sequence (:func:`mapped`). Groups are
 split into calls of at most :data:`SAMPLE_BUDGET` padded cells, and a call's batch size is
 rounded up to a size of the series ⌈2^(k/2)⌉ (1, 2, 3, 4, 6, 8, 12, 16, 23, 32, …) with
-copies of its first member, so that a folder of 37 files and one of 40 share one compiled
-program (stored on disk like a single fit's, :mod:`ctfit._aot`). A group of one runs the
-single-fit program itself.
+inactive copies of its first member, so that a folder of 37 files and one of 40 share one
+compiled program (stored on disk like a single fit's, :mod:`ctfit._aot`). A group of one runs
+the single-fit program itself.
 
-Every member's solver loop is part of one vmapped ``while_loop``: the call ends when its
-slowest member does (finished members are carried unchanged), which is correct and costs
-little when the members are alike. The report of each measurement (statistics, standard errors,
-warnings, residual structure) is made exactly as :func:`~ctfit.fit` makes it.
+Members side by side share one ``while_loop``: it ends when the slowest of them is done
+(finished members are carried unchanged) and both sides of the solver's branches are computed
+for all, which is correct and pays on an accelerator; on a CPU the members run one after the
+other by default (:func:`default_width`). The report of each measurement (statistics, standard
+errors, warnings, residual structure) is made exactly as :func:`~ctfit.fit` makes it.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from ._fit import FitResult, _finish, _fit_core, _prepare, _Prepared
 from ._material import Params, Structure
 from ._measurement import Measurement
 
-__all__ = ["fit_batch", "SAMPLE_BUDGET"]
+__all__ = ["fit_batch", "mapped", "default_width", "batch_size", "SAMPLE_BUDGET"]
 
 SAMPLE_BUDGET = 2**21
 """Padded samples (grid cells or pairs-layout samples) per batched call, all members together:
@@ -53,15 +55,17 @@ def fit_batch(
     max_steps: int = 256,
     values=None,
     return_errors: bool = False,
+    width: int | None = None,
 ) -> list:
-    """Fit ``structure`` to every measurement, in as few compiled, vmapped programs as possible.
+    """Fit ``structure`` to every measurement, in as few compiled programs as possible.
 
     Returns one :class:`~ctfit.FitResult` per measurement, in input order, each what
     :func:`~ctfit.fit` gives for it alone (to the solver's tolerance); ``stats["time_s"]`` is
     the batch's wall time shared equally. ``start``: one :class:`~ctfit.Params` for all, or a
     sequence with one (or None) per measurement; the other arguments as for :func:`~ctfit.fit`.
     ``return_errors``: a measurement that cannot be fitted (its ``ValueError``) is returned in
-    its place instead of raised, so the others still go on.
+    its place instead of raised, so the others still go on. ``width``: fits solved side by side
+    (vmapped) inside a program, the rest in sequence; None: :func:`default_width`.
 
     With ``values`` (texels × samples) and one measurement, the per-texel fit
     :func:`~ctfit.fit_texels` of that geometry: returns its :class:`~ctfit.TexelFits`.
@@ -70,8 +74,12 @@ def fit_batch(
         from ._fit_texels import fit_texels
 
         data = measurements if isinstance(measurements, Measurement) else _single(measurements)
-        return fit_texels(data, values, structure, start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
+        return fit_texels(data, values, structure, start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps,
+                          width=width)
     t0 = time.perf_counter()
+    width = default_width() if width is None else width
+    if width < 1:
+        raise ValueError(f"width must be ≥ 1, got {width}")
     measurements = list(measurements)
     begins = list(start) if isinstance(start, (list, tuple)) else [start] * len(measurements)
     if len(begins) != len(measurements):
@@ -86,7 +94,7 @@ def fit_batch(
             preps[i] = got
     for group in _groups(preps, solver, max_steps):
         for call in _calls(group, preps):
-            outs = _caught(lambda: _solve([preps[i] for i in call], solver, max_steps), return_errors)
+            outs = _caught(lambda: _solve([preps[i] for i in call], solver, max_steps, width), return_errors)
             for i, out in zip(call, outs if isinstance(outs, list) else [outs] * len(call)):
                 results[i] = out if isinstance(out, Exception) else _caught(lambda: _finish(preps[i], out, solver, time.perf_counter()), return_errors)
     share = (time.perf_counter() - t0) / max(len(measurements), 1)
@@ -174,20 +182,48 @@ def _calls(group: list[int], preps: dict[int, _Prepared]) -> list[list[int]]:
     return [group[a: a + size] for a in range(0, len(group), size)]
 
 
-def _solve(preps: list[_Prepared], solver: str, max_steps: int) -> list[dict]:
+def default_width() -> int:
+    """Fits solved side by side by default: 1 on a CPU (in sequence, inside the one program),
+    all of a call (2³⁰) on an accelerator. On a CPU a vmapped solve costs more per fit than
+    one after the other — every member computes both sides of the solver's branches (accepted
+    and rejected steps) and runs until the slowest member is done — while a GPU runs the
+    batch in the time of one fit."""
+    return 1 if jax.default_backend() == "cpu" else 1 << 30
+
+
+def mapped(fn, xs, active, width: int):
+    """``fn`` over the leading axis of the pytree ``xs``, ``width`` members side by side
+    (``jax.vmap``) and those groups in sequence (``jax.lax.map``). A member whose ``active`` is
+    False (padding) is skipped where it runs alone; side by side it is computed and discarded."""
+    n = active.shape[0]
+
+    def one(args):
+        x, on = args
+        out = jax.eval_shape(fn, x)
+        return jax.lax.cond(on, fn, lambda _: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), out), x)
+
+    if width >= n:
+        return jax.vmap(fn)(xs)
+    return jax.lax.map(one, (xs, active), batch_size=width if width > 1 else None)
+
+
+def _solve(preps: list[_Prepared], solver: str, max_steps: int, width: int) -> list[dict]:
     """``_fit_core``'s output (host arrays) for each of ``preps`` (equal signatures): one call."""
     first = preps[0]
     options = first.options(solver, max_steps)
     if len(preps) == 1:
         return [jax.device_get(cached_call("fit", _fit_core, first.problem, first.u0, first.grid, *options))]
-    members = preps + [first] * (batch_size(len(preps)) - len(preps))
-    stack = lambda *xs: jnp.stack(xs)  # noqa: E731
+    size = batch_size(len(preps))
+    members = preps + [first] * (size - len(preps))
+    stack = lambda *xs: np.stack(xs)  # noqa: E731 — on the host: no small programs to compile
     problems = jax.tree.map(stack, *(p.problem for p in members))
     u0s = jax.tree.map(stack, *(p.u0 for p in members))
-    out = jax.device_get(cached_call("fit_batch", _batched_core, problems, u0s, first.grid, *options))
+    active = np.arange(size) < len(preps)
+    width = min(width, size)
+    out = jax.device_get(cached_call("fit_batch", _batched_core, problems, u0s, active, first.grid, width, *options))
     return [jax.tree.map(lambda a: a[i], out) for i in range(len(preps))]
 
 
-def _batched_core(problems, u0s, grid, *options):
-    """``_fit_core`` vmapped over stacked problems and starts (the m grid is shared)."""
-    return jax.vmap(lambda problem, u0: _fit_core(problem, u0, grid, *options))(problems, u0s)
+def _batched_core(problems, u0s, active, grid, width: int, *options):
+    """``_fit_core`` over stacked problems and starts (the m grid shared), :func:`mapped`."""
+    return mapped(lambda pu: _fit_core(pu[0], pu[1], grid, *options), (problems, u0s), active, width)

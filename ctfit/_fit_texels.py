@@ -3,10 +3,11 @@
 ``fit_texels(measurement, values, structure, ...)`` fits every row of ``values`` (texels ×
 samples, the samples in the order of ``measurement``'s rows) as its own measurement of
 ``measurement``'s geometry and bands. The problem is laid out once (no size-bucket padding:
-every texel has the same size); texels are fitted ``chunk`` at a time by ``jax.vmap`` of the
-single-fit program (``_fit_core``) with the geometry shared, only the values and the relative
-loss's floor per texel — one compiled program for all chunks (the last one is filled up with
-copies of its last texel), stored on disk like a single fit's. ``values`` is read a chunk at a
+every texel has the same size); texels are fitted ``chunk`` at a time by the single-fit
+program (``_fit_core``) mapped over them (:func:`~ctfit._fit_batch.mapped`: ``width`` side by
+side, in sequence on a CPU by default) with the geometry shared, only the values and the
+relative loss's floor per texel — one compiled program for all chunks (the last one is filled
+up with inactive copies of its last texel), stored on disk like a single fit's. ``values`` is read a chunk at a
 time, so a memory-mapped or HDF5-backed array never needs to fit in memory.
 
 The result, :class:`TexelFits`, holds arrays with a leading texel axis — the parameters and
@@ -28,6 +29,7 @@ import numpy as np
 
 from ._aot import cached_call
 from ._fit import STATIONARY_TOLERANCE, FitResult, _effective_index, _fit_core, _prepare, fit
+from ._fit_batch import default_width, mapped
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
 from ._validate import representable_range
@@ -92,6 +94,7 @@ def fit_texels(
     starts: int = 3,
     max_steps: int = 256,
     chunk: int = CHUNK,
+    width: int | None = None,
 ) -> TexelFits:
     """Fit ``structure`` to every texel: ``values[t]`` is texel t's BRDF at ``measurement``'s rows.
 
@@ -99,7 +102,8 @@ def fit_texels(
     ``measurement``: the geometry and bands (its own brdf and sigma are not used; "auto" loss is
     the relative one). Every texel must be fit-able as :func:`~ctfit.fit` requires (finite values,
     not all 0, in the dtype's range): a ``ValueError`` names the first texel that is not. Other
-    arguments as for :func:`~ctfit.fit`; ``chunk`` texels are fitted per compiled call.
+    arguments as for :func:`~ctfit.fit`; ``chunk`` texels are fitted per compiled call, ``width``
+    of them side by side (vmapped; None: :func:`~ctfit._fit_batch.default_width`).
     """
     t0 = time.perf_counter()
     shape = getattr(values, "shape", None)
@@ -110,30 +114,35 @@ def fit_texels(
         raise ValueError("values has no texels (shape (0, samples))")
     if chunk < 1:
         raise ValueError(f"chunk must be ≥ 1, got {chunk}")
+    width = default_width() if width is None else width
+    if width < 1:
+        raise ValueError(f"width must be ≥ 1, got {width}")
     if loss == "sigma":
         raise ValueError("loss 'sigma' needs per-sample uncertainties, which per-texel values do not have; choose another loss")
     n_texels = shape[0]
     chunk = min(chunk, n_texels)
+    width = min(width, chunk)
     _check_values(values, chunk, dtype, measurement.source)
     template = measurement.replace(brdf=np.asarray(values[0], dtype=float), sigma=None)
     loss = "relative" if loss == "auto" else loss
     prep = _prepare(template, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
     prep = prep.padded((len(template.directions()[0]), len(template)))  # one size for every texel: no bucket padding
     problem, layout = prep.problem, _Layout(prep.problem, template)
-    options = prep.options(solver, max_steps)
+    core_options = prep.options(solver, max_steps)
     pending, outs = None, []  # one chunk dispatched while the previous one's results are fetched
     for a in range(0, n_texels, chunk):
         block = np.asarray(values[a: a + chunk], dtype=float)
+        active = np.arange(chunk) < len(block)
         block = np.concatenate([block, np.broadcast_to(block[-1:], (chunk - len(block), block.shape[1]))])
         ys, floors = layout(block, dtype)
-        run = cached_call("fit_texels", _texel_core, problem, ys, floors, prep.u0, prep.grid, *options)  # dispatched, not awaited
+        run = cached_call("fit_texels", _texel_core, problem, ys, floors, active, prep.u0, prep.grid, width, *core_options)  # dispatched, not awaited
         if pending is not None:
             outs.append(jax.device_get(pending))
         pending = run
     outs.append(jax.device_get(pending))
     out = jax.tree.map(lambda *xs: np.concatenate(xs)[:n_texels], *outs)
-    return _result(measurement, prep.structure, out, values, n_texels, t0, dict(start=start, fixed=fixed, loss=loss, solver=solver,
-                                                                                 dtype=dtype, starts=starts, max_steps=max_steps))
+    options = dict(start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
+    return _result(measurement, prep.structure, out, values, n_texels, t0, options)
 
 
 def _check_values(values, chunk: int, dtype, source: str) -> None:
@@ -168,14 +177,15 @@ class _Layout:
             ys = block
         positive = np.where(block > 0, block, -np.inf).max(axis=1)
         floors = np.where(np.isfinite(positive), 1e-3 * positive, 1.0)
-        return jnp.asarray(ys, dtype=dtype), jnp.asarray(floors, dtype=dtype)
+        return ys.astype(dtype), floors.astype(dtype)
 
 
-def _texel_core(problem, ys, floors, u0, grid, *options):
-    """``_fit_core`` vmapped over the texels' values (geometry and start shared); per texel the
+def _texel_core(problem, ys, floors, active, u0, grid, width: int, *options):
+    """``_fit_core`` mapped over the texels' values (geometry and start shared); per texel the
     parameters and the cheap statistics only (the rest of the program is dead code to XLA)."""
 
-    def one(y, floor):
+    def one(texel):
+        y, floor = texel
         p = eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor))
         out = _fit_core(p, u0, grid, *options)
         best = out["best"]
@@ -186,7 +196,7 @@ def _texel_core(problem, ys, floors, u0, grid, *options):
                     gauss_newton_decrease=out["gn_decrease"], rmse=jnp.sqrt(jnp.sum(err**2) / n), rel_rmse=jnp.sqrt(jnp.sum(rel**2) / n),
                     finite=jnp.all(jnp.isfinite(out["pred"])))
 
-    return jax.vmap(one)(ys, floors)
+    return mapped(one, (ys, floors), active, width)
 
 
 def _result(measurement, structure: Structure, out, values, n_texels: int, t0: float, options: dict) -> TexelFits:

@@ -8,6 +8,7 @@ The writing itself is :func:`ctfit._fileio.atomic_write`.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import stat
@@ -29,13 +30,23 @@ class OutputError(ValueError):
     """An output path that would lose or damage a file, or cannot be written; the message names it."""
 
 
-def _same_file(a: Path, b: Path) -> bool:
+def _identity(p: Path):
+    """What makes two paths the same file: device and inode where it exists, else the resolved path."""
     try:
-        if a.exists() and b.exists():
-            return os.path.samefile(a, b)
+        st = p.stat()
+        return ("inode", st.st_dev, st.st_ino)
     except OSError:
-        pass
-    return a.resolve() == b.resolve()
+        return ("path", str(p.resolve()))
+
+
+@functools.lru_cache(maxsize=4096)
+def _input_identity(p: str):
+    """:func:`_identity` of an input, looked up once per run (inputs are read, never written)."""
+    return _identity(Path(p))
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    return _identity(a) == _input_identity(str(b))
 
 
 def _at(option: str, path) -> str:

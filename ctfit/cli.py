@@ -319,20 +319,23 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
     """Fit every file; several: a failure is one error line and the rest go on. [(outcome, what)].
 
     Several files fitted with one structure (not ``--lobes auto``, not ``--sample``) are fitted
-    together by ``fit_batch`` (one compiled, vmapped program per layout) and then reported file
-    by file, as they would be one at a time."""
+    together by ``fit_batch``, a window of files at a time (:func:`_fit_together`), and then
+    reported file by file, as they would be one at a time."""
     from ._progress import bar, echo
 
-    together = _fit_together(files, o, base, show) if len(files) > 1 and not o.sample_ and not (o.lobes == "auto" and base is None) else None
-    outcomes = []
-    for path in bar(files, desc="files", enabled=show and len(files) > 1):
+    together = len(files) > 1 and not o.sample_ and not (o.lobes == "auto" and base is None)
+    outcomes, fitted = [], {}
+    for k, path in enumerate(bar(files, desc="files", enabled=show and len(files) > 1)):
         try:
-            if together is None:
+            if not together:
                 converged = _fit_file(path, o, base, plan[path], show)
-            elif isinstance(together[path], Exception):
-                raise together[path]
             else:
-                converged = _report_file(path, *together[path], o, plan[path], show)
+                if path not in fitted:
+                    fitted = _fit_together(files[k:], o, base)
+                got = fitted.pop(path)
+                if isinstance(got, Exception):
+                    raise got
+                converged = _report_file(path, *got, o, plan[path], show)
             outcomes.append(("converged" if converged else "not converged", str(path)))
         except (UserError, ValueError, OSError, KeyError) as e:
             if len(files) == 1:
@@ -363,21 +366,25 @@ def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool) -> bool:
     return _report_file(path, meas, _fit_measurement(meas, o, base, show), o, t, show)
 
 
-def _fit_together(files: list[Path], o, base, show: bool) -> dict:
-    """Every file read and all fitted by ``fit_batch``: path → (measurement, FitResult), or the
-    exception that stopped that file (reading it, its start, or its fit)."""
-    from ._fit_batch import fit_batch
+def _fit_together(files: list[Path], o, base) -> dict:
+    """The first of ``files`` read — one at least, more while they hold fewer than
+    ``SAMPLE_BUDGET`` samples in all, so memory stays bounded — and fitted by ``fit_batch``:
+    path → (measurement, FitResult), or the exception that stopped that file (reading it, its
+    start, or its fit)."""
+    from ._fit_batch import SAMPLE_BUDGET, fit_batch
     from ._fit_io import start_from_material
-    from ._progress import bar
 
     st = _structure_from_options(base.structure if base else None, int(o.lobes) if o.lobes != "auto" else 1, o.geometry, o.fresnel, o.diffuse)
     done: dict = {}
-    ready, fixed = [], ()
-    for path in bar(files, desc="reading", enabled=show):
+    ready, fixed, held = [], (), 0
+    for path in files:
+        if held >= SAMPLE_BUDGET:
+            break
         try:
             meas = _read_data(path, o.param_out)
             start, fixed = start_from_material(base, st, meas) if base else (None, ())
             ready.append((path, meas, start))
+            held += len(meas)
         except (UserError, ValueError, OSError, KeyError) as e:
             done[path] = e
     fits = fit_batch([m for _, m, _ in ready], st, start=[s for _, _, s in ready], fixed=fixed, return_errors=True, **_fit_kwargs(o))

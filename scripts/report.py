@@ -3,7 +3,7 @@
 Runs, one after another so that their timings do not disturb each other:
 
 - ``bench_eval.py``     → docs/benchmarks.md, "## Model evaluation" (model throughput vs NumPy)
-- ``bench_fit.py``      → docs/benchmarks.md, "## Fitting" (fit vs SciPy; MERL-sized fit)
+- ``bench_fit.py``      → docs/benchmarks.md, "## Fitting" (whole processes vs SciPy and Mitsuba; many files, MERL-sized, per texel)
 - ``coverage.py`` (sigma, absolute and relative likelihoods) and ``bench_sample.py``
                         → docs/benchmarks.md, "## Sampling" (emcee speed vs NumPy; coverage)
 - ``bench_color.py``    → docs/benchmarks.md, "## Colour: error against run time", and its plot

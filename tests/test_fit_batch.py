@@ -56,12 +56,10 @@ def assert_same_fit(batch, alone):
 
 def test_batch_equals_fitting_each_alone_in_input_order():
     grid = same_geometry([0.12, 0.25, 0.4])
-    bigger = same_geometry([0.3], n_pairs=300, seed=1)[0]  # another size bucket: padded to it in the batch
-    pairs = [scattered(300, 2), scattered(600, 3, m=0.15)]  # another layout: a second group, padded 363 → 724 samples
-    three = np.array([450.0, 550.0, 650.0])
-    lonely = ctfit.simulate(material(0.2, (0.5, 0.6, 0.7), three), 50, noise=0.01, seed=4)  # three bands: a group of one
-    data = [grid[0], pairs[0], grid[1], bigger, pairs[1], grid[2], lonely]
-    batch = ctfit.fit_batch(data, ST)
+    other = same_geometry([0.3], n_pairs=200, seed=1)[0]  # another geometry and size, the same layout
+    pairs = [scattered(300, 2), scattered(600, 3, m=0.15)]  # another layout, another size bucket: padded 363 → 724 samples
+    data = [grid[0], pairs[0], grid[1], other, pairs[1], grid[2]]
+    batch = ctfit.fit_batch(data, ST, width=2)  # side by side (vmapped): 4 fits two at a time, 2 fits at once
     assert len(batch) == len(data)
     for d, b in zip(data, batch):
         assert b.material.name == f"fit of {d.source}"
@@ -69,12 +67,15 @@ def test_batch_equals_fitting_each_alone_in_input_order():
 
 
 def test_groups_pad_to_the_largest_member_and_keep_layouts_apart():
-    preps = {i: ctfit._fit._prepare(d, ST, start=None, fixed=(), loss="auto", dtype=np.float64, starts=3)
-             for i, d in enumerate([*same_geometry([0.2, 0.3]), same_geometry([0.3], n_pairs=300)[0], scattered(300, 1)])}
+    three = ctfit.simulate(material(0.2, (0.5, 0.6, 0.7), np.array([450.0, 550.0, 650.0])), 100, seed=4)  # three bands
+    data = [*same_geometry([0.2, 0.3]), same_geometry([0.3], n_pairs=300)[0], scattered(300, 1), three]
+    preps = {i: ctfit._fit._prepare(d, ST, start=None, fixed=(), loss="auto", dtype=np.float64, starts=3) for i, d in enumerate(data)}
     groups = _fit_batch._groups(preps, "lm", 256)
-    assert sorted(groups) == [[0, 1, 2], [3]]
+    assert sorted(groups) == [[0, 1, 2], [3], [4]]
     assert {preps[i].problem.y.shape for i in (0, 1, 2)} == {(ctfit._problem.bucket(300), 2)}
     assert float(preps[0].problem.mask.sum()) == 200
+    with pytest.raises(ValueError, match=r"pad_to=\(10, 10\) is smaller than the data \(100 direction pairs, 200 samples\)"):
+        preps[0].padded((10, 10))
 
 
 def test_a_measurement_that_cannot_be_fitted_is_returned_as_its_error():
@@ -122,7 +123,7 @@ def test_one_compiled_program_solves_the_batch(compiled):
 def test_fit_dir_uses_one_batch_and_matches_fitting_each_file(tmp_path, monkeypatch):
     folder = tmp_path / "data"
     folder.mkdir()
-    for i, d in enumerate([*same_geometry([0.15, 0.25, 0.35]), same_geometry([0.3], n_pairs=250, seed=2)[0]]):
+    for i, d in enumerate([*same_geometry([0.15, 0.25, 0.35]), same_geometry([0.3], n_pairs=200, seed=2)[0]]):
         ctfit.write_csv(d, folder / f"m{i}.csv")
     (folder / "zeros.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n" + "".join(f"{t},0,{t},180,450,0\n" for t in (10, 20, 30, 40)))
     calls = []
@@ -130,19 +131,28 @@ def test_fit_dir_uses_one_batch_and_matches_fitting_each_file(tmp_path, monkeypa
     monkeypatch.setattr(_fit_batch, "fit_batch", lambda ms, *a, **kw: calls.append(len(ms)) or real(ms, *a, **kw))
     runner = CliRunner()
     out = tmp_path / "fits"
-    r = runner.invoke(app, ["fit", str(folder), "-o", str(out)])
+    r = runner.invoke(app, ["fit", str(folder), "--no-diffuse", "-o", str(out)])
     assert r.exit_code == 2, r.output
     assert calls == [5]
     assert "summary: 5 files: 4 converged, 0 did not converge, 1 failed" in r.stderr
     assert f"error: {folder / 'zeros.csv'}" in r.stderr and "every brdf is 0" in r.stderr
     for i in range(4):
         alone = tmp_path / f"m{i}.json"
-        assert runner.invoke(app, ["fit", str(folder / f"m{i}.csv"), "-o", str(alone)]).exit_code == 0
+        assert runner.invoke(app, ["fit", str(folder / f"m{i}.csv"), "--no-diffuse", "-o", str(alone)]).exit_code == 0
         assert_same_numbers(json.loads((out / f"m{i}.fit.json").read_text()), json.loads(alone.read_text()))
+    # Files are read and fitted a window at a time: the next file is read while fewer samples are held.
+    calls.clear()
+    monkeypatch.setattr(_fit_batch, "SAMPLE_BUDGET", 300)  # files of 200, 200, 200, 400 and 4 samples
+    windows = tmp_path / "windows"
+    r = runner.invoke(app, ["fit", str(folder), "--no-diffuse", "-o", str(windows)])
+    assert r.exit_code == 2 and calls == [2, 2, 1]
+    assert "summary: 5 files: 4 converged, 0 did not converge, 1 failed" in r.stderr
+    for i in range(4):
+        assert_same_numbers(json.loads((windows / f"m{i}.fit.json").read_text()), json.loads((out / f"m{i}.fit.json").read_text()))
 
 
 def assert_same_numbers(a, b, where="doc"):
-    """Equal JSON documents, numbers to 1e-8 relative; the fit's time aside."""
+    """Equal JSON documents, numbers to 1e-8 relative (the stationarity measure to 1e-9 absolute); the fit's time aside."""
     if isinstance(b, dict):
         assert set(a) == set(b), where
         for k in b:
@@ -153,7 +163,9 @@ def assert_same_numbers(a, b, where="doc"):
         for i, (x, y) in enumerate(zip(a, b)):
             assert_same_numbers(x, y, f"{where}[{i}]")
     elif isinstance(b, float):
-        assert a == pytest.approx(b, rel=1e-8, abs=1e-300, nan_ok=True), where
+        # The predicted decrease at a converged point is rounding (~1e-13): equal to 1e-9 absolute.
+        tiny = 1e-9 if where.endswith("gauss_newton_decrease") else 1e-300
+        assert a == pytest.approx(b, rel=1e-8, abs=tiny, nan_ok=True), where
     else:
         assert a == b, where
 

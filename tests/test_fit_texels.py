@@ -50,7 +50,7 @@ def test_texels_recover_their_parameters_chunk_by_chunk(texels, tmp_path):
 
 def test_fit_batch_with_values_is_the_texel_fit(texels):
     geometry, values, truth = texels
-    res = ctfit.fit_batch([geometry], ST, values=values[:8], dtype=jnp.float32)
+    res = ctfit.fit_batch([geometry], ST, values=values[:8], dtype=jnp.float32, width=8)  # all 8 side by side (vmapped)
     assert isinstance(res, ctfit.TexelFits) and len(res) == 8 and res.stats["dtype"] == "float32"
     assert res.params.m.dtype == np.float32
     np.testing.assert_allclose(res.params.m[:, 0], truth["m"][:8], rtol=0.03)

@@ -1,0 +1,139 @@
+"""scripts/bench_fit.py's parts: the SciPy peer computes ctfit's model from ctfit's default start,
+reads what ctfit writes, whole processes are measured, and the targets are judged right."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROOT, load_script
+
+import ctfit
+from ctfit._fit import _default_start
+
+sys.path.insert(0, str(ROOT / "scripts"))  # the scripts import their helpers by name
+import _bench_fit_data as data  # noqa: E402
+import _numpy_model as model  # noqa: E402
+import _whole_process as proc  # noqa: E402
+
+bench = load_script("bench_fit")
+
+
+def _u(f0, m, w, s=None):
+    u = [np.log(f0 / (1 - f0)), np.log(m), np.log(w[1:] / w[0])]
+    return np.concatenate(u + ([[np.log(s / (1 - s))]] if s is not None else []))
+
+
+def test_numpy_model_with_diffuse_part_is_ctfits_model_on_scattered_samples():
+    """Every sample its own pair and band: R = s R_s + (1 − s) F0/π, as ctfit evaluates it."""
+    geometry = data.scattered_geometry(3000, seed=5)
+    f0 = np.linspace(0.3, 0.9, 31)
+    mat = data.scattered_material(m=[0.12, 0.5], w=[0.3, 0.7], s=0.7, f0=f0)
+    ref = ctfit.evaluate(mat, geometry)
+    nd = model.NumpyData(geometry.theta_i, geometry.phi_i, geometry.theta_o, geometry.phi_o, geometry.band, 31, ref)
+    prob = model.NumpyProblem(nd, lobes=2, loss="relative", diffuse=True)
+    assert not prob.grid
+    got = prob.model(_u(f0, np.array([0.12, 0.5]), np.array([0.3, 0.7]), 0.7))
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-14)
+    assert np.max(np.abs(prob.residual(_u(f0, np.array([0.12, 0.5]), np.array([0.3, 0.7]), 0.7)))) < 1e-12
+
+
+def test_numpy_model_metal_on_a_grid_is_unchanged():
+    """The layout ``fit_tradeoffs.py`` uses (every pair in every band, d = 0) still computes ctfit's model."""
+    st = ctfit.Structure(lobes=2)
+    f0 = np.linspace(0.5, 0.95, 8)
+    mat = ctfit.Material(st, ctfit.Params(m=np.array([0.2, 0.4]), w=np.array([0.6, 0.4]), f0=f0), wavelength_nm=np.linspace(400, 700, 8))
+    d = ctfit.simulate(mat, 200, seed=1)
+    prob = model.NumpyProblem(d, lobes=2, loss="absolute")
+    assert prob.grid
+    np.testing.assert_allclose(prob.model(_u(f0, np.array([0.2, 0.4]), np.array([0.6, 0.4]))), d.brdf, rtol=1e-12, atol=1e-14)
+
+
+def test_numpy_reader_reads_what_ctfit_writes(tmp_path):
+    path = data.write_scattered(tmp_path / "s.csv", 500, seed=2)
+    ours, theirs = model.read_csv_numpy(path), ctfit.read_csv(path)
+    for name in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf"):
+        np.testing.assert_array_equal(getattr(ours, name), getattr(theirs, name), err_msg=name)
+    assert ours.n_bands == theirs.n_bands == 31 and ours.sigma is None
+
+
+def test_scipy_start_is_ctfits_default_start():
+    """The docs say SciPy starts where ctfit's seeding starts; ctfit's default must still be that point."""
+    geometry = data.scattered_geometry(100, seed=1)
+    start = _default_start(data.SCATTERED, geometry)
+    nd = model.NumpyData(geometry.theta_i, geometry.phi_i, geometry.theta_o, geometry.phi_o, geometry.band, 31, np.ones(100))
+    f0, m, w, s = model.NumpyProblem(nd, lobes=2, loss="relative", diffuse=True).params(np.asarray(data.default_start_x0(2, 31, True)))
+    np.testing.assert_allclose(f0, start.f0)
+    np.testing.assert_allclose(m, start.m)
+    np.testing.assert_allclose(w, start.w)
+    np.testing.assert_allclose(s, start.s)
+
+
+def test_scattered_case_has_every_row_its_own_pair_and_all_bands():
+    d = data.noisy(data.scattered_material(), data.scattered_geometry(4000, seed=1), seed=1)
+    assert len(d.directions()[0]) == len(d) == 4000
+    assert set(np.unique(d.band)) == set(range(31)) and d.sigma is None and np.all(d.brdf >= 0)
+
+
+def test_scipy_process_reaches_the_truth(tmp_path):
+    """The SciPy peer as a whole process: it fits a scattered file from the default start."""
+    path = data.write_scattered(tmp_path / "s.csv", 3000, seed=3)
+    start = bench.scipy_start(tmp_path / "start.json", 2, 31, True)
+    done = subprocess.run([sys.executable, str(ROOT / "scripts" / "_scipy_fit.py"), str(start), str(path), "--diffuse"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    out = json.loads(done.stdout)
+    assert out["status"] > 0 and bench.recovery(out)["m"] < 0.02 and abs(out["s"] - 0.9) < 0.02
+
+
+def test_whole_process_accounting():
+    """Wall time, exit status and the child's own peak memory (not this process's)."""
+    r = proc.run([sys.executable, "-c", "import sys, time; b = bytearray(200 * 2**20); time.sleep(0.2); sys.exit(3)"])
+    assert r.returncode == 3 and r.wall_s >= 0.2 and r.peak_mb >= 200
+    with pytest.raises(RuntimeError, match="the child exited with 3"):
+        r.check("the child")
+    ok = proc.run([sys.executable, "-c", "print('hi')"]).check("echo")
+    assert ok.stdout == "hi\n" and ok.peak_mb < 200
+
+
+def _case(n, scipy, warm, cold, new=None):
+    c = dict(n=n, scipy=scipy, warm=warm, cold=cold, warm_fit_s=0.5, cold_fit_s=cold - warm + 0.5, in_process=dict(first_s=0.5, second_s=0.1))
+    if new is not None:
+        c.update(new=new, new_n=n - n // 20, new_fit_s=new - warm + 0.5)
+    return c
+
+
+def test_targets_are_judged_by_the_issue_thresholds():
+    fl = dict(jax=0.6)
+    rows = bench.targets(fl, [_case(20_000, 2.0, 1.0, 3.0, new=1.2), _case(200_000, 20.0, 2.1, 5.0)], None, None, None)
+    met = {r[0]: r[2] for r in rows}
+    assert met["200,000 scattered samples, warm: ≥ 10× SciPy"].startswith("no: needs ≤ 2.00 s, 0.10 s over")
+    assert met["20,000 scattered samples, warm: ≥ 2× SciPy"] == "yes"
+    assert met["20,000, cold: ≤ 1.5× SciPy's time"] == "yes"
+    assert met["new sample count (19,000): within 0.3 s of warm"] == "yes"
+    rows = bench.targets(fl, [_case(20_000, 2.0, 1.1, 3.1, new=1.5), _case(200_000, 20.0, 1.9, 5.0)], None,
+                         dict(samples=3_288_648, warm=5.5, peak_mb=500.0, fit_s=4.0), None)
+    met = {r[0]: (r[2], r[3]) for r in rows}
+    assert met["200,000 scattered samples, warm: ≥ 10× SciPy"][0] == "yes"
+    assert met["20,000 scattered samples, warm: ≥ 2× SciPy"][0].startswith("no")
+    assert met["20,000 scattered samples, warm: ≥ 2× SciPy"][1].startswith("the bare JAX process: 0.60 s of 1.10 s")
+    assert met["20,000, cold: ≤ 1.5× SciPy's time"][0] == "no: 0.10 s over"
+    assert met["new sample count (19,000): within 0.3 s of warm"][0] == "no: 0.10 s over"
+    assert met["MERL-sized (3,288,648 samples): ≤ 5 s warm, ≤ 600 MB peak"][0] == "no: 0.50 s over"
+
+
+def test_a_failed_case_is_not_measured_rather_than_judged():
+    rows = bench.targets(dict(jax=0.6), [dict(n=20_000, failed="ctfit (warm) did not finish in 300 s (killed)"), _case(200_000, 20.0, 1.9, 5.0)],
+                         dict(files=256, failed="ctfit fit DIR exited with 2"), None, None)
+    met = {r[0]: r[2] for r in rows}
+    assert met["20,000 scattered samples, warm: ≥ 2× SciPy"] == "not measured: ctfit (warm) did not finish in 300 s (killed)"
+    assert met["20,000, cold: ≤ 1.5× SciPy's time"].startswith("not measured")
+    assert met["256 files × 2,000 samples, one process: ≥ 20× a SciPy loop"] == "not measured: ctfit fit DIR exited with 2"
+    assert met["200,000 scattered samples, warm: ≥ 10× SciPy"] == "yes"
+
+
+def test_a_hanging_process_is_killed_at_the_limit():
+    r = proc.run([sys.executable, "-c", "import time; time.sleep(30)"], timeout=0.5)
+    assert r.timed_out and r.returncode == -9 and 0.5 <= r.wall_s < 10
+    with pytest.raises(RuntimeError, match=r"did not finish in \d+ s \(killed\)"):
+        r.check("the sleeper")
