@@ -204,14 +204,18 @@ def scipy_start(d):
     import jax.numpy as jnp  # noqa: PLC0415
 
     from ctfit._fit import _default_start, _m_grid, _seed_points  # noqa: PLC0415
-    from ctfit._problem import from_params, make_problem  # noqa: PLC0415
+    from ctfit._problem import from_params, make_problem, to_params  # noqa: PLC0415
 
     st = d["structure"]
     start = _default_start(st, d["data"])
     pb = make_problem(st, d["data"], fixed_params=start, loss="sigma")
     u0 = {k: jnp.asarray(v) for k, v in from_params(pb.spec, start).items()}
     seed = jax.tree.map(lambda a: np.asarray(a)[0], _seed_points(pb, u0, 1, jnp.asarray(np.log(_m_grid(st.lobes)))))
-    return np.concatenate([seed["f0"], seed["m"]] + ([seed["w"]] if "w" in seed else []))
+    # ctfit's seed is in its bounded coordinates (F0, log m, stick fractions); SciPy's model takes
+    # logit F0, log m and the weights' logits against w_0: the sampler's unconstrained coordinates.
+    params = to_params(pb.spec, seed, pb.fixed)
+    u = from_params(dataclasses.replace(pb.spec, space="unconstrained"), params)
+    return np.concatenate([u["f0"], u["m"]] + ([u["w"]] if "w" in u else []))
 
 
 def run_scipy(d, method: str, loss: str, x0) -> dict:

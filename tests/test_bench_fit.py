@@ -137,3 +137,15 @@ def test_a_hanging_process_is_killed_at_the_limit():
     assert r.timed_out and r.returncode == -9 and 0.5 <= r.wall_s < 10
     with pytest.raises(RuntimeError, match=r"did not finish in \d+ s \(killed\)"):
         r.check("the sleeper")
+
+
+def test_cache_folder_is_put_back_in_place(tmp_path):
+    """The new-size runs leave the cache as they found it, at the same path (JAX's keys include it)."""
+    b = bench.Bench(tmp_path, 1)
+    cache = b.folder("warm-cache")
+    (cache / "entry").write_text("compiled")
+    saved = b.backup(cache)
+    (cache / "added-by-new-size").write_text("x")
+    (cache / "entry").write_text("changed")
+    b.restore(saved, cache)
+    assert sorted(p.name for p in cache.iterdir()) == ["entry"] and (cache / "entry").read_text() == "compiled"
