@@ -225,7 +225,8 @@ def _run_solver(solver, y0, data, budget):
         return y, k + 1, eqx.partition(st, eqx.is_array)[0], done, result
 
     y, k, _, done, result = jax.lax.while_loop(cond, body, (y0, jnp.zeros((), jnp.int32), dynamic, done, result))
-    return y, done & (result == optx.RESULTS.successful), k
+    sound = result == optx.RESULTS.successful  # no numerical failure (a spent budget is none)
+    return y, done & sound, k, sound
 
 
 def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
@@ -250,7 +251,7 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     tasks = jnp.arange(2 * n if race else n)
 
     def task(carry, i):
-        values, ok, steps, costs = carry
+        values, ok, steps, costs, sound = carry
         j = i % n
         if race:
             second = i >= n
@@ -258,17 +259,21 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
             budget = jnp.where(second, jnp.where(go, max_steps - RACE_STEPS, 0), RACE_STEPS)
         else:
             budget = jnp.asarray(max_steps)
-        v, o, k = _run_solver(solver, values[j], data, budget)
+        v, o, k, fine = _run_solver(solver, values[j], data, budget)
         c = _half_squared_norm(v, data)
         keep = k > 0  # a seed that did not go on keeps what it had
         values = values.at[j].set(jnp.where(keep, v, values[j]))
         ok = ok.at[j].set(jnp.where(keep, o, ok[j]))
+        sound = sound.at[j].set(jnp.where(keep, fine, sound[j]))
         costs = costs.at[j].set(jnp.where(keep, jnp.where(jnp.isfinite(c), c, jnp.inf), costs[j]))
-        return (values, ok, steps.at[j].add(k), costs), None
+        return (values, ok, steps.at[j].add(k), costs, sound), None
 
-    init = (flat_seeds, jnp.zeros(n, bool), jnp.zeros(n, jnp.int32), jnp.full(n, jnp.inf, flat_seeds.dtype))
-    (values, ok, steps, costs), _ = jax.lax.scan(task, init, tasks)
-    return jax.vmap(unravel)(values), ok, steps, costs
+    init = (flat_seeds, jnp.zeros(n, bool), jnp.zeros(n, jnp.int32), jnp.full(n, jnp.inf, flat_seeds.dtype), jnp.ones(n, bool))
+    (values, ok, steps, costs, sound), _ = jax.lax.scan(task, init, tasks)
+    # Reported per seed: no numerical failure. Whether the point is a minimum is judged after the
+    # solve, by first-order optimality on the free variables (``STATIONARY_TOLERANCE``), so a
+    # stationary point reached at the step limit (a flat valley the data does not determine) counts.
+    return jax.vmap(unravel)(values), sound, steps, costs
 
 
 def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
@@ -284,7 +289,8 @@ def _solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int
         else:
             sol = optx.least_squares(residual, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
         r = residual(sol.value, (problem.y, problem))
-        return sol.value, sol.result == optx.RESULTS.successful, sol.stats["num_steps"], 0.5 * jnp.sum(r * r)
+        sound = (sol.result == optx.RESULTS.successful) | (sol.result == optx.RESULTS.nonlinear_max_steps_reached)
+        return sol.value, sound, sol.stats["num_steps"], 0.5 * jnp.sum(r * r)
 
     return jax.vmap(one)(seeds)
 
@@ -586,6 +592,8 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more --max-steps, or another start)"
         notes.append(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}")
+    if not bool(np.asarray(ok)[best]):
+        notes.append("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (without --float32), from another start, or with fewer lobes")
     return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)
 
 

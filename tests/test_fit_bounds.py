@@ -1,0 +1,61 @@
+"""Bounds held by the solver: a parameter that belongs on its bound ends there in a few steps,
+and the fit converges (a bound that holds is a result, not a failure)."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ctfit
+from ctfit._material_io import load_material
+from ctfit._problem import _stick_fractions, _weights
+from ctfit._simulate import simulate
+from ctfit._solvers import active_set, predicted_decrease
+from conftest import ROOT
+
+
+def test_metal_with_the_default_structure_converges_in_few_steps():
+    """Copper (conductor Fresnel, no diffuse part) fitted with the default one lobe + diffuse:
+    s runs to its upper bound; it used to crawl there through a sigmoid (156 steps)."""
+    cu = load_material(ROOT / "configs" / "copper.toml")
+    data = simulate(cu, 2000, wavelength_nm=np.arange(400.0, 701.0, 50.0), seed=1, max_theta=50.0)
+    res = ctfit.fit(data)
+    assert res.converged, res.warnings
+    assert res.stats["steps"] <= 40
+    assert float(res.material.params.s) > 1 - 1e-4
+    np.testing.assert_allclose(res.material.params.m, [0.2], rtol=0.02)
+
+
+def test_a_lobe_weight_reaches_zero_and_is_reported():
+    st = ctfit.Structure(lobes=1)
+    truth = ctfit.Material(st, ctfit.Params(m=np.array([0.2]), w=np.array([1.0]), f0=np.full(4, 0.9)), wavelength_nm=np.linspace(400, 700, 4))
+    data = simulate(truth, 300, noise=0.01, seed=3)
+    res = ctfit.fit(data, ctfit.Structure(lobes=2))
+    assert res.converged
+    w = np.asarray(res.material.params.w)
+    assert np.all(np.isfinite(w)) and np.isclose(w.sum(), 1.0)
+    if w.min() == 0.0:  # on its bound: named, and the bound is in the result
+        assert any(k.startswith("weight") for k in res.stats["on_bound"])
+        assert any("weight 0 (on its bound)" in x for x in res.warnings)
+    else:
+        assert any("degenerate" in x for x in res.warnings)
+
+
+@pytest.mark.parametrize("w", [[0.5, 0.5], [0.2, 0.3, 0.5], [0.0, 0.4, 0.6], [0.7, 0.3, 0.0], [0.25] * 4])
+def test_stick_breaking_weights_round_trip(w):
+    v = _stick_fractions(w)
+    assert np.all((v >= 0) & (v <= 1))
+    np.testing.assert_allclose(_weights(jnp.asarray(v), "box"), w, atol=1e-15)
+
+
+def test_active_set_holds_only_what_pushes_outward():
+    y = jnp.array([0.0, 0.0, 1.0, 1.0, 0.5])
+    g = jnp.array([1.0, -1.0, -1.0, 1.0, 1.0])
+    lo, hi = jnp.zeros(5), jnp.ones(5)
+    np.testing.assert_array_equal(active_set(y, g, lo, hi), [True, False, True, False, False])
+
+
+def test_predicted_decrease_ignores_held_and_undetermined_directions():
+    h = jnp.diag(jnp.array([2.0, 1.0, 0.0]))
+    g = jnp.array([2.0, 1.0, 0.0])
+    assert float(predicted_decrease(h, g)) == pytest.approx(0.5 * (4 / 2 + 1 / 1))
+    assert float(predicted_decrease(h, g, jnp.array([True, False, True]))) == pytest.approx(0.5 * 4 / 2)
