@@ -39,6 +39,7 @@ from ._diagnostics import residual_structure
 from ._fresnel import f0_from_nk, n_from_f0
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
+from ._parameters import parameter
 from ._solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, active_set, predicted_decrease
 from ._validate import check_fittable, n_free_parameters, nonfinite_reason, rms
 from ._problem import LOSSES, Problem, _loss, bounds, from_params, make_problem, model_values, normal_equations, residual, to_params
@@ -357,17 +358,16 @@ def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
     return dataclasses.replace(params, m=np.asarray(params.m)[order], w=np.asarray(params.w)[order]), order
 
 
-def _stderr(jtj, jt: dict | None, scale2: float, order, on_bound=None) -> dict | None:
+def _stderr(jtj, jt: dict | None, scale2: float, order, free=None) -> dict | None:
     """Standard errors of the constrained parameters from JᵀJ and their Jacobian ``jt``.
 
-    Coordinates held on a bound (``on_bound``) are left out of JᵀJ; a parameter that depends
-    on no free coordinate (it sits on its bound) gets NaN: it has no standard error, the bound
-    is the result."""
+    Only the ``free`` coordinates enter (not those held on a bound, nor those the data does not
+    determine); a parameter that depends on no free coordinate gets NaN: it has no standard
+    error (a bound that holds is the result)."""
     jtj = np.asarray(jtj)
     if jtj.size == 0 or jt is None:
         return None
-    free = np.ones(jtj.shape[0], bool) if on_bound is None else ~np.asarray(on_bound, bool)
-    free &= ~undetermined(jtj)
+    free = np.ones(jtj.shape[0], bool) if free is None else np.asarray(free, bool)
     sub = jtj[np.ix_(free, free)]
     if sub.size:
         try:
@@ -405,7 +405,7 @@ def _labelled(u: dict, flags) -> list[str]:
         size = int(np.size(u[k]))
         for j in range(size):
             if flags[i]:
-                out.append(_PUBLIC[k] + (f"[{j}]" if np.ndim(u[k]) else ""))
+                out.append(parameter(k).public + (f"[{j}]" if np.ndim(u[k]) else ""))
             i += 1
     return out
 
@@ -415,7 +415,6 @@ def _coordinate_names(u: dict) -> list[str]:
     return [k for k in sorted(u) for _ in range(int(np.size(u[k])))]
 
 
-_PUBLIC = {"s": "s", "m": "m", "w": "weight", "f0": "F0", "n": "n", "k": "k", "rd": "R_d"}
 
 
 def _warnings(structure: Structure, params: Params, stderr, not_determined=()) -> list[str]:
@@ -448,7 +447,7 @@ def _warnings(structure: Structure, params: Params, stderr, not_determined=()) -
         if np.any(f0 < 1e-6) or np.any(f0 > 1 - 1e-6):
             out.append("F0 at a bound (0 or 1) in some bands: the effective index is at its limit there")
     if not_determined:
-        names = ", ".join(_PUBLIC[k] for k in dict.fromkeys(not_determined))
+        names = ", ".join(parameter(k).public for k in dict.fromkeys(not_determined))
         out.append(f"degenerate: the data does not determine {names} (no standard error there): the model has more freedom than the data shows")
     if stderr is None:
         out.append("standard errors not computed: JᵀJ is singular or ill-conditioned (cond > 1e12)")
@@ -482,8 +481,10 @@ class _Prepared:
         return dataclasses.replace(self, problem=problem)
 
 
-def _prepare(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int) -> _Prepared:
-    """The checks, start, problem (padded to its size bucket), free start ``u0`` and m grid of a fit."""
+def _prepare(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int,
+             pad_to: tuple[int, int] | None = None) -> _Prepared:
+    """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
+    samples)), free start ``u0`` and m grid of a fit."""
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
     structure = structure or Structure(lobes=1, diffuse="F0/pi")
@@ -498,7 +499,7 @@ def _prepare(data: Measurement, structure: Structure | None, *, start: Params | 
     else:  # anything the structure needs but ``start`` lacks comes from the defaults
         start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     check_fittable(data, structure, fixed=fixed, loss=loss, dtype=dtype)
-    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True)
+    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True, pad_to=pad_to)
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     k = starts if "m" in u0 else 1
     grid = jnp.asarray(np.log(_m_grid(structure.lobes)), dtype=dtype) if ("m" in u0 and k >= 1) else None
@@ -545,7 +546,9 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     rss_like = 2 * cost
     scale2 = 1.0 if loss == "sigma" else rss_like / max(n - p, 1)
     params, order = _sorted_lobes(params)
-    stderr = _stderr(out["jtj"], out["jt"], scale2, order, out["on_bound"])
+    on_bound = np.asarray(out["on_bound"], bool)
+    loose = undetermined(out["jtj"]) & ~on_bound  # coordinates the data does not determine
+    stderr = _stderr(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose)
     if problem.spec.grid:
         pred_samples = np.asarray(out["pred"])[data.directions()[1], data.band]
     else:
@@ -572,7 +575,7 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
         "starts": int(np.asarray(costs).size),
         "relative_floor": floor,
         "gauss_newton_decrease": gn_decrease,
-        "on_bound": _labelled(u, np.asarray(out["on_bound"], bool)),
+        "on_bound": _labelled(u, on_bound),
         "no_stderr": [f"{k}[{i}]" for k, v in (stderr or {}).items() for i in np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))],
     }
     full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
@@ -587,7 +590,7 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
         band_unknown=data.band_unknown,
     )
     names = _coordinate_names(u)
-    not_determined = [names[i] for i in np.flatnonzero(undetermined(out["jtj"]) & ~np.asarray(out["on_bound"], bool))]
+    not_determined = [names[i] for i in np.flatnonzero(loose)]
     notes = ([not_finite] if not_finite else []) + _warnings(structure, params, stderr, not_determined)
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more --max-steps, or another start)"

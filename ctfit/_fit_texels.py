@@ -125,8 +125,9 @@ def fit_texels(
     _check_values(values, chunk, dtype, measurement.source)
     template = measurement.replace(brdf=np.asarray(values[0], dtype=float), sigma=None)
     loss = "relative" if loss == "auto" else loss
-    prep = _prepare(template, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
-    prep = prep.padded((len(template.directions()[0]), len(template)))  # one size for every texel: no bucket padding
+    # One size for every texel: laid out at its own size, no bucket padding.
+    prep = _prepare(template, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts,
+                    pad_to=(len(template.directions()[0]), len(template)))
     problem, layout = prep.problem, _Layout(prep.problem, template)
     core_options = prep.options(solver, max_steps)
     pending, outs = None, []  # one chunk dispatched while the previous one's results are fetched

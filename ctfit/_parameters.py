@@ -57,8 +57,7 @@ class Parameter:
     ``name`` is the :class:`~ctfit.Params` field, ``public`` its name in JSON and tables,
     ``lower``/``upper`` the bounds of its *box* coordinate, ``box``/``box_inverse`` map box
     coordinates to values and back (jnp / NumPy), ``free``/``free_inverse`` the same for the
-    sampler's unconstrained coordinates, ``offset`` a constant added to the unconstrained
-    map's output (n ≥ 1 for a real index).
+    sampler's unconstrained coordinates (for n, added to :func:`n_lower`: n ≥ 1 for a real index).
     """
 
     name: str

@@ -84,6 +84,7 @@ from ._interrupt import deferred, note_resumable
 from ._material_io import _jsonable
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
+from ._parameters import PARAMETERS
 from ._problem import LOSSES, Problem, from_params, make_problem, model_values, normal_equations, residual, to_params
 
 __all__ = ["sample", "SampleResult", "ChainTooShortWarning", "PRIOR_KINDS", "default_walkers"]
@@ -91,7 +92,7 @@ __all__ = ["sample", "SampleResult", "ChainTooShortWarning", "PRIOR_KINDS", "def
 PRIOR_KINDS = ("flat", "uniform", "normal", "lognormal", "log-uniform")
 
 # Sampled name in u → public name (docs/formats.md keys), and the public name's allowed range.
-_PUBLIC = {"s": "s", "m": "m", "w": "weight", "f0": "F0", "n": "n", "k": "k", "rd": "Rd"}
+_PUBLIC = {name: row.public for name, row in PARAMETERS.items()}
 _ALIASES = {"w": "weight", "weights": "weight", "f0": "F0", "rd": "Rd", "R_d": "Rd", "sigma": "sigma_noise"}
 _RANGE_TEXT = {
     "s": "[0, 1]",
