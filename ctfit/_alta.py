@@ -57,15 +57,18 @@ _HORIZON_DEG = 90 - 1e-6  # a viewer this close to the horizon has no usable cos
 _HEADER = re.compile(r"#([A-Z][A-Z0-9_]*)(?:\s+(.*))?")
 
 
-def read_alta(path, *, param_out: str | None = None) -> Measurement:
+def read_alta(path, *, param_out: str | None = None, param_out_default: str | None = None) -> Measurement:
     """Read an ALTA text data file.
 
     ``param_out`` names the output parametrisation for a file without a ``#PARAM_OUT`` line
     (ALTA's own default is "unknown", which ctfit refuses to guess); it must agree with the
-    file when the file has one.
+    file when the file has one. ``param_out_default`` serves only a file without the line (the
+    file's own line wins: ``ctfit --param-out``).
     """
     text = read_text(path)
     header, rows, lines = _split(text, path)
+    if "PARAM_OUT" not in header and param_out is None:
+        param_out = param_out_default
     dim_in, dim_out, pin, pout, vs = _interpret(header, param_out, path)
     names = _column_names(pin, pout, vs)
     data = _numbers(rows, lines, names, path)

@@ -45,8 +45,6 @@ def _input_identity(p: str):
     return _identity(Path(p))
 
 
-def _same_file(a: Path, b: Path) -> bool:
-    return _identity(a) == _input_identity(str(b))
 
 
 def _at(option: str, path) -> str:
@@ -93,8 +91,9 @@ def check_output(path, inputs=(), *, option: str = "-o") -> Path:
     path = Path(path)
     if writes_in_place(path):  # nothing there to lose (a terminal may be both input and output)
         return path
+    mine = _identity(path)  # once, compared with every input's (each looked up once per run)
     for inp in inputs:
-        if inp is not None and _same_file(path, Path(inp)):
+        if inp is not None and mine == _input_identity(str(Path(inp))):
             raise OutputError(f"{_at(option, path)}: is the input {inp}; write the result to another file")
     if path.is_dir():
         raise OutputError(f"{_at(option, path)}: is a folder; give a file name")

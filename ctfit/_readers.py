@@ -18,7 +18,7 @@ from ._errors import DataError
 from ._measurement import Measurement
 from ._merl import _FILE_BYTES, MERL_SHAPE, read_merl
 
-__all__ = ["READERS", "read_measurement"]
+__all__ = ["READERS", "read_measurement", "reader_for"]
 
 READERS = {".csv": read_csv, ".binary": read_merl, ".alta": read_alta}
 _SNIFF_BYTES = 64 * 1024
@@ -30,6 +30,11 @@ def read_measurement(path, **options) -> Measurement:
     ``options`` go to the reader (e.g. ``param_out=`` for an ALTA file without ``#PARAM_OUT``).
     A file in no supported format raises :class:`~ctfit.DataError` listing the formats.
     """
+    return reader_for(path)(path, **options)
+
+
+def reader_for(path):
+    """The reader of ``path``: by its suffix, else by its content (``.dat``: ALTA text)."""
     suffix = pathlib.Path(path).suffix.lower()
     reader = READERS.get(suffix) or _sniff(path) or (read_alta if suffix == ".dat" else None)
     if reader is None:
@@ -38,7 +43,7 @@ def read_measurement(path, **options) -> Measurement:
             ".binary (MERL BRDF database) and .alta or .dat (ALTA text); see docs/measurement-formats.md",
             path=path,
         )
-    return reader(path, **options)
+    return reader
 
 
 def _sniff(path):

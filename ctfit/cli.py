@@ -59,16 +59,12 @@ def _load_material(path: Path):
 
 
 def _read_data(path: Path, param_out: str | None = None):
-    """Read a measurement; ``--param-out`` serves only an ALTA file without its own #PARAM_OUT line."""
-    from ._errors import DataError
-    from ._readers import read_measurement
+    """Read a measurement (once); ``--param-out`` serves only an ALTA file without its own #PARAM_OUT line."""
+    from ._alta import read_alta
+    from ._readers import reader_for
 
-    try:
-        return read_measurement(path)
-    except DataError as e:
-        if param_out is None or not e.reason.startswith("no #PARAM_OUT line"):
-            raise
-    return read_measurement(path, param_out=param_out)
+    reader = reader_for(path)
+    return reader(path, param_out_default=param_out) if param_out is not None and reader is read_alta else reader(path)
 
 
 _PARAM_OUT_HELP = "ALTA files without a #PARAM_OUT line: the unit of their values (INV_STERADIAN or INV_STERADIAN_COSINE_FACTOR)."
