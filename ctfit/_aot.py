@@ -2,8 +2,11 @@
 
 JAX's persistent compilation cache (``_cache.py``) saves only the XLA compile: every new process
 still traces the Python program and lowers it to HLO to compute the cache key, which for a fit
-(optimistix's solver loop, the structured normal equations, the seeds) costs seconds. Here the
-*executable itself* is stored, keyed by everything that determines it:
+(optimistix's solver loop, the structured normal equations, the seeds) costs seconds, and it
+leaves out programs that compile in under half a second, which a process then compiles again.
+Here the *compiled executable itself* is stored (``jax.experimental.serialize_executable``:
+loading one takes milliseconds, no tracing, lowering or compiling), keyed by everything that
+determines it:
 
 - the function's name and the source of the ctfit package (any edit invalidates every entry);
 - the versions of jax, jaxlib, equinox, optimistix, lineax and numpy, the backend, its
@@ -28,6 +31,7 @@ import hashlib
 import importlib.metadata
 import os
 import pathlib
+import pickle
 import platform
 import stat
 import warnings
@@ -35,12 +39,23 @@ from typing import Callable
 
 import equinox as eqx
 import jax
+from jax.experimental import serialize_executable
 
 from ._cache import warn_once
 from ._fileio import atomic_write
 
-_FORMAT = 1
+_FORMAT = 2  # 1: jax.export programs (compiled again in every process); 2: executables
 _memory: dict[str, Callable] = {}
+_jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
+
+
+def _count_jax_cache_hit(event: str, **_) -> None:
+    global _jax_cache_hits
+    if event == "/jax/compilation_cache/cache_hits":
+        _jax_cache_hits += 1
+
+
+jax.monitoring.register_event_listener(_count_jax_cache_hit)
 _stores: dict[str, pathlib.Path | None] = {}  # cache folder → its checked store
 
 
@@ -81,7 +96,7 @@ def _store() -> pathlib.Path | None:
     """``ctfit-aot/`` in JAX's cache folder, made (mode 0700) on first use; None without a cache,
     or (with one :class:`~ctfit._cache.CacheWarning`) when the folder cannot be trusted."""
     where = jax.config.jax_compilation_cache_dir
-    if not where:
+    if not where or not _runtime_ready():
         return None
     if where not in _stores:
         _stores[where] = _trusted(pathlib.Path(where) / "ctfit-aot")
@@ -125,12 +140,27 @@ def _key(name: str, args: tuple) -> str | None:
     return h.hexdigest()
 
 
+@functools.cache
+def _runtime_ready() -> bool:
+    """Register the LAPACK kernels that compiled fits call (JAX does this when it lowers a
+    linear-algebra op, which a loaded executable skips: without it the call crashes). False
+    when this JAX has no such hook: then the store is not used."""
+    try:
+        from jax._src.lax.linalg import initialize_lapack
+    except ImportError:
+        return False
+    initialize_lapack()
+    return True
+
+
 def _load(path: pathlib.Path):
-    return jax.export.deserialize(bytearray(path.read_bytes()))
+    """The executable stored at ``path`` (the store is this user's alone, see :func:`_trusted`)."""
+    blob, in_tree, out_tree = pickle.loads(path.read_bytes())
+    return serialize_executable.deserialize_and_load(blob, in_tree, out_tree)
 
 
-def _save(path: pathlib.Path, exported) -> None:
-    atomic_write(path, [exported.serialize()])
+def _save(path: pathlib.Path, compiled) -> None:
+    atomic_write(path, [pickle.dumps(serialize_executable.serialize(compiled), protocol=pickle.HIGHEST_PROTOCOL)])
 
 
 def _plain(treedef) -> bool:
@@ -145,6 +175,17 @@ def _plain(treedef) -> bool:
         return x is None or x == 0
 
     return ok(probe)
+
+
+def _compile_fresh(lowered):
+    """``lowered.compile()`` past JAX's persistent cache: an executable that JAX loaded from its
+    cache serialises without some of its functions, and the store keeps the program anyway."""
+    before = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    try:
+        return lowered.compile()
+    finally:
+        jax.config.update("jax_enable_compilation_cache", before)
 
 
 def cached_call(name: str, fn: Callable, *args):
@@ -163,11 +204,11 @@ def cached_call(name: str, fn: Callable, *args):
     leaves, in_def = jax.tree.flatten(dynamic)
     run = _memory.get(key)
     store = _store()
-    path = store / f"{name}-{key[:32]}.jaxexport" if store is not None else None
+    path = store / f"{name}-{key[:32]}.xla" if store is not None else None
     if run is None and path is not None and path.is_file():
         try:
-            run = jax.jit(_load(path).call)
-            out = run(*leaves)
+            run = _load(path)
+            out = jax.block_until_ready(run(*leaves))  # a damaged program fails here, not later
         except Exception as err:  # noqa: BLE001 — a stale or damaged entry: trace instead
             warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
             path.unlink(missing_ok=True)
@@ -177,19 +218,23 @@ def cached_call(name: str, fn: Callable, *args):
             return out
     if run is None:
         # The program takes a flat list of arrays and returns plain containers, which is what
-        # jax.export can store.
+        # an executable can be stored with.
         def flat(*ls):
             out = fn(*eqx.combine(jax.tree.unflatten(in_def, list(ls)), static))
             if not _plain(jax.tree.structure(out)):
                 raise TypeError(f"cached_call({name!r}): the output must be built of dicts, lists, tuples, None and arrays")
             return out
 
-        exported = jax.export.export(jax.jit(flat))(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
-        run = jax.jit(exported.call)
+        flat.__name__ = flat.__qualname__ = f"ctfit_{name}"  # the program's name in JAX's logs
+        lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
+        run = _compile_fresh(lowered) if path is not None else lowered.compile()
         _memory[key] = run
-        if path is not None:
+        # Once this process has loaded an executable from JAX's cache, executables compiled
+        # after it serialise without some of their functions ("Function … not found" when the
+        # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.
+        if path is not None and not _jax_cache_hits:
             try:
-                _save(path, exported)
+                _save(path, run)
             except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
                 warnings.warn(f"could not write the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
     return run(*leaves)

@@ -73,10 +73,8 @@ def residual_structure(
         if worst is not None:
             mean, lo, hi, n = worst
             side = "below" if mean < 0 else "above"
-            out.append(
-                f"systematic residuals: the model is {abs(mean):.0%} {side} the data for {name} in "
-                f"[{lo:g}°, {hi:g}°) ({n} samples){_explain(place, mean, lo)}"
-            )
+            span = f"[{lo:g}°, {hi:g}°)" if hi < edges[-1] else f"[{lo:g}°, {np.floor(edges[-1]):g}°]"  # the last edge holds 90° or 180° in
+            out.append(f"systematic residuals: the model is {abs(mean):.0%} {side} the data for {name} in {span} ({n} samples){_explain(place, mean, lo)}")
     return out
 
 

@@ -99,9 +99,13 @@ def _default_start(structure: Structure, data: Measurement) -> Params:
     )
 
 
-def _m_grid(lobes: int) -> np.ndarray:
+def _m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
+    """The grid of m the seeds are scored on. One lobe: 16 points 0.005–1, and without a diffuse
+    part 5 more down to 10⁻⁴ for mirror-like lobes (seen in their tails or sampled closely). With
+    a diffuse part those would be traps: a lobe that reaches no sample fits like s = 0."""
     if lobes == 1:
-        return np.geomspace(0.005, 1.0, 16)[:, None]
+        grid = np.geomspace(0.005, 1.0, 16)
+        return (grid if diffuse else np.concatenate([np.geomspace(1e-4, 0.005, 6)[:-1], grid]))[:, None]
     base = {2: np.geomspace(0.01, 0.8, 9), 3: np.geomspace(0.01, 0.8, 7)}.get(lobes, np.geomspace(0.01, 0.8, 5))
     return np.array(list(itertools.combinations(base, lobes)))
 
@@ -130,7 +134,7 @@ def _score_grid(problem: Problem, u0: dict, grid):
 
 
 def _seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool = False) -> dict:
-    """The ``k`` best starting points from a grid over log m, each with its best per-band scale
+    """The ``k`` best distinct starting points from a grid over log m, each with its best per-band scale
     (F0 scaled; for n, k: the index of the scaled normal reflectance, :func:`_index_seed`), and
     with ``keep_start`` the start ``u0`` itself as one more seed.
 
@@ -139,7 +143,12 @@ def _seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool
     if "m" not in u0 or k < 1 or grid is None:
         return jax.tree.map(lambda a: jnp.asarray(a)[None], u0)
     costs, scales = _score_grid(problem, u0, grid)
-    order = jnp.argsort(costs)[: min(k, grid.shape[0])]
+    order = jnp.argsort(costs)
+    # Grid points that score the same give the same model (lobes too narrow to reach any
+    # sample all look like no lobe): one of each goes first, so the k seeds differ.
+    c = costs[order]
+    same = jnp.concatenate([jnp.zeros((1,), bool), jnp.abs(c[1:] - c[:-1]) <= 1e-3 * jnp.abs(c[1:])])
+    order = order[jnp.argsort(same, stable=True)][: min(k, grid.shape[0])]
     seeds = dict(jax.tree.map(lambda a: jnp.broadcast_to(a, (order.shape[0],) + jnp.shape(a)), u0))
     seeds["m"] = grid[order]
     if "f0" in u0:
@@ -169,8 +178,9 @@ def _index_seed(f0, n, conductor: bool):
 
 
 def _gauss_newton(flat, data):
+    """Jᵀr and JᵀJ at the flat free values (one pass of the structured normal equations)."""
     problem, unravel = data
-    return normal_equations(problem, unravel(flat))[2]
+    return normal_equations(problem, unravel(flat))[1:]
 
 
 def _half_squared_norm(flat, data):
@@ -183,6 +193,11 @@ STATIONARY_TOLERANCE = {"float64": 1e-6, "float32": 1e-3}
 """``converged`` needs one more Gauss–Newton step to promise less than this relative decrease
 of the cost: the solver's own tests (small steps, small changes) also pass where it has stalled,
 e.g. float32 rounding making every step look useless far from the minimum."""
+
+NO_SIGNAL = 0.99
+"""A fit whose cost is at least this fraction of the cost of a model that is 0 everywhere has not
+converged, even at a stationary point: it describes none of the data (a lobe far from the
+samples, F0 → 0)."""
 
 RACE_STEPS = 4
 """Levenberg–Marquardt steps every seed gets before only the leaders go on (``_structured_lm``)."""
@@ -246,7 +261,8 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     lower, upper = _flat_bounds(problem, jax.tree.map(lambda a: a[0], seeds))
     descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
     gtol = STATIONARY_TOLERANCE[flat_seeds.dtype.name] * 1e-3
-    solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton, descent=descent, gtol=gtol)
+    solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton, descent=descent, gtol=gtol,
+                                          stol=STATIONARY_TOLERANCE[flat_seeds.dtype.name])
     n = flat_seeds.shape[0]
     race = n > 1 and max_steps > RACE_STEPS
     tasks = jnp.arange(2 * n if race else n)
@@ -312,9 +328,13 @@ def _gauss_newton_decrease(jtj, jtr, cost, scale):
 
 def _effective_index(f0):
     """The paper's effective index of a fitted F0, finite where F0 rounds to 1 (about 10¹⁶ in
-    float64, 10⁸ in float32, instead of :func:`~ctfit._fresnel.n_from_f0`'s infinity)."""
-    f0 = jnp.asarray(f0)
-    return n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
+    float64, 10⁸ in float32, instead of :func:`~ctfit._fresnel.n_from_f0`'s infinity). Host
+    arrays stay on the host (NumPy: no program to compile for a handful of values)."""
+    if isinstance(f0, jax.Array):
+        return n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
+    f0 = np.asarray(f0)
+    r = np.sqrt(np.clip(f0, 0, 1 - np.finfo(f0.dtype).eps))
+    return (1 + r) / (1 - r)  # n_from_f0
 
 
 def _constrained(problem: Problem, unravel, f):
@@ -348,7 +368,9 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
     jt = jax.jacfwd(lambda f: _constrained(problem, unravel, f))(flat) if flat.size else None
     params = to_params(problem.spec, u, problem.fixed)
     params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_aot.py)
-    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, on_bound=on_bound, gn_decrease=_gauss_newton_decrease(jtj, jtr, cost, 0.5 * jnp.sum(_loss(problem, jnp.zeros_like(problem.y), problem.y) ** 2)), pred=model_values(problem, u), jt=jt, params=params)
+    zero_cost = 0.5 * jnp.sum(_loss(problem, jnp.zeros_like(problem.y), problem.y) ** 2)  # the cost of a model that is 0
+    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, on_bound=on_bound, gn_decrease=_gauss_newton_decrease(jtj, jtr, cost, zero_cost),
+                zero_cost=zero_cost, pred=model_values(problem, u), jt=jt, params=params)
 
 
 def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -502,7 +524,7 @@ def _prepare(data: Measurement, structure: Structure | None, *, start: Params | 
     problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True, pad_to=pad_to)
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     k = starts if "m" in u0 else 1
-    grid = jnp.asarray(np.log(_m_grid(structure.lobes)), dtype=dtype) if ("m" in u0 and k >= 1) else None
+    grid = jnp.asarray(np.log(_m_grid(structure.lobes, structure.diffuse is not None)), dtype=dtype) if ("m" in u0 and k >= 1) else None
     return _Prepared(data, structure, loss, dtype, start, tuple(fixed), problem, u0, grid, k, given_start)
 
 
@@ -557,7 +579,9 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     gn_decrease = float(out["gn_decrease"])
     stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
     not_finite = nonfinite_reason(cost, rms(err), pred, dtype)  # a result that is not finite has not converged
-    converged = bool(np.asarray(ok)[best]) and not_finite is None and stationary
+    zero_cost = float(out["zero_cost"])
+    explains_nothing = zero_cost > 0 and cost >= NO_SIGNAL * zero_cost  # a stationary point the data does not support
+    converged = bool(np.asarray(ok)[best]) and not_finite is None and stationary and not explains_nothing
     bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, 1e-300) / n)) + p * math.log(n)
     stats = {
         "converged": converged,
@@ -595,6 +619,9 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more --max-steps, or another start)"
         notes.append(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}")
+    if explains_nothing:
+        notes.append(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
+                     "the solver stalled where the lobe misses the data — try other --lobes, starting values (--material) or another --loss")
     if not bool(np.asarray(ok)[best]):
         notes.append("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (without --float32), from another start, or with fewer lobes")
     return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._aot import cached_call
-from ._fit import STATIONARY_TOLERANCE, FitResult, _effective_index, _fit_core, _prepare, fit
+from ._fit import NO_SIGNAL, STATIONARY_TOLERANCE, FitResult, _effective_index, _fit_core, _prepare, fit
 from ._fit_batch import default_width, mapped
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
@@ -194,7 +194,7 @@ def _texel_core(problem, ys, floors, active, u0, grid, width: int, *options):
         n = jnp.sum(p.mask)
         rel = err / jnp.maximum(jnp.abs(y), floor)
         return dict(params=out["params"], cost=out["costs"][best], ok=out["ok"][best], steps=out["steps"][best],
-                    gauss_newton_decrease=out["gn_decrease"], rmse=jnp.sqrt(jnp.sum(err**2) / n), rel_rmse=jnp.sqrt(jnp.sum(rel**2) / n),
+                    gauss_newton_decrease=out["gn_decrease"], zero_cost=out["zero_cost"], rmse=jnp.sqrt(jnp.sum(err**2) / n), rel_rmse=jnp.sqrt(jnp.sum(rel**2) / n),
                     finite=jnp.all(jnp.isfinite(out["pred"])))
 
     return mapped(one, (ys, floors), active, width)
@@ -214,7 +214,7 @@ def _result(measurement, structure: Structure, out, values, n_texels: int, t0: f
     finite = np.isfinite(cost) & np.isfinite(rmse) & get("finite").astype(bool)
     elapsed = time.perf_counter() - t0
     stats = dict(
-        converged=get("ok").astype(bool) & finite & (decrease <= STATIONARY_TOLERANCE[dtype]),
+        converged=get("ok").astype(bool) & finite & (decrease <= STATIONARY_TOLERANCE[dtype]) & ~((get("zero_cost") > 0) & (cost >= NO_SIGNAL * get("zero_cost"))),
         steps=get("steps").astype(int), cost=cost, rmse=rmse, rel_rmse=get("rel_rmse"), gauss_newton_decrease=decrease,
         loss=options["loss"], solver=options["solver"], dtype=dtype, starts=options["starts"], max_steps=options["max_steps"],
         time_s=elapsed, texels_per_s=n_texels / elapsed,

@@ -37,6 +37,7 @@ References
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 __all__ = [
@@ -112,7 +113,10 @@ def _dielectric(c, a, u, scale, *, tir_possible=True):
     f = jnp.where(grazing, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
     if tir_possible:
         f = jnp.where(tir, 1, f)
-    return jnp.clip(f, 0, 1)
+    # F ∈ [0, 1] exactly; the formula leaves it by an ulp at most (F0 = 1: F = 1 for every c).
+    # The rounding is clipped from the value only, so the derivative there stays the formula's
+    # (a clip's derivative is 0 or ½ on its bound: F0 = 1, a bound of the fit, would look flat).
+    return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)
 
 
 def fresnel_dielectric_f0(c, f0):
@@ -209,4 +213,4 @@ def fresnel_conductor(c, n, k):
     f = 0.5 * num_s * (den_p + num_p) * (1 / (den_s * den_p))
     interface = (n != 1) | (k != 0)
     f = jnp.where(grazing, interface.astype(f.dtype), f)
-    return jnp.clip(f, 0, 1)
+    return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)  # rounding clipped, derivative kept (see _dielectric)

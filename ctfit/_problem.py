@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._brdf import _combine, specular_geometric
+from ._aot import cached_call
 from ._geometry import Geometry, geometry_from_angles_deg
 from ._material import Params, Structure
 from ._measurement import Measurement
@@ -75,9 +76,16 @@ class Problem(eqx.Module):
     fixed_bands: int = eqx.field(static=True)
 
 
-@jax.jit
-def _geometry_deg(pairs):
-    return geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3])
+def _geometry_fields(pairs) -> dict:
+    g = geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3])
+    return {f.name: getattr(g, f.name) for f in dataclasses.fields(g)}
+
+
+def _geometry_deg(pairs) -> Geometry:
+    """The :class:`Geometry` of direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, shape (D, 4),
+    through the program store (a stored program loads in a fraction of what compiling the
+    trigonometry costs, once per size bucket)."""
+    return Geometry(**cached_call("geometry", _geometry_fields, pairs))
 
 
 def _weights(u_w, space: str):
@@ -241,7 +249,7 @@ def make_problem(
         y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data)), 0.0)
         sig = padded(data.sigma, 1.0) if data.sigma is not None else np.ones(len(y))
         cos_i = padded(cos_pair[index], 1.0)
-        pair, band = jnp.asarray(padded(index, 0)), jnp.asarray(padded(data.band, 0))
+        pair, band = jax.device_put(padded(index, 0)), jax.device_put(padded(data.band, 0))  # no conversion program
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
     return Problem(
@@ -253,7 +261,7 @@ def make_problem(
         mask=to(mask),
         pair=pair,
         band=band,
-        floor=jnp.asarray(floor, dtype=dtype),
+        floor=jax.device_put(np.asarray(floor, dtype=jnp.dtype(dtype))),
         fixed=jax.tree.map(to, fixed_params),
         fixed_bands=n_bands,
     )

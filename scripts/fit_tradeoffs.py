@@ -210,7 +210,7 @@ def scipy_start(d):
     start = _default_start(st, d["data"])
     pb = make_problem(st, d["data"], fixed_params=start, loss="sigma")
     u0 = {k: jnp.asarray(v) for k, v in from_params(pb.spec, start).items()}
-    seed = jax.tree.map(lambda a: np.asarray(a)[0], _seed_points(pb, u0, 1, jnp.asarray(np.log(_m_grid(st.lobes)))))
+    seed = jax.tree.map(lambda a: np.asarray(a)[0], _seed_points(pb, u0, 1, jnp.asarray(np.log(_m_grid(st.lobes, st.diffuse is not None)))))
     # ctfit's seed is in its bounded coordinates (F0, log m, stick fractions); SciPy's model takes
     # logit F0, log m and the weights' logits against w_0: the sampler's unconstrained coordinates.
     params = to_params(pb.spec, seed, pb.fixed)

@@ -1,4 +1,5 @@
-"""ctfit/_aot.py: fit programs kept on disk (jax.export), so a new process skips tracing."""
+"""ctfit/_aot.py: compiled programs kept on disk (serialised executables), so a new process skips
+tracing, lowering and compiling."""
 
 from __future__ import annotations
 
@@ -31,23 +32,31 @@ def _args():
     return _Box(jnp.arange(3.0), 2.0), jnp.array([1.0, 2.0, 3.0]), 2
 
 
+def _forbid_tracing(monkeypatch):
+    """Make tracing a program for the store fail (the cached_call path traces through jax.jit
+    and compiles it; a program loaded from disk does neither)."""
+
+    def no_tracing(*a, **k):
+        raise AssertionError("traced again although the program is on disk")
+
+    monkeypatch.setattr(_aot.jax, "jit", no_tracing)
+    monkeypatch.setattr(_aot.eqx, "filter_jit", no_tracing)
+
+
 def test_same_result_as_filter_jit(store):
     got = _aot.cached_call("toy", _fn, *_args())
     want = eqx.filter_jit(_fn)(*_args())
     np.testing.assert_array_equal(got["y"], want["y"])
     np.testing.assert_array_equal(got["parts"][0], want["parts"][0])
     assert got["parts"][1] is None
-    assert len(list(store.glob("toy-*.jaxexport"))) == 1
+    assert len(list(store.glob("toy-*.xla"))) == 1
 
 
 def test_a_new_process_loads_the_program_without_tracing(store, monkeypatch):
     first = _aot.cached_call("toy", _fn, *_args())
     monkeypatch.setattr(_aot, "_memory", {})  # as in a new process
 
-    def no_tracing(*a, **k):
-        raise AssertionError("traced again although the program is on disk")
-
-    monkeypatch.setattr(jax.export, "export", no_tracing)
+    _forbid_tracing(monkeypatch)
     again = _aot.cached_call("toy", _fn, *_args())
     np.testing.assert_array_equal(again["y"], first["y"])
 
@@ -61,12 +70,12 @@ def test_static_values_and_shapes_are_part_of_the_key(store):
     np.testing.assert_array_equal(y_scale, box.a * 5.0 + x**2)
     y_long = _aot.cached_call("toy", _fn, _Box(jnp.arange(4.0), 2.0), jnp.ones(4), power)["y"]
     np.testing.assert_array_equal(y_long, jnp.arange(4.0) * 2.0 + 1.0)
-    assert len(list(store.glob("toy-*.jaxexport"))) == 4
+    assert len(list(store.glob("toy-*.xla"))) == 4
 
 
 def test_a_damaged_entry_is_replaced_with_a_warning(store, monkeypatch):
     _aot.cached_call("toy", _fn, *_args())
-    (path,) = store.glob("toy-*.jaxexport")
+    (path,) = store.glob("toy-*.xla")
     path.write_bytes(b"not a program")
     monkeypatch.setattr(_aot, "_memory", {})
     with pytest.warns(RuntimeWarning, match="ignoring the compiled-program cache entry"):
@@ -103,10 +112,64 @@ def test_fit_through_the_store_matches_fit_in_memory(store, monkeypatch):
     truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.6, 0.8])), wavelength_nm=np.array([450.0, 650.0]))
     data = simulate(truth, 120, noise=0.01, seed=3)
     first = ctfit.fit(data, st)
-    assert list(store.glob("fit-*.jaxexport"))
+    assert list(store.glob("fit-*.xla"))
     monkeypatch.setattr(_aot, "_memory", {})
-    monkeypatch.setattr(jax.export, "export", lambda *a, **k: (_ for _ in ()).throw(AssertionError("traced again")))
+    _forbid_tracing(monkeypatch)
     again = ctfit.fit(data, st)
     np.testing.assert_array_equal(again.material.params.m, first.material.params.m)
     np.testing.assert_array_equal(again.material.params.f0, first.material.params.f0)
     assert again.stats["cost"] == first.stats["cost"]
+
+
+def test_a_stored_program_is_not_compiled_again(store, monkeypatch):
+    """Loading a stored executable compiles nothing (JAX's own cache leaves out programs that
+    compile in under half a second, and a jax.export program is compiled in every process)."""
+    from jax._src import compiler
+
+    _aot.cached_call("toy", _fn, *_args())
+    monkeypatch.setattr(_aot, "_memory", {})
+
+    def no_compiling(*a, **k):
+        raise AssertionError("compiled again although the executable is on disk")
+
+    monkeypatch.setattr(compiler, "backend_compile_and_load", no_compiling)
+    monkeypatch.setattr(compiler, "compile_or_get_cached", no_compiling)
+    again = _aot.cached_call("toy", _fn, *_args())
+    np.testing.assert_array_equal(again["y"], jnp.arange(3.0) * 2.0 + jnp.array([1.0, 4.0, 9.0]))
+
+
+_FIT_SCRIPT = """
+import sys, jax
+jax.config.update("jax_enable_x64", True)
+import numpy as np, ctfit
+from ctfit._cache import enable_compilation_cache
+from ctfit._simulate import simulate
+enable_compilation_cache(sys.argv[1])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+st = ctfit.Structure(lobes=1)
+truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.6, 0.8])), wavelength_nm=np.array([450.0, 650.0]))
+print(repr(float(ctfit.fit(simulate(truth, 120, noise=0.01, seed=3), st).stats["cost"])))
+"""
+
+
+@pytest.mark.slow
+def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_path):
+    """Three processes with JAX's cache on for every program: the first compiles and stores the
+    fit; the second, the stored executable deleted, loads other programs from JAX's cache and
+    compiles the fit again; the third runs whatever the store then holds. After a JAX cache hit
+    a process's new executables serialise without some of their functions (jaxlib 0.10), so
+    such a process must not store them."""
+    import subprocess
+    import sys
+
+    cache = tmp_path / "cache"
+    run = lambda: subprocess.run([sys.executable, "-c", _FIT_SCRIPT, str(cache)], capture_output=True, text=True, timeout=300)  # noqa: E731
+    first = run()
+    assert first.returncode == 0, first.stderr
+    for entry in (cache / "ctfit-aot").glob("fit-*.xla"):
+        entry.unlink()
+    second = run()  # loads the simulation's programs from JAX's cache before it compiles the fit
+    assert second.returncode == 0, second.stderr
+    third = run()
+    assert third.returncode == 0, third.stderr[-2000:]
+    assert first.stdout == second.stdout == third.stdout

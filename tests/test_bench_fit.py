@@ -97,7 +97,7 @@ def test_whole_process_accounting():
 
 
 def _case(n, scipy, warm, cold, new=None):
-    c = dict(n=n, scipy=scipy, warm=warm, cold=cold, warm_fit_s=0.5, cold_fit_s=cold - warm + 0.5, in_process=dict(first_s=0.5, second_s=0.1))
+    c = dict(n=n, scipy=scipy, warm=warm, cold=cold, warm_fit_s=0.5, cold_fit_s=cold - warm + 0.5, in_process=dict(first_s=0.5, second_s=0.1, normal_s=0.01, one_start_s=0.2, one_start_steps=10))
     if new is not None:
         c.update(new=new, new_n=n - n // 20, new_fit_s=new - warm + 0.5)
     return c
@@ -111,6 +111,7 @@ def test_targets_are_judged_by_the_issue_thresholds():
     assert met["20,000 scattered samples, warm: ≥ 2× SciPy"] == "yes"
     assert met["20,000, cold: ≤ 1.5× SciPy's time"] == "yes"
     assert met["new sample count (19,000): within 0.3 s of warm"] == "yes"
+    assert met["one LM step ≤ 3× one residual + JᵀJ evaluation (200,000 samples)"] == "yes"  # 20 ms a step, 10 ms an evaluation
     rows = bench.targets(fl, [_case(20_000, 2.0, 1.1, 3.1, new=1.5), _case(200_000, 20.0, 1.9, 5.0)], None,
                          dict(samples=3_288_648, warm=5.5, peak_mb=500.0, fit_s=4.0), None)
     met = {r[0]: (r[2], r[3]) for r in rows}

@@ -331,3 +331,21 @@ def test_round_trip_property(tmp_path, m):
     path = tmp_path / "rt.csv"
     write_csv(m, path)
     assert_same(m, read_csv(path))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.data())
+def test_direction_pairs_are_numpy_unique_rows(data):
+    """``Measurement.directions`` (runs of repeated rows sorted once) gives np.unique's pairs
+    and inverse, whether the bands of a pair are listed together or shuffled."""
+    n = data.draw(st.integers(1, 60))
+    base = np.array(data.draw(st.lists(st.lists(st.sampled_from([0.0, 15.0, 30.0, 45.0]), min_size=4, max_size=4), min_size=n, max_size=n)))
+    rows = np.repeat(base, data.draw(st.lists(st.integers(1, 3), min_size=n, max_size=n)), axis=0)
+    if data.draw(st.booleans()):
+        rows = rows[np.random.default_rng(data.draw(st.integers(0, 99))).permutation(len(rows))]
+    m = Measurement(theta_i=rows[:, 0], phi_i=rows[:, 1], theta_o=rows[:, 2], phi_o=rows[:, 3],
+                          band=np.zeros(len(rows), int), wavelength_nm=np.array([500.0]))
+    pairs, index = m.directions()
+    want, inverse = np.unique(rows, axis=0, return_inverse=True)
+    np.testing.assert_array_equal(pairs, want)
+    np.testing.assert_array_equal(index, inverse.ravel())

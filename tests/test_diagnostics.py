@@ -45,3 +45,16 @@ def test_fit_of_the_retro_reflective_tape_warns_in_its_result():
         data = ctfit.read_measurement(MEASURED / "retro-gray-tape.dat", param_out="INV_STERADIAN_COSINE_FACTOR")
     res = ctfit.fit(data, ctfit.Structure(lobes=1, diffuse="F0/pi"), starts=1)
     assert any("retro-reflection lobe" in w for w in res.warnings), res.warnings
+
+
+def test_the_last_bin_is_labelled_with_its_real_end():
+    """A bias near grazing is reported for "[85°, 90°]", not an internal bin edge (90.0001°)."""
+    st = ctfit.Structure(lobes=1)
+    mat = ctfit.Material(st, ctfit.Params(m=np.array([0.3]), w=np.array([1.0]), f0=np.full(2, 0.5)), wavelength_nm=np.array([450.0, 650.0]))
+    data = ctfit.simulate(mat, 3000, noise=0.01, seed=3)
+    model = np.asarray(ctfit.evaluate(mat, data)).copy()
+    grazing = np.maximum(data.theta_i, data.theta_o) >= 85
+    assert grazing.sum() >= 20
+    model[grazing] *= 0.6
+    notes = [n for n in residual_structure(data, model) if "max(θ_i, θ_o)" in n]
+    assert notes and "[85°, 90°]" in notes[0] and "90.0001" not in notes[0]

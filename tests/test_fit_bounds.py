@@ -59,3 +59,36 @@ def test_predicted_decrease_ignores_held_and_undetermined_directions():
     g = jnp.array([2.0, 1.0, 0.0])
     assert float(predicted_decrease(h, g)) == pytest.approx(0.5 * (4 / 2 + 1 / 1))
     assert float(predicted_decrease(h, g, jnp.array([True, False, True]))) == pytest.approx(0.5 * 4 / 2)
+
+
+def test_the_solver_evaluates_the_cost_without_linearising_it(monkeypatch):
+    """A Levenberg–Marquardt step evaluates the cost and, once accepted, forms the normal
+    equations: it never linearises the objective (optimistix's own step does, a second
+    Jacobian-sized pass per step)."""
+    import jax
+
+    from ctfit import _aot
+
+    monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(_aot, "_store", lambda: None)
+
+    def no_linearize(*a, **k):
+        raise AssertionError("the objective was linearised")
+
+    monkeypatch.setattr(jax, "linearize", no_linearize)
+    st = ctfit.Structure(lobes=1)
+    truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.6, 0.8])), wavelength_nm=np.array([450.0, 650.0]))
+    res = ctfit.fit(simulate(truth, 150, noise=0.01, seed=4), st, starts=1)
+    assert res.converged
+    np.testing.assert_allclose(res.material.params.m, [0.25], rtol=0.02)
+
+
+def test_a_fit_that_explains_none_of_the_data_has_not_converged():
+    """A stationary point where the model is (almost) 0 — here m held at 10⁻⁴, a lobe that
+    reaches no sample — is not a converged fit, and the result says why."""
+    st = ctfit.Structure(lobes=1)
+    truth = ctfit.Material(st, ctfit.Params(m=np.array([0.3]), w=np.array([1.0]), f0=np.array([0.6, 0.8])), wavelength_nm=np.array([450.0, 650.0]))
+    data = simulate(truth, 200, noise=0.01, seed=5)
+    res = ctfit.fit(data, st, start=ctfit.Params(m=np.array([1e-4]), w=np.array([1.0]), f0=np.array([0.5, 0.5])), fixed=("m",))
+    assert not res.converged
+    assert any("explains almost none of the data" in w for w in res.warnings)

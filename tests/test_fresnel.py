@@ -221,3 +221,12 @@ def test_gradients_finite_over_the_range(dtype):
     gd = jax.jit(jax.vmap(jax.grad(ctfit.fresnel_dielectric, argnums=1)))
     d = np.asarray(gd(jnp.asarray(cc, dtype), jnp.asarray(nn, dtype)))
     assert np.all(np.isfinite(d)), (cc[~np.isfinite(d)], nn[~np.isfinite(d)])
+
+
+@pytest.mark.parametrize("c", [1.0, 0.7, 0.3, 0.05])
+def test_derivative_in_f0_is_the_formula_s_up_to_f0_one(c):
+    """dF/dF0 at F0 = 1 and F0 = 0 (bounds of the fit) is the one-sided limit of the formula:
+    a clip of the value may not halve or zero it there (the fit sits on these bounds)."""
+    grad = jax.grad(lambda f0: ctfit.fresnel_dielectric_f0(jnp.asarray(c), f0))
+    for at, inside in ((1.0, 1.0 - 1e-9), (0.0, 1e-20)):
+        assert float(grad(jnp.asarray(at))) == pytest.approx(float(grad(jnp.asarray(inside))), rel=1e-5), at
