@@ -1,4 +1,4 @@
-"""JAX's persistent compilation cache, and with it ctfit's store of exported fit programs.
+"""JAX's persistent compilation cache, and with it ctfit's store of compiled fit programs.
 
 The ``ctfit`` command calls :func:`enable_compilation_cache`; library users may too. A second
 process then skips XLA's compilation (JAX's cache) and the tracing of the fit program
