@@ -43,7 +43,7 @@ def _half_angle(data: Measurement) -> np.ndarray:
 _GROUPS = (
     ("angle between L and V", _angle_lv, np.array([0, 2, 5, 10, 20, 40, 80, 180.0]), "retro-reflection"),
     ("half-vector angle α", _half_angle, np.array([0, 2, 5, 10, 20, 40, 90.0]), "the specular peak"),
-    ("max(θ_i, θ_o)", lambda d: np.maximum(d.theta_i, d.theta_o), np.array([0, 30, 60, 75, 85, 90.0001]), "grazing"),
+    ("max(θ_i, θ_o)", lambda d: np.maximum(d.theta_i, d.theta_o), np.array([0, 30, 60, 75, 85, 90.0]), "grazing"),
 )
 
 
@@ -73,7 +73,7 @@ def residual_structure(
         if worst is not None:
             mean, lo, hi, n = worst
             side = "below" if mean < 0 else "above"
-            span = f"[{lo:g}°, {hi:g}°)" if hi < edges[-1] else f"[{lo:g}°, {np.floor(edges[-1]):g}°]"  # the last edge holds 90° or 180° in
+            span = f"[{lo:g}°, {hi:g}°" + ("]" if hi == edges[-1] else ")")  # the last bin holds its upper edge
             out.append(f"systematic residuals: the model is {abs(mean):.0%} {side} the data for {name} in {span} ({n} samples){_explain(place, mean, lo)}")
     return out
 

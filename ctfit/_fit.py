@@ -199,6 +199,18 @@ NO_SIGNAL = 0.99
 converged, even at a stationary point: it describes none of the data (a lobe far from the
 samples, F0 → 0)."""
 
+def explains_none(cost, zero_cost):
+    """Whether a fit's cost is at least ``NO_SIGNAL`` of a zero model's (arrays or scalars)."""
+    return (np.asarray(zero_cost) > 0) & (np.asarray(cost) >= NO_SIGNAL * np.asarray(zero_cost))
+
+
+def judge_converged(ok, finite, gn_decrease, cost, zero_cost, dtype):
+    """``converged`` of one fit or of many (arrays): no numerical failure, finite, stationary
+    (``STATIONARY_TOLERANCE``) and describing some of the data (:func:`explains_none`)."""
+    stationary = np.asarray(gn_decrease) <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
+    return np.asarray(ok, bool) & np.asarray(finite, bool) & stationary & ~explains_none(cost, zero_cost)
+
+
 RACE_STEPS = 4
 """Levenberg–Marquardt steps every seed gets in the first phase (``_structured_lm``)."""
 RACE_MARGIN = float("inf")
@@ -331,13 +343,9 @@ def _gauss_newton_decrease(jtj, jtr, cost, scale):
 
 def _effective_index(f0):
     """The paper's effective index of a fitted F0, finite where F0 rounds to 1 (about 10¹⁶ in
-    float64, 10⁸ in float32, instead of :func:`~ctfit._fresnel.n_from_f0`'s infinity). Host
-    arrays stay on the host (NumPy: no program to compile for a handful of values)."""
-    if isinstance(f0, jax.Array):
-        return n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
-    f0 = np.asarray(f0)
-    r = np.sqrt(np.clip(f0, 0, 1 - np.finfo(f0.dtype).eps))
-    return (1 + r) / (1 - r)  # n_from_f0
+    float64, 10⁸ in float32, instead of :func:`~ctfit._fresnel.n_from_f0`'s infinity)."""
+    f0 = jnp.asarray(f0)
+    return n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
 
 
 def _constrained(problem: Problem, unravel, f):
@@ -371,6 +379,8 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
     jt = jax.jacfwd(lambda f: _constrained(problem, unravel, f))(flat) if flat.size else None
     params = to_params(problem.spec, u, problem.fixed)
     params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_aot.py)
+    if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
+        params["n"] = _effective_index(params["f0"])  # reported beside F0
     zero_cost = 0.5 * jnp.sum(_loss(problem, jnp.zeros_like(problem.y), problem.y) ** 2)  # the cost of a model that is 0
     return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, on_bound=on_bound, gn_decrease=_gauss_newton_decrease(jtj, jtr, cost, zero_cost),
                 zero_cost=zero_cost, pred=model_values(problem, u), jt=jt, params=params)
@@ -583,8 +593,8 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
     not_finite = nonfinite_reason(cost, rms(err), pred, dtype)  # a result that is not finite has not converged
     zero_cost = float(out["zero_cost"])
-    explains_nothing = zero_cost > 0 and cost >= NO_SIGNAL * zero_cost  # a stationary point the data does not support
-    converged = bool(np.asarray(ok)[best]) and not_finite is None and stationary and not explains_nothing
+    explains_nothing = bool(explains_none(cost, zero_cost))
+    converged = bool(judge_converged(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype))
     bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, 1e-300) / n)) + p * math.log(n)
     stats = {
         "converged": converged,
@@ -606,8 +616,6 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
         "no_stderr": [f"{k}[{i}]" for k, v in (stderr or {}).items() for i in np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))],
     }
     full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
-    if structure.needs_fresnel_params and structure.fresnel == "f0":
-        full = dataclasses.replace(full, n=np.asarray(_effective_index(full.f0)))
     material = Material(
         structure=structure,
         params=full,

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._aot import cached_call
-from ._fit import NO_SIGNAL, STATIONARY_TOLERANCE, FitResult, _effective_index, _fit_core, _prepare, fit
+from ._fit import FitResult, _fit_core, _prepare, fit, judge_converged
 from ._fit_batch import default_width, mapped
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
@@ -206,15 +206,13 @@ def _result(measurement, structure: Structure, out, values, n_texels: int, t0: f
     if p["m"] is not None:  # lobes in ascending m, per texel
         order = np.argsort(p["m"], axis=1)
         p["m"], p["w"] = np.take_along_axis(p["m"], order, 1), np.take_along_axis(p["w"], order, 1)
-    if p["f0"] is not None and structure.fresnel == "f0":
-        p["n"] = np.asarray(_effective_index(p["f0"]))
     get = lambda k: np.asarray(out[k])  # noqa: E731
     cost, rmse = get("cost"), get("rmse")
     decrease = get("gauss_newton_decrease")
     finite = np.isfinite(cost) & np.isfinite(rmse) & get("finite").astype(bool)
     elapsed = time.perf_counter() - t0
     stats = dict(
-        converged=get("ok").astype(bool) & finite & (decrease <= STATIONARY_TOLERANCE[dtype]) & ~((get("zero_cost") > 0) & (cost >= NO_SIGNAL * get("zero_cost"))),
+        converged=judge_converged(get("ok"), finite, decrease, cost, get("zero_cost"), dtype),
         steps=get("steps").astype(int), cost=cost, rmse=rmse, rel_rmse=get("rel_rmse"), gauss_newton_decrease=decrease,
         loss=options["loss"], solver=options["solver"], dtype=dtype, starts=options["starts"], max_steps=options["max_steps"],
         time_s=elapsed, texels_per_s=n_texels / elapsed,

@@ -79,6 +79,14 @@ def _clip_cos(c):
     return c, (1 - c) * (1 + c)
 
 
+def _unit_interval(f):
+    """A reflectance held in [0, 1], which the formulas leave by an ulp at most (F0 = 1: F = 1
+    for every c). The rounding is clipped from the value only, so the derivative stays the
+    formula's: a clip's derivative is ½ or 0 on its bound, and F0 = 1 and F0 = 0, bounds of the
+    fit, would look flat there."""
+    return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)
+
+
 def _dielectric(c, a, u, scale, *, tir_possible=True):
     """Unpolarised dielectric F from c = V·H, a = 1 − u², u = 1/n and ``scale`` = a².
 
@@ -113,10 +121,7 @@ def _dielectric(c, a, u, scale, *, tir_possible=True):
     f = jnp.where(grazing, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
     if tir_possible:
         f = jnp.where(tir, 1, f)
-    # F ∈ [0, 1] exactly; the formula leaves it by an ulp at most (F0 = 1: F = 1 for every c).
-    # The rounding is clipped from the value only, so the derivative there stays the formula's
-    # (a clip's derivative is 0 or ½ on its bound: F0 = 1, a bound of the fit, would look flat).
-    return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)
+    return _unit_interval(f)
 
 
 def fresnel_dielectric_f0(c, f0):
@@ -213,4 +218,4 @@ def fresnel_conductor(c, n, k):
     f = 0.5 * num_s * (den_p + num_p) * (1 / (den_s * den_p))
     interface = (n != 1) | (k != 0)
     f = jnp.where(grazing, interface.astype(f.dtype), f)
-    return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)  # rounding clipped, derivative kept (see _dielectric)
+    return _unit_interval(f)

@@ -33,16 +33,9 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 from jaxtyping import Array
+from optimistix._misc import cauchy_termination  # the test optimistix's own quasi-Newton step uses
 
 __all__ = ["StructuredLevenbergMarquardt", "ProjectedDampedNewtonDescent", "active_set", "predicted_decrease"]
-
-
-def _cauchy_termination(rtol, atol, norm, y, y_diff, f, f_diff):
-    """optimistix's test for a quasi-Newton step (small change in y and in f, relative to
-    ``rtol``/``atol``), as ``optimistix._misc.cauchy_termination`` states it for arrays."""
-    y_small = norm(jnp.abs(y_diff) / (atol + rtol * jnp.abs(y))) < 1
-    f_small = norm(jnp.abs(f_diff) / (atol + rtol * jnp.abs(f))) < 1
-    return y_small & f_small
 
 
 class _TrustRegion(optx.ClassicalTrustRegion):
@@ -171,9 +164,7 @@ class StructuredLevenbergMarquardt(optx.AbstractQuasiNewton):
             grad, hess = self.gauss_newton(state.y_eval, self.data)
             f_eval_info = optx.FunctionInfo.EvalGradHessian(f_eval, grad, lx.MatrixLinearOperator(hess, lx.positive_semidefinite_tag))
             descent_state = self.descent.query(state.y_eval, f_eval_info, descent_state)
-            y_diff = state.y_eval - y
-            f_diff = f_eval - state.f_info.f
-            terminate = _cauchy_termination(self.rtol, self.atol, self.norm, state.y_eval, y_diff, f_eval, f_diff)
+            terminate = self._terminate(y, state.y_eval, state.f_info.f, f_eval_info)
             terminate = jnp.where(state.first_step, jnp.array(False), terminate)  # never on the first step
             return state.y_eval, f_eval_info, aux_eval, descent_state, terminate
 
@@ -198,26 +189,24 @@ class StructuredLevenbergMarquardt(optx.AbstractQuasiNewton):
         )
         return y, state, prev_aux
 
-    def terminate(self, fn, y, args, options, state, tags):
-        """optimistix's tests (small steps and small changes), or a stationary point: one more
-        projected Gauss–Newton step promises less than ``gtol`` relative decrease of the cost.
+    def _terminate(self, y, y_eval, f, info):
+        """Whether to stop at the accepted point ``y_eval`` (``info``: its cost, Jᵀr and JᵀJ;
+        ``y``, ``f``: the point before it and its cost).
 
-        The second test ends the slow slides along directions the data does not determine
-        (R_d growing as s → 1, keeping d·R_d fixed), where the iterate keeps moving but the
-        cost does not change."""
-        done, result = super().terminate(fn, y, args, options, state, tags)
+        optimistix's test (small change in y and in the cost, :func:`cauchy_termination`) —
+        with ``gtol`` > 0 only where one more projected Gauss–Newton step promises less than
+        ``stol`` relative decrease (steps that barely move can still be making progress: a
+        parameter creeping along a bound, a cost set by differences of 1 − F0 ≈ 10⁻⁶) — or
+        a point where that step promises less than ``gtol``: this ends the slow slides along
+        directions the data does not determine (R_d growing as s → 1, keeping d·R_d fixed),
+        where the iterate keeps moving but the cost does not change."""
+        small_change = cauchy_termination(self.rtol, self.atol, self.norm, y_eval, y_eval - y, info.f, info.f - f)
         if self.gtol <= 0:
-            return done, result
-        info = state.f_info
+            return small_change
         lower = getattr(self.descent, "lower", None)
         upper = getattr(self.descent, "upper", None)
-        free = jnp.ones_like(y, dtype=bool) if lower is None else ~active_set(y, info.grad, lower, upper)
+        free = jnp.ones_like(y_eval, dtype=bool) if lower is None else ~active_set(y_eval, info.grad, lower, upper)
         dec = predicted_decrease(info.hessian.as_matrix(), info.grad, free)
-        scale = jnp.maximum(info.f, jnp.finfo(y.dtype).tiny)
-        small = dec <= self.gtol * scale
-        # optimistix's small-change tests stop only where the point is stationary to ``stol``:
-        # steps that barely move can still be making progress (a parameter creeping along a
-        # bound, a cost set by differences of 1 − F0 ≈ 10⁻⁶).
-        done = done & ((dec <= self.stol * scale) | (result != optx.RESULTS.successful))
-        return done | (small & ~state.first_step & (result == optx.RESULTS.successful)), result
+        scale = jnp.maximum(info.f, jnp.finfo(y_eval.dtype).tiny)
+        return (small_change & (dec <= self.stol * scale)) | (dec <= self.gtol * scale)
 
