@@ -58,7 +58,7 @@ def read_csv(path) -> Measurement:
     if end == pos:
         raise DataError("no data rows after the header", path=path, line=header_line)
     first = header_line + 1
-    parsed = _parse_fast(raw, pos, end, cols)
+    parsed = _parse_blocks(raw, pos, end, cols)
     values, channel = parsed if parsed is not None else _parse_slow(raw[pos:end].decode("utf-8"), first, cols, path)
     _check_values(values, cols, first, path)
     _check_units(values, meta, meta_lines, cols, header_line, path)
@@ -155,6 +155,29 @@ def _number(token: str) -> float:
     if "_" in token or not token.isascii():
         raise ValueError(token)
     return float(token)
+
+
+PARSE_BLOCK = 1 << 23
+"""Bytes of the body parsed at once by the fast parser (whole lines): its temporaries — a few
+times the block — stay small however large the file is."""
+
+
+def _parse_blocks(raw: bytes, pos: int, end: int, cols: _Header):
+    """:func:`_parse_fast` over blocks of about ``PARSE_BLOCK`` bytes of whole lines, the columns
+    joined; None when any block needs a closer look (the slow parser then reads the whole body)."""
+    parts = []
+    while pos < end:
+        stop = end if end - pos <= PARSE_BLOCK else raw.find(b"\n", pos + PARSE_BLOCK, end)
+        stop = end if stop < 0 else stop
+        part = _parse_fast(raw, pos, stop, cols) if stop > pos else None  # an empty line: the slow parser's
+        if part is None:
+            return None
+        parts.append(part)
+        pos = stop + 1
+    if len(parts) == 1:
+        return parts[0]
+    values = {n: np.concatenate([p[0][n] for p in parts]) for n in parts[0][0]}
+    return values, None if parts[0][1] is None else np.concatenate([p[1] for p in parts])
 
 
 def _parse_fast(raw: bytes, pos: int, end: int, cols: _Header):

@@ -35,14 +35,15 @@ from jax.flatten_util import ravel_pytree
 
 from ._aot import cached_call
 from ._brdf import normal_reflectance
-from ._diagnostics import residual_structure
+from ._diagnostics import relative_residual_structure
 from ._fresnel import f0_from_nk, n_from_f0
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
 from ._parameters import parameter
 from ._solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, active_set, predicted_decrease
-from ._validate import check_fittable, n_free_parameters, nonfinite_reason, rms
-from ._problem import LOSSES, Problem, _loss, bounds, from_params, make_problem, model_values, normal_equations, residual, to_params
+from ._validate import check_fittable, n_free_parameters, nonfinite_reason
+from ._problem import (LOSSES, Problem, _loss, bounds, from_params, _chunks, half_squared_norm, make_problem, map_over_chunks, model_values,
+                       normal_equations, residual, sum_over_chunks, to_params)
 
 __all__ = ["fit", "FitResult", "SOLVERS", "select_structure"]
 
@@ -112,22 +113,38 @@ def _m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
 
 @eqx.filter_jit
 def _score_grid(problem: Problem, u0: dict, grid):
-    """Loss of each grid point of log m after the best per-band amplitude (weighted linear LS)."""
+    """Loss of each grid point of log m after the best per-band amplitude (weighted linear LS):
+    the per-band scale Σ w v y / Σ w v², then Σ w (scale · v − y)² — two passes, chunk by chunk,
+    on a large grid (:func:`~ctfit._problem.sum_over_chunks`), one pass otherwise."""
+
+    def band_sum(part, t):
+        return jnp.sum(t, axis=0) if part.spec.grid else jax.ops.segment_sum(t, part.band, num_segments=part.fixed_bands)
+
+    def weighted(part, log_m):
+        v = model_values(part, dict(u0, m=log_m))
+        return v, part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
+
+    def scale_of(num, den):
+        return num / jnp.maximum(den, 1e-300)
+
+    def cost_of(part, log_m, scale, v=None, wgt=None):
+        if v is None:
+            v, wgt = weighted(part, log_m)
+        per_sample = scale if part.spec.grid else scale[part.band]
+        return jnp.sum(wgt * (per_sample * v - part.y) ** 2)
 
     def score(log_m):
-        v = model_values(problem, dict(u0, m=log_m))
-        y = problem.y
-        wgt = problem.mask / jnp.maximum(jnp.abs(y), problem.floor) ** 2
-        if problem.spec.grid:
-            num, den = jnp.sum(wgt * v * y, axis=0), jnp.sum(wgt * v * v, axis=0)
-            scale = num / jnp.maximum(den, 1e-300)
-            cost = jnp.sum(wgt * (scale * v - y) ** 2)
+        if _chunks(problem) == 1:
+            v, wgt = weighted(problem, log_m)
+            scale = scale_of(band_sum(problem, wgt * v * problem.y), band_sum(problem, wgt * v * v))
+            cost = cost_of(problem, log_m, scale, v, wgt)
         else:
-            nb = problem.fixed_bands
-            num = jnp.zeros(nb, v.dtype).at[problem.band].add(wgt * v * y)
-            den = jnp.zeros(nb, v.dtype).at[problem.band].add(wgt * v * v)
-            scale = num / jnp.maximum(den, 1e-300)
-            cost = jnp.sum(wgt * (scale[problem.band] * v - y) ** 2)
+            def sums(part):
+                v, wgt = weighted(part, log_m)
+                return band_sum(part, wgt * v * part.y), band_sum(part, wgt * v * v)
+
+            scale = scale_of(*sum_over_chunks(problem, sums))
+            cost = sum_over_chunks(problem, lambda part: cost_of(part, log_m, scale))
         return jnp.where(jnp.isfinite(cost), cost, jnp.inf), scale
 
     return jax.lax.map(score, grid)  # one grid point at a time: memory O(N), not O(grid × N)
@@ -185,8 +202,7 @@ def _gauss_newton(flat, data):
 
 def _half_squared_norm(flat, data):
     problem, unravel = data
-    r = residual(unravel(flat), (problem.y, problem))
-    return 0.5 * jnp.sum(r * r)
+    return half_squared_norm(problem, unravel(flat))
 
 
 STATIONARY_TOLERANCE = {"float64": 1e-6, "float32": 1e-3}
@@ -381,9 +397,44 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
     params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_aot.py)
     if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
         params["n"] = _effective_index(params["f0"])  # reported beside F0
-    zero_cost = 0.5 * jnp.sum(_loss(problem, jnp.zeros_like(problem.y), problem.y) ** 2)  # the cost of a model that is 0
+    zero_cost = sum_over_chunks(problem, lambda part: 0.5 * jnp.sum(_loss(part, jnp.zeros_like(part.y), part.y) ** 2))  # the cost of a model that is 0
     return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, on_bound=on_bound, gn_decrease=_gauss_newton_decrease(jtj, jtr, cost, zero_cost),
-                zero_cost=zero_cost, pred=model_values(problem, u), jt=jt, params=params)
+                zero_cost=zero_cost, jt=jt, params=params, **_residual_summary(problem, u))
+
+
+def _residual_summary(problem: Problem, u: dict) -> dict:
+    """What the report needs of the model at ``u``, chunk by chunk on a large grid
+    (:func:`~ctfit._problem.map_over_chunks`): the relative residuals ``rel`` in the problem's
+    layout, stacked by chunk (reshape to the layout's shape; 0 where nothing is measured;
+    float32, for the residual diagnostics), ``rmse`` and
+    ``rel_rmse`` (as max|e| · rms(e / max|e|), so that squares cannot overflow), and ``bad``,
+    how many measured cells have a model value that is not finite."""
+
+    def one(part):
+        pred = model_values(part, u)
+        err = jnp.where(part.mask, pred - part.y, 0)
+        rel = err / jnp.maximum(jnp.abs(part.y), part.floor)
+        stats = [_scaled_squares(e) for e in (err, rel)]
+        big = jnp.asarray(jnp.finfo(jnp.float32).max, rel.dtype)
+        return jnp.clip(rel, -big, big).astype(jnp.float32), stats, jnp.sum(part.mask & ~jnp.isfinite(pred))
+
+    rel, stats, bad = map_over_chunks(problem, one)
+    n = jnp.maximum(jnp.sum(problem.mask), 1)
+    rmse, rel_rmse = (_combined_rms(big, sq, n) for big, sq in stats)
+    return dict(rel=rel, rmse=rmse, rel_rmse=rel_rmse, bad=jnp.sum(bad))  # rel reshaped on the host: no copy
+
+
+def _scaled_squares(e):
+    """(max|e|, Σ (e / max|e|)²) of one chunk."""
+    big = jnp.max(jnp.abs(e))
+    return big, jnp.sum((e / jnp.where(big > 0, big, 1)) ** 2)
+
+
+def _combined_rms(big, sq, n):
+    """The rms of all chunks from their (max|e|, Σ (e / max|e|)²): rescaled to the largest max."""
+    top = jnp.max(big)
+    safe = jnp.where(top > 0, top, 1)
+    return jnp.where(top > 0, top * jnp.sqrt(jnp.sum(sq * (big / safe) ** 2) / n), jnp.zeros((), big.dtype))
 
 
 def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -571,10 +622,7 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     costs, ok, steps, best = out["costs"], out["ok"], out["steps"], int(out["best"])
     u = out["u"]
     params = Params(**{k: None if v is None else np.asarray(v) for k, v in out["params"].items()})
-    pred = np.asarray(out["pred"]).reshape(-1)
-    y = np.asarray(problem.y).reshape(-1)
-    mask = np.asarray(problem.mask).reshape(-1) > 0
-    err = (pred - y)[mask]
+    mask = np.asarray(problem.mask)
     floor = float(problem.floor)
     n, p = int(mask.sum()), int(sum(np.size(v) for v in u.values()))
     cost = float(costs[best])
@@ -584,14 +632,16 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     on_bound = np.asarray(out["on_bound"], bool)
     loose = undetermined(out["jtj"]) & ~on_bound  # coordinates the data does not determine
     stderr = _stderr(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose)
+    pairs, index = data.directions()
+    out["rel"] = np.reshape(out["rel"], problem.y.shape)
     if problem.spec.grid:
-        pred_samples = np.asarray(out["pred"])[data.directions()[1], data.band]
+        structure_notes = relative_residual_structure(pairs, out["rel"][: len(pairs)], mask=mask[: len(pairs)])
     else:
-        pred_samples = pred[: len(data)]
-    structure_notes = residual_structure(data, pred_samples, floor=floor)
+        structure_notes = relative_residual_structure(pairs, out["rel"][: len(data)], index=index)
     gn_decrease = float(out["gn_decrease"])
     stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
-    not_finite = nonfinite_reason(cost, rms(err), pred, dtype)  # a result that is not finite has not converged
+    rmse = float(out["rmse"])
+    not_finite = nonfinite_reason(cost, rmse, int(out["bad"]), n, dtype)  # a result that is not finite has not converged
     zero_cost = float(out["zero_cost"])
     explains_nothing = bool(explains_none(cost, zero_cost))
     converged = bool(judge_converged(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype))
@@ -600,8 +650,8 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
         "converged": converged,
         "steps": int(np.asarray(steps)[best]),
         "cost": cost,
-        "rmse": rms(err),
-        "rel_rmse": float(np.sqrt(np.mean((err / np.maximum(np.abs(y[mask]), floor)) ** 2))),
+        "rmse": rmse,
+        "rel_rmse": float(out["rel_rmse"]),
         "time_s": time.perf_counter() - t0,
         "n_samples": n,
         "n_params": p,

@@ -29,7 +29,7 @@ import textwrap
 import numpy as np
 
 from ._brdf import normal_reflectance
-from ._diagnostics import _angle_lv, _half_angle
+from ._diagnostics import angle_lv_deg, half_angle_deg
 from ._measurement import Measurement
 from ._simulate import evaluate
 
@@ -81,11 +81,11 @@ def make_fit_figure(result, data: Measurement):
     model = evaluate(mat, data)
     if _is_half_angle_slice(data):
         _half_angle_panel(axes[0], mat, data, labels)
-        _residual_panel(axes[1], result, data, model, _half_angle(data), "θ_h, angle between N and H (°)", labels)
+        _residual_panel(axes[1], result, data, model, half_angle_deg(data), "θ_h, angle between N and H (°)", labels)
     else:
         _slices_panel(axes[0], mat, data, labels)
         if data.n_bands == 1:
-            _residual_panel(axes[1], result, data, model, _angle_lv(data), "angle between L and V (°)", labels)
+            _residual_panel(axes[1], result, data, model, angle_lv_deg(data), "angle between L and V (°)", labels)
         else:
             _spectra_panel(axes[1], data, model, labels)
     _fresnel_panel(axes[2], result, mat, data, labels)
@@ -158,7 +158,7 @@ def _slices_panel(ax, mat, data, labels) -> None:
 
 
 def _half_angle_panel(ax, mat, data, labels) -> None:
-    th = _half_angle(data)
+    th = half_angle_deg(data)
     line = np.linspace(0.0, max(float(th.max()), 1.0), 400)
     data_y, curves = [], []
     for b, c in zip(range(data.n_bands), _colours(data)):

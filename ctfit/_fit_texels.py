@@ -190,12 +190,9 @@ def _texel_core(problem, ys, floors, active, u0, grid, width: int, *options):
         p = eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor))
         out = _fit_core(p, u0, grid, *options)
         best = out["best"]
-        err = (out["pred"] - y) * p.mask
-        n = jnp.sum(p.mask)
-        rel = err / jnp.maximum(jnp.abs(y), floor)
         return dict(params=out["params"], cost=out["costs"][best], ok=out["ok"][best], steps=out["steps"][best],
-                    gauss_newton_decrease=out["gn_decrease"], zero_cost=out["zero_cost"], rmse=jnp.sqrt(jnp.sum(err**2) / n), rel_rmse=jnp.sqrt(jnp.sum(rel**2) / n),
-                    finite=jnp.all(jnp.isfinite(out["pred"])))
+                    gauss_newton_decrease=out["gn_decrease"], zero_cost=out["zero_cost"], rmse=out["rmse"], rel_rmse=out["rel_rmse"],
+                    finite=out["bad"] == 0)
 
     return mapped(one, (ys, floors), active, width)
 

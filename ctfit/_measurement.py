@@ -90,13 +90,29 @@ class Measurement:
         return band_labels(self.wavelength_nm, self.channels, self.band_unknown)
 
     def directions(self) -> tuple[np.ndarray, np.ndarray]:
-        """Unique direction pairs (D, 4) as (θ_i, φ_i, θ_o, φ_o), in lexicographic order, and each
-        sample's pair index (N,). (A lexsort of the four columns, ~10× faster than
+        """Unique direction pairs (D, 4) as (θ_i, φ_i, θ_o, φ_o) and each sample's pair index (N,).
+
+        The pairs are in lexicographic order (a lexsort of the four columns, ~10× faster than
         ``np.unique(axis=0)`` on large files, same result; rows that repeat the row before — the
-        bands of one direction pair, as files usually list them — are sorted once.) Computed
-        once per Measurement (the arrays returned are read-only).
+        bands of one direction pair, as files usually list them — are sorted once), or in the
+        order a reader gave them (:meth:`with_directions`). Computed once per Measurement and kept
+        by :meth:`replace` while the angles stay (the arrays returned are read-only).
         """
         return self._directions
+
+    def with_directions(self, pairs, index) -> "Measurement":
+        """This measurement with its direction pairs given, for readers that know them (a MERL
+        table's cells): ``pairs`` (D, 4) unique, ``index`` (N,) with ``pairs[index]`` equal to each
+        sample's angles (any integer type: int32 halves its memory). Saves the search in
+        :meth:`directions` (and its memory) on large files."""
+        pairs, index = np.asarray(pairs, dtype=np.float64), np.asarray(index)
+        if pairs.ndim != 2 or pairs.shape[1] != 4 or index.shape != (len(self),) or not np.issubdtype(index.dtype, np.integer):
+            raise ValueError(f"pairs must have shape (D, 4) and index ({len(self)},) integers; got {pairs.shape} and {index.shape} {index.dtype}")
+        pairs.setflags(write=False)
+        index.setflags(write=False)
+        new = dataclasses.replace(self)
+        new.__dict__["_directions"] = (pairs, index)
+        return new
 
     @functools.cached_property
     def _directions(self) -> tuple[np.ndarray, np.ndarray]:
@@ -122,7 +138,7 @@ class Measurement:
     def repeats(self) -> bool:
         """Whether some (direction pair, band) cell has more than one sample (repeated measurements)."""
         pairs, index = self.directions()
-        flat = index * self.n_bands + np.asarray(self.band, dtype=np.intp)
+        flat = index.astype(np.intp) * self.n_bands + self.band
         cells = len(pairs) * self.n_bands
         if cells <= 4 * len(flat):  # a count per cell: O(N), no sort
             return bool(np.bincount(flat, minlength=cells).max(initial=0) > 1)
@@ -138,9 +154,13 @@ class Measurement:
         d, w = len(pairs), self.n_bands
         if d * w != len(self) or self.repeats:
             return None
-        flat = index * w + self.band
+        flat = index.astype(np.intp) * w + self.band
         order = np.argsort(flat, kind="stable")
         return pairs, order
 
     def replace(self, **changes) -> "Measurement":
-        return dataclasses.replace(self, **changes)
+        """A copy with ``changes``; it keeps the direction pairs found already when the angles stay."""
+        new = dataclasses.replace(self, **changes)
+        if "_directions" in self.__dict__ and not changes.keys() & {"theta_i", "phi_i", "theta_o", "phi_o"}:
+            new.__dict__["_directions"] = self.__dict__["_directions"]
+        return new

@@ -26,7 +26,6 @@ Efficient BRDF Representation", EGWR 1998, doi:10.1007/978-3-7091-6453-2_2.
 
 from __future__ import annotations
 
-import functools
 import math
 import os
 
@@ -148,16 +147,16 @@ def _angles_deg(x, y, z):
     return theta, np.where(phi >= 360.0, 0.0, phi)
 
 
-@functools.lru_cache(maxsize=1)
 def _cell_directions():
-    """(θ_i, φ_i, θ_o, φ_o) of every cell's centre, flat in file order, and the above-horizon mask."""
+    """(θ_i, φ_i, θ_o, φ_o) of every cell's centre, flat in file order, and the above-horizon mask.
+    Computed one θ_h row at a time, so the temporaries stay small (a MERL table has 1.46M cells)."""
     th, td, pd = merl_cell_centres()
-    angles = half_diff_to_angles_deg(th[:, None, None], td[None, :, None], pd[None, None, :])
-    flat = [a.reshape(-1) for a in angles]
-    above = (flat[0] < 90) & (flat[2] < 90)
-    for a in (*flat, above):
-        a.flags.writeable = False
-    return flat, above
+    flat = [np.empty(_CELLS) for _ in range(4)]
+    row = MERL_SHAPE[1] * MERL_SHAPE[2]
+    for i, t in enumerate(th):
+        for out, a in zip(flat, half_diff_to_angles_deg(t, td[:, None], pd[None, :])):
+            out[i * row:(i + 1) * row] = a.reshape(-1)
+    return flat, (flat[0] < 90) & (flat[2] < 90)
 
 
 # --- files --------------------------------------------------------------------------------------
@@ -167,7 +166,9 @@ def read_merl(path) -> Measurement:
     """Read a MERL ``.binary`` file as an RGB measurement (channels R, G, B).
 
     Samples are ordered by cell (file order), and within a cell by channel. ``meta`` counts the
-    unmeasured (negative) values and the cells skipped below the horizon.
+    unmeasured (negative) values and the cells skipped below the horizon. The direction pairs
+    are known from the cells, so :meth:`Measurement.directions` gives them in cell order
+    without a search for repeated rows.
     """
     with open(path, "rb") as f:
         raw = f.read()
@@ -188,18 +189,23 @@ def read_merl(path) -> Measurement:
             f"{_HEADER_BYTES + 8 * (ch * _CELLS + cell)}): {table[ch, cell]} is not a finite number",
             path=path,
         )
-    (theta_i, phi_i, theta_o, phi_o), above = _cell_directions()
+    angles, above = _cell_directions()
     measured = table.T >= 0  # (cells, 3)
     keep = measured & above[:, None]
-    cell, band = np.nonzero(keep)
-    return Measurement(
-        theta_i=theta_i[cell],
-        phi_i=phi_i[cell],
-        theta_o=theta_o[cell],
-        phi_o=phi_o[cell],
-        band=band.astype(np.int64),
+    cells = np.flatnonzero(keep.any(axis=1))  # the direction pairs, in file order
+    pairs = np.stack([a[cells] for a in angles], axis=1)
+    del angles
+    keep = keep[cells]
+    pair, band = np.nonzero(keep)  # samples: by cell, then channel
+    brdf = table.T[cells][keep] * MERL_SCALE[band]
+    data = Measurement(
+        theta_i=pairs[pair, 0],
+        phi_i=pairs[pair, 1],
+        theta_o=pairs[pair, 2],
+        phi_o=pairs[pair, 3],
+        band=band.astype(np.int8),
         channels=("R", "G", "B"),
-        brdf=(table.T * MERL_SCALE)[keep],
+        brdf=brdf,
         meta={
             "format": "MERL",
             "merl_unmeasured_values": str(int(np.count_nonzero(~measured))),
@@ -208,6 +214,7 @@ def read_merl(path) -> Measurement:
         },
         source=os.fspath(path),
     )
+    return data.with_directions(pairs, pair.astype(np.int32))  # < 1.46M cells
 
 
 def write_merl(path, rgb_table) -> None:

@@ -38,7 +38,7 @@ from ._material import Params, Structure
 from ._measurement import Measurement
 from ._parameters import box_bounds, clip_box, n_lower, parameter
 
-__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations"]
+__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket"]
 
 LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
@@ -59,15 +59,17 @@ class Spec:
 class Problem(eqx.Module):
     """Data and static spec of one fit. Arrays are laid out as the model evaluates them:
 
-    grid layout: values (D, W) with a 0/1 ``mask`` for missing (pair, band) cells;
-    pairs layout: values (N,) with ``pair`` and ``band`` indices per sample.
+    grid layout: values (D, W) with a boolean ``mask`` (False for missing (pair, band) cells),
+    ``cos_i`` (D, 1) (None unless the loss weights by cos θ_i);
+    pairs layout: values (N,) with ``pair`` and ``band`` indices per sample (``mask`` False for
+    padding).
     """
 
     spec: Spec = eqx.field(static=True)
     geom: Geometry
     y: jax.Array
     sigma: jax.Array | None
-    cos_i: jax.Array
+    cos_i: jax.Array | None
     mask: jax.Array
     pair: jax.Array | None
     band: jax.Array | None
@@ -235,20 +237,20 @@ def make_problem(
     if grid:
         shape = (len(pairs), n_bands)
         y = np.zeros(shape)
-        sig = np.ones(shape)
-        mask = np.zeros(shape)
+        mask = np.zeros(shape, dtype=bool)
         y[index, data.band] = data.brdf
-        mask[index, data.band] = 1.0
+        mask[index, data.band] = True
         if data.sigma is not None:
+            sig = np.ones(shape)
             sig[index, data.band] = data.sigma
-        cos_i = np.broadcast_to(cos_pair[:, None], shape)
+        cos_i = cos_pair[:, None] if loss in ("cosine", "log") else None  # broadcast over the bands; only these losses use it
         pair = band = None
     else:
         extra = (pad_to[1] if pad_to else bucket(len(data))) - len(data) if pad and len(data) else 0
         padded = lambda a, fill: np.concatenate([np.asarray(a), np.full(extra, fill, np.asarray(a).dtype)])  # noqa: E731
-        y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data)), 0.0)
-        sig = padded(data.sigma, 1.0) if data.sigma is not None else np.ones(len(y))
-        cos_i = padded(cos_pair[index], 1.0)
+        y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data), dtype=bool), False)
+        sig = padded(data.sigma, 1.0) if data.sigma is not None else None
+        cos_i = padded(cos_pair[index], 1.0) if loss in ("cosine", "log") else None
         pair, band = jax.device_put(padded(index, 0)), jax.device_put(padded(data.band, 0))  # no conversion program
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
@@ -258,7 +260,7 @@ def make_problem(
         y=to(y),
         sigma=to(sig) if data.sigma is not None else None,
         cos_i=to(cos_i),
-        mask=to(mask),
+        mask=jax.device_put(mask),
         pair=pair,
         band=band,
         floor=jax.device_put(np.asarray(floor, dtype=jnp.dtype(dtype))),
@@ -269,18 +271,97 @@ def make_problem(
 
 BUCKET_MIN = 256
 """The smallest size bucket (:func:`bucket`)."""
+CHUNK = 1 << 15
+"""Rows per chunk: direction pairs of a grid layout, samples of a pairs layout. A problem whose
+(padded) number of rows is a multiple of this, and larger, is summed chunk by chunk — cost, Jᵀr,
+JᵀJ, the seed scores and the residual summary — so the solve's temporaries are a few
+chunk-sized arrays instead of a few data-sized ones."""
+_FINE = 1 << 18
+"""Above this size, buckets are multiples of ``CHUNK``: eight per octave (:func:`bucket`)."""
 
 
 def bucket(n: int) -> int:
-    """The size bucket of ``n``: the smallest ⌈256 · 2^(k/2)⌉ ≥ n (k = 0, 1, …). Buckets grow by
-    √2, so padding costs at most 41 % more work and a new file size usually needs no new
-    compiled program."""
+    """The size bucket of ``n``.
+
+    Up to 2¹⁸: the smallest ⌈256 · 2^(k/2)⌉ ≥ n (k = 0, 1, …); buckets grow by √2, so padding
+    costs at most 41 % more work and a new file size usually needs no new compiled program.
+    Above: ``n`` rounded up to a multiple of 2^(⌊log₂ n⌋ − 3) — eight buckets per octave, at most
+    12.5 % padding where the solve dominates the compile, and each a multiple of ``CHUNK``.
+    """
+    if n > _FINE:
+        step = 1 << (int(n).bit_length() - 4)
+        return -(-n // step) * step
     k = max(0, math.ceil(2 * math.log2(max(n, 1) / BUCKET_MIN) - 1e-9))
     while math.ceil(BUCKET_MIN * 2 ** (k / 2)) < n:
         k += 1
     while k > 0 and math.ceil(BUCKET_MIN * 2 ** ((k - 1) / 2)) >= n:
         k -= 1
     return math.ceil(BUCKET_MIN * 2 ** (k / 2))
+
+
+def _chunks(problem: Problem) -> int:
+    """How many chunks of ``CHUNK`` rows (direction pairs of a grid, samples otherwise) ``problem``
+    is summed over (1: all at once)."""
+    n = problem.y.shape[0]
+    return n // CHUNK if n > CHUNK and n % CHUNK == 0 else 1
+
+
+def _parts(problem: Problem, k: int):
+    """The per-row arrays of ``problem`` split into ``k`` chunks (a leading axis), and a function
+    that makes the problem of one chunk from one slice of them.
+
+    Grid layout: a chunk is ``CHUNK`` direction pairs with all their bands. Pairs layout: a
+    chunk is ``CHUNK`` samples, each its own direction pair (their geometry gathered), so S is
+    computed per sample — the same work for scattered data, where pairs and samples are about
+    as many."""
+
+    def split(a):
+        return None if a is None else a.reshape((k, CHUNK) + a.shape[1:])
+
+    cells = (split(problem.y), split(problem.sigma), split(problem.cos_i), split(problem.mask))
+    if problem.spec.grid:
+        rows = (jax.tree.map(split, problem.geom), *cells)
+
+        def part(x):
+            geom, y, sigma, cos_i, mask = x
+            return dataclasses.replace(problem, geom=geom, y=y, sigma=sigma, cos_i=cos_i, mask=mask)
+
+        return rows, part
+    rows = (split(problem.pair), split(problem.band), *cells)
+    own = jnp.arange(CHUNK, dtype=problem.pair.dtype)
+
+    def part(x):
+        pair, band, y, sigma, cos_i, mask = x
+        geom = jax.tree.map(lambda a: a[pair], problem.geom)
+        return dataclasses.replace(problem, geom=geom, pair=own, band=band, y=y, sigma=sigma, cos_i=cos_i, mask=mask)
+
+    return rows, part
+
+
+def sum_over_chunks(problem: Problem, fn):
+    """Σ ``fn(part)`` over the parts of ``problem`` of ``CHUNK`` rows each (:func:`_chunks`), as a
+    ``lax.scan`` — or ``fn(problem)`` when it is not chunked. ``fn`` returns a pytree of arrays that add up: sums over samples (½‖r‖², Jᵀr, JᵀJ, per-band sums)."""
+    k = _chunks(problem)
+    if k == 1:
+        return fn(problem)
+    rows, part = _parts(problem, k)
+    first = jax.tree.map(lambda a: a[0], rows)
+    total = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), jax.eval_shape(lambda: fn(part(first))))
+
+    def body(acc, x):
+        return jax.tree.map(jnp.add, acc, fn(part(x))), None
+
+    return jax.lax.scan(body, total, rows)[0]
+
+
+def map_over_chunks(problem: Problem, fn):
+    """``fn(part)`` for each part of ``problem`` (:func:`sum_over_chunks`), stacked along a new
+    leading axis (length 1 when it is not chunked): ``lax.map``, one chunk's temporaries at a time."""
+    k = _chunks(problem)
+    if k == 1:
+        return jax.tree.map(lambda a: a[None], fn(problem))
+    rows, part = _parts(problem, k)
+    return jax.lax.map(lambda x: fn(part(x)), rows)
 
 
 def _gather_bands(params: Params, band) -> Params:
@@ -395,15 +476,30 @@ def _columns(problem: Problem, u: dict, y):
     return res.reshape(-1), values, cols
 
 
-def normal_equations(problem: Problem, u: dict, y=None):
+def normal_equations(problem: Problem, u: dict):
+    """½‖r‖², Jᵀr and JᵀJ at ``u``, from the factored Jacobian (no N × P matrix), summed chunk by
+    chunk for a large grid (:func:`sum_over_chunks`); see :func:`_normal_equations`."""
+    return sum_over_chunks(problem, lambda part: _normal_equations(part, u))
+
+
+def half_squared_norm(problem: Problem, u: dict):
+    """½‖r‖² at ``u``, summed chunk by chunk for a large grid (:func:`sum_over_chunks`)."""
+
+    def one(part):
+        r = _residual(u, part.y, part)
+        return 0.5 * jnp.sum(r * r)
+
+    return sum_over_chunks(problem, one)
+
+
+def _normal_equations(problem: Problem, u: dict):
     """½‖r‖², Jᵀr and JᵀJ at ``u``, from the factored Jacobian (no N × P matrix).
 
     The flat parameter order is that of ``jax.flatten_util.ravel_pytree(u)`` (sorted names,
     each entry flattened). Blocks: shape–shape J_Sᵀ diag(Σ_band a²) J_S; anything × band is a
     per-band sum; band × band is diagonal.
     """
-    y = problem.y if y is None else y
-    res, _, cols = _columns(problem, u, y)
+    res, _, cols = _columns(problem, u, problem.y)
     r = res.reshape(problem.y.shape)
     names = sorted(u)
     W = problem.fixed_bands

@@ -106,15 +106,14 @@ def rms(x) -> float:
     return scale * float(np.sqrt(np.mean((x / scale) ** 2)))
 
 
-def nonfinite_reason(cost: float, rmse: float, pred, dtype) -> str | None:
-    """Why a fit's result is not finite (a warning), or None when cost, rmse and model values are."""
-    pred = np.asarray(pred)
-    bad = int(np.count_nonzero(~np.isfinite(pred)))
+def nonfinite_reason(cost: float, rmse: float, bad: int, values: int, dtype) -> str | None:
+    """Why a fit's result is not finite (a warning), or None when cost, rmse and model values are;
+    ``bad`` of the ``values`` model values are not finite."""
     parts = []
     if not math.isfinite(cost):
         parts.append(f"the cost is {cost}")
     if bad:
-        parts.append(f"{bad} of {pred.size} model values are not finite")
+        parts.append(f"{bad} of {values} model values are not finite")
     if not math.isfinite(rmse):
         parts.append(f"the rmse is {rmse}")
     if not parts:

@@ -643,8 +643,10 @@ def main():  # console-script entry point
     """Run the command; Ctrl-C at any moment exits with status 130 and one line (``_interrupt.py``)."""
     from ._cache import matplotlib_config_fallback
     from ._interrupt import install
+    from ._memory import return_large_blocks
 
     install(_interrupted_message)
+    return_large_blocks()  # peak memory: what a command holds at once (``_memory.py``)
     matplotlib_config_fallback()  # no HOME: the compilation cache's one warning says it all
     app()
 

@@ -32,11 +32,14 @@ def assert_same(a: Measurement, b: Measurement):
     assert {k: str(v) for k, v in a.meta.items()} == b.meta
 
 
-@pytest.fixture(params=["fast", "slow"])
+@pytest.fixture(params=["fast", "blocks", "slow"])
 def path_kind(request, monkeypatch):
-    """Run a test through the vectorised path and through the line-by-line fallback."""
+    """Run a test through the vectorised path (whole, and in blocks of a line or two) and through
+    the line-by-line fallback."""
     if request.param == "slow":
         monkeypatch.setattr(_csvio, "_parse_fast", lambda *args: None)
+    if request.param == "blocks":
+        monkeypatch.setattr(_csvio, "PARSE_BLOCK", 7)
     return request.param
 
 
@@ -331,6 +334,11 @@ def test_round_trip_property(tmp_path, m):
     path = tmp_path / "rt.csv"
     write_csv(m, path)
     assert_same(m, read_csv(path))
+    block, _csvio.PARSE_BLOCK = _csvio.PARSE_BLOCK, 40  # the same file in blocks of a line or so
+    try:
+        assert_same(m, read_csv(path))
+    finally:
+        _csvio.PARSE_BLOCK = block
 
 
 @settings(max_examples=60, deadline=None)
@@ -349,3 +357,27 @@ def test_direction_pairs_are_numpy_unique_rows(data):
     want, inverse = np.unique(rows, axis=0, return_inverse=True)
     np.testing.assert_array_equal(pairs, want)
     np.testing.assert_array_equal(index, inverse.ravel())
+
+
+def test_replace_keeps_the_direction_pairs_while_the_angles_stay():
+    rng = np.random.default_rng(5)
+    n = 60
+    angles = {k: np.repeat(rng.uniform(0, 80, n // 3), 3) for k in ("theta_i", "phi_i", "theta_o", "phi_o")}
+    m = Measurement(**angles, band=np.tile(np.arange(3), n // 3), channels=("R", "G", "B"))
+    pairs, index = m.directions()
+    kept = m.replace(brdf=np.ones(n))
+    assert kept.directions()[0] is pairs and kept.directions()[1] is index
+    moved = m.replace(theta_i=angles["theta_i"] + 1.0)
+    assert moved.directions()[0] is not pairs
+    np.testing.assert_array_equal(moved.directions()[1], index)
+
+
+def test_given_direction_pairs_are_checked():
+    m = Measurement(theta_i=np.zeros(4), phi_i=np.zeros(4), theta_o=np.ones(4), phi_o=np.zeros(4), band=np.zeros(4, int),
+                          wavelength_nm=np.array([500.0]))
+    with pytest.raises(ValueError, match="pairs must have shape"):
+        m.with_directions(np.zeros((1, 3)), np.zeros(4, int))
+    with pytest.raises(ValueError, match="integers"):
+        m.with_directions(np.zeros((1, 4)), np.zeros(4))
+    given = m.with_directions([[0.0, 0.0, 1.0, 0.0]], np.zeros(4, np.int32))
+    assert given is not m and given.directions()[1].dtype == np.int32 and len(m.directions()[0]) == 1

@@ -58,3 +58,31 @@ def test_the_last_bin_is_labelled_with_its_real_end():
     model[grazing] *= 0.6
     notes = [n for n in residual_structure(data, model) if "max(θ_i, θ_o)" in n]
     assert notes and "[85°, 90°]" in notes[0] and "90.0001" not in notes[0]
+
+
+def test_grid_and_per_sample_residuals_give_the_same_warnings():
+    """The fit's route (relative residuals on its (pair, band) grid with a mask) and the
+    per-sample route find the same bins, means and counts."""
+    from ctfit._diagnostics import relative_residual_structure
+
+    st = ctfit.Structure(lobes=1)
+    mat = ctfit.Material(st, ctfit.Params(m=np.array([0.3]), w=np.array([1.0]), f0=np.full(3, 0.5)), wavelength_nm=np.array([450.0, 550.0, 650.0]))
+    data = ctfit.simulate(mat, 3000, noise=0.01, seed=4)
+    model = np.asarray(ctfit.evaluate(mat, data)).copy()
+    model[np.maximum(data.theta_i, data.theta_o) >= 60] *= 1.4
+    model[data.theta_i < 20] *= 0.8
+    notes = residual_structure(data, model)
+    assert len(notes) >= 2
+    pairs, index = data.directions()
+    rel = np.zeros((len(pairs) + 5, 3))  # padded rows, as the fit's layout has them
+    mask = np.zeros(rel.shape, bool)
+    floor = 1e-3 * data.brdf.max()
+    rel[index, data.band] = (model - data.brdf) / np.maximum(data.brdf, floor)
+    mask[index, data.band] = True
+    missing = (index[:7], data.band[:7])  # a few cells not measured
+    keep = np.ones(len(data), bool)
+    keep[:7] = False
+    rel[missing], mask[missing] = 99.0, False
+    sub = data.replace(**{k: getattr(data, k)[keep] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf", "sigma")})
+    expected = residual_structure(sub, model[keep], floor=floor)
+    assert relative_residual_structure(pairs, rel[: len(pairs)], mask=mask[: len(pairs)]) == expected

@@ -142,3 +142,17 @@ def test_write_merl_rejects_bad_tables(tmp_path, table, pattern):
 def test_merl_table_checks_channel_count():
     with pytest.raises(ValueError, match="returned 2 channels"):
         merl_table(lambda th, td, pd: (th, td))
+
+
+def test_the_reader_gives_its_direction_pairs(merl_file):
+    """The pairs a MERL file hands over are what a search of its rows finds (as a set: in cell
+    order, not lexicographic), each sample points at its own pair, and memory-light types."""
+    m = read_merl(merl_file[0])
+    pairs, index = m.directions()
+    assert index.dtype == np.int32 and m.band.dtype == np.int8
+    rows = np.stack([m.theta_i, m.phi_i, m.theta_o, m.phi_o], axis=1)
+    np.testing.assert_array_equal(pairs[index], rows)
+    searched, _ = m.replace(theta_i=m.theta_i.copy()).directions()  # new angles: found by search
+    assert len(searched) == len(pairs) == len(np.unique(pairs, axis=0))
+    np.testing.assert_array_equal(np.unique(pairs, axis=0), searched)
+    assert not m.repeats and m.grid() is not None

@@ -1,0 +1,117 @@
+"""A large grid is summed chunk by chunk (cost, Jᵀr, JᵀJ, seed scores, the residual summary):
+the same numbers as all at once, and the compiled fit's temporaries stay chunk-sized."""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ctfit
+from ctfit import _fit, _problem
+from ctfit._problem import CHUNK, bucket, half_squared_norm, make_problem, normal_equations
+
+SMALL_CHUNK = 64
+
+
+def _grid(pairs: int, seed: int = 0):
+    """A spectral grid (every pair × 3 bands) of a one-lobe material with a diffuse part, 1 % noise."""
+    rng = np.random.default_rng(seed)
+    ti, to = rng.uniform(0, 80, pairs), rng.uniform(0, 80, pairs)
+    pi, po = rng.uniform(0, 360, pairs), rng.uniform(0, 360, pairs)
+    rep = lambda a: np.repeat(a, 3)  # noqa: E731
+    wl = np.array([450.0, 550.0, 650.0])
+    geometry = ctfit.Measurement(theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=np.tile(np.arange(3), pairs),
+                                 wavelength_nm=wl)
+    truth = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.9, 0.6, 0.4])),
+                           wavelength_nm=wl)
+    values = ctfit.evaluate(truth, geometry) * (1 + 0.01 * rng.standard_normal(len(geometry)))
+    return geometry.replace(brdf=values)
+
+
+def _fresh_fit_core():
+    """The fit program traced anew (equinox keeps one trace per function, whatever ``CHUNK`` is)."""
+    return eqx.filter_jit(lambda *a: _fit._fit_core(*a))
+
+
+@pytest.fixture
+def small_chunks(monkeypatch):
+    monkeypatch.setattr(_problem, "CHUNK", SMALL_CHUNK)
+
+
+def _problem_and_start(data, loss="relative"):
+    rows = 24 * SMALL_CHUNK  # samples of the pairs layout (and pairs: at least as many)
+    pad_to = (8 * SMALL_CHUNK, rows) if len(data.directions()[0]) <= 8 * SMALL_CHUNK else (rows, rows)
+    return _fit._prepare(data, ctfit.Structure(lobes=1), start=None, fixed=(), loss=loss, dtype=jnp.float64, starts=3, pad_to=pad_to)
+
+
+def _scattered(samples: int, seed: int = 1):
+    """Every sample its own direction pair (the pairs layout), 3 bands, a few pairs shared."""
+    data = _grid(samples, seed)  # pairs × 3 bands; keep one band of most pairs
+    keep = (np.arange(len(data)) % 3 == np.repeat(np.arange(samples) % 3, 3)) | (np.arange(len(data)) < 12)
+    return data.replace(**{k: getattr(data, k)[keep] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf")})
+
+
+@pytest.mark.parametrize("loss", ["relative", "log"])
+@pytest.mark.parametrize("layout", ["grid", "pairs"])
+def test_chunked_sums_equal_the_whole(small_chunks, loss, layout):
+    data = _grid(8 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(8 * 3 * SMALL_CHUNK - 40)
+    prep = _problem_and_start(data, loss)
+    problem, u = prep.problem, dict(prep.u0, m=jnp.log(jnp.array([0.3])))
+    assert problem.spec.grid == (layout == "grid") and _problem._chunks(problem) == (8 if layout == "grid" else 24)
+    chunked = (jax.jit(half_squared_norm)(problem, u), *jax.jit(normal_equations)(problem, u))
+    _problem.CHUNK = 10**9  # the same problem, summed at once
+    assert _problem._chunks(problem) == 1
+    at_once = (jax.jit(half_squared_norm)(problem, u), *jax.jit(normal_equations)(problem, u))
+    for a, b in zip(chunked, at_once):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(chunked[0], chunked[1], rtol=1e-12)  # the cost of both routes
+
+
+@pytest.mark.parametrize("layout", ["grid", "pairs"])
+def test_chunked_fit_equals_the_whole_fit(small_chunks, layout):
+    prep = _problem_and_start(_grid(8 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(8 * 3 * SMALL_CHUNK - 40))
+    rows = 8 if layout == "grid" else 24
+    args = (prep.u0, prep.grid, *prep.options("lm", 256))
+    chunked = jax.device_get(_fresh_fit_core()(prep.problem, *args))
+    _problem.CHUNK = 10**9
+    whole = jax.device_get(_fresh_fit_core()(prep.problem, *args))
+    cols = (3,) if layout == "grid" else ()
+    assert chunked["rel"].shape == (rows, SMALL_CHUNK, *cols) and whole["rel"].shape == (1, rows * SMALL_CHUNK, *cols)
+    np.testing.assert_allclose(chunked["costs"], whole["costs"], rtol=1e-9)
+    for key in ("rmse", "rel_rmse", "zero_cost"):
+        np.testing.assert_allclose(chunked[key], whole[key], rtol=1e-12)
+    np.testing.assert_allclose(chunked["rel"].reshape(-1), whole["rel"].reshape(-1), rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(chunked["params"]["m"], whole["params"]["m"], rtol=1e-9)
+    assert int(chunked["bad"]) == int(whole["bad"]) == 0
+
+
+def test_the_fit_program_s_temporaries_do_not_grow_with_the_data(small_chunks):
+    """XLA's own account of the compiled fit: on a grid of 64 chunks its temporary memory is a
+    fraction of its inputs (all at once, it is larger than them)."""
+    prep = _fit._prepare(_grid(64 * SMALL_CHUNK - 7), ctfit.Structure(lobes=1, diffuse=None), start=None, fixed=(), loss="relative",
+                         dtype=jnp.float64, starts=3, pad_to=(64 * SMALL_CHUNK, 3 * 64 * SMALL_CHUNK))
+
+    def memory():
+        lowered = _fresh_fit_core().lower(prep.problem, prep.u0, prep.grid, *prep.options("lm", 256))
+        return lowered.compile().compiled.memory_analysis()
+
+    chunked = memory()
+    _problem.CHUNK = 10**9
+    whole = memory()
+    assert chunked.temp_size_in_bytes < 0.5 * chunked.argument_size_in_bytes < whole.temp_size_in_bytes
+    assert chunked.temp_size_in_bytes < 0.25 * whole.temp_size_in_bytes
+
+
+def test_large_buckets_are_whole_chunks_and_pad_little():
+    for n in (2**18 + 1, 1_096_216, 3_288_648, 4_500_000, 2**21 - 1, 2**21):
+        b = bucket(n)
+        assert b % CHUNK == 0 and n <= b <= 1.125 * n and bucket(b) == b
+    assert bucket(2**18) == 2**18  # the √2 buckets up to there
+
+
+def test_cos_theta_i_is_kept_only_for_the_losses_that_weight_by_it():
+    data = _grid(40)
+    for loss, kept in (("relative", False), ("absolute", False), ("cosine", True), ("log", True)):
+        p = make_problem(ctfit.Structure(lobes=1), data, fixed_params=ctfit.Params(), loss=loss)
+        assert (p.cos_i is not None) == kept
