@@ -19,7 +19,7 @@ from ._distribution import beckmann, gaussian
 from ._fresnel import f0_from_n, f0_from_nk, fresnel_conductor, fresnel_dielectric, fresnel_dielectric_f0
 from ._geometry import Geometry
 from ._material import Params, Structure
-from ._shadowing import smith_g1_reduced, v_cavity_reduced
+from ._shadowing import smith_g1_reduced, smith_rational_g1_reduced, v_cavity_reduced
 
 __all__ = [
     "brdf",
@@ -55,8 +55,9 @@ def specular_geometric(structure: Structure, params: Params, geom: Geometry):
     total = None
     for j in range(structure.lobes):
         term = w[j] * _distribution(structure, geom.tan2_h, m[j])
-        if structure.geometry == "smith":
-            term = term * smith_g1_reduced(geom.cos_l, geom.sin_l, m[j]) * smith_g1_reduced(geom.cos_v, geom.sin_v, m[j])
+        if structure.geometry != "v-cavity":  # Smith: G1(L) G1(V) per lobe, exact or rational
+            g1 = smith_g1_reduced if structure.geometry == "smith" else smith_rational_g1_reduced
+            term = term * g1(geom.cos_l, geom.sin_l, m[j]) * g1(geom.cos_v, geom.sin_v, m[j])
         total = term if total is None else total + term
     if structure.geometry == "v-cavity":
         total = v_cavity_reduced(geom.cos_l, geom.cos_v, geom.cos_h, geom.cos_vh) * total

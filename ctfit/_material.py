@@ -20,7 +20,7 @@ from ._measurement import band_labels
 __all__ = ["Structure", "Params", "Material", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS"]
 
 DISTRIBUTIONS = ("beckmann", "gaussian")
-GEOMETRIES = ("v-cavity", "smith")
+GEOMETRIES = ("v-cavity", "smith", "smith-rational")
 FRESNELS = ("f0", "n", "conductor")
 DIFFUSES = (None, "F0/pi", "spectrum", "constant")
 NORMALIZATIONS = ("normalized", "cook-torrance-1982")
@@ -33,7 +33,8 @@ class Structure:
     - ``lobes``: number of facet-slope distributions in the specular sum Σ w_j D(m_j)
       (paper eq. 5); 0 means no specular part (s = 0).
     - ``distribution``: "beckmann" (eq. 4) or "gaussian" (eq. 3).
-    - ``geometry``: "v-cavity" (the paper's G, eq. 8) or "smith" (Beckmann–Smith, per lobe).
+    - ``geometry``: "v-cavity" (the paper's G, eq. 8), "smith" (Beckmann–Smith, per lobe) or
+      "smith-rational" (the same with Walter et al.'s rational G1, as Mitsuba 3 evaluates it).
     - ``fresnel``: how F is parameterised — "f0" (normal reflectance with the paper's
       effective index, k = 0), "n" (real index, k = 0) or "conductor" (n + i k).
     - ``diffuse``: None (d = 0), "F0/pi" (R_d = F0/π, the paper's homogeneous material),
@@ -44,7 +45,7 @@ class Structure:
 
     lobes: int = 1
     distribution: Literal["beckmann", "gaussian"] = "beckmann"
-    geometry: Literal["v-cavity", "smith"] = "v-cavity"
+    geometry: Literal["v-cavity", "smith", "smith-rational"] = "v-cavity"
     fresnel: Literal["f0", "n", "conductor"] = "f0"
     diffuse: Literal["F0/pi", "spectrum", "constant"] | None = None
     normalization: Literal["normalized", "cook-torrance-1982"] = "normalized"

@@ -273,7 +273,8 @@ BUCKET_MIN = 256
 """The smallest size bucket (:func:`bucket`)."""
 CHUNK = 1 << 15
 """Rows per chunk: direction pairs of a grid layout, samples of a pairs layout. A problem whose
-(padded) number of rows is a multiple of this, and larger, is summed chunk by chunk — cost, Jᵀr,
+(padded) number of rows is a multiple of this, and at least ``MIN_CHUNKS`` of them, is summed
+chunk by chunk — cost, Jᵀr,
 JᵀJ, the seed scores and the residual summary — so the solve's temporaries are a few
 chunk-sized arrays instead of a few data-sized ones."""
 _FINE = 1 << 18
@@ -299,11 +300,16 @@ def bucket(n: int) -> int:
     return math.ceil(BUCKET_MIN * 2 ** (k / 2))
 
 
+MIN_CHUNKS = 16
+"""Fewer chunks than this are summed at once: below ~500,000 rows the data's temporaries are
+small, and one pass over all of it is a little faster than a loop over chunks."""
+
+
 def _chunks(problem: Problem) -> int:
     """How many chunks of ``CHUNK`` rows (direction pairs of a grid, samples otherwise) ``problem``
     is summed over (1: all at once)."""
     n = problem.y.shape[0]
-    return n // CHUNK if n > CHUNK and n % CHUNK == 0 else 1
+    return n // CHUNK if n % CHUNK == 0 and n // CHUNK >= MIN_CHUNKS else 1
 
 
 def _parts(problem: Problem, k: int):

@@ -11,6 +11,10 @@ factors go to 0 at grazing angles while the ratio stays finite, so ctfit compute
   integrated exactly), divided by cos θ. The pair G = G1(L) G1(V) is the separable
   shadowing-masking function Mitsuba 3 uses with ``sample_visible = false`` (it evaluates the
   same G1 through a rational approximation of the erf form).
+- ``smith_rational_g1_reduced``: the rational approximation of that G1 (Walter et al. 2007,
+  eq. 27), G1 ≈ (3.535a + 2.181a²)/(1 + 2.276a + 2.577a²) for a < 1.6 and 1 beyond, divided by
+  cos θ — what Mitsuba 3 and many renderers evaluate. Fitting data those renderers made with
+  their own G1 removes a model difference of up to 0.31 % per factor.
 
 References
 ----------
@@ -25,7 +29,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax.scipy.special import erf
 
-__all__ = ["v_cavity_reduced", "smith_g1_reduced"]
+__all__ = ["v_cavity_reduced", "smith_g1_reduced", "smith_rational_g1_reduced"]
 
 _SQRT_PI = 1.7724538509055159
 # erf(30) = 1 and exp(−900) = 0 in every float format: beyond it G1 is exactly 1.
@@ -53,3 +57,23 @@ def smith_g1_reduced(cos_t, sin_t, m):
     """
     a = cos_t / jnp.maximum(m * sin_t, cos_t / _A_MAX)
     return 2 * _SQRT_PI / (_SQRT_PI * cos_t * (1 + erf(a)) + m * sin_t * jnp.exp(-a * a))
+
+
+_RATIONAL_A_MAX = 1.6  # Walter et al. 2007, eq. 27: G1 = 1 from here on (the rational form is 1.000057 there)
+
+
+def smith_rational_g1_reduced(cos_t, sin_t, m):
+    """Walter et al.'s rational approximation of Smith's Beckmann G1(θ; m), divided by cos θ, for
+    a direction with cos θ > 0 and sin θ ≥ 0.
+
+    With c = cos θ and s = m sin θ (so a = c/s), multiplying eq. 27 through by s² gives
+
+        G1/cos θ = (3.535 s + 2.181 c) / (s² + 2.276 c s + 2.577 c²)   for c < 1.6 s,
+        G1/cos θ = 1/c                                                 otherwise,
+
+    both finite for c > 0 (= 3.535/s at θ = 90°), so the unselected branch of the ``where`` has
+    finite values and derivatives.
+    """
+    s = m * sin_t
+    rational = (3.535 * s + 2.181 * cos_t) / (s * s + 2.276 * cos_t * s + 2.577 * cos_t * cos_t)
+    return jnp.where(cos_t >= _RATIONAL_A_MAX * s, 1 / cos_t, rational)

@@ -211,7 +211,7 @@ def fit(
     as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
     material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),
     lobes: str = typer.Option("1", "--lobes", help="Number of lobes, or 'auto' (1–3, with/without diffuse, by BIC)."),
-    geometry: Optional[str] = typer.Option(None, "--geometry", help="v-cavity (default) or smith."),
+    geometry: Optional[str] = typer.Option(None, "--geometry", help="v-cavity (default), smith or smith-rational (Smith with the rational G1 of Mitsuba 3)."),
     fresnel: Optional[str] = typer.Option(None, "--fresnel", help="effective-n (default: k = 0, n from F0) or conductor (n, k)."),
     diffuse: bool = typer.Option(True, "--diffuse/--no-diffuse", help="Include a diffuse part R_d = F0/π."),
     loss: str = typer.Option("auto", "--loss", help="auto, absolute, relative, sigma, cosine or log."),
@@ -261,8 +261,8 @@ def _fit_command(o) -> int:
 
 def _check_fit_options(o) -> None:
     """Refuse bad option values before any work (typer's ``min=`` checks the counts)."""
-    if o.geometry not in (None, "v-cavity", "smith"):
-        raise UserError(f"--geometry must be v-cavity or smith, got {o.geometry!r}")
+    if o.geometry not in (None, "v-cavity", "smith", "smith-rational"):
+        raise UserError(f"--geometry must be v-cavity, smith or smith-rational, got {o.geometry!r}")
     if o.fresnel not in (None, "effective-n", "conductor"):
         raise UserError(f"--fresnel must be effective-n or conductor, got {o.fresnel!r}")
     if o.lobes != "auto" and not (o.lobes.isdigit() and 1 <= int(o.lobes) <= 8):

@@ -40,8 +40,8 @@ def small_chunks(monkeypatch):
 
 
 def _problem_and_start(data, loss="relative"):
-    rows = 24 * SMALL_CHUNK  # samples of the pairs layout (and pairs: at least as many)
-    pad_to = (8 * SMALL_CHUNK, rows) if len(data.directions()[0]) <= 8 * SMALL_CHUNK else (rows, rows)
+    rows = 48 * SMALL_CHUNK  # samples of the pairs layout (and pairs: at least as many)
+    pad_to = (16 * SMALL_CHUNK, rows) if len(data.directions()[0]) <= 16 * SMALL_CHUNK else (rows, rows)
     return _fit._prepare(data, ctfit.Structure(lobes=1), start=None, fixed=(), loss=loss, dtype=jnp.float64, starts=3, pad_to=pad_to)
 
 
@@ -55,10 +55,10 @@ def _scattered(samples: int, seed: int = 1):
 @pytest.mark.parametrize("loss", ["relative", "log"])
 @pytest.mark.parametrize("layout", ["grid", "pairs"])
 def test_chunked_sums_equal_the_whole(small_chunks, loss, layout):
-    data = _grid(8 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(8 * 3 * SMALL_CHUNK - 40)
+    data = _grid(16 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(16 * 3 * SMALL_CHUNK - 40)
     prep = _problem_and_start(data, loss)
     problem, u = prep.problem, dict(prep.u0, m=jnp.log(jnp.array([0.3])))
-    assert problem.spec.grid == (layout == "grid") and _problem._chunks(problem) == (8 if layout == "grid" else 24)
+    assert problem.spec.grid == (layout == "grid") and _problem._chunks(problem) == (16 if layout == "grid" else 48)
     chunked = (jax.jit(half_squared_norm)(problem, u), *jax.jit(normal_equations)(problem, u))
     _problem.CHUNK = 10**9  # the same problem, summed at once
     assert _problem._chunks(problem) == 1
@@ -70,8 +70,8 @@ def test_chunked_sums_equal_the_whole(small_chunks, loss, layout):
 
 @pytest.mark.parametrize("layout", ["grid", "pairs"])
 def test_chunked_fit_equals_the_whole_fit(small_chunks, layout):
-    prep = _problem_and_start(_grid(8 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(8 * 3 * SMALL_CHUNK - 40))
-    rows = 8 if layout == "grid" else 24
+    prep = _problem_and_start(_grid(16 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(16 * 3 * SMALL_CHUNK - 40))
+    rows = 16 if layout == "grid" else 48
     args = (prep.u0, prep.grid, *prep.options("lm", 256))
     chunked = jax.device_get(_fresh_fit_core()(prep.problem, *args))
     _problem.CHUNK = 10**9

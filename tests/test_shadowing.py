@@ -103,3 +103,35 @@ def test_smith_derivative_in_m_finite(dtype):
     assert np.all(np.isfinite(np.asarray(g)))
     v = np.asarray(jax.vmap(smith_g1_reduced, in_axes=(None, None, 0))(c, s, ms))
     assert np.all(np.isfinite(v)) and np.all(v > 0)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_rational_smith_is_finite_with_finite_derivatives_everywhere(dtype):
+    """Walter et al.'s rational G1/cos θ: finite values and derivatives in m and θ from normal
+    incidence to θ = 90° and m from 1e-4 to 3, and 3.535/m at θ = 90°."""
+    from ctfit._shadowing import smith_rational_g1_reduced
+
+    theta = np.array([0.0, 1e-6, 30.0, 60.0, 85.0, 89.9, 90.0])
+    ms = jnp.asarray([1e-4, 1e-3, 0.05, 0.2, 0.6, 1.0, 3.0], dtype)
+
+    def g(t, m):
+        return smith_rational_g1_reduced(jnp.cos(t), jnp.sin(t), m)
+
+    t = jnp.asarray(np.deg2rad(theta), dtype)
+    for argnum in (0, 1):
+        d = jax.vmap(jax.vmap(jax.grad(g, argnums=argnum), in_axes=(0, None)), in_axes=(None, 0))(t, ms)
+        assert np.all(np.isfinite(np.asarray(d))), argnum
+    v = np.asarray(jax.vmap(g, in_axes=(None, 0))(t, ms))
+    assert np.all(np.isfinite(v)) and np.all(v > 0)
+    at_90 = np.asarray(smith_rational_g1_reduced(jnp.zeros((), dtype), jnp.ones((), dtype), ms))  # cos θ = 0 exactly
+    np.testing.assert_allclose(at_90 * np.asarray(ms), 3.535, rtol=1e-6)  # G1/cos θ → 3.535/(m sin θ)
+
+
+def test_rational_smith_is_continuous_where_it_becomes_one():
+    from ctfit._shadowing import smith_rational_g1_reduced
+
+    m = 0.3
+    for side in (1 - 1e-9, 1 + 1e-9):  # a = cos θ/(m sin θ) just below and above 1.6
+        t = np.arctan(1 / (1.6 * side * m))
+        g1 = float(smith_rational_g1_reduced(jnp.cos(t), jnp.sin(t), m)) * np.cos(t)
+        assert abs(g1 - 1) < 6e-5  # the approximation reaches 1.000057 at a = 1.6
