@@ -403,12 +403,12 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
 
 
 def _residual_summary(problem: Problem, u: dict) -> dict:
-    """What the report needs of the model at ``u``, chunk by chunk on a large grid
-    (:func:`~ctfit._problem.map_over_chunks`): the relative residuals ``rel`` in the problem's
-    layout, stacked by chunk (reshape to the layout's shape; 0 where nothing is measured;
-    float32, for the residual diagnostics), ``rmse`` and
-    ``rel_rmse`` (as max|e| · rms(e / max|e|), so that squares cannot overflow), and ``bad``,
-    how many measured cells have a model value that is not finite."""
+    """What the report needs of the model at ``u``, chunk by chunk on a large problem
+    (:func:`~ctfit._problem.map_over_chunks`): the relative residuals ``rel``, stacked by chunk
+    (the host reshapes them to the problem's layout; 0 where nothing is measured; float32, for
+    the residual diagnostics), ``rmse`` and ``rel_rmse`` (as max|e| · rms(e / max|e|), so that
+    squares cannot overflow), and ``bad``, how many measured cells have a model value that is
+    not finite."""
 
     def one(part):
         pred = model_values(part, u)
@@ -434,7 +434,7 @@ def _combined_rms(big, sq, n):
     """The rms of all chunks from their (max|e|, Σ (e / max|e|)²): rescaled to the largest max."""
     top = jnp.max(big)
     safe = jnp.where(top > 0, top, 1)
-    return jnp.where(top > 0, top * jnp.sqrt(jnp.sum(sq * (big / safe) ** 2) / n), jnp.zeros((), big.dtype))
+    return jnp.where(top == 0, jnp.zeros((), big.dtype), top * jnp.sqrt(jnp.sum(sq * (big / safe) ** 2) / n))  # NaN stays NaN
 
 
 def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -633,11 +633,11 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     loose = undetermined(out["jtj"]) & ~on_bound  # coordinates the data does not determine
     stderr = _stderr(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose)
     pairs, index = data.directions()
-    out["rel"] = np.reshape(out["rel"], problem.y.shape)
+    rel = np.reshape(out["rel"], problem.y.shape)
     if problem.spec.grid:
-        structure_notes = relative_residual_structure(pairs, out["rel"][: len(pairs)], mask=mask[: len(pairs)])
+        structure_notes = relative_residual_structure(pairs, rel[: len(pairs)], mask=mask[: len(pairs)])
     else:
-        structure_notes = relative_residual_structure(pairs, out["rel"][: len(data)], index=index)
+        structure_notes = relative_residual_structure(pairs, rel[: len(data)], index=index)
     gn_decrease = float(out["gn_decrease"])
     stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
     rmse = float(out["rmse"])

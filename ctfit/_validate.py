@@ -21,7 +21,7 @@ from ._material import Structure
 from ._measurement import Measurement
 from ._problem import free_names
 
-__all__ = ["check_fittable", "n_free_parameters", "nonfinite_reason", "representable_range", "rms"]
+__all__ = ["check_fittable", "n_free_parameters", "nonfinite_reason", "representable_range"]
 
 _HEADROOM = 1e4
 """Squares of values up to max/1e4 summed over 1e8 samples stay finite."""
@@ -93,17 +93,6 @@ def check_fittable(data: Measurement, structure: Structure, *, fixed: tuple[str,
                 f"{data.source}: data row {low + 1}: sigma = {float(sigma[low])!r} is too small for brdf values up to {float(y[top])!r}: "
                 f"(brdf − model)/sigma overflows {name}"
             )
-
-
-def rms(x) -> float:
-    """Root mean square, computed without overflow (the squares of x / max|x|); NaN or inf where x has one."""
-    x = np.asarray(x, dtype=float)
-    if x.size == 0:
-        return math.nan
-    scale = float(np.max(np.abs(x)))
-    if scale == 0 or not math.isfinite(scale):
-        return scale
-    return scale * float(np.sqrt(np.mean((x / scale) ** 2)))
 
 
 def nonfinite_reason(cost: float, rmse: float, bad: int, values: int, dtype) -> str | None:

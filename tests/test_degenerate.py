@@ -26,7 +26,7 @@ from ctfit._fit_io import fit_result_to_dict, format_fit_table
 from ctfit._material_io import MaterialError, load_material, material_from_dict, material_to_dict, save_material_json
 from ctfit._render import render_compare, render_materials
 from ctfit._sample import draw_colours
-from ctfit._validate import check_fittable, n_free_parameters, nonfinite_reason, representable_range, rms
+from ctfit._validate import check_fittable, n_free_parameters, nonfinite_reason, representable_range
 from ctfit.cli import app
 
 runner = CliRunner()
@@ -167,12 +167,6 @@ def test_non_finite_values_in_memory_are_refused(data):
 
 
 # --- not finite after the solve ----------------------------------------------------------------------
-
-
-def test_rms_does_not_overflow():
-    assert rms([1e200, -1e200]) == 1e200
-    assert rms([3.0, 4.0]) == pytest.approx(math.sqrt(12.5))
-    assert math.isinf(rms([1.0, math.inf])) and math.isnan(rms([1.0, math.nan])) and rms([0.0]) == 0.0
 
 
 def test_nonfinite_reason_names_what_is_not_finite():

@@ -115,3 +115,19 @@ def test_cos_theta_i_is_kept_only_for_the_losses_that_weight_by_it():
     for loss, kept in (("relative", False), ("absolute", False), ("cosine", True), ("log", True)):
         p = make_problem(ctfit.Structure(lobes=1), data, fixed_params=ctfit.Params(), loss=loss)
         assert (p.cos_i is not None) == kept
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_the_rms_of_chunks_does_not_overflow(dtype):
+    """The fit's rmse from per-chunk (max|e|, Σ (e/max|e|)²): the rms of all, without squaring
+    values near the dtype's largest, NaN where a value is not finite, 0 for no error."""
+    big = 1e30 if dtype == jnp.float32 else 1e200
+
+    def rms(chunks):
+        parts = [_fit._scaled_squares(jnp.asarray(c, dtype)) for c in chunks]
+        return float(_fit._combined_rms(jnp.stack([p[0] for p in parts]), jnp.stack([p[1] for p in parts]), sum(len(c) for c in chunks)))
+
+    assert rms([[big, -big], [0.0, 0.0]]) == pytest.approx(big / np.sqrt(2), rel=1e-6)
+    assert rms([[3.0], [4.0]]) == pytest.approx(np.sqrt(12.5), rel=1e-6)
+    assert rms([[0.0, 0.0], [0.0]]) == 0.0
+    assert np.isnan(rms([[1.0, np.inf], [2.0]])) and np.isnan(rms([[1.0], [np.nan]]))
