@@ -61,9 +61,11 @@ _stores: dict[str, pathlib.Path | None] = {}  # cache folder → its checked sto
 
 @functools.cache
 def _source_digest() -> str:
+    """A digest of every Python source of the package, subpackages included (by relative path)."""
+    root = pathlib.Path(__file__).parent
     h = hashlib.sha256()
-    for p in sorted(pathlib.Path(__file__).parent.glob("*.py")):
-        h.update(p.name.encode())
+    for p in sorted(root.rglob("*.py")):
+        h.update(p.relative_to(root).as_posix().encode())
         h.update(p.read_bytes())
     return h.hexdigest()
 

@@ -173,3 +173,19 @@ def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_p
     third = run()
     assert third.returncode == 0, third.stderr[-2000:]
     assert first.stdout == second.stdout == third.stdout
+
+
+def test_the_source_digest_covers_subpackages(tmp_path, monkeypatch):
+    """Every ``.py`` below the package counts, in subfolders too (a restructured package must
+    not load programs compiled from its old sources)."""
+    from ctfit import _aot
+
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "_aot.py").write_text("# stand-in\n")
+    (pkg / "sub" / "model.py").write_text("x = 1\n")
+    monkeypatch.setattr(_aot, "__file__", str(pkg / "_aot.py"))
+    digest = _aot._source_digest.__wrapped__  # the uncached function (the module keeps one digest per process)
+    before = digest()
+    (pkg / "sub" / "model.py").write_text("x = 2\n")
+    assert digest() != before
