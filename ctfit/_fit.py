@@ -45,7 +45,7 @@ from ._validate import check_fittable, n_free_parameters, nonfinite_reason
 from ._problem import (LOSSES, Problem, _loss, bounds, from_params, _chunks, half_squared_norm, make_problem, map_over_chunks, model_values,
                        normal_equations, residual, sum_over_chunks, to_params)
 
-__all__ = ["fit", "FitResult", "SOLVERS", "select_structure"]
+__all__ = ["fit", "FitResult", "SOLVERS", "select_structure", "constrained_quantities", "standard_errors", "undetermined"]
 
 SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
 _PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
@@ -364,7 +364,7 @@ def _effective_index(f0):
     return n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
 
 
-def _constrained(problem: Problem, unravel, f):
+def constrained_quantities(problem: Problem, unravel, f):
     """The reported (constrained) parameters as a dict, from the flat free values."""
     spec = problem.spec
     p = to_params(spec, unravel(f), problem.fixed)
@@ -392,7 +392,7 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
     keep = ~on_bound
     jtr = jnp.where(keep, jtr, 0)
     jtj = jnp.where(keep[:, None] & keep[None, :], jtj, 0)
-    jt = jax.jacfwd(lambda f: _constrained(problem, unravel, f))(flat) if flat.size else None
+    jt = jax.jacfwd(lambda f: constrained_quantities(problem, unravel, f))(flat) if flat.size else None
     params = to_params(problem.spec, u, problem.fixed)
     params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_aot.py)
     if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
@@ -444,7 +444,7 @@ def _sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
     return dataclasses.replace(params, m=np.asarray(params.m)[order], w=np.asarray(params.w)[order]), order
 
 
-def _stderr(jtj, jt: dict | None, scale2: float, order, free=None) -> dict | None:
+def standard_errors(jtj, jt: dict | None, scale2: float, order, free=None) -> dict | None:
     """Standard errors of the constrained parameters from JᵀJ and their Jacobian ``jt``.
 
     Only the ``free`` coordinates enter (not those held on a bound, nor those the data does not
@@ -631,7 +631,7 @@ def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
     params, order = _sorted_lobes(params)
     on_bound = np.asarray(out["on_bound"], bool)
     loose = undetermined(out["jtj"]) & ~on_bound  # coordinates the data does not determine
-    stderr = _stderr(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose)
+    stderr = standard_errors(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose)
     pairs, index = data.directions()
     rel = np.reshape(out["rel"], problem.y.shape)
     if problem.spec.grid:

@@ -14,6 +14,10 @@ different coordinates of the same physical quantity:
 Lobe weights w (Σ w = 1, paper eq. 5) have J − 1 free values in both: box coordinates are
 stick-breaking fractions v ∈ [0, 1] (w_0 = 1 − v_1, w_1 = v_1 (1 − v_2), …; any lobe's weight
 reaches 0 on a bound); unconstrained ones are logits, w = softmax(0, u).
+
+Each row also says what the sampler needs of it: the physical range of the value (the support
+of its prior, :mod:`ctfit._priors`), the log-Jacobian log |dθ/du| of the unconstrained map (so
+that a prior stated in θ is a density in u), and a line describing both.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Parameter", "PARAMETERS", "M_MIN", "M_MAX", "parameter", "box_bounds", "clip_box"]
+__all__ = ["Parameter", "PARAMETERS", "M_MIN", "M_MAX", "parameter", "box_bounds", "clip_box", "value_range"]
 
 M_MIN, M_MAX = 1e-5, 4.0
 """Range of an rms slope m in a fit (the model is finite down to m → 0; beyond m ≈ 1 the
@@ -38,6 +42,30 @@ RD_MAX = 1e3
 
 def _ident(x):
     return x
+
+
+def _log_sigmoid(x):
+    return -jax.nn.softplus(-x)
+
+
+def _logit_jacobian(u):
+    """θ = sigmoid(u): log |dθ/du| = log σ(u) + log σ(−u), summed."""
+    return jnp.sum(_log_sigmoid(u) + _log_sigmoid(-u))
+
+
+def _softplus_jacobian(u):
+    """θ = softplus(u): log |dθ/du| = log σ(u), summed."""
+    return jnp.sum(_log_sigmoid(u))
+
+
+def _exp_jacobian(u):
+    """θ = exp(u): log |dθ/du| = u, summed."""
+    return jnp.sum(u)
+
+
+def _softmax_jacobian(u):
+    """w = softmax(0, u): log |det ∂(w_2..w_J)/∂u| = Σ_j log w_j (all J weights)."""
+    return jnp.sum(jax.nn.log_softmax(jnp.concatenate([jnp.zeros((1,), u.dtype), u])))
 
 
 def _np_logit(p):
@@ -57,7 +85,9 @@ class Parameter:
     ``name`` is the :class:`~ctfit.Params` field, ``public`` its name in JSON and tables,
     ``lower``/``upper`` the bounds of its *box* coordinate, ``box``/``box_inverse`` map box
     coordinates to values and back (jnp / NumPy), ``free``/``free_inverse`` the same for the
-    sampler's unconstrained coordinates (for n, added to :func:`n_lower`: n ≥ 1 for a real index).
+    sampler's unconstrained coordinates (for n, added to :func:`n_lower`: n ≥ 1 for a real index),
+    ``log_jacobian`` the sum of log |dθ/du| over a parameter's entries, ``transform`` says both in
+    words, ``log_scale``: its prior and its checks read it in log θ (a scale, like m).
     """
 
     name: str
@@ -69,24 +99,31 @@ class Parameter:
     box_inverse: Callable = _ident
     free: Callable = _ident
     free_inverse: Callable = _ident
+    log_jacobian: Callable = _softplus_jacobian
+    transform: str = ""
+    log_scale: bool = False
 
 
 PARAMETERS: dict[str, Parameter] = {
     p.name: p
     for p in (
         Parameter("s", "s", "specular fraction, d = 1 − s (paper eq. 1)", 0.0, 1.0,
-                  free=jax.nn.sigmoid, free_inverse=_np_logit),
+                  free=jax.nn.sigmoid, free_inverse=_np_logit, log_jacobian=_logit_jacobian,
+                  transform="s = sigmoid(u): log|ds/du| = log σ(u) + log σ(−u)"),
         Parameter("m", "m", "rms facet slope of each lobe (paper eqs. 3–4)", float(np.log(M_MIN)), float(np.log(M_MAX)),
-                  box=jnp.exp, box_inverse=np.log, free=jnp.exp, free_inverse=np.log),
-        Parameter("w", "weight", "lobe weights, Σ w = 1 (paper eq. 5)", 0.0, 1.0),
+                  box=jnp.exp, box_inverse=np.log, free=jnp.exp, free_inverse=np.log, log_jacobian=_exp_jacobian,
+                  transform="m = exp(u): log|dm/du| = u", log_scale=True),
+        Parameter("w", "weight", "lobe weights, Σ w = 1 (paper eq. 5)", 0.0, 1.0, log_jacobian=_softmax_jacobian,
+                  transform="w = softmax(0, u): log|det ∂(w_2..w_J)/∂u| = Σ_j log w_j"),
         Parameter("f0", "F0", "normal reflectance per band (paper eq. 9, k = 0)", 0.0, 1.0,
-                  free=jax.nn.sigmoid, free_inverse=_np_logit),
+                  free=jax.nn.sigmoid, free_inverse=_np_logit, log_jacobian=_logit_jacobian,
+                  transform="F0 = sigmoid(u): log|dF0/du| = log σ(u) + log σ(−u)"),
         Parameter("n", "n", "refractive index per band", 0.0, INDEX_MAX,
-                  free=jax.nn.softplus, free_inverse=_np_softplus_inv),
+                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="n = n_min + softplus(u): log|dn/du| = log σ(u)"),
         Parameter("k", "k", "extinction coefficient per band", 0.0, INDEX_MAX,
-                  free=jax.nn.softplus, free_inverse=_np_softplus_inv),
+                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="k = softplus(u): log|dk/du| = log σ(u)"),
         Parameter("rd", "Rd", "diffuse BRDF in sr⁻¹ (per band or one constant)", 0.0, RD_MAX,
-                  free=jax.nn.softplus, free_inverse=_np_softplus_inv),
+                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="R_d = softplus(u): log|dR_d/du| = log σ(u)"),
     )
 }
 
@@ -107,6 +144,12 @@ def box_bounds(name: str, fresnel: str = "f0") -> tuple[float, float]:
     if name == "n":
         return n_lower(fresnel), p.upper
     return p.lower, p.upper
+
+
+def value_range(name: str, fresnel: str = "f0") -> tuple[float, float]:
+    """The physical range of a parameter's *value* (not its box coordinate): m in [M_MIN, M_MAX],
+    n from :func:`n_lower`, the others their box bounds. The support of the sampler's priors."""
+    return (M_MIN, M_MAX) if name == "m" else box_bounds(name, fresnel)
 
 
 def clip_box(x, lower, upper):

@@ -5,7 +5,8 @@ The ``uncertainty`` section (``docs/uncertainty.md``) is :meth:`SampleResult.to_
 ``s``, ``lobes[j].m``, ``lobes[j].weight``, ``F0[i]``, ``n[i]`` (``k[i]``, ``Rd``,
 ``sigma_noise`` where sampled), each ``{"median", "p16", "p84", "p2.5", "p97.5", "mean",
 "std"}``; ``colour`` (sRGB and CIELAB under D65); ``diagnostics``; ``likelihood``; ``priors``;
-``warnings``; ``plots`` (the PNGs written, when asked).
+``usable``, ``problems`` and ``checks`` (:mod:`ctfit._sample_checks`); ``warnings``; ``plots``
+(the PNGs written, when asked); ``idata`` (the ArviZ netCDF file, when asked).
 """
 
 from __future__ import annotations
@@ -101,13 +102,30 @@ def _band_labels(material: Material, n: int) -> list[str]:
     return [str(i) for i in range(n)]
 
 
+CORNER_QUANTILES = (0.5, 99.5)
+"""Percentiles of each quantity that the corner plot's axes span (the tails beyond are noted)."""
+
+
+def _central_ranges(data: np.ndarray) -> tuple[list[tuple[float, float]], float]:
+    """Axis ranges of the corner plot from central quantiles, widened by 5 % (a constant column:
+    ± a little), and the fraction of draws outside any of them."""
+    lo, hi = np.percentile(data, CORNER_QUANTILES, axis=0)
+    pad = 0.05 * (hi - lo)
+    pad = np.where(pad > 0, pad, 1e-9 * np.maximum(np.abs(lo), 1.0))
+    lo, hi = lo - pad, hi + pad
+    outside = float(np.mean(np.any((data < lo) | (data > hi), axis=1)))
+    return [(float(a), float(b)) for a, b in zip(lo, hi)], outside
+
+
 def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathlib.Path:
     """Corner plot (``corner`` package) of the global parameters s, m_j, w_j (j < J: the last
     weight is 1 − the others) and σ_noise; with a single global parameter (one lobe, no diffuse
     part), F0 at three bands join it.
 
     Dashed lines: 16 %, 50 %, 84 % quantiles; blue lines: the least-squares optimum the walkers
-    started from, or ``truths`` (a list, one value per panel) when given.
+    started from, or ``truths`` (a list, one value per panel) when given. The axes span the
+    central 99 % of each quantity (:data:`CORNER_QUANTILES`), not the extremes; the title says
+    which fraction of the draws lies outside.
     """
     import corner
 
@@ -115,8 +133,10 @@ def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathl
     data, labels, opt = _global_columns(result)
     if data.shape[1] == 0:
         raise ValueError("nothing to plot: no sampled global parameter varies")
+    ranges, outside = _central_ranges(data)
     fig = corner.corner(
         data,
+        range=ranges,
         labels=labels,
         quantiles=[0.16, 0.5, 0.84],
         show_titles=True,
@@ -137,7 +157,8 @@ def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathl
     fig.suptitle(
         title
         or f"posterior ({d['draws']} draws, {d['walkers']} walkers × {d['steps']} steps, burn {d['burn']}); "
-        + ("blue: truth" if truths is not None else "blue: least-squares optimum"),
+        + ("blue: truth" if truths is not None else "blue: least-squares optimum")
+        + (f"\naxes: central {CORNER_QUANTILES[1] - CORNER_QUANTILES[0]:g} % of each quantity; {outside:.1%} of the draws lie outside" if outside > 0 else ""),
         fontsize=10,
         y=1.02,
     )
@@ -248,11 +269,23 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
             f"acceptance: {acc['mean']:.2f}"
         )
         lines.append(
-            f"  τ_max: {d['autocorr_time_max']:.1f} steps   ESS_min: {d['ess_min']:.0f}   "
+            f"  τ_max: {d['autocorr_time_max']:.1f} steps   ESS_min (ArviZ, bulk): {d['ess_min']:.0f}   R̂_max: {d.get('r_hat_max', float('nan')):.3f}   "
             f"chain ≥ 50 τ: {d['chain_long_enough']}   time: {d['time_s']:.1f} s"
         )
+        per = [f"{k} {d['ess_bulk'][k]:.0f}/{d['r_hat'][k]:.3f}" for k in d.get("ess_bulk", {})]
+        if per:
+            lines.append("  ESS (bulk) / R̂ per quantity: " + ", ".join(per))
+    priors = u.get("priors", {}).get("parameters", {})
+    if priors:
+        lines.append("  priors: " + "; ".join(e["density"] for e in priors.values()))
+    problems = list(u.get("problems", []))
+    if "usable" in u:
+        lines.append("  posterior: " + ("usable" if u["usable"] else "NOT usable: the problems below say why"))
+    for w in problems:
+        lines.append(f"  problem: {w}")
     for w in u.get("warnings", []):
-        lines.append(f"  warning: {w}")
+        if w not in problems:
+            lines.append(f"  warning: {w}")
     return "\n".join(lines)
 
 
@@ -292,7 +325,7 @@ def _stem(path: pathlib.Path) -> str:
     return name
 
 
-def _run(target, data, *, walkers, steps, burn, thin, seed, backend, resume, progress, priors, overwrite=False):
+def _run(target, data, *, walkers, steps, burn, thin, seed, backend, resume, progress, priors, overwrite=False, loss=None):
     from ._sample import sample
 
     return sample(
@@ -308,7 +341,21 @@ def _run(target, data, *, walkers, steps, burn, thin, seed, backend, resume, pro
         overwrite=overwrite,
         progress=progress,
         priors=priors,
+        loss=loss,
     )
+
+
+def _write_idata(result, path) -> str:
+    """The chain as ArviZ netCDF (``az.from_netcdf(path)``), written atomically."""
+    import tempfile
+
+    from ._fileio import atomic_write
+
+    with tempfile.TemporaryDirectory() as folder:
+        tmp = pathlib.Path(folder) / "run.nc"
+        result.to_inference_data().to_netcdf(str(tmp))
+        atomic_write(path, [tmp.read_bytes()])
+    return str(path)
 
 
 def sample_command_body(
@@ -327,6 +374,8 @@ def sample_command_body(
     progress: bool = False,
     priors: dict | None = None,
     overwrite: bool = False,
+    loss: str | None = None,
+    idata=None,
 ) -> dict:
     """``ctfit sample FIT.json DATA``: sample, write the fit JSON with its ``uncertainty`` section.
 
@@ -335,8 +384,9 @@ def sample_command_body(
     the file's ``fit`` section, else sigma/relative), writes ``output`` (default: ``fit_json``
     itself, updated in place) atomically — every key of the input kept, ``uncertainty``
     replaced — and, with ``plot_dir``, ``<stem>.corner.png`` and ``<stem>.spectra.png``.
-    ``overwrite``: start a new chain in an existing ``backend`` (see :func:`ctfit.sample`).
-    Returns the document written (JSON-ready).
+    ``overwrite``: start a new chain in an existing ``backend`` (see :func:`ctfit.sample`);
+    ``loss``: the likelihood's residual weighting (another than the file's fits again first);
+    ``idata``: also write the chain as ArviZ netCDF there. Returns the document written (JSON-ready).
     """
     from ._material_io import load_material, material_to_dict, save_material_json
     from ._outputs import check_output, check_output_folder
@@ -352,11 +402,13 @@ def sample_command_body(
     meas = _read_data(data)
     res = _run(
         material, meas, walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend, resume=resume,
-        progress=progress, priors=priors, overwrite=overwrite,
+        progress=progress, priors=priors, overwrite=overwrite, loss=loss,
     )  # fmt: skip
     unc = res.to_dict()
     if plot_dir is not None:
         unc["plots"] = _plots(res, plot_dir, _stem(target))
+    if idata is not None:
+        unc["idata"] = _write_idata(res, idata)
     extra = {"uncertainty": unc}
     save_material_json(material, target, extra=extra)
     return material_to_dict(material, extra=extra)

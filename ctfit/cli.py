@@ -517,12 +517,18 @@ def _bic_table(table, best) -> str:
     return "\n".join(lines)
 
 
+SAMPLE_NOT_USABLE = 1
+"""Exit status of ``ctfit sample`` when the chain ran but its posterior is not usable (it left the
+fit, runs to a prior bound, or the data do not constrain a parameter): the table and the JSON say why."""
+
+
 @app.command("sample")
 def sample_cmd(
     fit_json: Path = typer.Argument(..., help="Fit-result JSON (a material TOML needs -o)."),
     data: Path = typer.Argument(..., help="The measurement the material was fitted to."),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
     as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
+    loss: Optional[str] = typer.Option(None, "--loss", help="absolute, relative, sigma, cosine or log (default: the fit's); another than the fit's fits again first."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
     steps: int = typer.Option(2000, "--steps", min=1, help="Steps per walker in all (also with --resume)."),
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
@@ -532,39 +538,61 @@ def sample_cmd(
     resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file (its chain is lost)."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Folder for the corner and spectral-band PNGs."),
+    idata: Optional[Path] = typer.Option(None, "--idata", help="Also write the chain as ArviZ netCDF (az.from_netcdf) to this file."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=_PARAM_OUT_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar (shown only on a terminal)."),
 ):
-    """Posterior sampling (emcee) of a fitted material: medians and 68 %/95 % intervals, written into the fit JSON."""
+    """Posterior sampling (emcee) of a fitted material: medians and 68 %/95 % intervals, written into the fit JSON.
 
-    def body():
-        from ._outputs import check_backend, check_output, check_output_folder
+    Exit status: 0 a usable posterior; 1 the chain ran but its posterior is not usable (it left
+    the fit, runs to a prior bound, or the data do not constrain a parameter; the table and the
+    JSON's uncertainty.problems say why); 2 an input error.
+    """
+    opts = SimpleNamespace(**locals())
+    code = _run(lambda: _sample_command(opts))
+    if code:
+        raise typer.Exit(code)
 
-        if (resume or overwrite) and backend is None:
-            raise UserError(f"{'--resume' if resume else '--overwrite'} needs --backend")
-        target = check_output(output or fit_json, [data], option="-o" if output else "")
-        if backend is not None:
-            check_backend(backend, [fit_json, data, target], resume=resume, overwrite=overwrite)
-        if plot is not None:
-            check_output_folder(plot, "--plot")
-        _setup_jax()
-        import warnings
 
-        from ._progress import progress_enabled
-        from ._sample import ChainTooShortWarning
-        from ._sample_io import format_uncertainty_table, sample_command_body
+def _check_sample_options(o) -> Path:
+    """Options and outputs checked before any work; returns the JSON target."""
+    from ._outputs import check_backend, check_output, check_output_folder
+    from ._problem import LOSSES
 
-        meas = _read_data(data, param_out)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
-            doc = sample_command_body(
-                fit_json, meas, walkers, steps, burn, thin, seed, backend, resume, plot, output,
-                progress=progress_enabled(quiet), overwrite=overwrite,
-            )  # fmt: skip
-        typer.echo(json.dumps(doc, indent=2) if as_json else format_uncertainty_table(doc, str(data)))
-        typer.echo(f"wrote {output or fit_json}", err=True)
+    if (o.resume or o.overwrite) and o.backend is None:
+        raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
+    if o.loss is not None and o.loss not in LOSSES:
+        raise UserError(f"--loss must be one of {', '.join(LOSSES)}, got {o.loss!r}")
+    target = check_output(o.output or o.fit_json, [o.data], option="-o" if o.output else "")
+    if o.backend is not None:
+        check_backend(o.backend, [o.fit_json, o.data, target], resume=o.resume, overwrite=o.overwrite)
+    if o.idata is not None:
+        check_output(o.idata, [o.fit_json, o.data, target], option="--idata")
+    if o.plot is not None:
+        check_output_folder(o.plot, "--plot")
+    return target
 
-    _run(body)
+
+def _sample_command(o) -> int:
+    """The ``sample`` command's body: the exit status (0, or ``SAMPLE_NOT_USABLE``)."""
+    _check_sample_options(o)
+    _setup_jax()
+    import warnings
+
+    from ._progress import progress_enabled
+    from ._sample import ChainTooShortWarning
+    from ._sample_io import format_uncertainty_table, sample_command_body
+
+    meas = _read_data(o.data, o.param_out)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
+        doc = sample_command_body(
+            o.fit_json, meas, o.walkers, o.steps, o.burn, o.thin, o.seed, o.backend, o.resume, o.plot, o.output,
+            progress=progress_enabled(o.quiet), overwrite=o.overwrite, loss=o.loss, idata=o.idata,
+        )  # fmt: skip
+    typer.echo(json.dumps(doc, indent=2) if o.as_json else format_uncertainty_table(doc, str(o.data)))
+    typer.echo(f"wrote {o.output or o.fit_json}", err=True)
+    return 0 if doc["uncertainty"]["usable"] else SAMPLE_NOT_USABLE
 
 
 @app.command()

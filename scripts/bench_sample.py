@@ -5,7 +5,7 @@ walker (emcee's default, ``vectorize=False``).
 Every figure comes from the same run on the same machine, on the same synthetic data, same
 walkers, same number of steps, same starting ensemble and the same random numbers:
 
-- ``ctfit``: :class:`ctfit._sample._Engine`, the function :func:`ctfit.sample` hands to emcee
+- ``ctfit``: :class:`ctfit._sample_engine.Engine`, the function :func:`ctfit.sample` hands to emcee
   (one call per half ensemble; compiled before the clock starts).
 - ``NumPy per sample``: the same posterior — one Beckmann lobe, V-cavity G, the paper's Fresnel
   with the effective index from F0, sigma-weighted Gaussian likelihood, flat priors in (m, F0)
@@ -134,7 +134,9 @@ def _setup_problem(pairs: int, bands: int, seed: int = 0):
 
     import ctfit
     from ctfit._problem import from_params, make_problem
-    from ctfit._sample import _Engine, _Layout, _normalise_priors
+    from ctfit._priors import normalise_priors
+    from ctfit._sample_engine import Engine
+    from ctfit._sample_logprob import Layout
     from ctfit._simulate import simulate
 
     wl = np.linspace(400.0, 700.0, bands)
@@ -145,9 +147,9 @@ def _setup_problem(pairs: int, bands: int, seed: int = 0):
     problem = make_problem(st, data, fixed_params=truth.params, loss="sigma", space="unconstrained")
     u0 = {k: jnp.asarray(v) for k, v in from_params(problem.spec, truth.params).items()}
     names = tuple(sorted(u0))  # ("f0", "m"): flat = (u_F0..., u_m)
-    layout = _Layout(names, tuple(np.shape(u0[k]) for k in names), False, False, False)
+    layout = Layout(names, tuple(np.shape(u0[k]) for k in names), False, False, False)
     x0 = np.concatenate([np.ravel(u0[k]) for k in names])
-    return problem, layout, _normalise_priors(None, layout, st), x0, data, _Engine
+    return problem, layout, normalise_priors(None, layout.names, layout.noise), x0, data, Engine
 
 
 def run(pairs: int, bands: int, walkers: int, steps: int, seed: int = 0, repeat: int = 5) -> dict:

@@ -15,13 +15,16 @@ import pytest
 
 import ctfit
 from ctfit._problem import from_params, make_problem, to_params
-from ctfit._sample import ChainTooShortWarning, _Engine, _Layout, _normalise_priors, default_walkers, draw_colours, sample
+from ctfit._priors import normalise_priors
+from ctfit._sample import ChainTooShortWarning, default_walkers, draw_colours, sample
+from ctfit._sample_engine import Engine
+from ctfit._sample_logprob import Layout
 from ctfit._simulate import simulate
 
 WL3 = np.array([450.0, 550.0, 650.0])
 WL4 = np.linspace(400.0, 700.0, 4)
 NOISE = 0.004  # sr⁻¹, absolute, for the diffuse toy
-short = pytest.mark.filterwarnings("ignore::ctfit._sample.ChainTooShortWarning")
+short = pytest.mark.filterwarnings("ignore::ctfit._sample_diagnostics.ChainTooShortWarning")
 
 
 # --- a linear toy with a known Gaussian posterior -----------------------------------------------
@@ -117,15 +120,21 @@ def test_metal_posterior_covers_truth_and_matches_laplace(metal):
     # Near-Gaussian here: posterior sd within 20 % of the Laplace approximation of the fit.
     np.testing.assert_allclose(sd_m, fitted.stderr["m"], rtol=0.2)
     np.testing.assert_allclose(sd_f0, fitted.stderr["F0"], rtol=0.2)
-    # The sampler's own Laplace errors are the fit's.
+    # The walkers start at the fit's optimum (no second optimiser), and the Laplace errors are the fit's.
+    np.testing.assert_array_equal(res.optimum["m"], fitted.material.params.m)
+    np.testing.assert_allclose(res.optimum["F0"], fitted.material.params.f0, rtol=1e-12)
     np.testing.assert_allclose(res.laplace_stderr["F0"], fitted.stderr["F0"], rtol=1e-3)
+    assert not any("fitted with loss" in w for w in res.warnings)
     # n is the effective index of each draw's F0.
     np.testing.assert_allclose(ch["n"], (1 + np.sqrt(ch["F0"])) / (1 - np.sqrt(ch["F0"])), rtol=1e-12)
     d = res.diagnostics
     assert d["walkers"] == default_walkers(5) == 32
     assert d["draws"] == 32 * (1000 - d["burn"])
     assert set(d["autocorr_time"]) == set(res.labels) == {"m[0]", "F0[0]", "F0[1]", "F0[2]", "F0[3]"}
-    assert all(v > 0 for v in d["ess"].values())
+    assert all(v > 0 for v in d["ess_emcee"].values())
+    assert set(d["ess_bulk"]) == set(d["r_hat"]) == {"m[0]", "F0[0]", "F0[1]", "F0[2]", "F0[3]", "n[0]", "n[1]", "n[2]", "n[3]"}
+    assert all(v > 100 for v in d["ess_bulk"].values()) and all(v < 1.2 for v in d["r_hat"].values())
+    assert res.usable and res.problems == []
 
 
 def test_same_seed_same_chain_and_short_chain_warns(metal):
@@ -141,9 +150,11 @@ def test_same_seed_same_chain_and_short_chain_warns(metal):
     assert not np.array_equal(a.chain_u, c.chain_u)
     assert any("too short" in w for w in a.warnings)
     assert a.diagnostics["chain_long_enough"] is False
+    # A material that is not a fit is fitted first (the same loss as sample() uses), and says so.
+    assert any("fitted with loss 'sigma' first, from the material's values" in w for w in a.warnings)
 
 
-@pytest.mark.filterwarnings("ignore::ctfit._sample.ChainTooShortWarning")
+@pytest.mark.filterwarnings("ignore::ctfit._sample_diagnostics.ChainTooShortWarning")
 def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path, monkeypatch):
     truth, data, _ = metal
     ref = sample(truth, data, steps=80, seed=4, backend=tmp_path / "ref.h5", colour=False)
@@ -151,7 +162,7 @@ def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path
     # Interrupt a run after 30 of its 80 steps (a Ctrl-C inside the log-probability).
     path = tmp_path / "run.h5"
     calls = {"n": 0}
-    original = _Engine.__call__
+    original = Engine.__call__
 
     def interrupted(self, coords):
         calls["n"] += 1
@@ -159,10 +170,10 @@ def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path
             raise KeyboardInterrupt
         return original(self, coords)
 
-    monkeypatch.setattr(_Engine, "__call__", interrupted)
+    monkeypatch.setattr(Engine, "__call__", interrupted)
     with pytest.raises(KeyboardInterrupt):
         sample(truth, data, steps=80, seed=4, backend=path, colour=False)
-    monkeypatch.setattr(_Engine, "__call__", original)
+    monkeypatch.setattr(Engine, "__call__", original)
 
     import emcee
 
@@ -193,8 +204,8 @@ def test_relative_noise_likelihood_is_that_of_noise_proportional_to_the_model(me
     truth, data, _ = metal
     problem = make_problem(truth.structure, data.replace(sigma=None), fixed_params=truth.params, loss="relative", space="unconstrained")
     u0 = {k: jnp.asarray(v) for k, v in from_params(problem.spec, truth.params).items()}
-    layout = _Layout(("f0", "m"), ((4,), (1,)), True, False, False, relative=True)
-    eng = _Engine(problem, layout, _normalise_priors(None, layout, truth.structure), 4)
+    layout = Layout(("f0", "m"), ((4,), (1,)), True, False, False, relative=True)
+    eng = Engine(problem, layout, normalise_priors(None, layout.names, layout.noise), 4)
 
     rng = np.random.default_rng(1)
     flat0 = np.asarray(ravel_pytree(u0)[0])
@@ -238,9 +249,9 @@ def _engine(material, data, loss, priors=None):
     problem = make_problem(st, data, fixed_params=material.params, loss=loss, space="unconstrained")
     u0 = {k: jnp.asarray(v) for k, v in from_params(problem.spec, material.params).items()}
     names = tuple(sorted(u0))
-    layout = _Layout(names, tuple(np.shape(u0[k]) for k in names), loss != "sigma", st.fresnel == "conductor", st.lobes > 1)
-    prior = _normalise_priors(priors, layout, st)
-    return problem, layout, _Engine(problem, layout, prior, 4), u0
+    layout = Layout(names, tuple(np.shape(u0[k]) for k in names), loss != "sigma", st.fresnel == "conductor", st.lobes > 1)
+    prior = normalise_priors(priors, layout.names, layout.noise)
+    return problem, layout, Engine(problem, layout, prior, 4), u0
 
 
 def test_log_prior_is_flat_in_the_constrained_parameters(diffuse_toy):
@@ -283,6 +294,8 @@ def test_user_priors(diffuse_toy):
     x = np.log(np.expm1(np.array([[0.05, 0.08, 0.12]])))
     diff = eng(x)[0] - flat_eng(x)[0]
     np.testing.assert_allclose(diff, np.sum(-0.5 * np.array([0.05, 0.08, 0.12]) ** 2), rtol=1e-9)
+    # Every prior is cut to the value's physical range (here R_d ≤ 1000 sr⁻¹): proper.
+    assert flat_eng(np.array([[x[0, 0], x[0, 1], 1500.0]]))[0] == -np.inf  # softplus(1500) = 1500
     # A uniform prior excludes what it excludes.
     _, _, eng_u, _ = _engine(truth, data, "sigma", {"Rd": ("uniform", 0.0, 0.1)})
     assert eng_u(x)[0] == -np.inf
@@ -352,6 +365,7 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     assert load_material(fit_json).meta["uncertainty"]["diagnostics"]["steps"] == 200
     table = format_uncertainty_table(doc, "metal")
     assert "lobe 0: m =" in table and "τ_max" in table
+    assert "priors: uniform in F0 on [0, 1]; uniform in m on [1e-05, 4]" in table and "posterior: usable" in table
     # Only the uncertainty section (no wavelengths beside it): bands are numbered, not "0 nm".
     bare = format_uncertainty_table({"uncertainty": u}, "metal")
     assert "band 0" in bare and " 0 nm" not in bare
