@@ -95,10 +95,8 @@ def _global_columns(result) -> tuple[np.ndarray, list[str], list[float]]:
 
 
 def _band_labels(material: Material, n: int) -> list[str]:
-    if material.channels is not None:
-        return list(material.channels)
-    if material.wavelength_nm is not None:
-        return [f"{w:g} nm" for w in material.wavelength_nm]
+    if material.channels is not None or material.wavelength_nm is not None:
+        return material.band_labels  # "450 nm", a channel, or "unknown band"
     return [str(i) for i in range(n)]
 
 
@@ -184,7 +182,7 @@ def plot_spectra(result, path, *, truth: dict | None = None, title: str | None =
     if not keys:
         raise ValueError("nothing to plot: no per-band quantity was sampled")
     n_bands = result.chain[keys[0]].shape[1]
-    rgb = mat.channels is not None or mat.wavelength_nm is None
+    rgb = mat.channels is not None or mat.wavelength_nm is None or mat.band_unknown  # bands by label, not on a wavelength axis
     x = np.arange(n_bands, dtype=float) if rgb else np.asarray(mat.wavelength_nm, dtype=float)
     names = {
         "F0": "$F_0$",
@@ -247,10 +245,12 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
     band_keys = [k for k in ("F0", "n", "k", "Rd") if isinstance(u.get(k), list)]
     if band_keys:
         wl = doc.get("wavelength_nm") or doc.get("channels") or [f"band {i}" for i in range(len(u[band_keys[0]]))]
-        lines.append("  " + f"{'band':>10}" + "".join(f"  {k:>32}" for k in band_keys))
+        if doc.get("band_unknown"):
+            wl = ["unknown band"]  # single-band data: the wavelength stored is a placeholder
+        lines.append("  " + f"{'band':>12}" + "".join(f"  {k:>32}" for k in band_keys))
         for i, w in enumerate(wl):
             lab = f"{w:g} nm" if isinstance(w, (int, float)) else str(w)  # band indices, without a wavelength, say "band i"
-            lines.append("  " + f"{lab:>10}" + "".join(f"  {_fmt(u[k][i]):>32}" for k in band_keys))
+            lines.append("  " + f"{lab:>12}" + "".join(f"  {_fmt(u[k][i]):>32}" for k in band_keys))
     if isinstance(u.get("Rd"), dict):
         lines.append(f"  Rd = {_fmt(u['Rd'])}")
     if "sigma_noise" in u:

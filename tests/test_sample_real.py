@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+import ctfit
 from conftest import MEASURED
 from ctfit.cli import SAMPLE_NOT_USABLE, app
 from ctfit._parameters import M_MAX
@@ -98,3 +99,16 @@ def test_sample_loss_option_fits_again_and_refuses_unknown_losses(tmp_path):
     assert any("fitted with loss 'log' first" in w for w in u["warnings"])
     bad = runner.invoke(app, ["sample", str(tmp_path / "x.fit.json"), str(MEASURED / PINK[0]), "--loss", "huber"])
     assert bad.exit_code == 2 and "--loss must be one of" in bad.output
+
+
+def test_single_band_data_of_unknown_wavelength_is_labelled_so(tmp_path):
+    """ALTA files without wavelengths: the table and the corner plot say "unknown band", never
+    the placeholder wavelength (550 nm)."""
+    from ctfit._sample_io import _band_labels, format_uncertainty_table
+
+    material = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4])),
+                              wavelength_nm=np.array([550.0]), band_unknown=True)  # as a fit of retro-3M-jaune.dat has it
+    assert _band_labels(material, 1) == ["unknown band"]
+    doc = {"band_unknown": True, "wavelength_nm": [550.0], "uncertainty": {"F0": [{"median": 0.3, "p16": 0.29, "p84": 0.31}]}}
+    table = format_uncertainty_table(doc, "felt")
+    assert "unknown band" in table and "550" not in table
