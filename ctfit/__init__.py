@@ -46,6 +46,7 @@ _EXPORTS = {
     "read_optical_constants": "._material_io",
     "save_material_json": "._material_io",
     "evaluate": "._simulate",
+    "evaluate_at": "._simulate",
     "goniometer_directions": "._simulate",
     "simulate": "._simulate",
     "FitResult": "._fit",
@@ -183,6 +184,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
     )
     from ._simulate import (
         evaluate as evaluate,
+        evaluate_at as evaluate_at,
         goniometer_directions as goniometer_directions,
         simulate as simulate,
     )

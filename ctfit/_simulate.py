@@ -18,11 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._brdf import brdf
-from ._geometry import geometry_from_angles_deg
+from ._geometry import geometry, geometry_from_angles_deg
 from ._material import Material
 from ._measurement import Measurement
 
-__all__ = ["simulate", "goniometer_directions", "evaluate"]
+__all__ = ["simulate", "goniometer_directions", "evaluate", "evaluate_at"]
 
 
 def goniometer_directions(n_pairs: int, *, spread: float = 0.3, max_theta: float = 85.0, seed: int = 0):
@@ -82,6 +82,41 @@ def evaluate(material: Material, measurement: Measurement, *, dtype=None) -> np.
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
     values = _grid_values(material.structure, params, jnp.asarray(pairs, dtype=dt))
     return np.asarray(values)[index, measurement.band]
+
+
+def evaluate_at(material: Material, *, theta_i=None, phi_i=0.0, theta_o=None, phi_o=0.0, l=None, v=None, wavelength_nm=None,
+                dtype=None) -> np.ndarray:
+    """The material's BRDF (sr⁻¹) at any directions, in every band: no :class:`Measurement` needed.
+
+    Directions are angles in degrees — ``theta_i``, ``phi_i`` (light), ``theta_o``, ``phi_o``
+    (viewer), broadcast together — or unit vectors ``l`` (to the light) and ``v`` (to the
+    viewer), shape (..., 3), normal +z (``docs/conventions.md``). Bands: the material's own, or
+    ``wavelength_nm`` (interpolated as :meth:`Material.params_at` does; spectral materials).
+    Returns shape ``directions + (bands,)``; directions at or below the horizon give 0.
+
+    >>> import numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                       wavelength_nm=np.array([450.0, 650.0]))
+    >>> ctfit.evaluate_at(gold, theta_i=30.0, theta_o=[0.0, 30.0, 60.0], phi_o=180.0).shape
+    (3, 2)
+    """
+    by_angles = theta_i is not None or theta_o is not None
+    if by_angles == (l is not None or v is not None) or (by_angles and (theta_i is None or theta_o is None)) or (not by_angles and (l is None or v is None)):
+        raise ValueError("give the directions either as angles (theta_i and theta_o, with phi_i, phi_o) or as unit vectors (l and v)")
+    if wavelength_nm is not None and material.wavelength_nm is None:
+        raise ValueError(f"material {material.name!r} has RGB channels; it has no values at wavelengths")
+    params = material.params_at(wavelength_nm)
+    dt = dtype or (jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
+    if by_angles:
+        angles = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)))
+        geom = geometry_from_angles_deg(*(jnp.asarray(a, dtype=dt) for a in angles))
+    else:
+        geom = geometry(jnp.asarray(l, dtype=dt), jnp.asarray(v, dtype=dt))
+    return np.asarray(_values(material.structure, params, geom))
+
+
+_values = jax.jit(brdf, static_argnums=0)
 
 
 def _grid_values_impl(structure, params, pairs):
