@@ -53,6 +53,8 @@ _EXPORTS = {
     "fit": "._fit",
     "select_structure": "._fit",
     "fit_batch": "._fit_batch",
+    "fit_many": "._fit_many",
+    "fit_texel_maps": "._texel_maps",
     "TexelFits": "._fit_texels",
     "fit_texels": "._fit_texels",
     "fit_result_to_dict": "._fit_io",
@@ -195,6 +197,12 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
     )
     from ._fit_batch import (
         fit_batch as fit_batch,
+    )
+    from ._fit_many import (
+        fit_many as fit_many,
+    )
+    from ._texel_maps import (
+        fit_texel_maps as fit_texel_maps,
     )
     from ._fit_texels import (
         TexelFits as TexelFits,

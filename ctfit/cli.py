@@ -60,11 +60,9 @@ def _load_material(path: Path):
 
 def _read_data(path: Path, param_out: str | None = None):
     """Read a measurement (once); ``--param-out`` serves only an ALTA file without its own #PARAM_OUT line."""
-    from ._alta import read_alta
-    from ._readers import reader_for
+    from ._fit_many import read_input
 
-    reader = reader_for(path)
-    return reader(path, param_out_default=param_out) if param_out is not None and reader is read_alta else reader(path)
+    return read_input(path, param_out)
 
 
 _PARAM_OUT_HELP = "ALTA files without a #PARAM_OUT line: the unit of their values (INV_STERADIAN or INV_STERADIAN_COSINE_FACTOR)."
@@ -231,6 +229,8 @@ def fit(
     resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
     overwrite: bool = typer.Option(False, "--overwrite", help="With --sample: start the chain in --backend again (a stored chain is kept otherwise)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars (they show only on a terminal)."),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="Fit on a local Dask cluster of this many worker processes (needs -o; results are kept per file and a re-run skips the files done)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Fit on an existing Dask cluster: the scheduler's address (tcp://HOST:8786) or its scheduler file (.json); as --workers otherwise."),
 ):
     """Fit the Cook–Torrance parameters to DATA; prints a table of parameters ± standard errors.
 
@@ -238,6 +238,11 @@ def fit(
     is reported as 'error: FILE: reason' and the others go on; a summary follows on stderr.
     Exit status: 0 every fit converged, 1 some fit did not converge, 2 a file failed or the
     options are wrong.
+
+    --workers N / --scheduler ADDRESS: the files are fitted on a Dask cluster, each result written
+    as it completes, a re-run skipping the files done, OUTDIR/summary.json (docs/scaling.md).
+    One texel store (.zarr, .nc, .h5): every texel fitted, -o MAPS.zarr the parameter maps
+    (docs/formats.md).
     """
     opts = SimpleNamespace(**locals())
     code = _run(lambda: _fit_command(opts))
@@ -250,12 +255,17 @@ def _fit_command(o) -> int:
     from ._progress import progress_enabled
 
     _check_fit_options(o)
+    if len(o.data) == 1 and o.data[0].suffix.lower() in _TEXEL_SUFFIXES:
+        return _fit_texel_command(o)
     files = _expand(o.data)
     _setup_jax(o.float32)
     _check_fit_choices(o)
     plan = _fit_plan(files, o)
     base = _load_material(o.material) if o.material else None
-    outcomes = _fit_each(files, o, base, plan, progress_enabled(o.quiet))
+    if o.workers is not None or o.scheduler is not None:
+        outcomes = _fit_on_cluster(files, o, base, plan, progress_enabled(o.quiet))
+    else:
+        outcomes = _fit_each(files, o, base, plan, progress_enabled(o.quiet))
     return _fit_exit_status(outcomes)
 
 
@@ -273,6 +283,23 @@ def _check_fit_options(o) -> None:
         raise UserError(f"--walkers must be even (emcee moves one half of the walkers against the other), got {o.walkers}")
     if o.burn is not None and o.burn >= o.steps:
         raise UserError(f"--burn must be less than --steps ({o.steps}), got {o.burn}")
+    if o.workers is not None or o.scheduler is not None:
+        _check_cluster_options(o)
+
+
+def _check_cluster_options(o) -> None:
+    """--workers / --scheduler: one structure for all files, results kept in -o."""
+    which = "--workers" if o.workers is not None else "--scheduler"
+    if o.workers is not None and o.scheduler is not None:
+        raise UserError("--workers makes a local cluster and --scheduler uses an existing one: give one of them")
+    if o.output is None:
+        raise UserError(f"{which} needs -o (the results are written per file as they complete, and a re-run skips the files done)")
+    if o.sample_:
+        raise UserError(f"{which} fits only; leave out --sample (or sample the files afterwards)")
+    if o.lobes == "auto" and o.material is None:
+        raise UserError(f"{which} fits one structure to every file; give --lobes N (not auto) or --material")
+    if o.as_json:
+        raise UserError(f"{which} writes each result to -o; leave out --json")
 
 
 def _check_fit_choices(o) -> None:
@@ -324,15 +351,15 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
     for k, path in enumerate(bar(files, desc="files", enabled=show and len(files) > 1)):
         try:
             if not together:
-                converged = _fit_file(path, o, base, plan[path], show)
+                outcome = _fit_file(path, o, base, plan[path], show)
             else:
                 if path not in fitted:
                     fitted = _fit_together(files[k:], o, base)
                 got = fitted.pop(path)
                 if isinstance(got, Exception):
                     raise got
-                converged = _report_file(path, *got, o, plan[path], show)
-            outcomes.append(("converged" if converged else "not converged", str(path)))
+                outcome = _report_file(path, *got, o, plan[path], show)
+            outcomes.append((outcome, str(path)))
         except (UserError, ValueError, OSError, KeyError) as e:
             if len(files) == 1:
                 raise
@@ -343,21 +370,153 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
     return outcomes
 
 
-def _fit_exit_status(outcomes: list[tuple[str, str]]) -> int:
-    """Print the summary (several files); 0: all converged, 1: some did not, 2: some failed."""
+def _fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[str, str]]:
+    """--workers / --scheduler: files whose stored result was fitted from the same bytes with the
+    same options are skipped; the others are fitted by ``fit_many`` on the cluster and each is
+    reported and written as its task completes. ``summary.json`` goes beside the results."""
+    from ._cluster import dask_client
+    from ._fit_many import fit_many, input_sha256
     from ._progress import echo
 
-    count = {k: sum(v == k for v, _ in outcomes) for k in ("converged", "not converged", "failed")}
+    options = _fit_options_record(o)
+    hashes, outcomes, pending = {}, {}, []
+    for path in files:
+        try:
+            hashes[path] = input_sha256(path)
+        except OSError as e:
+            outcomes[path] = ("failed", f"{path}: {e.strerror or e}")
+            continue
+        kept = _kept_result(plan[path].json, hashes[path], options)
+        if kept is None:
+            pending.append(path)
+        else:
+            outcomes[path] = (kept, f"{path}{_KEPT}")
+
+    def done(i: int, got) -> None:
+        path = pending[i]
+        try:
+            if isinstance(got, Exception):
+                raise got
+            got.material.meta.update(input_sha256=hashes[path], fit_options=options)
+            meas = _read_data(path, o.param_out) if plan[path].plot is not None else None
+            outcomes[path] = (_report_file(path, meas, got, o, plan[path], show), str(path))
+        except (UserError, ValueError, OSError, KeyError, RuntimeError) as e:
+            message = _cli_message(str(e))
+            line = message if message.startswith(f"{path}:") else f"{path}: {message}"
+            echo(f"error: {line}", err=True)
+            outcomes[path] = ("failed", line)
+
+    if pending:
+        st = _structure_from_options(base.structure if base else None, int(o.lobes) if o.lobes != "auto" else 1, o.geometry, o.fresnel, o.diffuse)
+        kw = _fit_kwargs(o)
+        with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
+            fit_many([str(p) for p in pending], st, client, material=base, param_out=o.param_out, return_errors=True, on_result=done,
+                     progress=show, **kw)
+    ordered = [outcomes[p] for p in files]
+    if len(files) > 1:
+        _write_summary(Path(o.output) / "summary.json", files, ordered, plan, hashes)
+    return ordered
+
+
+_TEXEL_SUFFIXES = (".zarr", ".nc", ".h5", ".hdf5")
+
+
+def _fit_texel_command(o) -> int:
+    """Texel data (``docs/formats.md``): every texel fitted on a Dask cluster (--workers, --scheduler,
+    else one local worker per core), the maps written to the Zarr store -o as chunks complete
+    (a re-run resumes), PNGs of the maps in the folder --plot. 0: every texel converged, 1: not."""
+    from ._cluster import dask_client
+    from ._progress import echo, progress_enabled
+    from ._texel_maps import fit_texel_maps, save_map_pngs
+
+    if o.output is None or o.output.suffix.lower() != ".zarr":
+        raise UserError("texel data: give -o MAPS.zarr (the parameter maps are written there as a Zarr store)")
+    if o.sample_ or o.material is not None or o.lobes == "auto" or o.as_json or o.backend is not None:
+        raise UserError("texel data: fits with --lobes N only; leave out --sample, --material, --lobes auto, --json and --backend")
+    _setup_jax(o.float32)
+    _check_fit_choices(o)
+    st = _structure_from_options(None, int(o.lobes), o.geometry, o.fresnel, o.diffuse)
+    kw = _fit_kwargs(o)
+    with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
+        maps = fit_texel_maps(o.data[0], o.output, st, client, loss=kw["loss"], solver=kw["solver"], dtype=kw["dtype"], starts=kw["starts"],
+                              max_steps=kw["max_steps"], progress=progress_enabled(o.quiet))
+    with maps:
+        import numpy as np
+
+        converged = int(maps["converged"].sum())
+        total = int(maps["converged"].size)
+        echo(f"{o.data[0]}: {total} texels, {converged} converged, {total - converged} did not; median rel_rmse "
+             f"{float(np.nanmedian(maps['rel_rmse'].values)):.4g}")
+        _wrote(o.output)
+        if o.plot is not None:
+            for png in save_map_pngs(maps, o.plot):
+                _wrote(png)
+    return 0 if converged == total else 1
+
+
+_KEPT = " (kept: fitted earlier from the same input)"
+
+
+def _fit_options_record(o) -> dict:
+    """The options a stored result was fitted with (a re-run keeps it only if they are equal)."""
+    from ._fit_many import input_sha256
+
+    return dict(lobes=o.lobes, geometry=o.geometry, fresnel=o.fresnel, diffuse=o.diffuse, loss=o.loss, solver=o.solver, float32=o.float32,
+                starts=o.starts, max_steps=o.max_steps, param_out=o.param_out, material=input_sha256(o.material) if o.material else None)
+
+
+def _kept_result(target, sha: str, options: dict) -> str | None:
+    """'converged' or 'not converged' when ``target`` holds a fit of the same input and options, else None."""
+    if target is None or not Path(target).is_file():
+        return None
+    try:
+        doc = json.loads(Path(target).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    fit = doc.get("fit") if isinstance(doc, dict) else None
+    if not isinstance(fit, dict) or doc.get("input_sha256") != sha or doc.get("fit_options") != options:
+        return None
+    return "converged" if fit.get("converged") is True else "not converged"
+
+
+def _write_summary(target: Path, files: list[Path], outcomes: list[tuple[str, str]], plan: dict, hashes: dict) -> None:
+    """``summary.json``: per file its outcome, result file, input hash and (failed) the reason."""
+    from ._fileio import atomic_write
+
+    rows = []
+    for path, (outcome, what) in zip(files, outcomes):
+        rows.append(dict(data=str(path), outcome=outcome, kept=what.endswith(_KEPT),
+                         result=None if outcome == "failed" else str(plan[path].json), input_sha256=hashes.get(path),
+                         reason=what if outcome == "failed" else None))
+    count = {k: sum(r["outcome"] == k for r in rows) for k in ("converged", "not converged", "failed")}
+    atomic_write(target, [json.dumps(dict(files=len(rows), **count, results=rows), indent=2) + "\n"])
+    _wrote(target)
+
+
+UNUSABLE = "posterior not usable"
+"""The outcome of a converged fit whose ``--sample`` posterior is not usable (exit status 1)."""
+
+
+def _fit_exit_status(outcomes: list[tuple[str, str]]) -> int:
+    """Print the summary (several files); 0: all converged (and, with --sample, every posterior
+    usable), 1: some did not, 2: some failed."""
+    from ._progress import echo
+
+    count = {k: sum(v == k for v, _ in outcomes) for k in ("converged", "not converged", UNUSABLE, "failed")}
     if len(outcomes) > 1:
-        head = f"summary: {len(outcomes)} files: {count['converged']} converged, {count['not converged']} did not converge, {count['failed']} failed"
+        unusable = f", {count[UNUSABLE]} with a posterior that is not usable" if count[UNUSABLE] else ""
+        head = (f"summary: {len(outcomes)} files: {count['converged'] + count[UNUSABLE]} converged{unusable}, {count['not converged']} did not converge, "
+                f"{count['failed']} failed")
         echo("\n".join([head, *(f"  {v:<14} {what}" for v, what in outcomes)]), err=True)
     elif count["not converged"]:
         echo("error: the fit did not converge (see the table)", err=True)
-    return 2 if count["failed"] else (1 if count["not converged"] else 0)
+    elif count[UNUSABLE]:
+        echo("error: the posterior is not usable (see its problem lines)", err=True)
+    return 2 if count["failed"] else (1 if count["not converged"] or count[UNUSABLE] else 0)
 
 
-def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool) -> bool:
-    """Read, fit, print and write one file's results; whether the fit converged."""
+def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool) -> str:
+    """Read, fit, print and write one file's results; its outcome (:func:`_report_file`)."""
     meas = _read_data(path, o.param_out)
     return _report_file(path, meas, _fit_measurement(meas, o, base, show), o, t, show)
 
@@ -389,16 +548,18 @@ def _fit_together(files: list[Path], o, base) -> dict:
     return done
 
 
-def _report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool) -> bool:
-    """Print and write one file's results; whether the fit converged."""
+def _report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool) -> str:
+    """Print and write one file's results; its outcome: "converged", "not converged", or with
+    --sample ``UNUSABLE`` when the fit converged but its posterior is not usable."""
     res.material.meta["data"] = str(path)
     target, note = t.json, None
     if target is not None and not res.converged:
         from ._outputs import unconverged_target
 
         target, note = unconverged_target(target)
+    usable = True
     if o.sample_:
-        _sample_and_report(res, meas, path, o, t, target, show)
+        usable = _sample_and_report(res, meas, path, o, t, target, show)
     else:
         _report_fit(res, path, o, target)
     _wrote(target, note)
@@ -407,7 +568,7 @@ def _report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool) -> bo
 
         plot_fit(res, meas, t.plot)
         _wrote(t.plot)
-    return bool(res.converged)
+    return "not converged" if not res.converged else ("converged" if usable else UNUSABLE)
 
 
 def _fit_measurement(meas, o, base, show: bool):
@@ -456,8 +617,9 @@ def _report_fit(res, path: Path, o, target) -> None:
         save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
 
 
-def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target, show: bool) -> None:
-    """--sample: the posterior of the fit, its tables (or JSON) on stdout, written to ``target``."""
+def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target, show: bool) -> bool:
+    """--sample: the posterior of the fit, its tables (or JSON) on stdout, written to ``target``;
+    whether the posterior is usable."""
     import warnings
 
     from ._fit_io import format_fit_table
@@ -477,6 +639,7 @@ def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target, sho
     else:
         echo(format_fit_table(res, str(path)))
         echo(format_uncertainty_table(doc, str(path)))
+    return bool(doc["uncertainty"]["usable"])
 
 
 def _wrote(target, note: str | None = None) -> None:

@@ -1,0 +1,162 @@
+"""``ctfit fit --scheduler`` on an external Dask cluster started as separate processes (``dask
+scheduler``, ``dask worker``): results equal the serial ones; a worker killed mid-run loses no
+finished result (its task runs again on the other worker); a run killed mid-way keeps every
+result written, and the re-run fits only the rest."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import ctfit
+from ctfit._fit_many import input_sha256
+from ctfit.cli import app
+
+BIN = Path(sys.executable).parent
+N_FILES = 12  # 3 files per task on 2 workers: 4 tasks
+
+
+def write_folder(folder: Path) -> list[Path]:
+    folder.mkdir(parents=True)
+    st = ctfit.Structure(lobes=1)
+    for i in range(N_FILES):
+        mat = ctfit.Material(st, ctfit.Params(m=np.array([0.15 + 0.02 * i]), w=np.array([1.0]), f0=np.array([0.5, 0.8, 0.9])),
+                             wavelength_nm=np.array([450.0, 550.0, 650.0]))
+        ctfit.write_csv(ctfit.simulate(mat, 300, noise=0.01, seed=i), folder / f"f{i:02d}.csv")
+    return sorted(folder.glob("*.csv"))
+
+
+def start(args: list[str], log: Path) -> subprocess.Popen:
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "CTFIT_PROGRESS": "0"}
+    with open(log, "ab") as f:
+        return subprocess.Popen(args, stdout=f, stderr=subprocess.STDOUT, env=env, cwd=log.parent)
+
+
+class Cluster:
+    """A scheduler and worker processes of their own (no nanny: killing a worker's process kills the worker)."""
+
+    def __init__(self, folder: Path):
+        self.folder, self.file = folder, folder / "scheduler.json"
+        self.scheduler = start([str(BIN / "dask"), "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                                "--scheduler-file", str(self.file)], folder / "scheduler.log")
+        self.workers: list[subprocess.Popen] = []
+        deadline = time.monotonic() + 60
+        while not self.file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert self.file.exists(), (folder / "scheduler.log").read_text()
+        self.address = json.loads(self.file.read_text())["address"]
+
+    def add_worker(self) -> subprocess.Popen:
+        w = start([str(BIN / "dask"), "worker", "--scheduler-file", str(self.file), "--nthreads", "1", "--no-nanny", "--no-dashboard",
+                   "--name", f"w{len(self.workers)}"], self.folder / f"worker{len(self.workers)}.log")
+        self.workers.append(w)
+        return w
+
+    def wait_for_workers(self, n: int) -> None:
+        from distributed import Client
+
+        with Client(self.address, timeout="30s") as c:
+            c.wait_for_workers(n, timeout=60)
+
+    def close(self) -> None:
+        for p in [*self.workers, self.scheduler]:
+            if p.poll() is None:
+                p.terminate()
+        for p in [*self.workers, self.scheduler]:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    (tmp_path / "cluster").mkdir()
+    made = Cluster(tmp_path / "cluster")
+    try:
+        yield made
+    finally:
+        made.close()
+
+
+def run_cli(args: list[str], log: Path) -> subprocess.Popen:
+    return start([str(BIN / "ctfit"), "fit", *args], log)
+
+
+def results(out: Path) -> dict[str, dict]:
+    return {p.name: json.loads(p.read_text()) for p in sorted(out.glob("*.fit.json"))}
+
+
+def wait_for_results(out: Path, proc: subprocess.Popen, at_least: int = 1) -> None:
+    deadline = time.monotonic() + 240
+    while len(list(out.glob("*.fit.json"))) < at_least:
+        assert proc.poll() is None, "the run ended before writing a result"
+        assert time.monotonic() < deadline, "no result in time"
+        time.sleep(0.05)
+
+
+def started_mid_run(cluster: Cluster, args: list[str], log: Path, out: Path) -> tuple[subprocess.Popen, subprocess.Popen]:
+    """Two workers, then ``ctfit fit ARGS`` (in ``log``'s folder) until its first result is in
+    ``out``: (the first worker, the run)."""
+    victim = cluster.add_worker()
+    cluster.add_worker()
+    cluster.wait_for_workers(2)
+    run = run_cli(args, log)
+    wait_for_results(out, run)
+    return victim, run
+
+
+def assert_equal_to_serial(out: Path, serial: Path, files: list[Path]) -> None:
+    got, want = results(out), results(serial)
+    assert sorted(got) == sorted(want) == sorted(f"{p.stem}.fit.json" for p in files)
+    for name, doc in got.items():
+        assert doc["lobes"] == want[name]["lobes"] and doc["F0"] == want[name]["F0"] and doc["s"] == want[name]["s"], name
+        assert doc["fit"]["converged"] is True and doc["name"] == f"fit of {doc['data']}"  # the file as the user named it
+
+
+@pytest.fixture
+def data(tmp_path):
+    files = write_folder(tmp_path / "data")
+    serial = CliRunner().invoke(app, ["fit", *map(str, files), "-o", str(tmp_path / "serial"), "-q"])
+    assert serial.exit_code == 0, serial.output
+    return files, tmp_path / "serial"
+
+
+def test_a_killed_worker_loses_no_result_and_the_run_completes(cluster, data, tmp_path):
+    files, serial = data
+    out = tmp_path / "out"  # given relative to the run's folder, which is not the workers' folder
+    victim, run = started_mid_run(cluster, ["data", "-o", "out", "--scheduler", cluster.address, "-q"], tmp_path / "run.log", out)
+    victim.send_signal(signal.SIGKILL)
+    victim.wait()
+    assert run.wait(timeout=300) == 0, (tmp_path / "run.log").read_text()
+    assert_equal_to_serial(out, serial, files)
+
+
+def test_an_interrupted_run_keeps_its_results_and_the_rerun_fits_the_rest(cluster, data, tmp_path):
+    files, serial = data
+    out = tmp_path / "out"
+    victim, run = started_mid_run(cluster, [str(tmp_path / "data"), "-o", str(out), "--scheduler", str(cluster.file), "-q"], tmp_path / "run.log", out)
+    victim.send_signal(signal.SIGKILL)
+    run.send_signal(signal.SIGKILL)  # the whole run stops, as a crash or a lost login would stop it
+    victim.wait()
+    run.wait()
+    kept = results(out)  # whole files only (atomic writes), each naming the input it was fitted from
+    assert 0 < len(kept) < N_FILES, "the run was not stopped mid-way"
+    for name, doc in kept.items():
+        assert doc["input_sha256"] == input_sha256(tmp_path / "data" / name.replace(".fit.json", ".csv"))
+    rerun = run_cli([str(tmp_path / "data"), "-o", str(out), "--scheduler", str(cluster.file), "-q"], tmp_path / "rerun.log")
+    assert rerun.wait(timeout=300) == 0, (tmp_path / "rerun.log").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["converged"] == N_FILES
+    assert sorted(Path(r["data"]).stem + ".fit.json" for r in summary["results"] if r["kept"]) == sorted(kept)
+    assert_equal_to_serial(out, serial, files)
+    for name, doc in kept.items():  # kept, not written again
+        assert results(out)[name] == doc

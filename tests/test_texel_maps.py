@@ -1,0 +1,90 @@
+"""Texel data fitted chunk by chunk on a ``LocalCluster`` (2 workers): the maps equal the serial
+``fit_texels`` in both layouts (Zarr image, HDF5 texel list); a chunk not finished is fitted on a
+re-run and the others kept; a store of another input is refused; ``ctfit fit`` writes maps and PNGs."""
+
+import numpy as np
+import pytest
+import xarray as xr
+from typer.testing import CliRunner
+
+import ctfit
+from ctfit._cluster import dask_client
+from ctfit._texel_maps import TexelMapError, read_texel_geometry
+from ctfit.cli import app
+
+WL = np.array([450.0, 650.0])
+ST = ctfit.Structure(lobes=1)
+H, W = 5, 4
+
+
+def material(m, f0):
+    return ctfit.Material(ST, ctfit.Params(m=np.array([m]), w=np.array([1.0]), f0=np.array([f0, 0.9])), wavelength_nm=WL)
+
+
+@pytest.fixture(scope="module")
+def texels():
+    geometry = ctfit.simulate(material(0.25, 0.6), 50, noise=0.0, seed=0)
+    rng = np.random.default_rng(1)
+    values = np.empty((H, W, len(geometry)))
+    for y in range(H):
+        for x in range(W):
+            clean = ctfit.evaluate(material(0.15 + 0.02 * y + 0.01 * x, 0.5 + 0.05 * x), geometry)
+            values[y, x] = clean * (1 + 0.01 * rng.standard_normal(len(geometry)))
+    return geometry, values
+
+
+def dataset(geometry, values, dims):
+    table = {k: (("sample",), getattr(geometry, k)) for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band")}
+    return xr.Dataset({"values": ((*dims, "sample"), values), **table, "wavelength_nm": (("band",), WL)})
+
+
+@pytest.fixture(scope="module")
+def client():
+    with dask_client(workers=2) as c:
+        yield c
+
+
+def test_image_maps_equal_the_serial_fits_and_a_rerun_finishes_a_chunk(client, texels, tmp_path):
+    geometry, values = texels
+    dataset(geometry, values, ("y", "x")).to_zarr(tmp_path / "in.zarr", consolidated=False)
+    serial = ctfit.fit_texels(geometry, values.reshape(H * W, -1), ST)
+    maps = ctfit.fit_texel_maps(tmp_path / "in.zarr", tmp_path / "maps.zarr", ST, client, chunk=2 * W)
+    assert maps["m"].dims == ("y", "x", "lobe") and maps["F0"].dims == ("y", "x", "band")
+    np.testing.assert_allclose(maps["m"].values.reshape(H * W, 1), serial.params.m, rtol=1e-8)
+    np.testing.assert_allclose(maps["F0"].values.reshape(H * W, 2), serial.params.f0, rtol=1e-8)
+    np.testing.assert_array_equal(maps["converged"].values.reshape(-1), serial.converged)
+    assert maps.attrs["input_sha256"] and maps["cost"].chunks[0] == (2, 2, 1)
+    # rows 2–3 as a killed run leaves them: cost (written last) missing, the rest half written
+    spoilt = xr.Dataset({"cost": (("y", "x"), np.full((2, W), np.nan)), "m": (("y", "x", "lobe"), np.zeros((2, W, 1)))})
+    spoilt.to_zarr(tmp_path / "maps.zarr", region={"y": slice(2, 4)}, consolidated=False)
+    again = ctfit.fit_texel_maps(tmp_path / "in.zarr", tmp_path / "maps.zarr", ST, client, chunk=2 * W)
+    np.testing.assert_allclose(again["m"].values.reshape(H * W, 1), serial.params.m, rtol=1e-8)
+    assert np.isfinite(again["cost"].values).all()
+
+
+def test_texel_list_in_hdf5_and_another_input_refused(client, texels, tmp_path):
+    geometry, values = texels
+    flat = values.reshape(H * W, -1)
+    dataset(geometry, flat, ("texel",)).to_netcdf(tmp_path / "in.h5", engine="h5netcdf")
+    data, dims, sizes = read_texel_geometry(tmp_path / "in.h5")
+    assert dims == ("texel",) and sizes == (H * W,) and len(data) == flat.shape[1]
+    maps = ctfit.fit_texel_maps(tmp_path / "in.h5", tmp_path / "maps.zarr", ST, client, chunk=7)
+    np.testing.assert_allclose(maps["m"].values, ctfit.fit_texels(geometry, flat, ST).params.m, rtol=1e-8)
+    dataset(geometry, flat * 1.1, ("texel",)).to_netcdf(tmp_path / "other.h5", engine="h5netcdf")
+    with pytest.raises(TexelMapError, match="another input"):
+        ctfit.fit_texel_maps(tmp_path / "other.h5", tmp_path / "maps.zarr", ST, client, chunk=7)
+    xr.Dataset({"values": (("texel",), flat[:, 0])}).to_netcdf(tmp_path / "bad.h5", engine="h5netcdf")
+    with pytest.raises(TexelMapError, match="missing variable"):
+        read_texel_geometry(tmp_path / "bad.h5")
+
+
+def test_cli_writes_maps_and_pngs(texels, tmp_path):
+    geometry, values = texels
+    dataset(geometry, values, ("y", "x")).to_zarr(tmp_path / "in.zarr", consolidated=False)
+    got = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "maps.zarr"), "--workers", "2", "--no-diffuse",
+                                   "--plot", str(tmp_path / "png")])
+    assert got.exit_code == 0, got.output
+    assert f"{H * W} texels, {H * W} converged" in got.output
+    assert {p.name for p in (tmp_path / "png").iterdir()} >= {"m_0.png", "F0_0.png", "F0_1.png", "cost.png", "converged.png"}
+    refused = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "maps.json")])
+    assert refused.exit_code == 2 and "-o MAPS.zarr" in refused.output
