@@ -795,11 +795,14 @@ def render(
 def color(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
     angle: float = typer.Option(0.0, "--angle", help="Angle of incidence, degrees."),
-    illuminant: str = typer.Option("D65", "--illuminant"),
-    colourspace: str = typer.Option("sRGB", "--colourspace"),
-    as_json: bool = typer.Option(False, "--json"),
+    illuminant: str = typer.Option("D65", "--illuminant", help="CIE illuminant (colour-science's name): D65, A, D50, …"),
+    colourspace: str = typer.Option("sRGB", "--colorspace", "--colourspace", help="RGB colourspace (colour-science's name); --colourspace is the same option."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of the table."),
 ):
-    """The material's reflectance colour at normal incidence (or --angle): XYZ, xy, RGB, Lab, …"""
+    """The material's reflectance colour at normal incidence (or --angle): XYZ, xy, RGB, Lab, …
+
+    The CLI spells colour the American way (``color``, ``--colorspace``); ``ctfit colour`` and
+    ``--colourspace`` are the same command and option."""
 
     def body():
         _setup_jax()
@@ -814,6 +817,9 @@ def color(
                 typer.echo(f"{k:>24}: {v}")
 
     _run(body)
+
+
+app.command("colour", hidden=True, help="The same as ctfit color.")(color)
 
 
 def _interrupted_message() -> str:

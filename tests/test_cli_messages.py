@@ -79,3 +79,18 @@ def test_fit_help_lists_each_flag_without_a_value():
     for flag in ("--json", "--float32", "--sample", "--resume", "--quiet", "--diffuse / --no-diffuse"):
         line = next(line for line in text.splitlines() if line.strip().startswith(flag) or f", {flag}" in line)
         assert "<" not in line.split(flag, 1)[1].split("  ")[0], line
+
+
+def test_colour_is_spelled_one_way_and_the_other_is_an_alias(tmp_path):
+    """``ctfit color --colorspace`` is the spelling; ``ctfit colour`` and ``--colourspace`` give the same."""
+    import json
+
+    material = ROOT / "configs" / "copper-vase.toml"
+    runner = CliRunner()
+    outs = [runner.invoke(app, [cmd, str(material), opt, "Display P3", "--json"]) for cmd, opt in
+            (("color", "--colorspace"), ("colour", "--colourspace"), ("color", "--colourspace"))]
+    assert all(o.exit_code == 0 for o in outs), [o.output for o in outs]
+    docs = [json.loads(o.output) for o in outs]
+    assert docs[0] == docs[1] == docs[2] and "Display P3" in json.dumps(docs[0])
+    listed = re.findall(r"^\s+(\w+)\s", runner.invoke(app, ["--help"]).output.split("Commands")[-1], re.M)
+    assert "color" in listed and "colour" not in listed  # the alias stays hidden
