@@ -85,6 +85,25 @@ class FitResult:
     def converged(self) -> bool:
         return bool(self.stats["converged"])
 
+    @property
+    def parameters(self) -> dict:
+        """The fitted values under their public names, laid out as in the fit JSON (``s``,
+        ``lobes`` [{``m``, ``weight``}], ``F0``, ``n``, ``k``, ``Rd``; lobes in ascending m), the
+        same keys and layout as :attr:`parameter_errors`."""
+        from ._material_io import material_to_dict
+
+        doc = material_to_dict(self.material)
+        keys = ("s", "lobes", "F0", "n", "k") + (("Rd",) if self.material.structure.diffuse in ("spectrum", "constant") else ())  # R_d = F0/π is not fitted
+        return {k: doc[k] for k in keys if k in doc}
+
+    @property
+    def parameter_errors(self) -> dict | None:
+        """Standard errors of :attr:`parameters`, same keys and layout (NaN where a value has none,
+        e.g. on a bound); None when JᵀJ could not be inverted."""
+        from ._fit_io import stderr_block
+
+        return stderr_block(self)
+
 
 def _default_start(structure: Structure, data: Measurement) -> Params:
     nb = data.n_bands

@@ -16,10 +16,11 @@ from ._material_io import MaterialError, material_to_dict
 from ._measurement import Measurement
 from ._problem import free_names
 
-__all__ = ["fit_result_to_dict", "format_fit_table", "start_from_material"]
+__all__ = ["fit_result_to_dict", "format_fit_table", "start_from_material", "stderr_block"]
 
 
-def _stderr_block(res) -> dict | None:
+def stderr_block(res) -> dict | None:
+    """The standard errors of a fit in the JSON's names and layout (``FitResult.parameter_errors``)."""
     se = res.stderr
     if se is None:
         return None
@@ -39,7 +40,7 @@ def _stderr_block(res) -> dict | None:
 def fit_result_to_dict(res, material_keys: bool = True) -> dict:
     """The fit result as a JSON-ready dict; with ``material_keys=False`` only the ``fit`` section."""
     block = dict(res.stats)
-    block["stderr"] = _stderr_block(res)
+    block["stderr"] = stderr_block(res)
     block["warnings"] = list(res.warnings)
     block = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in block.items()}
     if not material_keys:

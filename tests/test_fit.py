@@ -170,3 +170,23 @@ def test_float32_normal_equations_match_float64(n_pairs):
     assert abs(c32 / c64 - 1) < 1e-4
     assert np.max(np.abs(g32 - g64)) < 1e-4 * np.max(np.abs(g64))
     assert np.max(np.abs(h32 - h64)) < 1e-4 * np.max(np.abs(h64))
+
+
+def test_a_fit_result_names_its_values_and_errors_alike():
+    """``parameters`` and ``parameter_errors``: the fit JSON's names and layout, key for key."""
+    import json
+
+    from ctfit._fit_io import fit_result_to_dict
+
+    mat = ctfit.Material(ctfit.Structure(lobes=2, diffuse="F0/pi"),
+                         ctfit.Params(s=np.asarray(0.8), m=np.array([0.1, 0.3]), w=np.array([0.6, 0.4]), f0=np.array([0.5, 0.8])),
+                         wavelength_nm=np.array([450.0, 650.0]))
+    res = ctfit.fit(ctfit.simulate(mat, 800, noise=0.01, seed=2), ctfit.Structure(lobes=2, diffuse="F0/pi"))
+    values, errors = res.parameters, res.parameter_errors
+    assert set(values) == {"s", "lobes", "F0", "n"} and set(errors) <= set(values) and {"s", "lobes", "F0"} <= set(errors)
+    assert [set(lobe) for lobe in values["lobes"]] == [set(lobe) for lobe in errors["lobes"]] == [{"m", "weight"}] * 2
+    assert len(values["F0"]) == len(errors["F0"]) == 2
+    assert values["lobes"][0]["m"] < values["lobes"][1]["m"]
+    assert abs(values["lobes"][0]["m"] - 0.1) < 5 * errors["lobes"][0]["m"] + 1e-3
+    doc = json.loads(json.dumps(fit_result_to_dict(res)))
+    assert doc["fit"]["stderr"] == errors and doc["lobes"] == values["lobes"] and doc["F0"] == values["F0"]
