@@ -98,7 +98,7 @@ def ambient_reflectance(structure: Structure, params: Params):
     return jnp.pi * diffuse_reflectance(structure, params)
 
 
-def _combine(structure: Structure, params: Params, geom_valid, spec, cos_vh):
+def combine_parts(structure: Structure, params: Params, geom_valid, spec, cos_vh):
     """s R_s + d R_d from the per-direction factor ``spec`` (already broadcast to the bands)."""
     if structure.has_specular:
         rs = fresnel(structure, params, cos_vh) * spec
@@ -121,9 +121,9 @@ def brdf(structure: Structure, params: Params, geom: Geometry):
     """
     valid = geom.valid[..., None]
     if not structure.has_specular:
-        return _combine(structure, params, valid, None, None)
+        return combine_parts(structure, params, valid, None, None)
     spec = specular_geometric(structure, params, geom)[..., None]
-    return _combine(structure, params, valid, spec, geom.cos_vh[..., None])
+    return combine_parts(structure, params, valid, spec, geom.cos_vh[..., None])
 
 
 def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band):
@@ -141,6 +141,6 @@ def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band):
         rd=None if params.rd is None or jnp.ndim(params.rd) == 0 else params.rd[band],
     )
     if not structure.has_specular:
-        return _combine(structure, gathered, geom.valid, None, None)
+        return combine_parts(structure, gathered, geom.valid, None, None)
     spec = specular_geometric(structure, params, geom)
-    return _combine(structure, gathered, geom.valid, spec, geom.cos_vh)
+    return combine_parts(structure, gathered, geom.valid, spec, geom.cos_vh)

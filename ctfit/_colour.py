@@ -85,15 +85,16 @@ class SpectralResamplingWarning(UserWarning):
     """Colour-matching functions or an illuminant had to be interpolated to the spectrum."""
 
 
-def _colour():
+def colour_science():
+    """The colour-science package, imported on first use (it takes a while)."""
     import colour  # noqa: PLC0415  (heavy; imported on first use)
 
     return colour
 
 
 @functools.cache
-def _cmfs(observer: str):
-    colour = _colour()
+def observer_cmfs(observer: str):
+    colour = colour_science()
     try:
         return colour.MSDS_CMFS[observer]
     except KeyError:
@@ -103,7 +104,7 @@ def _cmfs(observer: str):
 
 def _illuminant_sd(illuminant):
     """(name, SpectralDistribution, user_supplied) from a name, an SD or (wavelengths, values)."""
-    colour = _colour()
+    colour = colour_science()
     if isinstance(illuminant, str):
         try:
             return illuminant, colour.SDS_ILLUMINANTS[illuminant], False
@@ -196,7 +197,7 @@ def spectral_weights(wavelength_nm, illuminant="D65", observer: str = DEFAULT_OB
         raise ValueError(f"wavelength_nm must be a 1-D array of at least 2 wavelengths, got shape {wl.shape}")
     if not np.all(np.isfinite(wl)) or not np.all(np.diff(wl) > 0):
         raise ValueError("wavelength_nm must be finite and strictly increasing")
-    cmfs = _cmfs(observer)
+    cmfs = observer_cmfs(observer)
     grid = np.asarray(cmfs.wavelengths, dtype=float)
     inside = (wl >= grid[0] - 1e-9) & (wl <= grid[-1] + 1e-9)
     if not inside.any():
@@ -260,7 +261,7 @@ def spectrum_to_XYZ(reflectance, weights: SpectralWeights):
 
 @functools.cache
 def _colourspace(name: str):
-    colour = _colour()
+    colour = colour_science()
     try:
         return colour.RGB_COLOURSPACES[name]
     except KeyError:
@@ -301,7 +302,7 @@ def rgb_conversion(colourspace: str = "sRGB", white_XYZ=None, chromatic_adaptati
     that the scene white is RGB (1, 1, 1) exactly. ``white_XYZ=None`` or
     ``chromatic_adaptation=None`` passes XYZ to M unchanged.
     """
-    colour = _colour()
+    colour = colour_science()
     cs = _colourspace(colourspace)
     m = np.asarray(cs.matrix_XYZ_to_RGB, dtype=float)
     m_inv = np.linalg.inv(m)
@@ -359,7 +360,7 @@ def encode_RGB(rgb, colourspace: str = "sRGB"):
     or linear (ACES2065-1, …). Any other curve is colour-science's own function on NumPy
     arrays: not differentiable and not traceable (a TypeError says so under jit/grad).
     """
-    colour = _colour()
+    colour = colour_science()
     cs = _colourspace(colourspace)
     if cs.cctf_encoding is colour.models.eotf_inverse_sRGB:
         return eotf_inverse_sRGB(rgb)
@@ -483,7 +484,7 @@ def delta_E_CIE2000(Lab1, Lab2):
 
 @functools.cache
 def _locus(observer: str):
-    cmfs = _cmfs(observer)
+    cmfs = observer_cmfs(observer)
     v = np.asarray(cmfs.values, dtype=float)
     return v[:, :2] / v.sum(1, keepdims=True), np.asarray(cmfs.wavelengths, dtype=float)
 

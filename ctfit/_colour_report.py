@@ -32,8 +32,8 @@ from ._colour import (
     RGB_to_XYZ,
     XYZ_to_RGB,
     XYZ_to_xy,
-    _cmfs,
-    _colour,
+    observer_cmfs,
+    colour_science,
     encode_RGB,
     dominant_wavelength,
     excitation_purity,
@@ -43,7 +43,7 @@ from ._colour import (
 )
 from ._gamut import desaturate_to_gamut, in_gamut
 from ._material import Material
-from ._material_io import _floats
+from ._material_io import float_list
 
 __all__ = ["colour_report", "reflectance_spectrum"]
 
@@ -134,7 +134,7 @@ def colour_report(
         raise ValueError(
             f"material {material.name!r}: its band's wavelength is unknown (single-band data), so there is no colour to report"
         )
-    colour = _colour()
+    colour = colour_science()
     if material.is_rgb:
         conv = rgb_conversion(colourspace, None, None)
         quantity, r = reflectance_spectrum(material, angle_deg)
@@ -145,7 +145,7 @@ def colour_report(
         illuminant_name = f"{colourspace} white"
         srgb_conv = None
     else:
-        grid = np.asarray(_cmfs(observer).wavelengths, dtype=float)
+        grid = np.asarray(observer_cmfs(observer).wavelengths, dtype=float)
         quantity, r = reflectance_spectrum(material, angle_deg, grid)
         weights = spectral_weights(grid, illuminant, observer)
         conv = rgb_conversion(colourspace, weights.white_XYZ, chromatic_adaptation)
@@ -179,16 +179,16 @@ def colour_report(
         "observer": observer,
         "colourspace": colourspace,
         "chromatic_adaptation": chromatic_adaptation if not material.is_rgb else None,
-        "XYZ": _floats(XYZ),
-        "xy": _floats(xy),
-        "white_XYZ": _floats(white_XYZ),
-        "white_xy": _floats(white_xy),
-        "linear_rgb": _floats(lin),
+        "XYZ": float_list(XYZ),
+        "xy": float_list(xy),
+        "white_XYZ": float_list(white_XYZ),
+        "white_xy": float_list(white_xy),
+        "linear_rgb": float_list(lin),
         "in_gamut": bool(in_gamut(lin, atol=max(1e-9, 100 * eps))),
-        "rgb": _floats(rgb),
-        "sRGB": _floats(srgb),
+        "rgb": float_list(rgb),
+        "sRGB": float_list(srgb),
         "hex": _hex(srgb),
-        "Lab": _floats(lab),
+        "Lab": float_list(lab),
         "dominant_wavelength_nm": None if not math.isfinite(lam) else lam,
         "excitation_purity": None if not math.isfinite(purity) else purity,
     }

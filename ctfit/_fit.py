@@ -10,7 +10,7 @@
    (:class:`~ctfit._solvers.StructuredLevenbergMarquardt`, :func:`~ctfit._problem.normal_equations`);
    the lowest finite cost wins. optimistix Gauss–Newton, Dogleg (normal equations with
    Cholesky) or BFGS on request; float64 unless float32 is asked for. Seeding, solve and everything the report
-   needs are one compiled program (``_fit_core``), so a run compiles once; where JAX's
+   needs are one compiled program (``fit_core``), so a run compiles once; where JAX's
    persistent cache is enabled the executable itself is kept on disk (``_aot.py``), so a new
    process with the same structure, data shape and options skips tracing and compiling.
 3. Standard errors from (JᵀJ)⁻¹ at the optimum (scaled by the residual variance unless the
@@ -42,7 +42,7 @@ from ._measurement import Measurement
 from ._parameters import parameter
 from ._solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, active_set, predicted_decrease
 from ._validate import check_fittable, n_free_parameters, nonfinite_reason
-from ._problem import (LOSSES, Problem, _loss, bounds, from_params, _chunks, half_squared_norm, make_problem, map_over_chunks, model_values,
+from ._problem import (LOSSES, Problem, loss_residuals, bounds, from_params, chunk_count, half_squared_norm, make_problem, map_over_chunks, model_values,
                        normal_equations, residual, sum_over_chunks, to_params)
 
 __all__ = ["fit", "FitResult", "SOLVERS", "select_structure", "constrained_quantities", "standard_errors", "undetermined"]
@@ -153,7 +153,7 @@ def _score_grid(problem: Problem, u0: dict, grid):
         return jnp.sum(wgt * (per_sample * v - part.y) ** 2)
 
     def score(log_m):
-        if _chunks(problem) == 1:
+        if chunk_count(problem) == 1:
             v, wgt = weighted(problem, log_m)
             scale = scale_of(band_sum(problem, wgt * v * problem.y), band_sum(problem, wgt * v * v))
             cost = cost_of(problem, log_m, scale, v, wgt)
@@ -396,7 +396,7 @@ def constrained_quantities(problem: Problem, unravel, f):
     return out
 
 
-def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, max_steps: int, keep_start: bool = False):
+def fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, max_steps: int, keep_start: bool = False):
     """Seeds, solve, pick the best, and everything the report needs, in one compiled program.
     ``keep_start``: the start ``u0`` is a seed too (a start the caller chose)."""
     seeds = _seed_points(problem, u0, starts, grid, keep_start)
@@ -416,7 +416,7 @@ def _fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, m
     params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_aot.py)
     if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
         params["n"] = _effective_index(params["f0"])  # reported beside F0
-    zero_cost = sum_over_chunks(problem, lambda part: 0.5 * jnp.sum(_loss(part, jnp.zeros_like(part.y), part.y) ** 2))  # the cost of a model that is 0
+    zero_cost = sum_over_chunks(problem, lambda part: 0.5 * jnp.sum(loss_residuals(part, jnp.zeros_like(part.y), part.y) ** 2))  # the cost of a model that is 0
     return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, on_bound=on_bound, gn_decrease=_gauss_newton_decrease(jtj, jtr, cost, zero_cost),
                 zero_cost=zero_cost, jt=jt, params=params, **_residual_summary(problem, u))
 
@@ -560,8 +560,8 @@ def _warnings(structure: Structure, params: Params, stderr, not_determined=()) -
 
 
 @dataclasses.dataclass
-class _Prepared:
-    """One measurement made ready for ``_fit_core`` (checked, started, laid out): what :func:`fit`
+class PreparedFit:
+    """One measurement made ready for ``fit_core`` (checked, started, laid out): what :func:`fit`
     and :func:`~ctfit._fit_batch.fit_batch` share."""
 
     data: Measurement
@@ -577,17 +577,17 @@ class _Prepared:
     given_start: bool
 
     def options(self, solver: str, max_steps: int) -> tuple:
-        """The arguments of ``_fit_core`` after (problem, u0, grid)."""
+        """The arguments of ``fit_core`` after (problem, u0, grid)."""
         return (self.k, solver, max_steps, self.given_start)
 
-    def padded(self, pad_to: tuple[int, int]) -> _Prepared:
+    def padded(self, pad_to: tuple[int, int]) -> PreparedFit:
         """The same fit with its problem padded to ``pad_to`` (direction pairs, samples)."""
         problem = make_problem(self.structure, self.data, fixed_params=self.start, fixed=self.fixed, loss=self.loss, dtype=self.dtype, pad=True, pad_to=pad_to)
         return dataclasses.replace(self, problem=problem)
 
 
-def _prepare(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int,
-             pad_to: tuple[int, int] | None = None) -> _Prepared:
+def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int,
+             pad_to: tuple[int, int] | None = None) -> PreparedFit:
     """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
     samples)), free start ``u0`` and m grid of a fit."""
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
@@ -608,7 +608,7 @@ def _prepare(data: Measurement, structure: Structure | None, *, start: Params | 
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     k = starts if "m" in u0 else 1
     grid = jnp.asarray(np.log(_m_grid(structure.lobes, structure.diffuse is not None)), dtype=dtype) if ("m" in u0 and k >= 1) else None
-    return _Prepared(data, structure, loss, dtype, start, tuple(fixed), problem, u0, grid, k, given_start)
+    return PreparedFit(data, structure, loss, dtype, start, tuple(fixed), problem, u0, grid, k, given_start)
 
 
 def fit(
@@ -630,13 +630,13 @@ def fit(
     Per-band parameters of ``start`` must already be on the data's bands.
     """
     t0 = time.perf_counter()
-    prep = _prepare(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
-    out = jax.device_get(cached_call("fit", _fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
-    return _finish(prep, out, solver, t0)
+    prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
+    out = jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
+    return finish_fit(prep, out, solver, t0)
 
 
-def _finish(prep: _Prepared, out: dict, solver: str, t0: float) -> FitResult:
-    """The :class:`FitResult` of a prepared fit from ``_fit_core``'s output (host arrays); ``t0``: when it began."""
+def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResult:
+    """The :class:`FitResult` of a prepared fit from ``fit_core``'s output (host arrays); ``t0``: when it began."""
     data, structure, loss, dtype, problem = prep.data, prep.structure, prep.loss, prep.dtype, prep.problem
     costs, ok, steps, best = out["costs"], out["ok"], out["steps"], int(out["best"])
     u = out["u"]

@@ -5,7 +5,7 @@ start, grid of m). Measurements whose problems have the same layout — structur
 pairs layout, bands, which data columns exist, dtype — form a group; inside a group every
 problem is padded to the group's largest number of direction pairs and samples (masked-out
 entries, as ``make_problem(pad=True)`` pads to a size bucket) and stacked along a new leading
-axis, and one program maps the single fit's program (``_fit_core``) over them: ``width``
+axis, and one program maps the single fit's program (``fit_core``) over them: ``width``
 members side by side (``jax.vmap``), those groups in sequence (:func:`mapped`). Groups are
 split into calls of at most :data:`SAMPLE_BUDGET` padded cells, and a call's batch size is
 rounded up to a size of the series ⌈2^(k/2)⌉ (1, 2, 3, 4, 6, 8, 12, 16, 23, 32, …) with
@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._aot import cached_call
-from ._fit import FitResult, _finish, _fit_core, _prepare, _Prepared
+from ._fit import FitResult, finish_fit, fit_core, prepare_fit, PreparedFit
 from ._material import Params, Structure
 from ._measurement import Measurement
 
@@ -85,9 +85,9 @@ def fit_batch(
     if len(begins) != len(measurements):
         raise ValueError(f"start: {len(begins)} starting values for {len(measurements)} measurements")
     results: list = [None] * len(measurements)
-    preps: dict[int, _Prepared] = {}
+    preps: dict[int, PreparedFit] = {}
     for i, (data, begin) in enumerate(zip(measurements, begins)):
-        got = _caught(lambda: _prepare(data, structure, start=begin, fixed=fixed, loss=loss, dtype=dtype, starts=starts), return_errors)
+        got = _caught(lambda: prepare_fit(data, structure, start=begin, fixed=fixed, loss=loss, dtype=dtype, starts=starts), return_errors)
         if isinstance(got, Exception):
             results[i] = got
         else:
@@ -96,7 +96,7 @@ def fit_batch(
         for call in _calls(group, preps):
             outs = _caught(lambda: _solve([preps[i] for i in call], solver, max_steps, width), return_errors)
             for i, out in zip(call, outs if isinstance(outs, list) else [outs] * len(call)):
-                results[i] = out if isinstance(out, Exception) else _caught(lambda: _finish(preps[i], out, solver, time.perf_counter()), return_errors)
+                results[i] = out if isinstance(out, Exception) else _caught(lambda: finish_fit(preps[i], out, solver, time.perf_counter()), return_errors)
     share = (time.perf_counter() - t0) / max(len(measurements), 1)
     for r in results:
         if isinstance(r, FitResult):
@@ -121,13 +121,13 @@ def _single(measurements) -> Measurement:
     return items[0]
 
 
-def _sizes(prep: _Prepared) -> tuple[int, int]:
+def _sizes(prep: PreparedFit) -> tuple[int, int]:
     """(direction pairs, samples) of a prepared problem as padded; samples: the data's in the grid layout."""
     problem = prep.problem
     return problem.geom.cos_vh.shape[0], (len(prep.data) if problem.spec.grid else problem.y.shape[0])
 
 
-def _layout(prep: _Prepared, solver: str, max_steps: int):
+def _layout(prep: PreparedFit, solver: str, max_steps: int):
     """What must be equal for two fits to share a program, up to the padded sizes."""
     shapes = lambda tree: tuple((a.shape, a.dtype.name) for a in jax.tree.leaves(tree))  # noqa: E731
     grid = None if prep.grid is None else prep.grid.shape
@@ -135,12 +135,12 @@ def _layout(prep: _Prepared, solver: str, max_steps: int):
             prep.options(solver, max_steps))
 
 
-def _signature(prep: _Prepared):
+def _signature(prep: PreparedFit):
     """Every array's shape and dtype (and the tree): equal for members of one batched call."""
     return jax.tree.structure(prep.problem), tuple((a.shape, a.dtype.name) for a in jax.tree.leaves((prep.problem, prep.u0)))
 
 
-def _groups(preps: dict[int, _Prepared], solver: str, max_steps: int) -> list[list[int]]:
+def _groups(preps: dict[int, PreparedFit], solver: str, max_steps: int) -> list[list[int]]:
     """Indices of the fits that share a program; members are padded (in ``preps``) to the
     group's largest sizes."""
     by_layout: list[tuple[object, list[int]]] = []
@@ -174,7 +174,7 @@ def batch_size(n: int) -> int:
     return math.ceil(2 ** (k / 2))
 
 
-def _calls(group: list[int], preps: dict[int, _Prepared]) -> list[list[int]]:
+def _calls(group: list[int], preps: dict[int, PreparedFit]) -> list[list[int]]:
     """The group cut into calls of about equal size, each of at most :data:`SAMPLE_BUDGET` padded samples."""
     per_call = max(1, SAMPLE_BUDGET // max(preps[group[0]].problem.y.size, 1))
     n_calls = math.ceil(len(group) / per_call)
@@ -207,12 +207,12 @@ def mapped(fn, xs, active, width: int):
     return jax.lax.map(one, (xs, active), batch_size=width if width > 1 else None)
 
 
-def _solve(preps: list[_Prepared], solver: str, max_steps: int, width: int) -> list[dict]:
-    """``_fit_core``'s output (host arrays) for each of ``preps`` (equal signatures): one call."""
+def _solve(preps: list[PreparedFit], solver: str, max_steps: int, width: int) -> list[dict]:
+    """``fit_core``'s output (host arrays) for each of ``preps`` (equal signatures): one call."""
     first = preps[0]
     options = first.options(solver, max_steps)
     if len(preps) == 1:
-        return [jax.device_get(cached_call("fit", _fit_core, first.problem, first.u0, first.grid, *options))]
+        return [jax.device_get(cached_call("fit", fit_core, first.problem, first.u0, first.grid, *options))]
     size = batch_size(len(preps))
     members = preps + [first] * (size - len(preps))
     stack = lambda *xs: np.stack(xs)  # noqa: E731 — on the host: no small programs to compile
@@ -225,5 +225,5 @@ def _solve(preps: list[_Prepared], solver: str, max_steps: int, width: int) -> l
 
 
 def _batched_core(problems, u0s, active, grid, width: int, *options):
-    """``_fit_core`` over stacked problems and starts (the m grid shared), :func:`mapped`."""
-    return mapped(lambda pu: _fit_core(pu[0], pu[1], grid, *options), (problems, u0s), active, width)
+    """``fit_core`` over stacked problems and starts (the m grid shared), :func:`mapped`."""
+    return mapped(lambda pu: fit_core(pu[0], pu[1], grid, *options), (problems, u0s), active, width)

@@ -4,7 +4,7 @@
 samples, the samples in the order of ``measurement``'s rows) as its own measurement of
 ``measurement``'s geometry and bands. The problem is laid out once (no size-bucket padding:
 every texel has the same size); texels are fitted ``chunk`` at a time by the single-fit
-program (``_fit_core``) mapped over them (:func:`~ctfit._fit_batch.mapped`: ``width`` side by
+program (``fit_core``) mapped over them (:func:`~ctfit._fit_batch.mapped`: ``width`` side by
 side, in sequence on a CPU by default) with the geometry shared, only the values and the
 relative loss's floor per texel — one compiled program for all chunks (the last one is filled
 up with inactive copies of its last texel), stored on disk like a single fit's. ``values`` is read a chunk at a
@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._aot import cached_call
-from ._fit import FitResult, _fit_core, _prepare, fit, judge_converged
+from ._fit import FitResult, fit_core, prepare_fit, fit, judge_converged
 from ._fit_batch import default_width, mapped
 from ._material import Material, Params, Structure
 from ._measurement import Measurement
@@ -126,7 +126,7 @@ def fit_texels(
     template = measurement.replace(brdf=np.asarray(values[0], dtype=float), sigma=None)
     loss = "relative" if loss == "auto" else loss
     # One size for every texel: laid out at its own size, no bucket padding.
-    prep = _prepare(template, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts,
+    prep = prepare_fit(template, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts,
                     pad_to=(len(template.directions()[0]), len(template)))
     problem, layout = prep.problem, _Layout(prep.problem, template)
     core_options = prep.options(solver, max_steps)
@@ -182,13 +182,13 @@ class _Layout:
 
 
 def _texel_core(problem, ys, floors, active, u0, grid, width: int, *options):
-    """``_fit_core`` mapped over the texels' values (geometry and start shared); per texel the
+    """``fit_core`` mapped over the texels' values (geometry and start shared); per texel the
     parameters and the cheap statistics only (the rest of the program is dead code to XLA)."""
 
     def one(texel):
         y, floor = texel
         p = eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor))
-        out = _fit_core(p, u0, grid, *options)
+        out = fit_core(p, u0, grid, *options)
         best = out["best"]
         return dict(params=out["params"], cost=out["costs"][best], ok=out["ok"][best], steps=out["steps"][best],
                     gauss_newton_decrease=out["gn_decrease"], zero_cost=out["zero_cost"], rmse=out["rmse"], rel_rmse=out["rel_rmse"],

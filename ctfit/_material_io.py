@@ -453,16 +453,16 @@ def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tup
 # --- writing ------------------------------------------------------------------------------------
 
 
-def _floats(a) -> list:
+def float_list(a) -> list:
     return [float(x) for x in np.asarray(a, dtype=float).reshape(-1)]
 
 
-def _jsonable(x):
+def jsonable(x):
     """Plain Python values for JSON: arrays to lists, non-finite floats to None (null)."""
     if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if isinstance(x, (bool, np.bool_)):
         return bool(x)
     if isinstance(x, (int, np.integer)):
@@ -474,7 +474,7 @@ def _jsonable(x):
     if isinstance(x, (datetime.date, datetime.time)):
         return x.isoformat()
     if hasattr(x, "__array__"):
-        return _jsonable(np.asarray(x).tolist())
+        return jsonable(np.asarray(x).tolist())
     raise TypeError(f"cannot write a {type(x).__name__} to a material file")
 
 
@@ -498,7 +498,7 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     out["s"], out["d"] = s, 1.0 - s
     specular, diffuse = st.has_specular and s > 0, st.diffuse if s < 1 else None
     if specular:
-        m, w = _floats(p.m), _floats(p.w)
+        m, w = float_list(p.m), float_list(p.w)
         if abs(math.fsum(w) - 1) > _TOL:  # float32 weights sum to 1 only to ~1e-7; the format asks 1e-9
             w = [x / math.fsum(w) for x in w]
         out["lobes"] = [{"m": m[j], "weight": w[j]} for j in sorted(range(len(m)), key=m.__getitem__)]
@@ -506,7 +506,7 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     if material.channels is not None:
         out["channels"] = list(material.channels)
     elif material.wavelength_nm is not None:
-        out["wavelength_nm"] = _floats(material.wavelength_nm)
+        out["wavelength_nm"] = float_list(material.wavelength_nm)
     else:
         raise MaterialError(f"material {material.name!r} has neither wavelength_nm nor channels")
     if material.band_unknown:
@@ -515,25 +515,25 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
         out["fresnel"] = st.fresnel
         if st.fresnel == "f0":
             f0 = np.asarray(p.f0, dtype=float)
-            out["F0"], out["n"] = _floats(f0), _floats(_n_from_f0(f0))
+            out["F0"], out["n"] = float_list(f0), float_list(_n_from_f0(f0))
         else:
             n = np.asarray(p.n, dtype=float)
             k = np.asarray(p.k, dtype=float) if st.fresnel == "conductor" else None
-            out["F0"] = _floats(_f0_from_n(n) if k is None else _f0_from_nk(n, k))
-            out["n"] = _floats(n)
+            out["F0"] = float_list(_f0_from_n(n) if k is None else _f0_from_nk(n, k))
+            out["n"] = float_list(n)
             if k is not None:
-                out["k"] = _floats(k)
+                out["k"] = float_list(k)
     if diffuse == "F0/pi":
         out["Rd"] = "F0/pi"
     elif diffuse == "constant":
         out["Rd"] = float(p.rd)
     elif diffuse == "spectrum":
-        out["Rd"] = _floats(p.rd)
+        out["Rd"] = float_list(p.rd)
     for key, value in {**material.meta, **(extra or {})}.items():
         if key in _MODEL_KEYS:
             raise MaterialError(f"material {material.name!r}: extra key {key!r} would replace a model key")
         out[key] = value
-    out = _jsonable(out)
+    out = jsonable(out)
     try:
         material_from_dict(out, source=f"material {material.name!r}")
     except MaterialError as err:
@@ -549,7 +549,7 @@ def _check_finite(material: Material) -> None:
         value = getattr(material.params, name) if name in ("s", "m", "w", "rd") or name in fresnel else None
         if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
             raise MaterialError(
-                f"material {material.name!r}: parameter {key} is not finite ({_floats(value)}): the fit failed, "
+                f"material {material.name!r}: parameter {key} is not finite ({float_list(value)}): the fit failed, "
                 "there is no material to save"
             )
 

@@ -53,7 +53,7 @@ MERL_SHAPE = (90, 90, 180)
 MERL_SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
 _CELLS = math.prod(MERL_SHAPE)
 _HEADER_BYTES = 12
-_FILE_BYTES = _HEADER_BYTES + 3 * _CELLS * 8
+MERL_FILE_BYTES = _HEADER_BYTES + 3 * _CELLS * 8
 
 
 # --- index mapping ------------------------------------------------------------------------------
@@ -177,9 +177,9 @@ def read_merl(path) -> Measurement:
     dims = tuple(int(d) for d in np.frombuffer(raw, "<i4", 3))
     if dims != MERL_SHAPE:
         raise DataError(f"dimensions {dims} in the header (bytes 0–11): a MERL file has {MERL_SHAPE} (θ_h, θ_d, φ_d)", path=path)
-    if len(raw) != _FILE_BYTES:
-        what = "truncated" if len(raw) < _FILE_BYTES else "too long"
-        raise DataError(f"{what}: {len(raw)} bytes; a {MERL_SHAPE} table of 3 channels takes {_FILE_BYTES} bytes", path=path)
+    if len(raw) != MERL_FILE_BYTES:
+        what = "truncated" if len(raw) < MERL_FILE_BYTES else "too long"
+        raise DataError(f"{what}: {len(raw)} bytes; a {MERL_SHAPE} table of 3 channels takes {MERL_FILE_BYTES} bytes", path=path)
     table = np.frombuffer(raw, "<f8", 3 * _CELLS, _HEADER_BYTES).reshape(3, _CELLS)
     bad = ~np.isfinite(table)
     if bad.any():

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._brdf import _combine, specular_geometric
+from ._brdf import combine_parts, specular_geometric
 from ._aot import cached_call
 from ._geometry import Geometry, geometry_from_angles_deg
 from ._material import Params, Structure
@@ -305,7 +305,7 @@ MIN_CHUNKS = 16
 small, and one pass over all of it is a little faster than a loop over chunks."""
 
 
-def _chunks(problem: Problem) -> int:
+def chunk_count(problem: Problem) -> int:
     """How many chunks of ``CHUNK`` rows (direction pairs of a grid, samples otherwise) ``problem``
     is summed over (1: all at once)."""
     n = problem.y.shape[0]
@@ -345,9 +345,9 @@ def _parts(problem: Problem, k: int):
 
 
 def sum_over_chunks(problem: Problem, fn):
-    """Σ ``fn(part)`` over the parts of ``problem`` of ``CHUNK`` rows each (:func:`_chunks`), as a
+    """Σ ``fn(part)`` over the parts of ``problem`` of ``CHUNK`` rows each (:func:`chunk_count`), as a
     ``lax.scan`` — or ``fn(problem)`` when it is not chunked. ``fn`` returns a pytree of arrays that add up: sums over samples (½‖r‖², Jᵀr, JᵀJ, per-band sums)."""
-    k = _chunks(problem)
+    k = chunk_count(problem)
     if k == 1:
         return fn(problem)
     rows, part = _parts(problem, k)
@@ -363,7 +363,7 @@ def sum_over_chunks(problem: Problem, fn):
 def map_over_chunks(problem: Problem, fn):
     """``fn(part)`` for each part of ``problem`` (:func:`sum_over_chunks`), stacked along a new
     leading axis (length 1 when it is not chunked): ``lax.map``, one chunk's temporaries at a time."""
-    k = _chunks(problem)
+    k = chunk_count(problem)
     if k == 1:
         return jax.tree.map(lambda a: a[None], fn(problem))
     rows, part = _parts(problem, k)
@@ -391,11 +391,11 @@ def _values_from_s(problem: Problem, s_dir, u_rest: dict, u_shape: dict):
     if spec.grid:
         valid = geom.valid[:, None]
         spec_v = None if s_dir is None else s_dir[:, None]
-        return _combine(spec.structure, params, valid, spec_v, geom.cos_vh[:, None])
+        return combine_parts(spec.structure, params, valid, spec_v, geom.cos_vh[:, None])
     p = _gather_bands(params, problem.band)
     valid = geom.valid[problem.pair]
     spec_v = None if s_dir is None else s_dir[problem.pair]
-    return _combine(spec.structure, p, valid, spec_v, geom.cos_vh[problem.pair])
+    return combine_parts(spec.structure, p, valid, spec_v, geom.cos_vh[problem.pair])
 
 
 def model_values(problem: Problem, u: dict):
@@ -406,7 +406,7 @@ def model_values(problem: Problem, u: dict):
     return _values_from_s(problem, s_dir, u_rest, u_shape)
 
 
-def _loss(problem: Problem, values, y, flat: bool = True):
+def loss_residuals(problem: Problem, values, y, flat: bool = True):
     """Residuals in the problem's layout for the selected weighting (missing cells give 0)."""
     loss = problem.spec.loss
     if loss == "absolute":
@@ -469,7 +469,7 @@ def _columns(problem: Problem, u: dict, y):
         dvs["__S__"] = jax.jvp(lambda s: f_rest(s, u_rest), (s_dir,), (jnp.ones_like(s_dir),))[1]
     for k in names:
         dvs[k] = jax.jvp(lambda ur: f_rest(s_dir, ur), (u_rest,), (dict(zeros, **{k: jnp.ones_like(u_rest[k])}),))[1]
-    res, g = jax.jvp(lambda v: _loss(problem, v, y, flat=False), (values,), (jnp.ones_like(values),))
+    res, g = jax.jvp(lambda v: loss_residuals(problem, v, y, flat=False), (values,), (jnp.ones_like(values),))
     cols = {}
     if "__S__" in dvs:
         a = g * dvs["__S__"]
@@ -551,7 +551,7 @@ def _normal_equations(problem: Problem, u: dict):
 
 @jax.custom_jvp
 def _residual(u: dict, y, problem: Problem):
-    return _loss(problem, model_values(problem, u), y)
+    return loss_residuals(problem, model_values(problem, u), y)
 
 
 @_residual.defjvp
@@ -572,7 +572,7 @@ def _residual_jvp(primals, tangents):
             dres = dres + col * (t if problem.spec.grid else t[problem.band])
     dres = jnp.reshape(dres, (-1,)) if cols else jnp.zeros_like(res)
     # Data tangent: ∂r/∂y.
-    _, dres_dy = jax.jvp(lambda yy: _loss(problem, values, yy), (y,), (ty,))
+    _, dres_dy = jax.jvp(lambda yy: loss_residuals(problem, values, yy), (y,), (ty,))
     return res, dres + dres_dy
 
 

@@ -16,7 +16,7 @@ from ._alta import read_alta
 from ._csvio import read_csv
 from ._errors import DataError
 from ._measurement import Measurement
-from ._merl import _FILE_BYTES, MERL_SHAPE, read_merl
+from ._merl import MERL_FILE_BYTES, MERL_SHAPE, read_merl
 
 __all__ = ["READERS", "read_measurement", "reader_for"]
 
@@ -50,7 +50,7 @@ def _sniff(path):
     """The reader for a file recognised by its content, or None."""
     with open(path, "rb") as f:
         head = f.read(_SNIFF_BYTES)
-    if os.path.getsize(path) == _FILE_BYTES and head[:12] == b"".join(d.to_bytes(4, "little") for d in MERL_SHAPE):
+    if os.path.getsize(path) == MERL_FILE_BYTES and head[:12] == b"".join(d.to_bytes(4, "little") for d in MERL_SHAPE):
         return read_merl
     for line in head.decode("utf-8", errors="replace").splitlines():
         line = line.strip()

@@ -49,7 +49,7 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
     when there is a specular part (F(0) from the interpolated F0, n or n and k, as the report
     computes it), π R_d(λ) otherwise.
     """
-    from ._colour import DEFAULT_OBSERVER, _cmfs, rgb_conversion, spectral_weights
+    from ._colour import DEFAULT_OBSERVER, observer_cmfs, rgb_conversion, spectral_weights
 
     if material.band_unknown:
         raise ValueError("the band's wavelength is unknown (single-band data), so there is no colour")
@@ -67,7 +67,7 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
         to_bands = lambda a: a[:, order]  # noqa: E731
         n_out = 3
     else:
-        grid = np.asarray(_cmfs(DEFAULT_OBSERVER).wavelengths, dtype=float)
+        grid = np.asarray(observer_cmfs(DEFAULT_OBSERVER).wavelengths, dtype=float)
         A = _interp_matrix(material.wavelength_nm, grid)
         to_bands = lambda a: a @ A.T  # noqa: E731
         n_out = grid.size

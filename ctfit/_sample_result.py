@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 
 from ._material import Material
-from ._material_io import _jsonable
+from ._material_io import jsonable
 
 __all__ = ["SampleResult", "summarise"]
 
@@ -95,7 +95,7 @@ class SampleResult:
         out["usable"] = bool(self.usable)
         out["problems"] = list(self.problems)
         out["checks"] = self.checks
-        return _jsonable(out)
+        return jsonable(out)
 
     def to_inference_data(self):
         """The draws as an ``arviz.InferenceData`` (one chain per walker; groups posterior and

@@ -72,9 +72,9 @@ t = time.perf_counter(); r = ctfit.fit(d, st); second = time.perf_counter() - t
 # Step cost: a one-start fit's time per step against one evaluation of the residual, Jᵀr and
 # JᵀJ alone (the structured normal equations, jitted; best of 7). The fit's time includes its
 # set-up and report, so the ratio is an upper bound.
-from ctfit._fit import _prepare
+from ctfit._fit import prepare_fit
 from ctfit._problem import normal_equations
-prep = _prepare(d, st, start=None, fixed=(), loss="relative", dtype=jax.numpy.float64, starts=1)
+prep = prepare_fit(d, st, start=None, fixed=(), loss="relative", dtype=jax.numpy.float64, starts=1)
 ne = jax.jit(normal_equations)
 jax.block_until_ready(ne(prep.problem, prep.u0))
 best = []

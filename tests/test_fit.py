@@ -133,7 +133,7 @@ def test_gradient_of_fitted_parameters_wrt_data_matches_finite_differences():
 
 
 def test_custom_jvp_matches_plain_autodiff():
-    from ctfit._problem import _loss, model_values
+    from ctfit._problem import loss_residuals, model_values
 
     st = ctfit.Structure(lobes=2, geometry="smith", diffuse="spectrum")
     truth = material(st, WL8[:4], s=np.asarray(0.7), m=np.array([0.1, 0.3]), w=np.array([0.3, 0.7]), f0=np.full(4, 0.6), rd=np.full(4, 0.05))
@@ -141,7 +141,7 @@ def test_custom_jvp_matches_plain_autodiff():
 
     @eqx.filter_jit
     def both(problem, u):
-        plain = jax.jacfwd(lambda uu: _loss(problem, model_values(problem, uu), problem.y))(u)
+        plain = jax.jacfwd(lambda uu: loss_residuals(problem, model_values(problem, uu), problem.y))(u)
         custom = jax.jacfwd(lambda uu: residual(uu, (problem.y, problem)))(u)
         return plain, custom
 

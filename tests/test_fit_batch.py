@@ -69,7 +69,7 @@ def test_batch_equals_fitting_each_alone_in_input_order():
 def test_groups_pad_to_the_largest_member_and_keep_layouts_apart():
     three = ctfit.simulate(material(0.2, (0.5, 0.6, 0.7), np.array([450.0, 550.0, 650.0])), 100, seed=4)  # three bands
     data = [*same_geometry([0.2, 0.3]), same_geometry([0.3], n_pairs=300)[0], scattered(300, 1), three]
-    preps = {i: ctfit._fit._prepare(d, ST, start=None, fixed=(), loss="auto", dtype=np.float64, starts=3) for i, d in enumerate(data)}
+    preps = {i: ctfit._fit.prepare_fit(d, ST, start=None, fixed=(), loss="auto", dtype=np.float64, starts=3) for i, d in enumerate(data)}
     groups = _fit_batch._groups(preps, "lm", 256)
     assert sorted(groups) == [[0, 1, 2], [3], [4]]
     assert {preps[i].problem.y.shape for i in (0, 1, 2)} == {(ctfit._problem.bucket(300), 2)}

@@ -31,7 +31,7 @@ def _grid(pairs: int, seed: int = 0):
 
 def _fresh_fit_core():
     """The fit program traced anew (equinox keeps one trace per function, whatever ``CHUNK`` is)."""
-    return eqx.filter_jit(lambda *a: _fit._fit_core(*a))
+    return eqx.filter_jit(lambda *a: _fit.fit_core(*a))
 
 
 @pytest.fixture
@@ -42,7 +42,7 @@ def small_chunks(monkeypatch):
 def _problem_and_start(data, loss="relative"):
     rows = 48 * SMALL_CHUNK  # samples of the pairs layout (and pairs: at least as many)
     pad_to = (16 * SMALL_CHUNK, rows) if len(data.directions()[0]) <= 16 * SMALL_CHUNK else (rows, rows)
-    return _fit._prepare(data, ctfit.Structure(lobes=1), start=None, fixed=(), loss=loss, dtype=jnp.float64, starts=3, pad_to=pad_to)
+    return _fit.prepare_fit(data, ctfit.Structure(lobes=1), start=None, fixed=(), loss=loss, dtype=jnp.float64, starts=3, pad_to=pad_to)
 
 
 def _scattered(samples: int, seed: int = 1):
@@ -58,10 +58,10 @@ def test_chunked_sums_equal_the_whole(small_chunks, loss, layout):
     data = _grid(16 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(16 * 3 * SMALL_CHUNK - 40)
     prep = _problem_and_start(data, loss)
     problem, u = prep.problem, dict(prep.u0, m=jnp.log(jnp.array([0.3])))
-    assert problem.spec.grid == (layout == "grid") and _problem._chunks(problem) == (16 if layout == "grid" else 48)
+    assert problem.spec.grid == (layout == "grid") and _problem.chunk_count(problem) == (16 if layout == "grid" else 48)
     chunked = (jax.jit(half_squared_norm)(problem, u), *jax.jit(normal_equations)(problem, u))
     _problem.CHUNK = 10**9  # the same problem, summed at once
-    assert _problem._chunks(problem) == 1
+    assert _problem.chunk_count(problem) == 1
     at_once = (jax.jit(half_squared_norm)(problem, u), *jax.jit(normal_equations)(problem, u))
     for a, b in zip(chunked, at_once):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
@@ -89,7 +89,7 @@ def test_chunked_fit_equals_the_whole_fit(small_chunks, layout):
 def test_the_fit_program_s_temporaries_do_not_grow_with_the_data(small_chunks):
     """XLA's own account of the compiled fit: on a grid of 64 chunks its temporary memory is a
     fraction of its inputs (all at once, it is larger than them)."""
-    prep = _fit._prepare(_grid(64 * SMALL_CHUNK - 7), ctfit.Structure(lobes=1, diffuse=None), start=None, fixed=(), loss="relative",
+    prep = _fit.prepare_fit(_grid(64 * SMALL_CHUNK - 7), ctfit.Structure(lobes=1, diffuse=None), start=None, fixed=(), loss="relative",
                          dtype=jnp.float64, starts=3, pad_to=(64 * SMALL_CHUNK, 3 * 64 * SMALL_CHUNK))
 
     def memory():
