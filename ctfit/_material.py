@@ -17,10 +17,12 @@ from jaxtyping import Array
 
 from ._measurement import band_labels
 
-__all__ = ["Structure", "Params", "Material", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS"]
+__all__ = ["Structure", "Params", "Material", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "MAX_LOBES"]
 
 DISTRIBUTIONS = ("beckmann", "gaussian")
 GEOMETRIES = ("v-cavity", "smith", "smith-rational")
+MAX_LOBES = 8
+"""Most Beckmann/Gaussian lobes in one structure (paper eq. 5's weighted sum); every reader and the CLI use this."""
 FRESNELS = ("f0", "n", "conductor")
 DIFFUSES = (None, "F0/pi", "spectrum", "constant")
 NORMALIZATIONS = ("normalized", "cook-torrance-1982")
@@ -51,8 +53,8 @@ class Structure:
     normalization: Literal["normalized", "cook-torrance-1982"] = "normalized"
 
     def __post_init__(self):
-        if not isinstance(self.lobes, int) or not 0 <= self.lobes <= 8:
-            raise ValueError(f"lobes must be an integer in 0..8, got {self.lobes!r}")
+        if not isinstance(self.lobes, int) or not 0 <= self.lobes <= MAX_LOBES:
+            raise ValueError(f"lobes must be an integer in 0..{MAX_LOBES}, got {self.lobes!r}")
         for name, allowed in (
             ("distribution", DISTRIBUTIONS),
             ("geometry", GEOMETRIES),

@@ -31,7 +31,7 @@ import tomllib
 import numpy as np
 
 from ._fileio import atomic_write
-from ._material import DISTRIBUTIONS, FRESNELS, GEOMETRIES, NORMALIZATIONS, Material, Params, Structure
+from ._material import DISTRIBUTIONS, FRESNELS, GEOMETRIES, MAX_LOBES, NORMALIZATIONS, Material, Params, Structure
 
 __all__ = [
     "MaterialError",
@@ -44,7 +44,6 @@ __all__ = [
 
 _TABLES = importlib.resources.files("ctfit") / "data" / "optical_constants"  # package data
 _TOL = 1e-9
-_MAX_LOBES = 8
 _MODEL_KEYS = (
     "name", "s", "d", "lobes", "distribution", "geometry", "normalization", "fresnel",
     "wavelength_nm", "channels", "optical_constants", "F0", "n", "k", "Rd", "band_unknown",
@@ -266,8 +265,8 @@ class _Parser:
             return [], []
         if not raw:
             raise self.error("lobes", "missing: s > 0 needs at least one lobe {m = ..., weight = ...}")
-        if len(raw) > _MAX_LOBES:
-            raise self.error("lobes", f"{len(raw)} lobes, at most {_MAX_LOBES} are supported")
+        if len(raw) > MAX_LOBES:
+            raise self.error("lobes", f"{len(raw)} lobes, at most {MAX_LOBES} are supported")
         ms, ws = [], []
         for j, lobe in enumerate(raw):
             key = f"lobes[{j}]"

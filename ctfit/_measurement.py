@@ -16,7 +16,7 @@ import functools
 
 import numpy as np
 
-__all__ = ["Measurement"]
+__all__ = ["Measurement", "band_labels"]
 
 
 def band_labels(wavelength_nm, channels, band_unknown: bool = False) -> list[str]:

@@ -17,6 +17,7 @@ import pathlib
 import numpy as np
 
 from ._material import Material
+from ._measurement import band_labels
 
 __all__ = [
     "uncertainty_section",
@@ -244,12 +245,12 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
         lines.append(f"  lobe {j}: m = {_fmt(lobe['m'])}   weight = {_fmt(lobe['weight'])}")
     band_keys = [k for k in ("F0", "n", "k", "Rd") if isinstance(u.get(k), list)]
     if band_keys:
-        wl = doc.get("wavelength_nm") or doc.get("channels") or [f"band {i}" for i in range(len(u[band_keys[0]]))]
-        if doc.get("band_unknown"):
-            wl = ["unknown band"]  # single-band data: the wavelength stored is a placeholder
+        if doc.get("wavelength_nm") or doc.get("channels"):  # the material's labels: "450 nm", a channel, "unknown band"
+            labels = band_labels(doc.get("wavelength_nm"), doc.get("channels"), bool(doc.get("band_unknown")))
+        else:  # band indices, without a wavelength
+            labels = [f"band {i}" for i in range(len(u[band_keys[0]]))]
         lines.append("  " + f"{'band':>12}" + "".join(f"  {k:>32}" for k in band_keys))
-        for i, w in enumerate(wl):
-            lab = f"{w:g} nm" if isinstance(w, (int, float)) else str(w)  # band indices, without a wavelength, say "band i"
+        for i, lab in enumerate(labels):
             lines.append("  " + f"{lab:>12}" + "".join(f"  {_fmt(u[k][i]):>32}" for k in band_keys))
     if isinstance(u.get("Rd"), dict):
         lines.append(f"  Rd = {_fmt(u['Rd'])}")

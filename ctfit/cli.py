@@ -275,8 +275,10 @@ def _check_fit_options(o) -> None:
         raise UserError(f"--geometry must be v-cavity, smith or smith-rational, got {o.geometry!r}")
     if o.fresnel not in (None, "effective-n", "conductor"):
         raise UserError(f"--fresnel must be effective-n or conductor, got {o.fresnel!r}")
-    if o.lobes != "auto" and not (o.lobes.isdigit() and 1 <= int(o.lobes) <= 8):
-        raise UserError(f"--lobes must be 1..8 or 'auto', got {o.lobes!r}")
+    from ._material import MAX_LOBES
+
+    if o.lobes != "auto" and not (o.lobes.isdigit() and 1 <= int(o.lobes) <= MAX_LOBES):
+        raise UserError(f"--lobes must be 1..{MAX_LOBES} or 'auto', got {o.lobes!r}")
     if (o.resume or o.overwrite) and o.backend is None:
         raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
     if o.walkers is not None and o.walkers % 2:
