@@ -19,8 +19,9 @@ PROBE = (
     "libc = ctypes.CDLL('libc.so.6'); libc.mallinfo2.restype = Info\n"
     "if sys.argv[1] == 'fixed': assert return_large_blocks()\n"
     "np.ones(16 << 20 >> 3)\n"  # a freed 16 MiB block raises glibc's dynamic threshold to 16 MiB
-    "arrays = [np.ones(2 << 20 >> 3) for _ in range(200)]; keep = arrays[::20]; del arrays\n"
-    "print(libc.mallinfo2().fordblks >> 20)\n"
+    "arrays = [np.ones(2 << 20 >> 3) for _ in range(200)]; mapped = libc.mallinfo2().hblkhd >> 20\n"
+    "keep = arrays[::20]; del arrays\n"
+    "print(mapped, libc.mallinfo2().fordblks >> 20)\n"
 )
 
 
@@ -33,12 +34,13 @@ def _has_mallinfo2() -> bool:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux") or not _has_mallinfo2(), reason="needs glibc ≥ 2.33 (mallopt, mallinfo2)")
 def test_freed_large_arrays_leave_the_process():
-    """In a fresh process: 200 arrays of 2 MiB (below glibc's dynamic threshold once a 16 MiB
-    block was freed, so heap blocks by default), of which every 20th is kept. By default the
-    heap keeps the ~360 MiB freed between the kept ones; with the threshold fixed, each array
-    was its own mapping and went back to the system when freed."""
-    held = {how: int(subprocess.run([sys.executable, "-c", PROBE, how], capture_output=True, text=True, check=True).stdout) for how in ("default", "fixed")}
-    assert held["fixed"] < 30 and held["default"] > 200, held
+    """In a fresh process with the threshold fixed: 200 arrays of 2 MiB — below glibc's dynamic
+    threshold once a 16 MiB block was freed, so by default heap blocks, and the heap keeps the
+    ~360 MiB freed between every 20th, kept one (where the heap can grow in place; that depends
+    on the address-space layout, so the default is not asserted) — are each their own mapping
+    while alive, and the heap holds nothing freed after they go."""
+    mapped, held = (int(x) for x in subprocess.run([sys.executable, "-c", PROBE, "fixed"], capture_output=True, text=True, check=True).stdout.split())
+    assert mapped >= 400 and held < 30, (mapped, held)
 
 
 def test_the_threshold_is_a_mebibyte():
