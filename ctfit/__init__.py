@@ -2,7 +2,8 @@
 
 Conventions (angles, directions, normalisation) are stated once in ``docs/conventions.md``.
 
-Public names are loaded on first use (PEP 562), so ``import ctfit`` and ``ctfit --version`` do
+Public names are loaded on first use (PEP 562), from the subpackage of their concern (each
+subpackage's ``__init__`` lists what it exports), so ``import ctfit`` and ``ctfit --version`` do
 not pay for importing JAX until a model function is used.
 """
 
@@ -12,113 +13,112 @@ import importlib
 import importlib.metadata
 from typing import TYPE_CHECKING
 
-_EXPORTS = {
-    "ambient_reflectance": "._brdf",
-    "brdf": "._brdf",
-    "brdf_pairs": "._brdf",
-    "diffuse_reflectance": "._brdf",
-    "fresnel": "._brdf",
-    "normal_reflectance": "._brdf",
-    "specular_constant": "._brdf",
-    "specular_geometric": "._brdf",
-    "beckmann": "._distribution",
-    "gaussian": "._distribution",
-    "f0_from_n": "._fresnel",
-    "f0_from_nk": "._fresnel",
-    "fresnel_conductor": "._fresnel",
-    "fresnel_dielectric": "._fresnel",
-    "fresnel_dielectric_f0": "._fresnel",
-    "n_from_f0": "._fresnel",
-    "Geometry": "._geometry",
-    "direction_from_angles_deg": "._geometry",
-    "geometry": "._geometry",
-    "geometry_from_angles_deg": "._geometry",
-    "Material": "._material",
-    "Params": "._material",
-    "Structure": "._material",
-    "Measurement": "._measurement",
-    "smith_g1_reduced": "._shadowing",
-    "v_cavity_reduced": "._shadowing",
-    "MaterialError": "._material_io",
-    "load_material": "._material_io",
-    "material_from_dict": "._material_io",
-    "material_to_dict": "._material_io",
-    "read_optical_constants": "._material_io",
-    "save_material_json": "._material_io",
-    "evaluate": "._simulate",
-    "evaluate_at": "._simulate",
-    "goniometer_directions": "._simulate",
-    "simulate": "._simulate",
-    "FitResult": "._fit",
-    "fit": "._fit",
-    "select_structure": "._fit",
-    "fit_batch": "._fit_batch",
-    "fit_many": "._fit_many",
-    "fit_texel_maps": "._texel_maps",
-    "TexelFits": "._fit_texels",
-    "fit_texels": "._fit_texels",
-    "fit_result_to_dict": "._fit_io",
-    "format_fit_table": "._fit_io",
+_EXPORTS = {  # public name -> the subpackage that exports it
+    "ambient_reflectance": "._model",
+    "beckmann": "._model",
+    "brdf": "._model",
+    "brdf_pairs": "._model",
+    "diffuse_reflectance": "._model",
+    "direction_from_angles_deg": "._model",
+    "evaluate": "._model",
+    "evaluate_at": "._model",
+    "f0_from_n": "._model",
+    "f0_from_nk": "._model",
+    "fresnel": "._model",
+    "fresnel_conductor": "._model",
+    "fresnel_dielectric": "._model",
+    "fresnel_dielectric_f0": "._model",
+    "gaussian": "._model",
+    "Geometry": "._model",
+    "geometry": "._model",
+    "geometry_from_angles_deg": "._model",
+    "goniometer_directions": "._model",
+    "Light": "._model",
+    "Material": "._model",
+    "Measurement": "._model",
+    "n_from_f0": "._model",
+    "normal_reflectance": "._model",
+    "Params": "._model",
+    "reflected_intensity": "._model",
+    "simulate": "._model",
+    "smith_g1_reduced": "._model",
+    "specular_constant": "._model",
+    "specular_geometric": "._model",
+    "Structure": "._model",
+    "v_cavity_reduced": "._model",
+    "angles_deg_to_half_diff": "._io",
+    "DataError": "._io",
+    "DataWarning": "._io",
+    "half_diff_to_angles_deg": "._io",
+    "load_material": "._io",
+    "material_from_dict": "._io",
+    "material_to_dict": "._io",
+    "MaterialError": "._io",
+    "merl_table": "._io",
+    "read_alta": "._io",
+    "read_csv": "._io",
+    "read_measurement": "._io",
+    "read_merl": "._io",
+    "read_optical_constants": "._io",
+    "save_material_json": "._io",
+    "write_csv": "._io",
+    "write_merl": "._io",
+    "fit": "._fitting",
+    "fit_batch": "._fitting",
+    "fit_many": "._fitting",
+    "fit_result_to_dict": "._fitting",
+    "fit_texel_maps": "._fitting",
+    "fit_texels": "._fitting",
+    "FitResult": "._fitting",
+    "format_fit_table": "._fitting",
+    "residual_structure": "._fitting",
+    "select_structure": "._fitting",
+    "TexelFits": "._fitting",
+    "ChainTooShortWarning": "._sampling",
+    "format_uncertainty_table": "._sampling",
+    "plot_corner": "._sampling",
+    "plot_spectra": "._sampling",
+    "sample": "._sampling",
+    "SampleResult": "._sampling",
+    "average_normal_reflectance": "._colour",
+    "colour_report": "._colour",
+    "colour_shift_approximation": "._colour",
+    "colour_shift_spectral": "._colour",
+    "colour_shift_weight": "._colour",
     "DEFAULT_OBSERVER": "._colour",
-    "RGBConversion": "._colour",
-    "RGB_to_XYZ": "._colour",
-    "SpectralResamplingWarning": "._colour",
-    "SpectralWeights": "._colour",
-    "XYZ_to_Lab": "._colour",
-    "XYZ_to_RGB": "._colour",
-    "XYZ_to_xy": "._colour",
     "delta_E_CIE2000": "._colour",
+    "desaturate_to_gamut": "._colour",
     "dominant_wavelength": "._colour",
     "encode_RGB": "._colour",
     "eotf_inverse_sRGB": "._colour",
     "excitation_purity": "._colour",
+    "fresnel_reflectance_spectrum": "._colour",
+    "in_gamut": "._colour",
+    "reflectance_spectrum": "._colour",
     "rgb_conversion": "._colour",
+    "RGB_to_XYZ": "._colour",
+    "RGBConversion": "._colour",
+    "scale_to_display": "._colour",
     "spectral_weights": "._colour",
+    "SpectralResamplingWarning": "._colour",
+    "SpectralWeights": "._colour",
     "spectrum_to_RGB": "._colour",
     "spectrum_to_XYZ": "._colour",
-    "colour_report": "._colour_report",
-    "reflectance_spectrum": "._colour_report",
-    "average_normal_reflectance": "._colour_shift",
-    "colour_shift_approximation": "._colour_shift",
-    "colour_shift_spectral": "._colour_shift",
-    "colour_shift_weight": "._colour_shift",
-    "fresnel_reflectance_spectrum": "._colour_shift",
-    "desaturate_to_gamut": "._gamut",
-    "in_gamut": "._gamut",
-    "scale_to_display": "._gamut",
-    "srgb_luminance": "._gamut",
-    "read_measurement": "._readers",
-    "enable_compilation_cache": "._cache",
-    "read_csv": "._csvio",
-    "write_csv": "._csvio",
-    "DataError": "._errors",
-    "read_alta": "._alta",
-    "read_merl": "._merl",
-    "write_merl": "._merl",
-    "merl_table": "._merl",
-    "half_diff_to_angles_deg": "._merl",
-    "angles_deg_to_half_diff": "._merl",
-    "DataWarning": "._errors",
-    "residual_structure": "._diagnostics",
-    "ChainTooShortWarning": "._sample",
-    "SampleResult": "._sample",
-    "sample": "._sample",
-    "format_uncertainty_table": "._sample_io",
-    "plot_corner": "._sample_io",
-    "plot_spectra": "._sample_io",
-    "Light": "._intensity",
-    "reflected_intensity": "._intensity",
-    "Tile": "._render",
+    "srgb_luminance": "._colour",
+    "XYZ_to_Lab": "._colour",
+    "XYZ_to_RGB": "._colour",
+    "XYZ_to_xy": "._colour",
     "render_compare": "._render",
     "render_linear": "._render",
     "render_material": "._render",
     "render_materials": "._render",
     "save_png": "._render",
+    "Tile": "._render",
     "tone_map": "._render",
+    "enable_compilation_cache": "._runtime",
 }
 
 __all__ = sorted(_EXPORTS)
-
 
 
 def __getattr__(name: str):
@@ -135,167 +135,121 @@ def __dir__():
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
-    from ._cache import enable_compilation_cache as enable_compilation_cache
-    from ._brdf import (
+    from ._model import (
         ambient_reflectance as ambient_reflectance,
+        beckmann as beckmann,
         brdf as brdf,
         brdf_pairs as brdf_pairs,
         diffuse_reflectance as diffuse_reflectance,
-        fresnel as fresnel,
-        normal_reflectance as normal_reflectance,
-        specular_constant as specular_constant,
-        specular_geometric as specular_geometric,
-    )
-    from ._distribution import (
-        beckmann as beckmann,
-        gaussian as gaussian,
-    )
-    from ._fresnel import (
+        direction_from_angles_deg as direction_from_angles_deg,
+        evaluate as evaluate,
+        evaluate_at as evaluate_at,
         f0_from_n as f0_from_n,
         f0_from_nk as f0_from_nk,
+        fresnel as fresnel,
         fresnel_conductor as fresnel_conductor,
         fresnel_dielectric as fresnel_dielectric,
         fresnel_dielectric_f0 as fresnel_dielectric_f0,
-        n_from_f0 as n_from_f0,
-    )
-    from ._geometry import (
+        gaussian as gaussian,
         Geometry as Geometry,
-        direction_from_angles_deg as direction_from_angles_deg,
         geometry as geometry,
         geometry_from_angles_deg as geometry_from_angles_deg,
-    )
-    from ._material import (
+        goniometer_directions as goniometer_directions,
+        Light as Light,
         Material as Material,
-        Params as Params,
-        Structure as Structure,
-    )
-    from ._measurement import (
         Measurement as Measurement,
-    )
-    from ._shadowing import (
+        n_from_f0 as n_from_f0,
+        normal_reflectance as normal_reflectance,
+        Params as Params,
+        reflected_intensity as reflected_intensity,
+        simulate as simulate,
         smith_g1_reduced as smith_g1_reduced,
+        specular_constant as specular_constant,
+        specular_geometric as specular_geometric,
+        Structure as Structure,
         v_cavity_reduced as v_cavity_reduced,
     )
-    from ._material_io import (
-        MaterialError as MaterialError,
+    from ._io import (
+        angles_deg_to_half_diff as angles_deg_to_half_diff,
+        DataError as DataError,
+        DataWarning as DataWarning,
+        half_diff_to_angles_deg as half_diff_to_angles_deg,
         load_material as load_material,
         material_from_dict as material_from_dict,
         material_to_dict as material_to_dict,
+        MaterialError as MaterialError,
+        merl_table as merl_table,
+        read_alta as read_alta,
+        read_csv as read_csv,
+        read_measurement as read_measurement,
+        read_merl as read_merl,
         read_optical_constants as read_optical_constants,
         save_material_json as save_material_json,
+        write_csv as write_csv,
+        write_merl as write_merl,
     )
-    from ._simulate import (
-        evaluate as evaluate,
-        evaluate_at as evaluate_at,
-        goniometer_directions as goniometer_directions,
-        simulate as simulate,
-    )
-    from ._fit import (
-        FitResult as FitResult,
+    from ._fitting import (
         fit as fit,
-        select_structure as select_structure,
-    )
-    from ._fit_batch import (
         fit_batch as fit_batch,
-    )
-    from ._fit_many import (
         fit_many as fit_many,
-    )
-    from ._texel_maps import (
-        fit_texel_maps as fit_texel_maps,
-    )
-    from ._fit_texels import (
-        TexelFits as TexelFits,
-        fit_texels as fit_texels,
-    )
-    from ._fit_io import (
         fit_result_to_dict as fit_result_to_dict,
+        fit_texel_maps as fit_texel_maps,
+        fit_texels as fit_texels,
+        FitResult as FitResult,
         format_fit_table as format_fit_table,
+        residual_structure as residual_structure,
+        select_structure as select_structure,
+        TexelFits as TexelFits,
+    )
+    from ._sampling import (
+        ChainTooShortWarning as ChainTooShortWarning,
+        format_uncertainty_table as format_uncertainty_table,
+        plot_corner as plot_corner,
+        plot_spectra as plot_spectra,
+        sample as sample,
+        SampleResult as SampleResult,
     )
     from ._colour import (
+        average_normal_reflectance as average_normal_reflectance,
+        colour_report as colour_report,
+        colour_shift_approximation as colour_shift_approximation,
+        colour_shift_spectral as colour_shift_spectral,
+        colour_shift_weight as colour_shift_weight,
         DEFAULT_OBSERVER as DEFAULT_OBSERVER,
-        RGBConversion as RGBConversion,
-        RGB_to_XYZ as RGB_to_XYZ,
-        SpectralResamplingWarning as SpectralResamplingWarning,
-        SpectralWeights as SpectralWeights,
-        XYZ_to_Lab as XYZ_to_Lab,
-        XYZ_to_RGB as XYZ_to_RGB,
-        XYZ_to_xy as XYZ_to_xy,
         delta_E_CIE2000 as delta_E_CIE2000,
+        desaturate_to_gamut as desaturate_to_gamut,
         dominant_wavelength as dominant_wavelength,
         encode_RGB as encode_RGB,
         eotf_inverse_sRGB as eotf_inverse_sRGB,
         excitation_purity as excitation_purity,
+        fresnel_reflectance_spectrum as fresnel_reflectance_spectrum,
+        in_gamut as in_gamut,
+        reflectance_spectrum as reflectance_spectrum,
         rgb_conversion as rgb_conversion,
+        RGB_to_XYZ as RGB_to_XYZ,
+        RGBConversion as RGBConversion,
+        scale_to_display as scale_to_display,
         spectral_weights as spectral_weights,
+        SpectralResamplingWarning as SpectralResamplingWarning,
+        SpectralWeights as SpectralWeights,
         spectrum_to_RGB as spectrum_to_RGB,
         spectrum_to_XYZ as spectrum_to_XYZ,
-    )
-    from ._colour_report import (
-        colour_report as colour_report,
-        reflectance_spectrum as reflectance_spectrum,
-    )
-    from ._colour_shift import (
-        average_normal_reflectance as average_normal_reflectance,
-        colour_shift_approximation as colour_shift_approximation,
-        colour_shift_spectral as colour_shift_spectral,
-        colour_shift_weight as colour_shift_weight,
-        fresnel_reflectance_spectrum as fresnel_reflectance_spectrum,
-    )
-    from ._gamut import (
-        desaturate_to_gamut as desaturate_to_gamut,
-        in_gamut as in_gamut,
-        scale_to_display as scale_to_display,
         srgb_luminance as srgb_luminance,
-    )
-    from ._readers import (
-        read_measurement as read_measurement,
-    )
-    from ._csvio import (
-        read_csv as read_csv,
-        write_csv as write_csv,
-    )
-    from ._errors import (
-        DataError as DataError,
-    )
-    from ._alta import (
-        read_alta as read_alta,
-    )
-    from ._merl import (
-        read_merl as read_merl,
-        write_merl as write_merl,
-        merl_table as merl_table,
-        half_diff_to_angles_deg as half_diff_to_angles_deg,
-        angles_deg_to_half_diff as angles_deg_to_half_diff,
-    )
-    from ._errors import (
-        DataWarning as DataWarning,
-    )
-    from ._diagnostics import (
-        residual_structure as residual_structure,
-    )
-    from ._sample import (
-        ChainTooShortWarning as ChainTooShortWarning,
-        SampleResult as SampleResult,
-        sample as sample,
-    )
-    from ._sample_io import (
-        format_uncertainty_table as format_uncertainty_table,
-        plot_corner as plot_corner,
-        plot_spectra as plot_spectra,
-    )
-    from ._intensity import (
-        Light as Light,
-        reflected_intensity as reflected_intensity,
+        XYZ_to_Lab as XYZ_to_Lab,
+        XYZ_to_RGB as XYZ_to_RGB,
+        XYZ_to_xy as XYZ_to_xy,
     )
     from ._render import (
-        Tile as Tile,
         render_compare as render_compare,
         render_linear as render_linear,
         render_material as render_material,
         render_materials as render_materials,
         save_png as save_png,
+        Tile as Tile,
         tone_map as tone_map,
+    )
+    from ._runtime import (
+        enable_compilation_cache as enable_compilation_cache,
     )
 
 try:

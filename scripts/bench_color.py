@@ -1,13 +1,13 @@
 """Colour of a rendered sphere: error against run time for five ways of computing it.
 
 Every method shades the same sphere (orthographic camera, the renderer's lights, ambient
-1 %, ``ctfit._render``) and returns linear sRGB per pixel. The reference is the full spectral
+1 %, ``ctfit._render.rendering``) and returns linear sRGB per pixel. The reference is the full spectral
 computation at 1 nm over 360–830 nm (every CIE 1931 2° sample). Compared:
 
 - ``spectral 5/10/20 nm``: eq. 1 per band on 380–780 nm every 5, 10 or 20 nm, integrated to
   XYZ with the equal-energy weights at that step and the D65 spectrum in the lights (what
   ``ctfit render`` does, at its default 5 nm);
-- ``RGB (paper's approximation)``: the paper's shortcut (§4, ``ctfit._colour_shift``): the
+- ``RGB (paper's approximation)``: the paper's shortcut (§4, ``ctfit._colour.colour_shift``): the
   specular colour is the colour of F0 (from the 1 nm spectrum) moved towards the light's colour
   with max(0, F_avg(θ) − F0_avg)/(1 − F0_avg), F0_avg = Y of F0; the diffuse and ambient parts
   use the colour of R_d. Per pixel: three channels instead of λ bands;
@@ -59,11 +59,11 @@ def build(jax, material, directions, solid_angles, ambient):
     import equinox as eqx  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    from ctfit._brdf import ambient_reflectance, diffuse_reflectance, fresnel, normal_reflectance, specular_geometric  # noqa: PLC0415
-    from ctfit._colour import XYZ_to_RGB, rgb_conversion, spectral_weights, spectrum_to_XYZ  # noqa: PLC0415
-    from ctfit._colour_shift import average_normal_reflectance, colour_shift_approximation  # noqa: PLC0415
-    from ctfit._geometry import geometry  # noqa: PLC0415
-    from ctfit._render import VIEW, _ambient, render_bands, scene_lights, shade_linear  # noqa: PLC0415
+    from ctfit._model.cook_torrance import ambient_reflectance, diffuse_reflectance, fresnel, normal_reflectance, specular_geometric  # noqa: PLC0415
+    from ctfit._colour.colorimetry import XYZ_to_RGB, rgb_conversion, spectral_weights, spectrum_to_XYZ  # noqa: PLC0415
+    from ctfit._colour.colour_shift import average_normal_reflectance, colour_shift_approximation  # noqa: PLC0415
+    from ctfit._model.directions import geometry  # noqa: PLC0415
+    from ctfit._render.rendering import VIEW, _ambient, render_bands, scene_lights, shade_linear  # noqa: PLC0415
 
     st = material.structure
     view = jnp.asarray(VIEW)
@@ -158,7 +158,7 @@ def build(jax, material, directions, solid_angles, ambient):
 def delta_e(jax, rgb, ref, scale):
     import jax.numpy as jnp  # noqa: PLC0415
 
-    from ctfit._colour import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion, spectral_weights  # noqa: PLC0415
+    from ctfit._colour.colorimetry import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion, spectral_weights  # noqa: PLC0415
 
     w = spectral_weights(np.arange(360.0, 831.0, 1.0), "D65")
     conv = rgb_conversion("sRGB", w.white_XYZ, "CAT02")
@@ -182,7 +182,7 @@ def best_time(fn, args, repeat):
 def run(args):
     jax = _setup(args.x64)
     import ctfit  # noqa: PLC0415
-    from ctfit._render import AMBIENT_FRACTION, LIGHT_DIRECTIONS, SOLID_ANGLES, surface  # noqa: PLC0415
+    from ctfit._render.rendering import AMBIENT_FRACTION, LIGHT_DIRECTIONS, SOLID_ANGLES, surface  # noqa: PLC0415
 
     surf = surface("sphere", args.size)
     normals = surf.normal[surf.mask]

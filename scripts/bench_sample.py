@@ -5,7 +5,7 @@ walker (emcee's default, ``vectorize=False``).
 Every figure comes from the same run on the same machine, on the same synthetic data, same
 walkers, same number of steps, same starting ensemble and the same random numbers:
 
-- ``ctfit``: :class:`ctfit._sample_engine.Engine`, the function :func:`ctfit.sample` hands to emcee
+- ``ctfit``: :class:`ctfit._sampling.engine.Engine`, the function :func:`ctfit.sample` hands to emcee
   (one call per half ensemble; compiled before the clock starts).
 - ``NumPy per sample``: the same posterior — one Beckmann lobe, V-cavity G, the paper's Fresnel
   with the effective index from F0, sigma-weighted Gaussian likelihood, flat priors in (m, F0)
@@ -133,11 +133,11 @@ def _setup_problem(pairs: int, bands: int, seed: int = 0):
     import jax.numpy as jnp
 
     import ctfit
-    from ctfit._problem import from_params, make_problem
-    from ctfit._priors import normalise_priors
-    from ctfit._sample_engine import Engine
-    from ctfit._sample_logprob import Layout
-    from ctfit._simulate import simulate
+    from ctfit._fitting.problem import from_params, make_problem
+    from ctfit._sampling.priors import normalise_priors
+    from ctfit._sampling.engine import Engine
+    from ctfit._sampling.logprob import Layout
+    from ctfit._model.evaluation import simulate
 
     wl = np.linspace(400.0, 700.0, bands)
     f0 = 0.55 + 0.4 / (1 + np.exp(-(wl - 570.0) / 25.0))

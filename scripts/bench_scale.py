@@ -60,7 +60,7 @@ TEXEL_LOOP = r"""
 import sys, jax, xarray as xr
 jax.config.update("jax_enable_x64", True)
 import ctfit
-from ctfit._texel_maps import read_texel_geometry
+from ctfit._fitting.texel_maps import read_texel_geometry
 ctfit.enable_compilation_cache()
 geometry, _, _ = read_texel_geometry(sys.argv[1])
 with xr.open_zarr(sys.argv[1], consolidated=False) as ds:
@@ -72,7 +72,7 @@ TEXEL_BATCH = r"""
 import sys, jax, xarray as xr
 jax.config.update("jax_enable_x64", True)
 import ctfit
-from ctfit._texel_maps import read_texel_geometry
+from ctfit._fitting.texel_maps import read_texel_geometry
 ctfit.enable_compilation_cache()
 geometry, _, _ = read_texel_geometry(sys.argv[1])
 with xr.open_zarr(sys.argv[1], consolidated=False) as ds:

@@ -35,19 +35,19 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
-from ctfit._colour import (  # noqa: E402
+from ctfit._colour.colorimetry import (  # noqa: E402
     XYZ_to_RGB,
     eotf_inverse_sRGB,
     rgb_conversion,
     spectral_weights,
 )
-from ctfit._colour_shift import (  # noqa: E402
+from ctfit._colour.colour_shift import (  # noqa: E402
     average_normal_reflectance,
     colour_shift_approximation,
     colour_shift_spectral,
 )
-from ctfit._fresnel import f0_from_nk  # noqa: E402
-from ctfit._gamut import scale_to_display  # noqa: E402
+from ctfit._model.fresnel_equations import f0_from_nk  # noqa: E402
+from ctfit._colour.gamut import scale_to_display  # noqa: E402
 
 SOURCE_CSV = ROOT / "ctfit" / "data" / "optical_constants" / "Cu.csv"
 OUT = ROOT / "docs" / "figures" / "figure5_copper_colour_shift.png"

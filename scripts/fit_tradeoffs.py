@@ -132,7 +132,7 @@ def f0_true(wl):
 
 def make_case(case: Case):
     import ctfit  # noqa: PLC0415
-    from ctfit._simulate import evaluate, simulate  # noqa: PLC0415
+    from ctfit._model.evaluation import evaluate, simulate  # noqa: PLC0415
 
     wl = np.linspace(400.0, 700.0, case.bands)
     st = ctfit.Structure(lobes=case.lobes)
@@ -149,7 +149,7 @@ def _rel_rms(f, ref):
 def errors(d, m, w, f0, cost) -> dict:
     """Error measures of fitted (m, w, F0) on data set ``d`` (model evaluated by ctfit in float64)."""
     import ctfit  # noqa: PLC0415
-    from ctfit._simulate import evaluate  # noqa: PLC0415
+    from ctfit._model.evaluation import evaluate  # noqa: PLC0415
 
     m, w, f0 = (np.asarray(a, dtype=float).reshape(-1) for a in (m, w, f0))
     order = np.argsort(m)
@@ -176,7 +176,7 @@ def errors(d, m, w, f0, cost) -> dict:
 def run_ctfit(d, cfg: Config) -> dict:
     import jax.numpy as jnp  # noqa: PLC0415
 
-    from ctfit._fit import fit  # noqa: PLC0415
+    from ctfit._fitting.least_squares import fit  # noqa: PLC0415
 
     dtype = getattr(jnp, cfg.dtype)
 
@@ -203,8 +203,8 @@ def scipy_start(d):
     import jax  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    from ctfit._fit import _default_start, _m_grid, _seed_points  # noqa: PLC0415
-    from ctfit._problem import from_params, make_problem, to_params  # noqa: PLC0415
+    from ctfit._fitting.least_squares import _default_start, _m_grid, _seed_points  # noqa: PLC0415
+    from ctfit._fitting.problem import from_params, make_problem, to_params  # noqa: PLC0415
 
     st = d["structure"]
     start = _default_start(st, d["data"])
@@ -393,12 +393,14 @@ def ctfit_defaults() -> dict:
     import jax.numpy as jnp  # noqa: PLC0415
 
     import ctfit  # noqa: PLC0415
-    from ctfit import cli  # noqa: PLC0415
+    import typer.main  # noqa: PLC0415
+
+    from ctfit.cli import app  # noqa: PLC0415
 
     sig = inspect.signature(ctfit.fit).parameters
     lib = (sig["solver"].default, jnp.dtype(sig["dtype"].default).name, sig["loss"].default)
-    cs = inspect.signature(cli.fit).parameters
-    opt = lambda name: getattr(cs[name].default, "default", cs[name].default)  # noqa: E731
+    cs = {p.name: p.default for p in typer.main.get_command(app).commands["fit"].params}
+    opt = cs.__getitem__
     cli_d = (opt("solver"), "float32" if opt("float32") else "float64", opt("loss"))
     return dict(library=lib, cli=cli_d)
 

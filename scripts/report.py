@@ -30,7 +30,7 @@ import sys
 import tempfile
 import time
 
-from ctfit._progress import bar, echo, progress_enabled
+from ctfit._runtime.progress import bar, echo, progress_enabled
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPTS = ROOT / "scripts"

@@ -17,6 +17,7 @@ checks the formulas, not a copy of the code.
 from __future__ import annotations
 
 import itertools
+import sys
 
 import mpmath
 import numpy as np
@@ -263,3 +264,11 @@ def ctfit_brdf(structure, params, l, v):
     import jax.numpy as jnp
 
     return ctfit.brdf(structure, params, ctfit.geometry(jnp.asarray(l), jnp.asarray(v)))
+
+
+def patch_module(monkeypatch, module, name, value):
+    """Set ``module.name`` for one test, where every importer sees it: a subpackage's ``__init__``
+    keeps what it has handed out once (``lazy_loader``), so that copy is dropped too."""
+    monkeypatch.setattr(module, name, value)
+    package = sys.modules[module.__name__.rpartition(".")[0]]
+    monkeypatch.delitem(package.__dict__, name, raising=False)

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from conftest import MEASURED
 
-from ctfit._alta import read_alta
-from ctfit._csvio import read_csv, write_csv
-from ctfit._errors import DataError, DataWarning
+from ctfit._io.alta import read_alta
+from ctfit._io.csv_files import read_csv, write_csv
+from ctfit._io.errors import DataError, DataWarning
 
 HEAD_3D = "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n"
 

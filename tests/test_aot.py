@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ctfit import _aot
+from ctfit._runtime import stored_programs as _aot
 
 
 class _Box(eqx.Module):
@@ -106,7 +106,7 @@ def test_no_store_without_a_cache_directory(monkeypatch):
 def test_fit_through_the_store_matches_fit_in_memory(store, monkeypatch):
     """A fit whose program comes from disk gives the same result as the one that wrote it."""
     import ctfit
-    from ctfit._simulate import simulate
+    from ctfit._model.evaluation import simulate
 
     st = ctfit.Structure(lobes=1)
     truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.6, 0.8])), wavelength_nm=np.array([450.0, 650.0]))
@@ -142,8 +142,8 @@ _FIT_SCRIPT = """
 import sys, jax
 jax.config.update("jax_enable_x64", True)
 import numpy as np, ctfit
-from ctfit._cache import enable_compilation_cache
-from ctfit._simulate import simulate
+from ctfit._runtime.compile_cache import enable_compilation_cache
+from ctfit._model.evaluation import simulate
 enable_compilation_cache(sys.argv[1])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
 st = ctfit.Structure(lobes=1)
@@ -178,13 +178,14 @@ def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_p
 def test_the_source_digest_covers_subpackages(tmp_path, monkeypatch):
     """Every ``.py`` below the package counts, in subfolders too (a restructured package must
     not load programs compiled from its old sources)."""
-    from ctfit import _aot
+    from ctfit._runtime import stored_programs as _aot
 
     pkg = tmp_path / "pkg"
     (pkg / "sub").mkdir(parents=True)
-    (pkg / "_aot.py").write_text("# stand-in\n")
+    (pkg / "_runtime").mkdir()
+    (pkg / "_runtime/stored_programs.py").write_text("# stand-in\n")
     (pkg / "sub" / "model.py").write_text("x = 1\n")
-    monkeypatch.setattr(_aot, "__file__", str(pkg / "_aot.py"))
+    monkeypatch.setattr(_aot, "__file__", str(pkg / "_runtime/stored_programs.py"))
     digest = _aot._source_digest.__wrapped__  # the uncached function (the module keeps one digest per process)
     before = digest()
     (pkg / "sub" / "model.py").write_text("x = 2\n")

@@ -10,7 +10,7 @@ import pytest
 from conftest import ROOT, load_script
 
 import ctfit
-from ctfit._fit import _default_start
+from ctfit._fitting.least_squares import _default_start
 
 sys.path.insert(0, str(ROOT / "scripts"))  # the scripts import their helpers by name
 import _bench_fit_data as data  # noqa: E402

@@ -70,7 +70,7 @@ def test_gaussian_normalisations_differ_by_four_times_two_j():
     b = Structure(lobes=1, distribution="gaussian", normalization="cook-torrance-1982")
     p = make_params(a, m=(m,))
     g = ctfit.geometry(jnp.asarray(L), jnp.asarray(V))
-    j = float(ctfit._distribution.gaussian_norm_integral(jnp.asarray(m)))
+    j = float(ctfit._model.distribution.gaussian_norm_integral(jnp.asarray(m)))
     np.testing.assert_allclose(np.asarray(ctfit.brdf(b, p, g)), 8 * j * np.asarray(ctfit.brdf(a, p, g)), rtol=1e-13)
 
 

@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit.cli import _read_data, app
+from ctfit._cli.app import _read_data, app
 
 WL = np.array([450.0, 650.0])
 BAR = re.compile(r"files:\s+\d+%")

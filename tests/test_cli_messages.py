@@ -8,7 +8,7 @@ import pytest
 import typer.main
 from typer.testing import CliRunner
 
-from ctfit.cli import _cli_message, app
+from ctfit._cli.app import _cli_message, app
 
 from conftest import ROOT
 

@@ -16,7 +16,7 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit._fit_many import input_sha256
+from ctfit._fitting.many import input_sha256
 from ctfit.cli import app
 
 BIN = Path(sys.executable).parent

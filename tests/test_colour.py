@@ -11,7 +11,7 @@ import pytest
 from colour.utilities import suppress_warnings
 
 import ctfit
-from ctfit._colour import (
+from ctfit._colour.colorimetry import (
     DEFAULT_OBSERVER,
     RGB_to_XYZ,
     SpectralResamplingWarning,
@@ -28,7 +28,7 @@ from ctfit._colour import (
     spectrum_to_RGB,
     spectrum_to_XYZ,
 )
-from ctfit._colour_report import colour_report, reflectance_spectrum
+from ctfit._colour.report import colour_report, reflectance_spectrum
 
 OBSERVER_10 = "CIE 1964 10 Degree Standard Observer"
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._colour import XYZ_to_Lab, XYZ_to_RGB, delta_E_CIE2000, rgb_conversion, spectral_weights, spectrum_to_RGB, spectrum_to_XYZ
-from ctfit._colour_shift import (
+from ctfit._colour.colorimetry import XYZ_to_Lab, XYZ_to_RGB, delta_E_CIE2000, rgb_conversion, spectral_weights, spectrum_to_RGB, spectrum_to_XYZ
+from ctfit._colour.colour_shift import (
     average_normal_reflectance,
     colour_shift_approximation,
     colour_shift_spectral,

@@ -8,10 +8,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ctfit import _csvio
-from ctfit._csvio import read_csv, write_csv
-from ctfit._errors import DataError
-from ctfit._measurement import Measurement
+from ctfit._io import csv_files as _csvio
+from ctfit._io.csv_files import read_csv, write_csv
+from ctfit._io.errors import DataError
+from ctfit._model.measurement import Measurement
 
 HEADER = "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf"
 

@@ -19,14 +19,14 @@ from hypothesis import HealthCheck, given, settings
 from typer.testing import CliRunner
 
 import ctfit
-import ctfit._fit as _fit
+import ctfit._fitting.least_squares as _fit
 from ctfit import DataError, DataWarning, Material, Measurement, Params, Structure
-from ctfit._colour_report import colour_report
-from ctfit._fit_io import fit_result_to_dict, format_fit_table
-from ctfit._material_io import MaterialError, load_material, material_from_dict, material_to_dict, save_material_json
-from ctfit._render import render_compare, render_materials
-from ctfit._sample import draw_colours
-from ctfit._validate import check_fittable, n_free_parameters, nonfinite_reason, representable_range
+from ctfit._colour.report import colour_report
+from ctfit._fitting.results import fit_result_to_dict, format_fit_table
+from ctfit._io.material_files import MaterialError, load_material, material_from_dict, material_to_dict, save_material_json
+from ctfit._render.rendering import render_compare, render_materials
+from ctfit._sampling.emcee_run import draw_colours
+from ctfit._fitting.validate import check_fittable, n_free_parameters, nonfinite_reason, representable_range
 from ctfit.cli import app
 
 runner = CliRunner()

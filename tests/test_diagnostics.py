@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._diagnostics import residual_structure
-from ctfit._errors import DataWarning
+from ctfit._fitting.diagnostics import residual_structure
+from ctfit._io.errors import DataWarning
 
 from conftest import MEASURED
 
@@ -63,7 +63,7 @@ def test_the_last_bin_is_labelled_with_its_real_end():
 def test_grid_and_per_sample_residuals_give_the_same_warnings():
     """The fit's route (relative residuals on its (pair, band) grid with a mask) and the
     per-sample route find the same bins, means and counts."""
-    from ctfit._diagnostics import relative_residual_structure
+    from ctfit._fitting.diagnostics import relative_residual_structure
 
     st = ctfit.Structure(lobes=1)
     mat = ctfit.Material(st, ctfit.Params(m=np.array([0.3]), w=np.array([1.0]), f0=np.full(3, 0.5)), wavelength_nm=np.array([450.0, 550.0, 650.0]))

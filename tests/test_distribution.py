@@ -8,7 +8,7 @@ import pytest
 from helpers import gauss_legendre
 
 import ctfit
-from ctfit._distribution import gaussian_norm_integral
+from ctfit._model.distribution import gaussian_norm_integral
 
 beckmann = jax.jit(ctfit.beckmann)
 gaussian = jax.jit(ctfit.gaussian, static_argnames="normalized")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit import _simulate
+from ctfit._model import evaluation as _simulate
 
 GOLD = ctfit.Material(ctfit.Structure(lobes=1, diffuse="F0/pi"), ctfit.Params(s=np.asarray(0.8), m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
                       wavelength_nm=np.array([450.0, 650.0]))

@@ -8,9 +8,9 @@ import optimistix as optx
 import pytest
 
 import ctfit
-from ctfit._fit import fit
-from ctfit._problem import from_params, make_problem, residual, to_params
-from ctfit._simulate import simulate
+from ctfit._fitting.least_squares import fit
+from ctfit._fitting.problem import from_params, make_problem, residual, to_params
+from ctfit._model.evaluation import simulate
 
 WL8 = np.linspace(400.0, 700.0, 8)
 WL31 = np.linspace(400.0, 700.0, 31)
@@ -133,7 +133,7 @@ def test_gradient_of_fitted_parameters_wrt_data_matches_finite_differences():
 
 
 def test_custom_jvp_matches_plain_autodiff():
-    from ctfit._problem import loss_residuals, model_values
+    from ctfit._fitting.problem import loss_residuals, model_values
 
     st = ctfit.Structure(lobes=2, geometry="smith", diffuse="spectrum")
     truth = material(st, WL8[:4], s=np.asarray(0.7), m=np.array([0.1, 0.3]), w=np.array([0.3, 0.7]), f0=np.full(4, 0.6), rd=np.full(4, 0.05))
@@ -156,7 +156,7 @@ def test_custom_jvp_matches_plain_autodiff():
 @pytest.mark.parametrize("n_pairs", [2000, 5000])
 def test_float32_normal_equations_match_float64(n_pairs):
     """Guards against XLA CPU's float32 reduction miscompile (jaxlib 0.10.2) in the fit's sums."""
-    from ctfit._problem import normal_equations
+    from ctfit._fitting.problem import normal_equations
 
     st = ctfit.Structure(lobes=2)
     truth = material(st, WL8, m=np.array([0.1, 0.3]), w=np.array([0.4, 0.6]), f0=np.linspace(0.5, 0.9, 8))
@@ -176,7 +176,7 @@ def test_a_fit_result_names_its_values_and_errors_alike():
     """``parameters`` and ``parameter_errors``: the fit JSON's names and layout, key for key."""
     import json
 
-    from ctfit._fit_io import fit_result_to_dict
+    from ctfit._fitting.results import fit_result_to_dict
 
     mat = ctfit.Material(ctfit.Structure(lobes=2, diffuse="F0/pi"),
                          ctfit.Params(s=np.asarray(0.8), m=np.array([0.1, 0.3]), w=np.array([0.6, 0.4]), f0=np.array([0.5, 0.8])),

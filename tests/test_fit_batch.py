@@ -10,9 +10,11 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit import _aot, _fit_batch
-from ctfit._fit_batch import batch_size
+from ctfit._fitting import batch as _fit_batch
+from ctfit._runtime import stored_programs as _aot
+from ctfit._fitting.batch import batch_size
 from ctfit.cli import app
+from helpers import patch_module
 
 WL = np.array([450.0, 650.0])
 ST = ctfit.Structure(lobes=1)
@@ -69,10 +71,10 @@ def test_batch_equals_fitting_each_alone_in_input_order():
 def test_groups_pad_to_the_largest_member_and_keep_layouts_apart():
     three = ctfit.simulate(material(0.2, (0.5, 0.6, 0.7), np.array([450.0, 550.0, 650.0])), 100, seed=4)  # three bands
     data = [*same_geometry([0.2, 0.3]), same_geometry([0.3], n_pairs=300)[0], scattered(300, 1), three]
-    preps = {i: ctfit._fit.prepare_fit(d, ST, start=None, fixed=(), loss="auto", dtype=np.float64, starts=3) for i, d in enumerate(data)}
+    preps = {i: ctfit._fitting.least_squares.prepare_fit(d, ST, start=None, fixed=(), loss="auto", dtype=np.float64, starts=3) for i, d in enumerate(data)}
     groups = _fit_batch._groups(preps, "lm", 256)
     assert sorted(groups) == [[0, 1, 2], [3], [4]]
-    assert {preps[i].problem.y.shape for i in (0, 1, 2)} == {(ctfit._problem.bucket(300), 2)}
+    assert {preps[i].problem.y.shape for i in (0, 1, 2)} == {(ctfit._fitting.problem.bucket(300), 2)}
     assert float(preps[0].problem.mask.sum()) == 200
     with pytest.raises(ValueError, match=r"pad_to=\(10, 10\) is smaller than the data \(100 direction pairs, 200 samples\)"):
         preps[0].padded((10, 10))
@@ -128,7 +130,7 @@ def test_fit_dir_uses_one_batch_and_matches_fitting_each_file(tmp_path, monkeypa
     (folder / "zeros.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n" + "".join(f"{t},0,{t},180,450,0\n" for t in (10, 20, 30, 40)))
     calls = []
     real = _fit_batch.fit_batch
-    monkeypatch.setattr(_fit_batch, "fit_batch", lambda ms, *a, **kw: calls.append(len(ms)) or real(ms, *a, **kw))
+    patch_module(monkeypatch, _fit_batch, "fit_batch", lambda ms, *a, **kw: calls.append(len(ms)) or real(ms, *a, **kw))
     runner = CliRunner()
     out = tmp_path / "fits"
     r = runner.invoke(app, ["fit", str(folder), "--no-diffuse", "-o", str(out)])
@@ -142,7 +144,7 @@ def test_fit_dir_uses_one_batch_and_matches_fitting_each_file(tmp_path, monkeypa
         assert_same_numbers(json.loads((out / f"m{i}.fit.json").read_text()), json.loads(alone.read_text()))
     # Files are read and fitted a window at a time: the next file is read while fewer samples are held.
     calls.clear()
-    monkeypatch.setattr(_fit_batch, "SAMPLE_BUDGET", 300)  # files of 200, 200, 200, 400 and 4 samples
+    patch_module(monkeypatch, _fit_batch, "SAMPLE_BUDGET", 300)  # files of 200, 200, 200, 400 and 4 samples
     windows = tmp_path / "windows"
     r = runner.invoke(app, ["fit", str(folder), "--no-diffuse", "-o", str(windows)])
     assert r.exit_code == 2 and calls == [2, 2, 1]

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._material_io import load_material
-from ctfit._problem import _stick_fractions, _weights
-from ctfit._simulate import simulate
-from ctfit._solvers import active_set, predicted_decrease
+from ctfit._io.material_files import load_material
+from ctfit._fitting.problem import _stick_fractions, _weights
+from ctfit._model.evaluation import simulate
+from ctfit._fitting.solvers import active_set, predicted_decrease
 from conftest import ROOT
 
 
@@ -67,7 +67,7 @@ def test_the_solver_evaluates_the_cost_without_linearising_it(monkeypatch):
     Jacobian-sized pass per step)."""
     import jax
 
-    from ctfit import _aot
+    from ctfit._runtime import stored_programs as _aot
 
     monkeypatch.setattr(_aot, "_memory", {})
     monkeypatch.setattr(_aot, "_store", lambda: None)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._problem import bucket, make_problem
+from ctfit._fitting.problem import bucket, make_problem
 
 BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
 

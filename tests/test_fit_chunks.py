@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit import _fit, _problem
-from ctfit._problem import CHUNK, bucket, half_squared_norm, make_problem, normal_equations
+from ctfit._fitting import least_squares as _fit
+from ctfit._fitting import problem as _problem
+from ctfit._fitting.problem import CHUNK, bucket, half_squared_norm, make_problem, normal_equations
 
 SMALL_CHUNK = 64
 

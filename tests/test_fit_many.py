@@ -10,9 +10,9 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit._cache import _default
-from ctfit._cluster import dask_client
-from ctfit._fit_many import _tasks, geometry_key, input_sha256
+from ctfit._runtime.compile_cache import _default
+from ctfit._runtime.cluster import dask_client
+from ctfit._fitting.many import _tasks, geometry_key, input_sha256
 from ctfit.cli import app
 
 WL = np.array([450.0, 650.0])
@@ -83,7 +83,7 @@ def test_measurements_and_a_bad_file_in_its_place(client, tmp_path, monkeypatch)
 
 def test_public_names():
     assert {"fit_many", "fit_texel_maps"} <= set(ctfit.__all__)
-    assert ctfit.fit_many.__module__ == "ctfit._fit_many" and ctfit.fit_texel_maps.__module__ == "ctfit._texel_maps"
+    assert ctfit.fit_many.__module__ == "ctfit._fitting.many" and ctfit.fit_texel_maps.__module__ == "ctfit._fitting.texel_maps"
 
 
 def test_same_geometry_shares_a_task_and_tasks_stay_coarse():

@@ -7,8 +7,8 @@ from conftest import MEASURED
 from matplotlib.text import Text
 
 import ctfit
-from ctfit._fit import FitResult
-from ctfit._fit_plot import make_fit_figure, plot_fit, signed_in_plane_angle
+from ctfit._fitting.least_squares import FitResult
+from ctfit._fitting.plots import make_fit_figure, plot_fit, signed_in_plane_angle
 
 
 def _result(material, warnings=()):

@@ -13,7 +13,9 @@ import jax.numpy as jnp
 import pytest
 
 import ctfit
-from ctfit import cli
+import typer.main
+
+from ctfit.cli import app
 
 from conftest import ROOT
 
@@ -37,11 +39,8 @@ def _table(text):
 def _ctfit_defaults():
     sig = inspect.signature(ctfit.fit).parameters
     library = (sig["solver"].default, jnp.dtype(sig["dtype"].default).name, sig["loss"].default)
-    opts = inspect.signature(cli.fit).parameters
-
-    def default(name):
-        d = opts[name].default
-        return getattr(d, "default", d)
+    opts = {p.name: p.default for p in typer.main.get_command(app).commands["fit"].params}
+    default = opts.__getitem__
 
     command = (default("solver"), "float32" if default("float32") else "float64", default("loss"))
     return library, command

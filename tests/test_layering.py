@@ -1,15 +1,89 @@
-"""Modules use each other's public names only: no ``from ._x import _name`` inside the package."""
+"""The package's layout: one subpackage per concern, each ``__init__`` the list of what it exports,
+``ctfit/__init__.py`` the one public list, and no module reaching into another's private names."""
 
 import ast
+import importlib
 from pathlib import Path
 
+import ctfit
+
 PACKAGE = Path(__file__).resolve().parents[1] / "ctfit"
+SUBPACKAGES = sorted(p.parent.name for p in PACKAGE.glob("_*/__init__.py"))
+
+
+def _imports(path: Path):
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.level >= 1:
+            yield node
+
+
+def _table(package: str) -> dict[str, str]:
+    """name -> module of a subpackage's lazy export table (its ``submod_attrs``)."""
+    tree = ast.parse((PACKAGE / package / "__init__.py").read_text(encoding="utf-8"))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.keyword) and node.arg == "submod_attrs":
+            table = ast.literal_eval(node.value)
+            return {name: module for module, names in table.items() for name in names}
+    raise AssertionError(f"{package}/__init__.py has no submod_attrs table")
+
+
+def test_the_concerns_have_their_folders():
+    assert SUBPACKAGES == ["_cli", "_colour", "_fitting", "_io", "_model", "_render", "_runtime", "_sampling"]
+    assert sorted(p.name for p in PACKAGE.glob("*.py")) == ["__init__.py", "cli.py"]
 
 
 def test_no_private_name_is_imported_from_another_module():
     found = []
     for path in sorted(PACKAGE.rglob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.ImportFrom) and node.level >= 1 and node.module:
-                found += [f"{path.relative_to(PACKAGE)}: from {'.' * node.level}{node.module} import {a.name}" for a in node.names if a.name.startswith("_")]
+        for node in _imports(path):
+            found += [f"{path.relative_to(PACKAGE)}: from {'.' * node.level}{node.module} import {a.name}" for a in node.names if a.name.startswith("_")]
     assert not found, "\n".join(found)
+
+
+def test_other_subpackages_are_reached_through_their_init():
+    """``from .._fitting import fit_core``, never ``from .._fitting.least_squares import ...``."""
+    found = []
+    for path in sorted(PACKAGE.glob("_*/*.py")):
+        for node in _imports(path):
+            if node.level == 2 and node.module and "." in node.module:
+                found.append(f"{path.relative_to(PACKAGE)}: from ..{node.module} import ...")
+    assert not found, "\n".join(found)
+
+
+def test_every_name_a_module_takes_from_a_subpackage_is_in_its_table():
+    missing = []
+    tables = {p: _table(p) for p in SUBPACKAGES}
+    for path in sorted(PACKAGE.glob("_*/*.py")):
+        for node in _imports(path):
+            if node.level == 2 and node.module in tables:
+                missing += [f"{path.relative_to(PACKAGE)}: {node.module}.{a.name}" for a in node.names if a.name not in tables[node.module]]
+    assert not missing, "\n".join(missing)
+
+
+def test_each_subpackage_table_names_real_objects_and_no_submodule():
+    """Every listed name exists in its module, and none is also the name of a module of the same
+    folder (importing that module would replace the exported object on the package)."""
+    for package in SUBPACKAGES:
+        modules = {p.stem for p in (PACKAGE / package).glob("*.py")}
+        for name, module in _table(package).items():
+            assert name not in modules, f"{package}: {name} is both an export and a module"
+            assert module in modules, f"{package}: no module {module}"
+            assert hasattr(importlib.import_module(f"ctfit.{package}.{module}"), name), f"{package}.{module} has no {name}"
+
+
+def test_the_public_list_is_one_table():
+    """``__all__``, the lazy table and the names spelled out for type checkers are the same, and
+    every public name is what its subpackage exports."""
+    tree = ast.parse((PACKAGE / "__init__.py").read_text(encoding="utf-8"))
+    typed = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING":
+            for imp in node.body:
+                typed |= {a.asname for a in imp.names}
+                assert all(a.name == a.asname for a in imp.names)
+                for a in imp.names:
+                    assert ctfit._EXPORTS[a.name] == f".{imp.module}", a.name
+    assert set(ctfit.__all__) == set(ctfit._EXPORTS) == typed
+    for name, package in ctfit._EXPORTS.items():
+        assert name in _table(package[1:]), f"{name}: not exported by ctfit{package}"
+        assert getattr(ctfit, name) is getattr(importlib.import_module(f"ctfit{package}"), name)

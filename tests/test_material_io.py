@@ -16,7 +16,7 @@ from hypothesis import HealthCheck, given, settings
 
 import ctfit
 from ctfit import Material, Params, Structure
-from ctfit._material_io import (
+from ctfit._io.material_files import (
     MaterialError,
     load_material,
     material_from_dict,

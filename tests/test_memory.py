@@ -1,4 +1,4 @@
-"""The CLI hands large freed blocks back to the system (``ctfit._memory``)."""
+"""The CLI hands large freed blocks back to the system (``ctfit._runtime.memory``)."""
 
 import ctypes
 import subprocess
@@ -6,14 +6,14 @@ import sys
 
 import pytest
 
-from ctfit._memory import MMAP_THRESHOLD, return_large_blocks
+from ctfit._runtime.memory import MMAP_THRESHOLD, return_large_blocks
 
 # glibc's own account of the heap (mallinfo2, glibc ≥ 2.33): ``fordblks`` is the free memory the
 # heap keeps — what a process holds without using. (Resident-set figures would also move with the
 # kernel's reclaim of cold pages.)
 PROBE = (
     "import ctypes, sys, numpy as np\n"
-    "from ctfit._memory import return_large_blocks\n"
+    "from ctfit._runtime.memory import return_large_blocks\n"
     "class Info(ctypes.Structure):\n"
     "    _fields_ = [(f, ctypes.c_size_t) for f in ('arena', 'ordblks', 'smblks', 'hblks', 'hblkhd', 'usmblks', 'fsmblks', 'uordblks', 'fordblks', 'keepcost')]\n"
     "libc = ctypes.CDLL('libc.so.6'); libc.mallinfo2.restype = Info\n"

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from ctfit._errors import DataError
-from ctfit._merl import (
+from ctfit._io.errors import DataError
+from ctfit._io.merl import (
     MERL_SCALE,
     angles_deg_to_half_diff,
     half_diff_to_angles_deg,

@@ -27,7 +27,7 @@ import jax.numpy as jnp  # noqa: E402
 
 import ctfit  # noqa: E402
 from ctfit import Params, Structure  # noqa: E402
-from ctfit._shadowing import smith_rational_g1_reduced  # noqa: E402
+from ctfit._model.shadowing import smith_rational_g1_reduced  # noqa: E402
 
 pytestmark = pytest.mark.mitsuba
 

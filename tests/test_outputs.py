@@ -18,8 +18,10 @@ import jax
 import pytest
 from typer.testing import CliRunner
 
-from ctfit import _aot, _cache, _fileio
-from ctfit._outputs import (
+from ctfit._io import files as _fileio
+from ctfit._runtime import compile_cache as _cache
+from ctfit._runtime import stored_programs as _aot
+from ctfit._io.output_paths import (
     OutputError,
     check_backend,
     check_output,
@@ -232,8 +234,8 @@ def test_images_and_figures_are_written_atomically(tmp_path):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ctfit._render import save_png
-    from ctfit._sample_io import _save_figure
+    from ctfit._render.rendering import save_png
+    from ctfit._sampling.outputs import _save_figure
 
     for name, write in [
         ("tile.png", lambda p: save_png(np.zeros((4, 4, 3), np.uint8), p)),
@@ -318,12 +320,12 @@ def test_the_program_store_is_private(tmp_path, monkeypatch, cache_config):
 @pytest.fixture
 def no_work(monkeypatch):
     """Fail the test if a command gets as far as setting up JAX."""
-    import ctfit.cli
+    import ctfit._cli.app
 
     def setup(*a, **k):
         raise AssertionError("the command started its work before checking its outputs")
 
-    monkeypatch.setattr(ctfit.cli, "_setup_jax", setup)
+    monkeypatch.setattr(ctfit._cli.app, "_setup_jax", setup)
 
 
 def test_commands_refuse_an_output_that_is_an_input(tmp_path, no_work):
@@ -429,8 +431,8 @@ def _interrupt_when(proc, ready, settle: float = 1.0, timeout: float = 240.0):
 
 
 def test_the_interrupted_line(monkeypatch):
-    from ctfit import _interrupt
-    from ctfit.cli import _interrupted_message
+    from ctfit._io import interrupt as _interrupt
+    from ctfit._cli.app import _interrupted_message
 
     monkeypatch.setitem(_interrupt._state, "resumable", None)
     monkeypatch.setattr(sys, "argv", ["ctfit", "sample", "f.json", "d.csv", "--backend", "my run.h5", "--overwrite"])
@@ -445,7 +447,7 @@ def test_the_interrupted_line(monkeypatch):
 
 _SCRIPT = """
 import hashlib, os, signal, sys
-from ctfit._interrupt import deferred, install
+from ctfit._io.interrupt import deferred, install
 install(lambda: "interrupted: " + sys.argv[1])
 print("ready", flush=True)
 if sys.argv[1] == "in C":  # the main thread stays in C code without the GIL: the watcher exits

@@ -3,7 +3,7 @@
 import pytest
 
 from conftest import load_script
-from ctfit._progress import bar, echo, progress_enabled
+from ctfit._runtime.progress import bar, echo, progress_enabled
 
 
 @pytest.mark.parametrize(

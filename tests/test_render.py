@@ -8,7 +8,7 @@ from conftest import ROOT
 
 import ctfit
 from ctfit import Material, Params, Structure
-from ctfit._render import (
+from ctfit._render.rendering import (
     BACKGROUND,
     RADIUS,
     VASE_SCALE,
@@ -26,7 +26,7 @@ from ctfit._render import (
     tone_map,
     vase_profile,
 )
-from ctfit._render_cli import render_command_body
+from ctfit._cli.render_command import render_command_body
 
 RGB = ("R", "G", "B")
 BG = np.round(np.asarray(ctfit.eotf_inverse_sRGB(np.asarray(BACKGROUND))) * 255).astype(np.uint8)

@@ -14,17 +14,17 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._problem import from_params, make_problem, to_params
-from ctfit._priors import normalise_priors
-from ctfit._sample import ChainTooShortWarning, default_walkers, draw_colours, sample
-from ctfit._sample_engine import Engine
-from ctfit._sample_logprob import Layout
-from ctfit._simulate import simulate
+from ctfit._fitting.problem import from_params, make_problem, to_params
+from ctfit._sampling.priors import normalise_priors
+from ctfit._sampling.emcee_run import ChainTooShortWarning, default_walkers, draw_colours, sample
+from ctfit._sampling.engine import Engine
+from ctfit._sampling.logprob import Layout
+from ctfit._model.evaluation import simulate
 
 WL3 = np.array([450.0, 550.0, 650.0])
 WL4 = np.linspace(400.0, 700.0, 4)
 NOISE = 0.004  # sr⁻¹, absolute, for the diffuse toy
-short = pytest.mark.filterwarnings("ignore::ctfit._sample_diagnostics.ChainTooShortWarning")
+short = pytest.mark.filterwarnings("ignore::ctfit._sampling.chain_diagnostics.ChainTooShortWarning")
 
 
 # --- a linear toy with a known Gaussian posterior -----------------------------------------------
@@ -154,7 +154,7 @@ def test_same_seed_same_chain_and_short_chain_warns(metal):
     assert any("fitted with loss 'sigma' first, from the material's values" in w for w in a.warnings)
 
 
-@pytest.mark.filterwarnings("ignore::ctfit._sample_diagnostics.ChainTooShortWarning")
+@pytest.mark.filterwarnings("ignore::ctfit._sampling.chain_diagnostics.ChainTooShortWarning")
 def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path, monkeypatch):
     truth, data, _ = metal
     ref = sample(truth, data, steps=80, seed=4, backend=tmp_path / "ref.h5", colour=False)
@@ -197,7 +197,7 @@ def test_relative_noise_likelihood_is_that_of_noise_proportional_to_the_model(me
     """loss 'relative': y_i ~ N(R_i, (σ_noise R_i)²) — scaled by the model R_i(θ), not by the
     data with the fit's floor — checked against a direct evaluation (flat priors: the log-prior
     is the log-Jacobian of m = exp(u), F0 = sigmoid(u); for σ_noise, 1/σ times |dσ/dv| = σ: 0)."""
-    from ctfit._problem import model_values
+    from ctfit._fitting.problem import model_values
 
     from jax.flatten_util import ravel_pytree
 
@@ -271,7 +271,7 @@ def test_log_prior_is_flat_in_the_constrained_parameters(diffuse_toy):
 
     @jax.jit
     def chi2_and_logdet(x):
-        r = ctfit._problem.residual(unravel(x), (problem.y, problem))
+        r = ctfit._fitting.problem.residual(unravel(x), (problem.y, problem))
         return jnp.sum(r * r), jnp.linalg.slogdet(jax.jacfwd(theta)(x))[1]
 
     rng = np.random.default_rng(0)
@@ -327,10 +327,10 @@ def test_informative_prior_pulls_the_posterior(metal):
 
 @short
 def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
-    from ctfit._colour_report import colour_report
-    from ctfit._fit_io import fit_result_to_dict
-    from ctfit._material_io import load_material, save_material_json
-    from ctfit._sample_io import format_uncertainty_table, plot_corner, plot_spectra, sample_command_body
+    from ctfit._colour.report import colour_report
+    from ctfit._fitting.results import fit_result_to_dict
+    from ctfit._io.material_files import load_material, save_material_json
+    from ctfit._sampling.outputs import format_uncertainty_table, plot_corner, plot_spectra, sample_command_body
 
     truth, data, fitted = metal
     # The colour of a draw is colour_report's colour of that material.
@@ -341,7 +341,7 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     np.testing.assert_allclose(c["Lab"][0], rep["Lab"], atol=1e-7)
 
     # The command body: fit JSON in, the same document with an uncertainty section out.
-    from ctfit._csvio import write_csv
+    from ctfit._io.csv_files import write_csv
 
     csv = tmp_path / "metal.csv"
     write_csv(data, csv)

@@ -15,11 +15,11 @@ from typer.testing import CliRunner
 import ctfit
 from conftest import MEASURED
 from ctfit.cli import SAMPLE_NOT_USABLE, app
-from ctfit._parameters import M_MAX
+from ctfit._model.parameters import M_MAX
 
 runner = CliRunner()
 # The ALTA reader's note on the 86 samples at the horizon (the CLI prints it as one line).
-pytestmark = pytest.mark.filterwarnings("ignore::ctfit._errors.DataWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::ctfit._io.errors.DataWarning")
 GRAY = ("retro-gray-tape.dat", ["--param-out", "INV_STERADIAN_COSINE_FACTOR"])
 JAUNE = ("retro-3M-jaune.dat", [])
 PINK = ("pink-felt-1d.alta", [])
@@ -80,7 +80,7 @@ def test_pink_felt_slope_is_bounded_and_reported(tmp_path):
     assert any("m[0] runs to 4" in b for b in u["checks"]["at_bound"]), u["checks"]
     assert u["priors"]["parameters"]["m"]["range"] == "[1e-05, 4]"
     # The chain opens in ArviZ, one chain per walker, with the JSON's draws.
-    from ctfit._sample_arviz import arviz
+    from ctfit._sampling.arviz_export import arviz
 
     idata = arviz().from_netcdf(str(tmp_path / "run.nc"))
     post = idata.posterior
@@ -104,7 +104,7 @@ def test_sample_loss_option_fits_again_and_refuses_unknown_losses(tmp_path):
 def test_single_band_data_of_unknown_wavelength_is_labelled_so(tmp_path):
     """ALTA files without wavelengths: the table and the corner plot say "unknown band", never
     the placeholder wavelength (550 nm)."""
-    from ctfit._sample_io import _band_labels, format_uncertainty_table
+    from ctfit._sampling.outputs import _band_labels, format_uncertainty_table
 
     material = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4])),
                               wavelength_nm=np.array([550.0]), band_unknown=True)  # as a fit of retro-3M-jaune.dat has it

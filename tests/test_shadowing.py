@@ -109,7 +109,7 @@ def test_smith_derivative_in_m_finite(dtype):
 def test_rational_smith_is_finite_with_finite_derivatives_everywhere(dtype):
     """Walter et al.'s rational G1/cos θ: finite values and derivatives in m and θ from normal
     incidence to θ = 90° and m from 1e-4 to 3, and 3.535/m at θ = 90°."""
-    from ctfit._shadowing import smith_rational_g1_reduced
+    from ctfit._model.shadowing import smith_rational_g1_reduced
 
     theta = np.array([0.0, 1e-6, 30.0, 60.0, 85.0, 89.9, 90.0])
     ms = jnp.asarray([1e-4, 1e-3, 0.05, 0.2, 0.6, 1.0, 3.0], dtype)
@@ -128,7 +128,7 @@ def test_rational_smith_is_finite_with_finite_derivatives_everywhere(dtype):
 
 
 def test_rational_smith_is_continuous_where_it_becomes_one():
-    from ctfit._shadowing import smith_rational_g1_reduced
+    from ctfit._model.shadowing import smith_rational_g1_reduced
 
     m = 0.3
     for side in (1 - 1e-9, 1 + 1e-9):  # a = cos θ/(m sin θ) just below and above 1.6

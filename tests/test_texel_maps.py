@@ -8,8 +8,8 @@ import xarray as xr
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit._cluster import dask_client
-from ctfit._texel_maps import TexelMapError, read_texel_geometry
+from ctfit._runtime.cluster import dask_client
+from ctfit._fitting.texel_maps import TexelMapError, read_texel_geometry
 from ctfit.cli import app
 
 WL = np.array([450.0, 650.0])

@@ -1,0 +1,85 @@
+"""The body of ``ctfit render``: materials → a labelled PNG grid, or a fit beside its measurement.
+
+The typer command in ``ctfit/cli.py`` parses the options and calls :func:`render_command_body`;
+this module holds no CLI framework code, and imports nothing heavy at import time.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["render_command_body"]
+
+_MAX_SIZE = 4096
+
+
+def render_command_body(
+    materials: list[Path],
+    output: Path,
+    size: int = 256,
+    shape: str = "sphere",
+    compare: Path | None = None,
+    labels: bool = True,
+    *,
+    columns: int | None = None,
+    wavelength_step: float = 5.0,
+    supersample: int = 2,
+    ambient: float = 0.01,
+    exposure: str = "reference",
+) -> dict:
+    """Render ``materials`` (TOML or fit-result JSON) to the PNG ``output``; return a summary.
+
+    Without ``compare``: one tile per material (:func:`ctfit.render_materials`). With
+    ``compare`` (a measurement file): exactly one material, shown beside the nearest-measured
+    rendering of the data (:func:`ctfit.render_compare`). ``output`` is checked before the
+    rendering (:func:`ctfit._io.output_paths.check_output`). Bad input raises ``ValueError``
+    (or :class:`ctfit.MaterialError`, :class:`ctfit.DataError`, both ``ValueError``s) with a
+    message naming the file or option.
+
+    The summary: ``{"output", "materials", "shape", "size", "image_shape", "compare"}``.
+    """
+    from .._io import check_output, load_material  # noqa: PLC0415
+    from .._render import EXPOSURES, SHAPES, render_compare, render_materials, save_png  # noqa: PLC0415
+
+    if not materials:
+        raise ValueError("give at least one material file")
+    if shape not in SHAPES:
+        raise ValueError(f"--shape must be one of {list(SHAPES)}, got {shape!r}")
+    if exposure not in EXPOSURES:
+        raise ValueError(f"--exposure must be one of {list(EXPOSURES)}, got {exposure!r}")
+    if not 8 <= size <= _MAX_SIZE:
+        raise ValueError(f"--size must be in 8..{_MAX_SIZE} pixels, got {size}")
+    if not 1 <= supersample <= 8:
+        raise ValueError(f"--supersample must be in 1..8, got {supersample}")
+    if not ambient >= 0:
+        raise ValueError(f"--ambient must be ≥ 0, got {ambient}")
+    if not wavelength_step > 0:
+        raise ValueError(f"--step must be > 0 nm, got {wavelength_step}")
+    if columns is not None and columns < 1:
+        raise ValueError(f"--columns must be ≥ 1, got {columns}")
+    if Path(output).suffix.lower() != ".png":
+        raise ValueError(f"{output}: the output is a PNG file; give a name ending in .png")
+    check_output(output, [*materials, compare])
+    mats = [load_material(p) for p in materials]
+    options = {"supersample": supersample, "ambient": ambient}
+    if compare is not None:
+        if len(mats) != 1:
+            raise ValueError(f"--compare shows one material beside its data; got {len(mats)} materials")
+        from .._io import read_measurement  # noqa: PLC0415
+
+        data = read_measurement(compare)
+        image = render_compare(mats[0], data, size, shape, None if labels else False, exposure=exposure, **options)
+    else:
+        image = render_materials(
+            mats, size, shape, None if labels else False, columns=columns, exposure=exposure,
+            wavelength_step=wavelength_step, **options,
+        )  # fmt: skip
+    save_png(image, output)
+    return {
+        "output": str(output),
+        "materials": [str(p) for p in materials],
+        "shape": shape,
+        "size": size,
+        "image_shape": list(image.shape),
+        "compare": None if compare is None else str(compare),
+    }

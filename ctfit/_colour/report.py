@@ -1,0 +1,194 @@
+"""The colour of a material's reflection: the library function behind ``ctfit color``.
+
+"Reflectance colour" means the colour of the spectrum R(λ) that the material reflects, seen
+under the illuminant, not scaled (a perfect white reflector has Y = 1, sRGB (1, 1, 1)):
+
+- materials with a specular part (lobes ≥ 1): the Fresnel reflectance R(λ) = F(θ, λ) at the
+  angle θ between the viewer and the facet normal — at θ = 0 the normal reflectance F0(λ),
+  towards 90° the light's colour (paper §4, Figure 5). The diffuse part is not included.
+- diffuse-only materials: the ambient (hemispherical) reflectance R(λ) = π R_d(λ), which does
+  not depend on θ.
+
+Spectral materials are evaluated on the observer's 1 nm grid (360–830 nm): their parameters
+are interpolated linearly between the listed wavelengths and held at the end values outside
+(``docs/formats.md``), then F is computed per nanometre — so no colour-matching function
+or illuminant is resampled except the 5 nm CIE illuminant tables (linearly, as colour-science
+does). RGB materials (channels R, G, B) give linear RGB of ``colourspace`` directly; their
+white is the colourspace's white and ``illuminant`` is not used. A material whose one band has
+an unknown wavelength (``Material.band_unknown``, a fit of an ALTA file) has no colour: the
+report refuses it.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import numpy as np
+
+from .._model import ambient_reflectance, fresnel
+from .colorimetry import (
+    DEFAULT_OBSERVER,
+    RGB_to_XYZ,
+    XYZ_to_RGB,
+    XYZ_to_xy,
+    observer_cmfs,
+    colour_science,
+    encode_RGB,
+    dominant_wavelength,
+    excitation_purity,
+    rgb_conversion,
+    spectral_weights,
+    spectrum_to_XYZ,
+)
+from .gamut import desaturate_to_gamut, in_gamut
+from .._model import Material
+from .._io import float_list
+
+__all__ = ["colour_report", "reflectance_spectrum"]
+
+
+_fresnel = eqx.filter_jit(fresnel)
+_ambient = eqx.filter_jit(ambient_reflectance)
+_spectrum_to_XYZ = eqx.filter_jit(spectrum_to_XYZ)
+
+
+@eqx.filter_jit
+def _to_rgb(XYZ, conv):
+    """Linear RGB, and gamut-mapped linear RGB of a colourspace (compiled once per shape)."""
+    lin = XYZ_to_RGB(XYZ, conv)
+    return lin, desaturate_to_gamut(lin, conv.luminance, upper=1.0)
+
+
+def _cos(angle_deg: float) -> float:
+    a = float(angle_deg)
+    if not (math.isfinite(a) and 0 <= a <= 90):
+        raise ValueError(f"angle_deg must be in [0, 90], got {angle_deg!r}")
+    return 0.0 if a == 90 else math.cos(math.radians(a))
+
+
+def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_nm=None):
+    """``(quantity, R)``: the reflected spectrum (or RGB) the report is the colour of.
+
+    ``quantity`` is ``"F(theta)"`` (specular part present) or ``"pi*Rd"`` (diffuse only). ``R``
+    has one value per ``wavelength_nm`` (spectral materials; default: the material's own
+    wavelengths), or per R, G, B channel (RGB materials).
+    """
+    cos = _cos(angle_deg)
+    st = material.structure
+    if material.is_rgb:
+        params = material.params_at(channels=("R", "G", "B"))
+        n_bands = 3
+    elif material.wavelength_nm is None:
+        params = material.params  # scalar (grey) parameters
+        n_bands = None if wavelength_nm is None else len(wavelength_nm)
+    else:
+        wl = material.wavelength_nm if wavelength_nm is None else wavelength_nm
+        params = material.params_at(wavelength_nm=wl)
+        n_bands = len(wl)
+    if st.has_specular:
+        quantity, r = "F(theta)", _fresnel(st, params, np.asarray(cos))
+    else:
+        quantity, r = "pi*Rd", _ambient(st, params)
+    r = np.asarray(r, dtype=float)
+    if n_bands is not None:
+        r = np.broadcast_to(r, (n_bands,)).copy()
+    return quantity, r
+
+
+def _hex(srgb) -> str:
+    v = np.clip(np.round(np.asarray(srgb, dtype=float) * 255), 0, 255).astype(int)
+    return "#" + "".join(f"{c:02x}" for c in v)
+
+
+def colour_report(
+    material: Material,
+    angle_deg: float = 0.0,
+    illuminant="D65",
+    colourspace: str = "sRGB",
+    observer: str = DEFAULT_OBSERVER,
+    chromatic_adaptation: str | None = "CAT02",
+) -> dict:
+    """The reflectance colour of ``material`` at ``angle_deg`` (see the module docstring).
+
+    Keys (JSON-ready: floats, lists, strings; None where undefined):
+
+    - ``XYZ``: CIE XYZ, Y of a perfect white reflector = 1; ``xy``: its chromaticity (the
+      white's for black); ``white_XYZ``, ``white_xy``: the illuminant's white.
+    - ``linear_rgb``: linear RGB of ``colourspace`` after chromatic adaptation, before gamut
+      mapping (may be < 0 or > 1); ``in_gamut``: whether it is inside [0, 1]³ (to 1e-9, or
+      100 machine epsilons in float32).
+    - ``rgb``: encoded RGB of ``colourspace`` after the paper's gamut mapping
+      (:func:`ctfit.desaturate_to_gamut`, upper 1), in [0, 1]; not scaled.
+    - ``sRGB``: the same for sRGB (equal to ``rgb`` when ``colourspace`` is sRGB); ``hex``:
+      ``"#rrggbb"`` of ``sRGB``.
+    - ``Lab``: CIELAB relative to the illuminant's white (colour-science's ``XYZ_to_Lab``).
+    - ``dominant_wavelength_nm``: seen from the illuminant's white; negative for purples
+      (−complementary wavelength); None for achromatic colours (excitation purity below
+      100 machine epsilons of the computation's dtype, then reported as 0).
+      ``excitation_purity``.
+    - ``quantity`` (``"F(theta)"`` or ``"pi*Rd"``), ``material``, ``angle_deg``,
+      ``illuminant``, ``observer``, ``colourspace``, ``chromatic_adaptation``.
+    """
+    if material.band_unknown:
+        raise ValueError(
+            f"material {material.name!r}: its band's wavelength is unknown (single-band data), so there is no colour to report"
+        )
+    colour = colour_science()
+    if material.is_rgb:
+        conv = rgb_conversion(colourspace, None, None)
+        quantity, r = reflectance_spectrum(material, angle_deg)
+        XYZ = RGB_to_XYZ(np.asarray(r, dtype=float), conv)
+        eps = float(np.finfo(XYZ.dtype).eps)
+        XYZ = np.asarray(XYZ, dtype=float)
+        white_XYZ = conv.white_XYZ
+        illuminant_name = f"{colourspace} white"
+        srgb_conv = None
+    else:
+        grid = np.asarray(observer_cmfs(observer).wavelengths, dtype=float)
+        quantity, r = reflectance_spectrum(material, angle_deg, grid)
+        weights = spectral_weights(grid, illuminant, observer)
+        conv = rgb_conversion(colourspace, weights.white_XYZ, chromatic_adaptation)
+        XYZ = _spectrum_to_XYZ(r, weights)
+        eps = float(np.finfo(XYZ.dtype).eps)
+        XYZ = np.asarray(XYZ, dtype=float)
+        white_XYZ = np.asarray(weights.white_XYZ, dtype=float)
+        illuminant_name = weights.illuminant
+        srgb_conv = rgb_conversion("sRGB", weights.white_XYZ, chromatic_adaptation)
+    white_xy = white_XYZ[:2] / white_XYZ.sum()
+    lin, mapped = _to_rgb(XYZ, conv)
+    lin = np.asarray(lin, dtype=float)
+    rgb = np.asarray(encode_RGB(mapped, colourspace), dtype=float)
+    if colourspace == "sRGB":
+        srgb = rgb
+    else:
+        if srgb_conv is None:  # RGB material in another colourspace: through XYZ to sRGB
+            srgb_conv = rgb_conversion("sRGB", white_XYZ, chromatic_adaptation or "CAT02")
+        srgb = np.asarray(encode_RGB(_to_rgb(XYZ, srgb_conv)[1], "sRGB"), dtype=float)
+    xy = np.asarray(XYZ_to_xy(XYZ, white_xy), dtype=float)
+    lab = np.asarray(colour.XYZ_to_Lab(XYZ, illuminant=white_xy), dtype=float)
+    lam = float(dominant_wavelength(xy, white_xy, observer))
+    purity = float(excitation_purity(xy, white_xy, observer))
+    if purity < 100 * eps:  # a white, up to the rounding of the dtype the spectrum was integrated in
+        lam, purity = math.nan, 0.0
+    return {
+        "material": material.name,
+        "quantity": quantity,
+        "angle_deg": float(angle_deg),
+        "illuminant": illuminant_name,
+        "observer": observer,
+        "colourspace": colourspace,
+        "chromatic_adaptation": chromatic_adaptation if not material.is_rgb else None,
+        "XYZ": float_list(XYZ),
+        "xy": float_list(xy),
+        "white_XYZ": float_list(white_XYZ),
+        "white_xy": float_list(white_xy),
+        "linear_rgb": float_list(lin),
+        "in_gamut": bool(in_gamut(lin, atol=max(1e-9, 100 * eps))),
+        "rgb": float_list(rgb),
+        "sRGB": float_list(srgb),
+        "hex": _hex(srgb),
+        "Lab": float_list(lab),
+        "dominant_wavelength_nm": None if not math.isfinite(lam) else lam,
+        "excitation_purity": None if not math.isfinite(purity) else purity,
+    }

@@ -1,0 +1,21 @@
+"""Least-squares fits of the model to measurements: one, a batch, a database, texel maps.
+
+The names the rest of the package uses, loaded on first use (``lazy_loader``).
+"""
+
+import lazy_loader
+
+__getattr__, __dir__, __all__ = lazy_loader.attach(
+    __name__,
+    submod_attrs={
+        "batch": ['SAMPLE_BUDGET', 'fit_batch'],
+        "diagnostics": ['residual_structure'],
+        "least_squares": ['FitResult', 'SOLVERS', 'constrained_quantities', 'fit', 'select_structure', 'standard_errors', 'undetermined'],
+        "many": ['fit_many', 'input_sha256', 'read_input'],
+        "plots": ['plot_fit'],
+        "problem": ['LOSSES', 'Problem', 'from_params', 'make_problem', 'model_values', 'normal_equations', 'residual', 'to_params'],
+        "results": ['fit_result_to_dict', 'format_fit_table', 'start_from_material'],
+        "texel_maps": ['fit_texel_maps', 'save_map_pngs'],
+        "texels": ['TexelFits', 'fit_texels'],
+    },
+)

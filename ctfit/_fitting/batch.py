@@ -1,0 +1,228 @@
+"""Many measurements in one compiled program: ``fit_batch(measurements, structure, ...)``.
+
+Each measurement is prepared as :func:`~ctfit.fit` prepares it (checks, start, problem, free
+start, grid of m). Measurements whose problems have the same layout — structure, loss, grid or
+pairs layout, bands, which data columns exist, dtype — form a group; inside a group every
+problem is padded to the group's largest number of direction pairs and samples (masked-out
+entries, as ``make_problem(pad=True)`` pads to a size bucket) and stacked along a new leading
+axis, and one program maps the single fit's program (``fit_core``) over them: ``width``
+members side by side (``jax.vmap``), those groups in sequence (:func:`mapped`). Groups are
+split into calls of at most :data:`SAMPLE_BUDGET` padded cells, and a call's batch size is
+rounded up to a size of the series ⌈2^(k/2)⌉ (1, 2, 3, 4, 6, 8, 12, 16, 23, 32, …) with
+inactive copies of its first member, so that a folder of 37 files and one of 40 share one
+compiled program (stored on disk like a single fit's, :mod:`ctfit._runtime.stored_programs`). A group of one runs
+the single-fit program itself.
+
+Members side by side share one ``while_loop``: it ends when the slowest of them is done
+(finished members are carried unchanged) and both sides of the solver's branches are computed
+for all, which is correct and pays on an accelerator; on a CPU the members run one after the
+other by default (:func:`default_width`). The report of each measurement (statistics, standard
+errors, warnings, residual structure) is made exactly as :func:`~ctfit.fit` makes it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._runtime import cached_call
+from .least_squares import FitResult, finish_fit, fit_core, prepare_fit, PreparedFit
+from .._model import Measurement, Params, Structure
+
+__all__ = ["fit_batch", "mapped", "default_width", "batch_size", "SAMPLE_BUDGET"]
+
+SAMPLE_BUDGET = 2**21
+"""Padded samples (grid cells or pairs-layout samples) per batched call, all members together:
+bounds the memory of one call (a few hundred bytes per cell in the solver's intermediates)."""
+
+
+def fit_batch(
+    measurements: Sequence[Measurement],
+    structure: Structure | None = None,
+    *,
+    start: Params | Sequence[Params | None] | None = None,
+    fixed: tuple[str, ...] = (),
+    loss: str = "auto",
+    solver: str = "lm",
+    dtype=jnp.float64,
+    starts: int = 3,
+    max_steps: int = 256,
+    values=None,
+    return_errors: bool = False,
+    width: int | None = None,
+) -> list:
+    """Fit ``structure`` to every measurement, in as few compiled programs as possible.
+
+    Returns one :class:`~ctfit.FitResult` per measurement, in input order, each what
+    :func:`~ctfit.fit` gives for it alone (to the solver's tolerance); ``stats["time_s"]`` is
+    the batch's wall time shared equally. ``start``: one :class:`~ctfit.Params` for all, or a
+    sequence with one (or None) per measurement; the other arguments as for :func:`~ctfit.fit`.
+    ``return_errors``: a measurement that cannot be fitted (its ``ValueError``) is returned in
+    its place instead of raised, so the others still go on. ``width``: fits solved side by side
+    (vmapped) inside a program, the rest in sequence; None: :func:`default_width`.
+
+    With ``values`` (texels × samples) and one measurement, the per-texel fit
+    :func:`~ctfit.fit_texels` of that geometry: returns its :class:`~ctfit.TexelFits`.
+    """
+    if values is not None:
+        from .texels import fit_texels
+
+        data = measurements if isinstance(measurements, Measurement) else _single(measurements)
+        return fit_texels(data, values, structure, start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps,
+                          width=width)
+    t0 = time.perf_counter()
+    width = default_width() if width is None else width
+    if width < 1:
+        raise ValueError(f"width must be ≥ 1, got {width}")
+    measurements = list(measurements)
+    begins = list(start) if isinstance(start, (list, tuple)) else [start] * len(measurements)
+    if len(begins) != len(measurements):
+        raise ValueError(f"start: {len(begins)} starting values for {len(measurements)} measurements")
+    results: list = [None] * len(measurements)
+    preps: dict[int, PreparedFit] = {}
+    for i, (data, begin) in enumerate(zip(measurements, begins)):
+        got = _caught(lambda: prepare_fit(data, structure, start=begin, fixed=fixed, loss=loss, dtype=dtype, starts=starts), return_errors)
+        if isinstance(got, Exception):
+            results[i] = got
+        else:
+            preps[i] = got
+    for group in _groups(preps, solver, max_steps):
+        for call in _calls(group, preps):
+            outs = _caught(lambda: _solve([preps[i] for i in call], solver, max_steps, width), return_errors)
+            for i, out in zip(call, outs if isinstance(outs, list) else [outs] * len(call)):
+                results[i] = out if isinstance(out, Exception) else _caught(lambda: finish_fit(preps[i], out, solver, time.perf_counter()), return_errors)
+    share = (time.perf_counter() - t0) / max(len(measurements), 1)
+    for r in results:
+        if isinstance(r, FitResult):
+            r.stats["time_s"] = share
+    return results
+
+
+def _caught(work, return_errors: bool):
+    """``work()``, or with ``return_errors`` the ``ValueError`` it raised."""
+    try:
+        return work()
+    except ValueError as e:
+        if not return_errors:
+            raise
+        return e
+
+
+def _single(measurements) -> Measurement:
+    items = list(measurements)
+    if len(items) != 1:
+        raise ValueError(f"values (per-texel fitting) needs one measurement giving the geometry, got {len(items)}")
+    return items[0]
+
+
+def _sizes(prep: PreparedFit) -> tuple[int, int]:
+    """(direction pairs, samples) of a prepared problem as padded; samples: the data's in the grid layout."""
+    problem = prep.problem
+    return problem.geom.cos_vh.shape[0], (len(prep.data) if problem.spec.grid else problem.y.shape[0])
+
+
+def _layout(prep: PreparedFit, solver: str, max_steps: int):
+    """What must be equal for two fits to share a program, up to the padded sizes."""
+    shapes = lambda tree: tuple((a.shape, a.dtype.name) for a in jax.tree.leaves(tree))  # noqa: E731
+    grid = None if prep.grid is None else prep.grid.shape
+    return (jax.tree.structure(prep.problem), shapes(prep.problem.fixed), jax.tree.structure(prep.u0), shapes(prep.u0), grid,
+            prep.options(solver, max_steps))
+
+
+def _signature(prep: PreparedFit):
+    """Every array's shape and dtype (and the tree): equal for members of one batched call."""
+    return jax.tree.structure(prep.problem), tuple((a.shape, a.dtype.name) for a in jax.tree.leaves((prep.problem, prep.u0)))
+
+
+def _groups(preps: dict[int, PreparedFit], solver: str, max_steps: int) -> list[list[int]]:
+    """Indices of the fits that share a program; members are padded (in ``preps``) to the
+    group's largest sizes."""
+    by_layout: list[tuple[object, list[int]]] = []
+    for i, prep in preps.items():
+        key = _layout(prep, solver, max_steps)
+        for k, members in by_layout:
+            if k == key:
+                members.append(i)
+                break
+        else:
+            by_layout.append((key, [i]))
+    groups = []
+    for _, members in by_layout:
+        if len(members) > 1:
+            target = tuple(max(_sizes(preps[i])[j] for i in members) for j in range(2))
+            for i in members:
+                if _sizes(preps[i]) != target:
+                    preps[i] = preps[i].padded(target)
+        by_shape: dict = {}
+        for i in members:  # the same layout pads to the same shapes; kept apart if not
+            by_shape.setdefault(_signature(preps[i]), []).append(i)
+        groups += list(by_shape.values())
+    return groups
+
+
+def batch_size(n: int) -> int:
+    """The batch size that ``n`` fits are run at: the smallest ⌈2^(k/2)⌉ ≥ n (at most 41 % padding)."""
+    k = 0
+    while math.ceil(2 ** (k / 2)) < n:
+        k += 1
+    return math.ceil(2 ** (k / 2))
+
+
+def _calls(group: list[int], preps: dict[int, PreparedFit]) -> list[list[int]]:
+    """The group cut into calls of about equal size, each of at most :data:`SAMPLE_BUDGET` padded samples."""
+    per_call = max(1, SAMPLE_BUDGET // max(preps[group[0]].problem.y.size, 1))
+    n_calls = math.ceil(len(group) / per_call)
+    size = math.ceil(len(group) / n_calls)
+    return [group[a: a + size] for a in range(0, len(group), size)]
+
+
+def default_width() -> int:
+    """Fits solved side by side by default: 1 on a CPU (in sequence, inside the one program),
+    all of a call (2³⁰) on an accelerator. On a CPU a vmapped solve costs more per fit than
+    one after the other — every member computes both sides of the solver's branches (accepted
+    and rejected steps) and runs until the slowest member is done — while a GPU runs the
+    batch in the time of one fit."""
+    return 1 if jax.default_backend() == "cpu" else 1 << 30
+
+
+def mapped(fn, xs, active, width: int):
+    """``fn`` over the leading axis of the pytree ``xs``, ``width`` members side by side
+    (``jax.vmap``) and those groups in sequence (``jax.lax.map``). A member whose ``active`` is
+    False (padding) is skipped where it runs alone; side by side it is computed and discarded."""
+    n = active.shape[0]
+
+    def one(args):
+        x, on = args
+        out = jax.eval_shape(fn, x)
+        return jax.lax.cond(on, fn, lambda _: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), out), x)
+
+    if width >= n:
+        return jax.vmap(fn)(xs)
+    return jax.lax.map(one, (xs, active), batch_size=width if width > 1 else None)
+
+
+def _solve(preps: list[PreparedFit], solver: str, max_steps: int, width: int) -> list[dict]:
+    """``fit_core``'s output (host arrays) for each of ``preps`` (equal signatures): one call."""
+    first = preps[0]
+    options = first.options(solver, max_steps)
+    if len(preps) == 1:
+        return [jax.device_get(cached_call("fit", fit_core, first.problem, first.u0, first.grid, *options))]
+    size = batch_size(len(preps))
+    members = preps + [first] * (size - len(preps))
+    stack = lambda *xs: np.stack(xs)  # noqa: E731 — on the host: no small programs to compile
+    problems = jax.tree.map(stack, *(p.problem for p in members))
+    u0s = jax.tree.map(stack, *(p.u0 for p in members))
+    active = np.arange(size) < len(preps)
+    width = min(width, size)
+    out = jax.device_get(cached_call("fit_batch", _batched_core, problems, u0s, active, first.grid, width, *options))
+    return [jax.tree.map(lambda a: a[i], out) for i in range(len(preps))]
+
+
+def _batched_core(problems, u0s, active, grid, width: int, *options):
+    """``fit_core`` over stacked problems and starts (the m grid shared), :func:`mapped`."""
+    return mapped(lambda pu: fit_core(pu[0], pu[1], grid, *options), (problems, u0s), active, width)

@@ -1,0 +1,122 @@
+"""Residual diagnostics: does the fit leave systematic structure that the model cannot represent?
+
+Relative residuals e = (model − data)/max(data, floor) are grouped by angular variables that
+separate the lobes a Cook–Torrance surface can and cannot produce:
+
+- the angle between L and V (0° is exact retro-reflection: a retro-reflective lobe shows up as
+  data far above the model there);
+- the half-vector angle α (0° is the specular peak);
+- the larger of θ_i and θ_o (grazing behaviour: Fresnel, shadowing).
+
+In each bin of at least ``min_count`` samples the mean residual and its standard error are
+computed. A bin is *systematic* when its mean departs from 0 by more than ``threshold``
+(default 10 %) and by more than 4 standard errors. Every systematic group yields one plain
+warning naming where the model is too high or too low.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._model import Measurement
+
+__all__ = ["angle_lv_deg", "half_angle_deg", "relative_residual_structure", "residual_structure"]
+
+
+def _angle_lv(ti, pi, to, po) -> np.ndarray:
+    ti, to = np.deg2rad(ti), np.deg2rad(to)
+    cos = np.sin(ti) * np.sin(to) * np.cos(np.deg2rad(po - pi)) + np.cos(ti) * np.cos(to)
+    return np.rad2deg(np.arccos(np.clip(cos, -1, 1)))
+
+
+def _half_angle(ti, pi, to, po) -> np.ndarray:
+    ti, pi, to, po = (np.deg2rad(a) for a in (ti, pi, to, po))
+    hx = np.sin(ti) * np.cos(pi) + np.sin(to) * np.cos(po)
+    hy = np.sin(ti) * np.sin(pi) + np.sin(to) * np.sin(po)
+    hz = np.cos(ti) + np.cos(to)
+    return np.rad2deg(np.arctan2(np.hypot(hx, hy), hz))
+
+
+def _max_theta(ti, pi, to, po) -> np.ndarray:
+    return np.maximum(ti, to)
+
+
+def angle_lv_deg(data: Measurement) -> np.ndarray:
+    """The angle between L and V of every sample, in degrees (0: exact retro-reflection)."""
+    return _angle_lv(data.theta_i, data.phi_i, data.theta_o, data.phi_o)
+
+
+def half_angle_deg(data: Measurement) -> np.ndarray:
+    """The half-vector angle α (between N and H) of every sample, in degrees (0: the specular peak)."""
+    return _half_angle(data.theta_i, data.phi_i, data.theta_o, data.phi_o)
+
+
+_GROUPS = (
+    ("angle between L and V", _angle_lv, np.array([0, 2, 5, 10, 20, 40, 80, 180.0]), "retro-reflection"),
+    ("half-vector angle α", _half_angle, np.array([0, 2, 5, 10, 20, 40, 90.0]), "the specular peak"),
+    ("max(θ_i, θ_o)", _max_theta, np.array([0, 30, 60, 75, 85, 90.0]), "grazing"),
+)
+
+
+def residual_structure(
+    data: Measurement, model: np.ndarray, *, floor: float | None = None, threshold: float = 0.1, min_count: int = 20
+) -> list[str]:
+    """Plain-language warnings about systematic residual structure (empty when there is none)."""
+    y = np.asarray(data.brdf, dtype=float)
+    if floor is None:
+        floor = 1e-3 * float(np.max(y)) if np.any(y > 0) else 1.0
+    e = np.asarray(model, dtype=float) - y
+    e /= np.maximum(np.abs(y), floor)
+    pairs, index = data.directions()
+    return relative_residual_structure(pairs, e, index=index, threshold=threshold, min_count=min_count)
+
+
+def relative_residual_structure(pairs, rel, *, index=None, mask=None, threshold: float = 0.1, min_count: int = 20) -> list[str]:
+    """:func:`residual_structure` from relative residuals: ``rel`` (N,) per sample with ``index``
+    each sample's direction pair, or (D, W) per direction pair and band with ``mask`` (True where
+    measured; other cells are ignored). ``pairs`` (D, 4): the direction pairs in degrees.
+
+    The angular variables are computed once per direction pair and the bins' means and spreads
+    are weighted counts, so a MERL-sized file costs a few passes over its samples."""
+    rel = np.asarray(rel)
+    per_sample = mask is None
+    blocks = [slice(i, i + _BLOCK) for i in range(0, len(rel), _BLOCK)]  # rows at a time: small temporaries
+    out = []
+    for name, variable, edges, place in _GROUPS:
+        bins = len(edges) - 1
+        b = np.concatenate([np.clip(np.digitize(variable(*pairs[s].T), edges) - 1, 0, bins - 1).astype(np.int8)
+                            for s in (slice(i, i + _BLOCK) for i in range(0, len(pairs), _BLOCK))] or [np.zeros(0, np.int8)])
+        if per_sample:
+            b = b[index]
+        n, total, spread = np.zeros(bins), np.zeros(bins), np.zeros(bins)
+        for s in blocks:
+            n += np.bincount(b[s], minlength=bins) if per_sample else np.bincount(b[s], weights=np.sum(mask[s], axis=1), minlength=bins)
+            total += np.bincount(b[s], weights=rel[s] if per_sample else np.sum(np.where(mask[s], rel[s], 0.0), axis=1), minlength=bins)
+        mean = total / np.maximum(n, 1)
+        for s in blocks:  # Σ (e − mean)²: a second pass, no cancellation
+            dev = rel[s] - mean[b[s]] if per_sample else np.where(mask[s], rel[s] - mean[b[s]][:, None], 0.0)
+            dev = dev.astype(float) ** 2
+            spread += np.bincount(b[s], weights=dev if per_sample else np.sum(dev, axis=1), minlength=bins)
+        se = np.sqrt(spread / np.maximum(n - 1, 1) / np.maximum(n, 1))
+        worst = None
+        for k in np.flatnonzero(n >= min_count):
+            if abs(mean[k]) > threshold and abs(mean[k]) > 4 * se[k] and (worst is None or abs(mean[k]) > abs(worst[0])):
+                worst = (float(mean[k]), edges[k], edges[k + 1], int(n[k]))
+        if worst is not None:
+            mean_k, lo, hi, samples = worst
+            side = "below" if mean_k < 0 else "above"
+            span = f"[{lo:g}°, {hi:g}°" + ("]" if hi == edges[-1] else ")")  # the last bin holds its upper edge
+            out.append(f"systematic residuals: the model is {abs(mean_k):.0%} {side} the data for {name} in {span} ({samples} samples){_explain(place, mean_k, lo)}")
+    return out
+
+
+_BLOCK = 1 << 16
+"""Rows (samples or direction pairs) per block in :func:`relative_residual_structure`."""
+
+
+def _explain(place: str, mean: float, lo: float) -> str:
+    if place == "retro-reflection" and mean < 0 and lo < 10:
+        return " — a retro-reflection lobe, which the Cook–Torrance model cannot represent"
+    if (place == "the specular peak" and lo < 5) or (place == "grazing" and lo >= 75):
+        return f" (near {place})"
+    return ""

@@ -1,0 +1,124 @@
+"""Fit results to and from the outside: the fit-result JSON, the readable table, starts from files.
+
+The JSON is the material document of ``docs/formats.md`` plus a ``fit`` section:
+``{"converged", "steps", "cost", "rmse", "rel_rmse", "time_s", "n_samples", "n_params", "bic",
+"loss", "solver", "dtype", "starts", "relative_floor", "stderr": {...}, "warnings": [...]}``
+where ``stderr`` mirrors the parameters (``s``, ``lobes[j].m``, ``lobes[j].weight``, ``F0``, ``n``,
+``k``, ``Rd``) and is null when JᵀJ was too ill-conditioned to invert.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._model import Material, Params, Structure
+from .._io import MaterialError, material_to_dict
+from .._model import Measurement
+from .problem import free_names
+
+__all__ = ["fit_result_to_dict", "format_fit_table", "start_from_material", "stderr_block"]
+
+
+def stderr_block(res) -> dict | None:
+    """The standard errors of a fit in the JSON's names and layout (``FitResult.parameter_errors``)."""
+    se = res.stderr
+    if se is None:
+        return None
+    out = {}
+    if "s" in se:
+        out["s"] = float(np.asarray(se["s"]).reshape(-1)[0])
+    if "m" in se:
+        w = se.get("weight", np.full(len(se["m"]), np.nan)) if len(se["m"]) > 1 else [0.0]
+        out["lobes"] = [{"m": float(m), "weight": float(wj)} for m, wj in zip(se["m"], w)]
+    for key, name in (("F0", "F0"), ("n", "n"), ("k", "k"), ("rd", "Rd")):
+        if key in se:
+            v = np.asarray(se[key], dtype=float).reshape(-1)
+            out[name] = [float(x) for x in v] if res.material.structure.diffuse != "constant" or key != "rd" else float(v[0])
+    return out
+
+
+def fit_result_to_dict(res, material_keys: bool = True) -> dict:
+    """The fit result as a JSON-ready dict; with ``material_keys=False`` only the ``fit`` section."""
+    block = dict(res.stats)
+    block["stderr"] = stderr_block(res)
+    block["warnings"] = list(res.warnings)
+    block = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in block.items()}
+    if not material_keys:
+        return {"fit": block}
+    return material_to_dict(res.material, extra={"fit": block})
+
+
+def _pm(value, err) -> str:
+    if err is None or not np.isfinite(err):
+        return f"{value:.6g}"
+    return f"{value:.6g} ± {err:.2g}"
+
+
+def format_fit_table(res, label: str = "") -> str:
+    """A plain-text table of the parameters ± standard errors and the fit statistics."""
+    mat, st, se = res.material, res.material.structure, res.stderr or {}
+    p = mat.params
+    lines = [f"fit of {label}" if label else "fit", "-" * 60]
+    if st.has_s:
+        lines.append(f"  s = {_pm(float(p.s), _first(se.get('s')))}   d = {1 - float(p.s):.6g}")
+    else:
+        lines.append(f"  s = {1.0 if st.has_specular else 0.0:g} (fixed by the structure)")
+    if st.has_specular:
+        for j, (m, w) in enumerate(zip(np.asarray(p.m), np.asarray(p.w))):
+            sm = _at(se.get("m"), j)
+            sw = _at(se.get("weight"), j) if st.lobes > 1 else None
+            lines.append(f"  lobe {j}: m = {_pm(m, sm)}   weight = {_pm(w, sw)}")
+    if st.needs_fresnel_params:
+        f0 = np.asarray(_f0(mat))
+        labels = mat.band_labels
+        cols = ["band", "F0", "n"] + (["k"] if st.fresnel == "conductor" else [])
+        lines.append("  " + "  ".join(f"{c:>18}" for c in cols))
+        for i, lab in enumerate(labels):
+            row = [lab, _pm(f0[i], _at(se.get("F0"), i)), _pm(np.asarray(p.n)[i], _at(se.get("n"), i))]
+            if st.fresnel == "conductor":
+                row.append(_pm(np.asarray(p.k)[i], _at(se.get("k"), i)))
+            lines.append("  " + "  ".join(f"{c:>18}" for c in row))
+    s = res.stats
+    lines.append("-" * 60)
+    lines.append(
+        f"  converged: {s['converged']}   steps: {s['steps']}   loss: {s['loss']}   solver: {s['solver']} ({s['dtype']})"
+    )
+    lines.append(
+        f"  cost: {s['cost']:.6g}   rmse: {s['rmse']:.4g} sr⁻¹   rel_rmse: {s['rel_rmse']:.4g}   "
+        f"samples: {s['n_samples']}   params: {s['n_params']}   time: {s['time_s']:.2f} s"
+    )
+    if s.get("on_bound"):
+        lines.append(f"  on a bound (a result, no standard error): {', '.join(s['on_bound'])}")
+    for w in res.warnings:
+        lines.append(f"  warning: {w}")
+    return "\n".join(lines)
+
+
+def _f0(mat: Material):
+    from .._model import normal_reflectance
+
+    return normal_reflectance(mat.structure, mat.params)
+
+
+def _first(a):
+    return None if a is None else float(np.asarray(a).reshape(-1)[0])
+
+
+def _at(a, i):
+    return None if a is None else float(np.asarray(a).reshape(-1)[i])
+
+
+def start_from_material(base: Material, structure: Structure, data: Measurement) -> tuple[Params, tuple[str, ...]]:
+    """Starting values on the data's bands and the names of fixed parameters (key ``fixed``)."""
+    fixed = tuple(base.meta.get("fixed", ()))
+    allowed = set(free_names(structure))
+    bad = [f for f in fixed if f not in allowed]
+    if bad:
+        raise MaterialError(f"material {base.name!r}: key 'fixed' names {bad}; this structure's parameters are {sorted(allowed)}")
+    params = base.params_at(data.wavelength_nm if data.channels is None else None, data.channels)
+    if structure.fresnel == "f0" and params.f0 is None and params.n is not None:
+        from .._model import f0_from_n, f0_from_nk
+
+        f0 = f0_from_nk(params.n, params.k) if params.k is not None else f0_from_n(params.n)
+        params = Params(s=params.s, m=params.m, w=params.w, f0=np.asarray(f0), rd=params.rd)
+    return params, fixed

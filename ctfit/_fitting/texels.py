@@ -1,0 +1,216 @@
+"""Per-texel fits of a spatially varying BRDF: one goniometer geometry, many texels' values.
+
+``fit_texels(measurement, values, structure, ...)`` fits every row of ``values`` (texels ×
+samples, the samples in the order of ``measurement``'s rows) as its own measurement of
+``measurement``'s geometry and bands. The problem is laid out once (no size-bucket padding:
+every texel has the same size); texels are fitted ``chunk`` at a time by the single-fit
+program (``fit_core``) mapped over them (:func:`~ctfit._fitting.batch.mapped`: ``width`` side by
+side, in sequence on a CPU by default) with the geometry shared, only the values and the
+relative loss's floor per texel — one compiled program for all chunks (the last one is filled
+up with inactive copies of its last texel), stored on disk like a single fit's. ``values`` is read a chunk at a
+time, so a memory-mapped or HDF5-backed array never needs to fit in memory.
+
+The result, :class:`TexelFits`, holds arrays with a leading texel axis — the parameters and
+cheap per-texel statistics (converged, steps, cost, rmse, rel_rmse, the Gauss–Newton
+decrease), not the standard errors, warnings and residual diagnostics of a full
+:class:`~ctfit.FitResult`: :meth:`TexelFits.fit_result` fits one texel again with
+:func:`~ctfit.fit` to get those.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._runtime import cached_call
+from .least_squares import FitResult, fit_core, prepare_fit, fit, judge_converged
+from .batch import default_width, mapped
+from .._model import Material, Measurement, Params, Structure
+from .validate import representable_range
+
+__all__ = ["fit_texels", "TexelFits", "CHUNK"]
+
+CHUNK = 1024
+"""Texels per compiled call, by default."""
+_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
+
+
+@dataclasses.dataclass
+class TexelFits:
+    """Per-texel fits of one geometry (:func:`fit_texels`).
+
+    ``params``: a :class:`~ctfit.Params` whose fields have a leading texel axis — s (T,), m and
+    w (T, lobes) in ascending m per texel, F0, n, k, R_d (T, bands) (n: the effective index with
+    the "f0" Fresnel form). ``stats``: arrays (T,) — converged, steps, cost, rmse, rel_rmse,
+    gauss_newton_decrease — and the scalars loss, solver, dtype, starts, max_steps, time_s and
+    texels_per_s. ``converged`` means what it means for :func:`~ctfit.fit`.
+    """
+
+    measurement: Measurement
+    structure: Structure
+    params: Params
+    stats: dict
+    values: object = dataclasses.field(repr=False)
+    options: dict = dataclasses.field(repr=False, default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.stats["cost"])
+
+    @property
+    def converged(self) -> np.ndarray:
+        return self.stats["converged"]
+
+    def material(self, i: int) -> Material:
+        """Texel ``i``'s fitted material."""
+        d = self.measurement
+        params = Params(**{k: None if getattr(self.params, k) is None else np.asarray(getattr(self.params, k)[i]) for k in _FIELDS})
+        return Material(self.structure, params, wavelength_nm=d.wavelength_nm, channels=d.channels, name=f"texel {i} of {d.source}",
+                        band_unknown=d.band_unknown)
+
+    def fit_result(self, i: int) -> FitResult:
+        """Texel ``i`` fitted again on its own by :func:`~ctfit.fit`: the full report (standard
+        errors, warnings, residual structure); its parameters agree with this fit's to the
+        solver's tolerance."""
+        data = self.measurement.replace(brdf=np.asarray(self.values[i], dtype=float), sigma=None, source=f"texel {i} of {self.measurement.source}")
+        return fit(data, self.structure, **self.options)
+
+
+def fit_texels(
+    measurement: Measurement,
+    values,
+    structure: Structure | None = None,
+    *,
+    start: Params | None = None,
+    fixed: tuple[str, ...] = (),
+    loss: str = "auto",
+    solver: str = "lm",
+    dtype=jnp.float64,
+    starts: int = 3,
+    max_steps: int = 256,
+    chunk: int = CHUNK,
+    width: int | None = None,
+) -> TexelFits:
+    """Fit ``structure`` to every texel: ``values[t]`` is texel t's BRDF at ``measurement``'s rows.
+
+    ``values``: (texels, samples), any array NumPy can slice (a memmap, an h5py dataset);
+    ``measurement``: the geometry and bands (its own brdf and sigma are not used; "auto" loss is
+    the relative one). Every texel must be fit-able as :func:`~ctfit.fit` requires (finite values,
+    not all 0, in the dtype's range): a ``ValueError`` names the first texel that is not. Other
+    arguments as for :func:`~ctfit.fit`; ``chunk`` texels are fitted per compiled call, ``width``
+    of them side by side (vmapped; None: :func:`~ctfit._fitting.batch.default_width`).
+    """
+    t0 = time.perf_counter()
+    shape = getattr(values, "shape", None)
+    if shape is None or len(shape) != 2 or shape[1] != len(measurement):
+        raise ValueError(f"values must have shape (texels, {len(measurement)}) (one row per texel, one column per sample of "
+                         f"{measurement.source}), got {shape}")
+    if shape[0] < 1:
+        raise ValueError("values has no texels (shape (0, samples))")
+    if chunk < 1:
+        raise ValueError(f"chunk must be ≥ 1, got {chunk}")
+    width = default_width() if width is None else width
+    if width < 1:
+        raise ValueError(f"width must be ≥ 1, got {width}")
+    if loss == "sigma":
+        raise ValueError("loss 'sigma' needs per-sample uncertainties, which per-texel values do not have; choose another loss")
+    n_texels = shape[0]
+    chunk = min(chunk, n_texels)
+    width = min(width, chunk)
+    _check_values(values, chunk, dtype, measurement.source)
+    template = measurement.replace(brdf=np.asarray(values[0], dtype=float), sigma=None)
+    loss = "relative" if loss == "auto" else loss
+    # One size for every texel: laid out at its own size, no bucket padding.
+    prep = prepare_fit(template, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts,
+                    pad_to=(len(template.directions()[0]), len(template)))
+    problem, layout = prep.problem, _Layout(prep.problem, template)
+    core_options = prep.options(solver, max_steps)
+    pending, outs = None, []  # one chunk dispatched while the previous one's results are fetched
+    for a in range(0, n_texels, chunk):
+        block = np.asarray(values[a: a + chunk], dtype=float)
+        active = np.arange(chunk) < len(block)
+        block = np.concatenate([block, np.broadcast_to(block[-1:], (chunk - len(block), block.shape[1]))])
+        ys, floors = layout(block, dtype)
+        run = cached_call("fit_texels", _texel_core, problem, ys, floors, active, prep.u0, prep.grid, width, *core_options)  # dispatched, not awaited
+        if pending is not None:
+            outs.append(jax.device_get(pending))
+        pending = run
+    outs.append(jax.device_get(pending))
+    out = jax.tree.map(lambda *xs: np.concatenate(xs)[:n_texels], *outs)
+    options = dict(start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
+    return _result(measurement, prep.structure, out, values, n_texels, t0, options)
+
+
+def _check_values(values, chunk: int, dtype, source: str) -> None:
+    """The checks of :func:`~ctfit._fitting.validate.check_fittable` on every texel, a chunk at a time."""
+    lo, hi = representable_range(dtype)
+    for a in range(0, values.shape[0], chunk):
+        block = np.asarray(values[a: a + chunk], dtype=float)
+        bad = ~np.isfinite(block)
+        if bad.any():
+            t, j = np.argwhere(bad)[0]
+            raise ValueError(f"{source}: texel {a + t}, sample {j}: brdf = {float(block[t, j])!r} is not a finite number")
+        top = block.max(axis=1, initial=-np.inf)
+        for t in np.flatnonzero((top <= 0) | (top < lo) | (top > hi)):
+            what = "every brdf is ≤ 0: there is nothing to fit" if top[t] <= 0 else (
+                f"its largest brdf, {float(top[t])!r}, is outside [{lo:.2g}, {hi:.2g}] sr⁻¹, the range a fit in {np.dtype(dtype).name} takes")
+            raise ValueError(f"{source}: texel {a + t}: {what}")
+
+
+class _Layout:
+    """Texels' values (chunk, samples) in the problem's layout, with each texel's relative-loss floor."""
+
+    def __init__(self, problem, data: Measurement):
+        self.grid = problem.spec.grid
+        self.shape = problem.y.shape
+        self.index, self.band = data.directions()[1], np.asarray(data.band)
+
+    def __call__(self, block: np.ndarray, dtype):
+        if self.grid:
+            ys = np.zeros((len(block),) + self.shape)
+            ys[:, self.index, self.band] = block
+        else:
+            ys = block
+        positive = np.where(block > 0, block, -np.inf).max(axis=1)
+        floors = np.where(np.isfinite(positive), 1e-3 * positive, 1.0)
+        return ys.astype(dtype), floors.astype(dtype)
+
+
+def _texel_core(problem, ys, floors, active, u0, grid, width: int, *options):
+    """``fit_core`` mapped over the texels' values (geometry and start shared); per texel the
+    parameters and the cheap statistics only (the rest of the program is dead code to XLA)."""
+
+    def one(texel):
+        y, floor = texel
+        p = eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor))
+        out = fit_core(p, u0, grid, *options)
+        best = out["best"]
+        return dict(params=out["params"], cost=out["costs"][best], ok=out["ok"][best], steps=out["steps"][best],
+                    gauss_newton_decrease=out["gn_decrease"], zero_cost=out["zero_cost"], rmse=out["rmse"], rel_rmse=out["rel_rmse"],
+                    finite=out["bad"] == 0)
+
+    return mapped(one, (ys, floors), active, width)
+
+
+def _result(measurement, structure: Structure, out, values, n_texels: int, t0: float, options: dict) -> TexelFits:
+    dtype = jnp.dtype(options["dtype"]).name
+    p = {k: None if out["params"][k] is None else np.asarray(out["params"][k]) for k in _FIELDS}
+    if p["m"] is not None:  # lobes in ascending m, per texel
+        order = np.argsort(p["m"], axis=1)
+        p["m"], p["w"] = np.take_along_axis(p["m"], order, 1), np.take_along_axis(p["w"], order, 1)
+    get = lambda k: np.asarray(out[k])  # noqa: E731
+    cost, rmse = get("cost"), get("rmse")
+    decrease = get("gauss_newton_decrease")
+    finite = np.isfinite(cost) & np.isfinite(rmse) & get("finite").astype(bool)
+    elapsed = time.perf_counter() - t0
+    stats = dict(
+        converged=judge_converged(get("ok"), finite, decrease, cost, get("zero_cost"), dtype),
+        steps=get("steps").astype(int), cost=cost, rmse=rmse, rel_rmse=get("rel_rmse"), gauss_newton_decrease=decrease,
+        loss=options["loss"], solver=options["solver"], dtype=dtype, starts=options["starts"], max_steps=options["max_steps"],
+        time_s=elapsed, texels_per_s=n_texels / elapsed,
+    )
+    return TexelFits(measurement, structure, Params(**p), stats, values, options)

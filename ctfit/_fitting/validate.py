@@ -1,0 +1,113 @@
+"""Is this data fit-able? Checks made before a fit (refusals) and after it (a result that is not finite).
+
+Before the fit (:func:`check_fittable`, a ``ValueError`` naming the file): at least as many
+samples as free parameters; every BRDF value finite; the data's scale, max(brdf), inside the
+range the fit's dtype can square and sum (:func:`representable_range`) — the residuals are
+(model − data), or that over max(data, 10⁻³ max(data)), squared and summed over the samples,
+so data at 1e300 sr⁻¹ overflows and data at 1e-300 sr⁻¹ everywhere makes every relative
+residual overflow. With the sigma loss, max(brdf)/min(sigma) must be in range too.
+
+After the fit (:func:`nonfinite_reason`): a cost, rmse or model value that is not finite means
+the fit did not converge, whatever the solver said; the reason becomes one of its warnings.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._model import Measurement, Structure
+from .problem import free_names
+
+__all__ = ["check_fittable", "n_free_parameters", "nonfinite_reason", "representable_range"]
+
+_HEADROOM = 1e4
+"""Squares of values up to max/1e4 summed over 1e8 samples stay finite."""
+_START_SCALE = 1e6
+"""The largest relative residual of a starting model (a model value of ~1e3 sr⁻¹ over the
+relative loss's floor, 10⁻³ of the data's scale) times the data's scale."""
+
+
+def representable_range(dtype) -> tuple[float, float]:
+    """(lowest, highest) data scale max(brdf) in sr⁻¹ that a fit in ``dtype`` can take:
+    about [7.5e-145, 1.3e150] for float64, [5.4e-10, 1.8e15] for float32."""
+    root = math.sqrt(float(np.finfo(np.dtype(dtype)).max))
+    return _START_SCALE * _HEADROOM / root, root / _HEADROOM
+
+
+def n_free_parameters(structure: Structure, n_bands: int, fixed: tuple[str, ...] = ()) -> int:
+    """The number of values a fit of ``structure`` on ``n_bands`` bands adjusts."""
+    size = {"s": 1, "m": structure.lobes, "w": structure.lobes - 1, "f0": n_bands, "n": n_bands, "k": n_bands}
+    size["rd"] = n_bands if structure.diffuse == "spectrum" else 1
+    return sum(size[name] for name in free_names(structure, fixed))
+
+
+def _describe(structure: Structure) -> str:
+    parts = [f"{structure.lobes} lobe{'s' if structure.lobes != 1 else ''}"] if structure.lobes else []
+    if structure.fresnel == "conductor" and structure.needs_fresnel_params:
+        parts.append("conductor")
+    if structure.has_diffuse:
+        parts.append("diffuse" if structure.diffuse == "F0/pi" else f"diffuse {structure.diffuse}")
+    return ", ".join(parts)
+
+
+def check_fittable(data: Measurement, structure: Structure, *, fixed: tuple[str, ...] = (), loss: str = "relative", dtype=np.float64) -> None:
+    """Raise ``ValueError`` (naming ``data.source``) when ``data`` cannot be fitted with ``structure``."""
+    if data.brdf is None:
+        raise ValueError(f"{data.source}: the data has no 'brdf' column to fit")
+    y = np.asarray(data.brdf, dtype=float)
+    n, p = len(y), n_free_parameters(structure, data.n_bands, fixed)
+    if n < p:
+        raise ValueError(
+            f"{data.source}: {n} sample{'s' if n != 1 else ''}, {p} free parameters ({_describe(structure)}): "
+            "measure more or fit fewer (--lobes, --no-diffuse)"
+        )
+    bad = np.flatnonzero(~np.isfinite(y))
+    if bad.size:
+        raise ValueError(f"{data.source}: data row {bad[0] + 1}: brdf = {float(y[bad[0]])!r} is not a finite number ({bad.size} such rows)")
+    lo, hi = representable_range(dtype)
+    name = np.dtype(dtype).name
+    what = f"a fit in {name} takes data whose largest brdf is in [{lo:.2g}, {hi:.2g}] sr⁻¹"
+    over = np.flatnonzero(y > hi)
+    if over.size:
+        raise ValueError(
+            f"{data.source}: data row {over[0] + 1}: brdf = {float(y[over[0]])!r} is too large: {what} (squares of larger "
+            "values overflow); is the unit sr⁻¹?"
+        )
+    top = int(np.argmax(y))
+    if y[top] == 0:
+        raise ValueError(f"{data.source}: every brdf is 0: there is nothing to fit")
+    if y[top] < lo:
+        hint = " (or fit in float64)" if name == "float32" else ""
+        raise ValueError(
+            f"{data.source}: every brdf is at most {float(y[top])!r} (data row {top + 1}): {what} (relative residuals of "
+            f"smaller data overflow); is the unit sr⁻¹?{hint}"
+        )
+    if loss == "sigma" and data.sigma is not None:
+        sigma = np.asarray(data.sigma, dtype=float)
+        low = int(np.argmin(sigma))
+        if sigma[low] > 0 and y[top] / sigma[low] > hi:
+            raise ValueError(
+                f"{data.source}: data row {low + 1}: sigma = {float(sigma[low])!r} is too small for brdf values up to {float(y[top])!r}: "
+                f"(brdf − model)/sigma overflows {name}"
+            )
+
+
+def nonfinite_reason(cost: float, rmse: float, bad: int, values: int, dtype) -> str | None:
+    """Why a fit's result is not finite (a warning), or None when cost, rmse and model values are;
+    ``bad`` of the ``values`` model values are not finite."""
+    parts = []
+    if not math.isfinite(cost):
+        parts.append(f"the cost is {cost}")
+    if bad:
+        parts.append(f"{bad} of {values} model values are not finite")
+    if not math.isfinite(rmse):
+        parts.append(f"the rmse is {rmse}")
+    if not parts:
+        return None
+    lo, hi = representable_range(dtype)
+    return (
+        f"not converged: {', '.join(parts)} in {np.dtype(dtype).name} (the data's scale must be within "
+        f"[{lo:.2g}, {hi:.2g}] sr⁻¹, and the fitted model too)"
+    )

@@ -1,0 +1,21 @@
+"""Data in and out: measurement files (CSV, ALTA, MERL), material files, optical constants, safe writes.
+
+The names the rest of the package uses, loaded on first use (``lazy_loader``).
+"""
+
+import lazy_loader
+
+__getattr__, __dir__, __all__ = lazy_loader.attach(
+    __name__,
+    submod_attrs={
+        "alta": ['read_alta'],
+        "csv_files": ['read_csv', 'write_csv'],
+        "errors": ['DataError', 'DataWarning'],
+        "files": ['atomic_save', 'atomic_write'],
+        "interrupt": ['deferred', 'install', 'note_resumable', 'resumable'],
+        "material_files": ['MaterialError', 'float_list', 'jsonable', 'load_material', 'material_from_dict', 'material_to_dict', 'read_optical_constants', 'save_material_json'],
+        "merl": ['angles_deg_to_half_diff', 'half_diff_to_angles_deg', 'merl_table', 'read_merl', 'write_merl'],
+        "output_paths": ['check_backend', 'check_output', 'check_output_folder', 'result_targets', 'unconverged_target'],
+        "readers": ['read_measurement', 'reader_for'],
+    },
+)

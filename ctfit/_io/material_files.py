@@ -1,0 +1,570 @@
+"""Material files: TOML configs and fit-result JSON to and from :class:`~ctfit.Material`.
+
+The format is documented in ``docs/formats.md`` ("Material file (TOML) and fit result
+(JSON)"). ctfit extends it with:
+
+- ``fresnel = "f0" | "n" | "conductor"``: which Fresnel quantity is the parameter (inferred
+  when absent: ``k`` given → conductor, else ``F0`` → f0, else ``n``); results always say it.
+- ``optical_constants = "Cu"``: wavelengths, n, k and F0 from a table that ships with ctfit,
+  or ``"path/to/table.csv"``, an optical constants CSV relative to the file's folder (see
+  :func:`read_optical_constants`). Fresnel is then "conductor" unless ``fresnel`` says otherwise.
+- ``channels = ["R", "G", "B"]`` in place of ``wavelength_nm`` for RGB materials.
+- ``F0``, ``n``, ``k`` may be single numbers, meaning the same value in every band.
+- ``name``; every other key (``fit``, ``uncertainty``, ...) is kept in ``Material.meta`` and
+  written back unchanged. A key that looks like a misspelt model key is an error.
+
+Every problem raises :class:`MaterialError` naming the file, and the key (``lobes[1].weight``)
+or the line and column of a syntax error.
+"""
+
+from __future__ import annotations
+
+import datetime
+import difflib
+import importlib.resources
+import json
+import math
+import pathlib
+import re
+import tomllib
+
+import numpy as np
+
+from .files import atomic_write
+from .._model import (
+    DISTRIBUTIONS,
+    FRESNELS,
+    GEOMETRIES,
+    MAX_LOBES,
+    NORMALIZATIONS,
+    Material,
+    Params,
+    Structure,
+)
+
+__all__ = [
+    "MaterialError",
+    "load_material",
+    "material_from_dict",
+    "material_to_dict",
+    "save_material_json",
+    "read_optical_constants",
+]
+
+_TABLES = importlib.resources.files("ctfit") / "data" / "optical_constants"  # package data
+_TOL = 1e-9
+_MODEL_KEYS = (
+    "name", "s", "d", "lobes", "distribution", "geometry", "normalization", "fresnel",
+    "wavelength_nm", "channels", "optical_constants", "F0", "n", "k", "Rd", "band_unknown",
+)  # fmt: skip
+_FRESNEL_KEYS = {"f0": ("F0",), "n": ("n",), "conductor": ("n", "k")}
+
+
+class MaterialError(ValueError):
+    """A material or optical-constants file that cannot be read; the message names the place."""
+
+
+# --- numpy Fresnel conversions (float64, independent of JAX's x64 setting) ---------------------
+
+
+def _f0_from_n(n):
+    return ((n - 1) / (n + 1)) ** 2
+
+
+def _f0_from_nk(n, k):
+    with np.errstate(over="ignore", invalid="ignore"):
+        f0 = ((n - 1) ** 2 + k * k) / ((n + 1) ** 2 + k * k)
+    if np.all(np.isfinite(f0)):
+        return f0
+    scale = np.maximum(np.abs(n) + 1, np.abs(k))  # n or k beyond ~1e154: the squares overflow
+    a, b, c = (n - 1) / scale, k / scale, (n + 1) / scale
+    return np.where(np.isfinite(f0), f0, (a * a + b * b) / (c * c + b * b))
+
+
+def _n_from_f0(f0):
+    r = np.sqrt(f0)
+    with np.errstate(divide="ignore"):
+        return (1 + r) / (1 - r)  # the paper's effective index; ∞ at F0 = 1
+
+
+# --- reading ------------------------------------------------------------------------------------
+
+
+def read_optical_constants(path) -> dict:
+    """Read an optical constants CSV (``docs/formats.md``): a path, or the name of a table that
+    ships with ctfit (``"Cu"``, ``"Au"``, ``"Ag"``, ``"Al"``, ``"Fe"``, ``"stainless-steel"``;
+    a name has no folder and no suffix).
+
+    ``#`` lines first (``# key: value`` pairs go to ``meta``), then the header
+    ``wavelength_nm,n,k[,F0]`` and one wavelength per row, strictly increasing. A missing
+    ``F0`` column is computed as ((n − 1)² + k²)/((n + 1)² + k²).
+
+    Returns ``{"wavelength_nm", "n", "k", "F0"}`` as float64 arrays plus ``"meta"`` (a dict).
+    """
+    path = _bundled_table(path) if _is_table_name(path) else pathlib.Path(path)
+    lines = _read_text(path).splitlines()
+    meta, header, rows = {}, None, []
+    for lineno, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        if line.startswith("#"):
+            if header is None and ":" in line:
+                key, value = line[1:].split(":", 1)
+                meta[key.strip()] = value.strip()
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        if header is None:
+            header = cells
+            missing = [c for c in ("wavelength_nm", "n", "k") if c not in header]
+            if missing:
+                raise MaterialError(f"{path}:{lineno}: header lacks column(s) {missing}; got {header}")
+            continue
+        if len(cells) != len(header):
+            raise MaterialError(f"{path}:{lineno}: {len(cells)} values, header has {len(header)}")
+        try:
+            rows.append([float(c) for c in cells])
+        except ValueError:
+            raise MaterialError(f"{path}:{lineno}: not a number in {line!r}") from None
+    if not rows:
+        raise MaterialError(f"{path}: no data rows")
+    table = np.asarray(rows, dtype=float)
+    out = {name: table[:, header.index(name)] for name in ("wavelength_nm", "n", "k")}
+    out["F0"] = table[:, header.index("F0")] if "F0" in header else _f0_from_nk(out["n"], out["k"])
+    if not np.all(np.isfinite(table)):
+        raise MaterialError(f"{path}: values must be finite")
+    if np.any(np.diff(out["wavelength_nm"]) <= 0):
+        raise MaterialError(f"{path}: wavelength_nm must be strictly increasing")
+    out["meta"] = meta
+    return out
+
+
+def _is_table_name(name) -> bool:
+    """A bare name (``"Cu"``) rather than a path: a string without folder or suffix."""
+    return isinstance(name, str) and bool(name) and pathlib.PurePath(name).name == name and "." not in name and "\\" not in name
+
+
+def _table_names() -> list[str]:
+    """The optical constants tables that ship with ctfit (package data), by name."""
+    return sorted(p.name[: -len(".csv")] for p in _TABLES.iterdir() if p.name.endswith(".csv"))
+
+
+def _bundled_table(name: str):
+    """The package-data file of table ``name`` (an ``importlib.resources`` Traversable)."""
+    resource = _TABLES / f"{name}.csv"
+    if not resource.is_file():
+        raise MaterialError(f"{name!r}: no such optical constants table; ctfit ships {', '.join(_table_names())}")
+    return resource
+
+
+def _read_text(path: pathlib.Path) -> str:
+    try:
+        return path.read_text(encoding="utf-8-sig")  # a leading byte-order mark is dropped
+    except FileNotFoundError:
+        raise MaterialError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise MaterialError(f"{path}: cannot read: {err}") from err
+
+
+def _toml_position(err: tomllib.TOMLDecodeError, text: str) -> tuple[int, int, str]:
+    """Line, column and message of a TOML syntax error (attributes only from Python 3.14)."""
+    msg = err.args[0] if err.args else str(err)
+    if getattr(err, "lineno", None) is not None:
+        return err.lineno, err.colno, getattr(err, "msg", msg)
+    found = re.search(r"\s*\(at line (\d+), column (\d+)\)$", msg)
+    if found:
+        return int(found[1]), int(found[2]), msg[: found.start()]
+    lines = text.split("\n")
+    return len(lines), len(lines[-1]) + 1, re.sub(r"\s*\(at end of document\)$", "", msg)
+
+
+def _read_document(path: pathlib.Path) -> dict:
+    suffix = path.suffix.lower()
+    if suffix not in (".toml", ".json"):
+        raise MaterialError(f"{path}: unknown material file type {suffix!r}; expected .toml or .json")
+    text = _read_text(path)
+    if suffix == ".toml":
+        try:
+            return tomllib.loads(text)
+        except tomllib.TOMLDecodeError as err:
+            line, col, msg = _toml_position(err, text)
+            raise MaterialError(f"{path}:{line}:{col}: TOML syntax error: {msg}") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise MaterialError(f"{path}:{err.lineno}:{err.colno}: JSON syntax error: {err.msg}") from None
+    if not isinstance(data, dict):
+        raise MaterialError(f"{path}: the top level must be a JSON object, got {type(data).__name__}")
+    return data
+
+
+def load_material(path) -> Material:
+    """Load a material from a TOML config or a fit-result JSON file (chosen by the suffix).
+
+    Examples
+    --------
+    >>> m = load_material("configs/copper-vase.toml")  # doctest: +SKIP
+    >>> m.structure.lobes, m.structure.fresnel  # doctest: +SKIP
+    (2, 'f0')
+    """
+    path = pathlib.Path(path)
+    data = _read_document(path)
+    return material_from_dict(data, source=str(path), base_dir=path.parent, default_name=path.stem)
+
+
+# --- validation ---------------------------------------------------------------------------------
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+class _Parser:
+    """Turns the keys of one material document into a Material; errors name source and key."""
+
+    def __init__(self, data: dict, source: str, base_dir):
+        self.data, self.source, self.base_dir = data, source, base_dir
+
+    def error(self, key: str, msg: str) -> MaterialError:
+        return MaterialError(f"{self.source}: key '{key}': {msg}")
+
+    def number(self, value, key, lo=-math.inf, hi=math.inf, lo_open=False) -> float:
+        if not _is_number(value):
+            raise self.error(key, f"must be a number, got {value!r}")
+        x = float(value)
+        if not math.isfinite(x) or x < lo or x > hi or (lo_open and x == lo):
+            lo_txt = f"({lo:g}" if lo_open else f"[{lo:g}"
+            raise self.error(key, f"{x!r} is outside {lo_txt}, {hi:g}]")
+        return x
+
+    def choice(self, key, allowed, default):
+        value = self.data.get(key, default)
+        if value not in allowed:
+            raise self.error(key, f"must be one of {list(allowed)}, got {value!r}")
+        return value
+
+    def meta(self) -> dict:
+        meta = {}
+        lowered = {k.lower(): k for k in _MODEL_KEYS}
+        for key, value in self.data.items():
+            if key in _MODEL_KEYS:
+                continue
+            close = lowered.get(key.lower()) or next(iter(difflib.get_close_matches(key, _MODEL_KEYS, 1, 0.8)), None)
+            if close:
+                raise self.error(key, f"unknown key; did you mean '{close}'?")
+            meta[key] = value
+        return meta
+
+    def fractions(self) -> tuple[float, float]:
+        has_s, has_d = "s" in self.data, "d" in self.data
+        if not (has_s or has_d):
+            raise self.error("s", "missing: give the specular and diffuse fractions s and d (s + d = 1)")
+        s = self.number(self.data["s"], "s", 0, 1) if has_s else None
+        d = self.number(self.data["d"], "d", 0, 1) if has_d else None
+        if has_s and has_d and abs(s + d - 1) > _TOL:
+            raise self.error("d", f"s + d = {s + d:.12g}, must be 1")
+        return (s, 1 - s) if has_s else (1 - d, d)
+
+    def lobes(self, s: float) -> tuple[list[float], list[float]]:
+        raw = self.data.get("lobes", [])
+        if not isinstance(raw, list):
+            raise self.error("lobes", "must be a list of tables {m = ..., weight = ...}")
+        if s == 0:
+            if raw:
+                raise self.error("lobes", "must be absent or empty when s = 0 (no specular part)")
+            return [], []
+        if not raw:
+            raise self.error("lobes", "missing: s > 0 needs at least one lobe {m = ..., weight = ...}")
+        if len(raw) > MAX_LOBES:
+            raise self.error("lobes", f"{len(raw)} lobes, at most {MAX_LOBES} are supported")
+        ms, ws = [], []
+        for j, lobe in enumerate(raw):
+            key = f"lobes[{j}]"
+            if not isinstance(lobe, dict):
+                raise self.error(key, f"must be a table {{m = ..., weight = ...}}, got {lobe!r}")
+            for extra in sorted(set(lobe) - {"m", "weight"}):
+                raise self.error(f"{key}.{extra}", "unknown key; a lobe has 'm' and 'weight'")
+            if "m" not in lobe:
+                raise self.error(f"{key}.m", "missing: the rms slope m of the lobe")
+            ms.append(self.number(lobe["m"], f"{key}.m", 0, math.inf, lo_open=True))
+            if "weight" not in lobe and len(raw) > 1:
+                raise self.error(f"{key}.weight", "missing: every lobe of several needs a weight")
+            ws.append(self.number(lobe.get("weight", 1.0), f"{key}.weight", 0, 1))
+        total = math.fsum(ws)
+        if abs(total - 1) > _TOL:
+            raise self.error(f"lobes[{len(ws) - 1}].weight", f"weights sum to {total:.12g}, must sum to 1")
+        order = sorted(range(len(ms)), key=ms.__getitem__)  # results list lobes in ascending m
+        return [ms[j] for j in order], [ws[j] for j in order]
+
+    def resolve(self, name: str):
+        """A table's name, or a CSV path relative to the file's folder (or the working directory)."""
+        if _is_table_name(name):
+            return name
+        path = pathlib.Path(self.base_dir if self.base_dir is not None else pathlib.Path.cwd()) / name
+        if not path.is_file():
+            raise self.error("optical_constants", f"no file {name!r} (looked for {path}); ctfit ships {', '.join(_table_names())}")
+        return path
+
+    def bands(self):
+        """(wavelength_nm, channels, band key, optical constants table or None)."""
+        given = [k for k in ("wavelength_nm", "channels", "optical_constants") if k in self.data]
+        if not given:
+            raise self.error("wavelength_nm", "missing: give wavelength_nm, channels or optical_constants")
+        if len(given) > 1:
+            raise self.error(given[1], f"give only one of {given}")
+        key, value = given[0], self.data[given[0]]
+        if key == "optical_constants":
+            if not isinstance(value, str):
+                raise self.error(key, f"must be a path (string), got {value!r}")
+            try:
+                table = read_optical_constants(self.resolve(value))
+            except MaterialError as err:
+                raise self.error(key, str(err)) from None
+            return table["wavelength_nm"], None, key, table
+        if not isinstance(value, list) or not value:
+            raise self.error(key, f"must be a non-empty list, got {value!r}")
+        if key == "channels":
+            for i, c in enumerate(value):
+                if not isinstance(c, str) or not c:
+                    raise self.error(f"{key}[{i}]", f"must be a channel name, got {c!r}")
+            if len(set(value)) != len(value):
+                raise self.error(key, f"channel names must be unique, got {value}")
+            return None, tuple(value), key, None
+        wl = np.asarray([self.number(v, f"{key}[{i}]", 0, math.inf, lo_open=True) for i, v in enumerate(value)])
+        if np.any(np.diff(wl) <= 0):
+            raise self.error(key, "must be strictly increasing")
+        return wl, None, key, None
+
+    def spectrum(self, key, nbands, band_key, lo, hi, lo_open=False, allow_null=False) -> np.ndarray:
+        """A per-band quantity: a list over the bands, or one number for every band."""
+        value = self.data[key]
+        if _is_number(value):
+            return np.full(nbands, self.number(value, key, lo, hi, lo_open))
+        if not isinstance(value, list):
+            raise self.error(key, f"must be a number or a list over {band_key}, got {value!r}")
+        if len(value) != nbands:
+            raise self.error(key, f"has {len(value)} values, {band_key} has {nbands}")
+        return np.asarray(
+            [math.nan if v is None and allow_null else self.number(v, f"{key}[{i}]", lo, hi, lo_open)
+             for i, v in enumerate(value)],
+            dtype=float,
+        )  # fmt: skip
+
+
+def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None, default_name: str = "") -> Material:
+    """Build a Material from the keys of a material document (already parsed TOML/JSON).
+
+    ``source`` names the document in error messages; ``base_dir`` is where a relative
+    ``optical_constants`` path is looked up first (default: the working directory).
+    """
+    if not isinstance(data, dict):
+        raise MaterialError(f"{source}: a material is a table of keys, got {type(data).__name__}")
+    p = _Parser(data, source, base_dir)
+    meta = p.meta()
+    name = data.get("name", default_name)
+    if not isinstance(name, str):
+        raise p.error("name", f"must be a string, got {name!r}")
+    s, d = p.fractions()
+    ms, ws = p.lobes(s)
+    distribution = p.choice("distribution", DISTRIBUTIONS, "beckmann")
+    geometry = p.choice("geometry", GEOMETRIES, "v-cavity")
+    normalization = p.choice("normalization", NORMALIZATIONS, "normalized")
+    wl, channels, band_key, table = p.bands()
+    nbands = len(wl) if wl is not None else len(channels)
+    band_unknown = data.get("band_unknown", False)
+    if not isinstance(band_unknown, bool):
+        raise p.error("band_unknown", f"must be true or false, got {band_unknown!r}")
+    if band_unknown and (wl is None or nbands != 1):
+        raise p.error("band_unknown", f"true needs exactly one wavelength_nm (a placeholder), got {nbands} {band_key}")
+
+    diffuse, rd = None, None
+    if d == 0:
+        if data.get("Rd", "F0/pi") != "F0/pi":
+            raise p.error("Rd", "not used: d = 0 (no diffuse part)")
+    else:
+        value = data.get("Rd", "F0/pi")
+        if isinstance(value, str):
+            if value != "F0/pi":
+                raise p.error("Rd", f'must be "F0/pi", a number or a list over {band_key}, got {value!r}')
+            diffuse = "F0/pi"
+        elif _is_number(value):
+            diffuse, rd = "constant", np.asarray(p.number(value, "Rd", 0))
+        else:
+            diffuse, rd = "spectrum", p.spectrum("Rd", nbands, band_key, 0, math.inf)
+
+    fresnel, spectral = _fresnel(p, table, s > 0 or diffuse == "F0/pi", nbands, band_key)
+    structure = Structure(
+        lobes=len(ms),
+        distribution=distribution,
+        geometry=geometry,
+        fresnel=fresnel,
+        diffuse=diffuse,
+        normalization=normalization,
+    )
+    params = Params(
+        s=np.asarray(s) if structure.has_s else None,
+        m=np.asarray(ms) if ms else None,
+        w=np.asarray(ws) if ms else None,
+        rd=rd,
+        **spectral,
+    )
+    return Material(structure, params, wavelength_nm=wl, channels=channels, name=name, meta=meta, band_unknown=band_unknown)
+
+
+def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tuple[str, dict]:
+    """The Fresnel form and its per-band parameters ({"f0" | "n" | "k": array})."""
+    data = p.data
+    keys = [k for k in ("F0", "n", "k") if k in data]
+    if not needed:
+        for key in keys + (["fresnel"] if "fresnel" in data else []):
+            raise p.error(key, 'not used: no specular part (s = 0) and Rd is not "F0/pi"')
+        return "f0", {}
+    explicit = data.get("fresnel")
+    if explicit is not None and explicit not in FRESNELS:
+        raise p.error("fresnel", f"must be one of {list(FRESNELS)}, got {explicit!r}")
+    if table is not None:
+        if keys:
+            raise p.error(keys[0], "give either optical_constants or F0/n/k, not both")
+        mode = explicit or "conductor"
+        values = {"F0": table["F0"], "n": table["n"], "k": table["k"]}
+    else:
+        mode = explicit or ("conductor" if "k" in data else "f0" if "F0" in data else "n" if "n" in data else None)
+        if mode is None:
+            raise p.error("F0", f"missing: give F0, n, or n and k over {band_key} (or optical_constants)")
+        for key in _FRESNEL_KEYS[mode]:
+            if key not in data:
+                raise p.error(key, f'missing: fresnel = "{mode}" needs {" and ".join(_FRESNEL_KEYS[mode])}')
+        if "k" in data and mode != "conductor":
+            raise p.error("k", f'only with fresnel = "conductor", not "{mode}"')
+        # a conductor's n may be 0 (a fit on its bound, F0 = 1); a real index must be > 0
+        bounds = {"F0": (0, 1, False), "n": (0, math.inf, mode != "conductor"), "k": (0, math.inf, False)}
+        values = {
+            key: p.spectrum(key, nbands, band_key, *bounds[key], allow_null=key not in _FRESNEL_KEYS[mode])
+            for key in keys
+        }
+        derived = {
+            "f0": ("n", lambda: _n_from_f0(values["F0"])),
+            "n": ("F0", lambda: _f0_from_n(values["n"])),
+            "conductor": ("F0", lambda: _f0_from_nk(values["n"], values["k"])),
+        }[mode]
+        if derived[0] in values:
+            given, expected = values[derived[0]], derived[1]()
+            ok = np.isnan(given) | ~np.isfinite(expected) | np.isclose(given, expected, rtol=1e-6, atol=1e-9)
+            if not np.all(ok):
+                i = int(np.argmin(ok))
+                raise p.error(
+                    f"{derived[0]}[{i}]",
+                    f'{float(given[i])!r} is inconsistent with fresnel = "{mode}" ({float(expected[i])!r} expected)',
+                )
+    return mode, {key.lower(): values[key] for key in _FRESNEL_KEYS[mode]}
+
+
+# --- writing ------------------------------------------------------------------------------------
+
+
+def float_list(a) -> list:
+    return [float(x) for x in np.asarray(a, dtype=float).reshape(-1)]
+
+
+def jsonable(x):
+    """Plain Python values for JSON: arrays to lists, non-finite floats to None (null)."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if x is None or isinstance(x, str):
+        return x
+    if isinstance(x, (datetime.date, datetime.time)):
+        return x.isoformat()
+    if hasattr(x, "__array__"):
+        return jsonable(np.asarray(x).tolist())
+    raise TypeError(f"cannot write a {type(x).__name__} to a material file")
+
+
+def material_to_dict(material: Material, extra: dict | None = None) -> dict:
+    """The material as a fit-result document (plain JSON-ready values, ``docs/formats.md``).
+
+    Always written: ``name``, ``s``, ``d``, ``distribution``, ``geometry``, ``normalization``,
+    the bands, and, when the material has Fresnel parameters, ``fresnel``, ``F0`` and ``n``
+    (``k`` for a conductor); lobes in ascending m. A part whose fraction is exactly 0 (s = 0 or
+    d = 0, e.g. a fit at its bound) is left out, as the format requires; the BRDF is unchanged.
+    ``material.meta`` and then ``extra`` (e.g. ``fit``, ``uncertainty``) follow; they may not
+    reuse a model key. Non-finite numbers (fit statistics, the effective index of F0 = 1) become
+    null. What is written always reads back (:func:`material_from_dict`): a material whose
+    parameters are not finite (a failed fit), or that would not read back for another reason,
+    raises :class:`MaterialError` instead.
+    """
+    _check_finite(material)
+    st, p = material.structure, material.params
+    out: dict = {"name": material.name}
+    s = float(p.s) if st.has_s else (1.0 if st.has_specular else 0.0)
+    out["s"], out["d"] = s, 1.0 - s
+    specular, diffuse = st.has_specular and s > 0, st.diffuse if s < 1 else None
+    if specular:
+        m, w = float_list(p.m), float_list(p.w)
+        if abs(math.fsum(w) - 1) > _TOL:  # float32 weights sum to 1 only to ~1e-7; the format asks 1e-9
+            w = [x / math.fsum(w) for x in w]
+        out["lobes"] = [{"m": m[j], "weight": w[j]} for j in sorted(range(len(m)), key=m.__getitem__)]
+    out["distribution"], out["geometry"], out["normalization"] = st.distribution, st.geometry, st.normalization
+    if material.channels is not None:
+        out["channels"] = list(material.channels)
+    elif material.wavelength_nm is not None:
+        out["wavelength_nm"] = float_list(material.wavelength_nm)
+    else:
+        raise MaterialError(f"material {material.name!r} has neither wavelength_nm nor channels")
+    if material.band_unknown:
+        out["band_unknown"] = True
+    if specular or diffuse == "F0/pi":
+        out["fresnel"] = st.fresnel
+        if st.fresnel == "f0":
+            f0 = np.asarray(p.f0, dtype=float)
+            out["F0"], out["n"] = float_list(f0), float_list(_n_from_f0(f0))
+        else:
+            n = np.asarray(p.n, dtype=float)
+            k = np.asarray(p.k, dtype=float) if st.fresnel == "conductor" else None
+            out["F0"] = float_list(_f0_from_n(n) if k is None else _f0_from_nk(n, k))
+            out["n"] = float_list(n)
+            if k is not None:
+                out["k"] = float_list(k)
+    if diffuse == "F0/pi":
+        out["Rd"] = "F0/pi"
+    elif diffuse == "constant":
+        out["Rd"] = float(p.rd)
+    elif diffuse == "spectrum":
+        out["Rd"] = float_list(p.rd)
+    for key, value in {**material.meta, **(extra or {})}.items():
+        if key in _MODEL_KEYS:
+            raise MaterialError(f"material {material.name!r}: extra key {key!r} would replace a model key")
+        out[key] = value
+    out = jsonable(out)
+    try:
+        material_from_dict(out, source=f"material {material.name!r}")
+    except MaterialError as err:
+        raise MaterialError(f"{err} (while saving: the document would not read back)") from None
+    return out
+
+
+def _check_finite(material: Material) -> None:
+    """A parameter that is not finite (a fit that failed) has no material document."""
+    st = material.structure
+    fresnel = {"f0": ("f0",), "n": ("n",), "conductor": ("n", "k")}[st.fresnel] if st.needs_fresnel_params else ()
+    for name, key in (("s", "s"), ("m", "lobes[].m"), ("w", "lobes[].weight"), ("f0", "F0"), ("n", "n"), ("k", "k"), ("rd", "Rd")):
+        value = getattr(material.params, name) if name in ("s", "m", "w", "rd") or name in fresnel else None
+        if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
+            raise MaterialError(
+                f"material {material.name!r}: parameter {key} is not finite ({float_list(value)}): the fit failed, "
+                "there is no material to save"
+            )
+
+
+def save_material_json(material: Material, path, extra: dict | None = None) -> pathlib.Path:
+    """Write :func:`material_to_dict` as JSON atomically (:func:`~ctfit._io.files.atomic_write`)."""
+    path = pathlib.Path(path)
+    text = json.dumps(material_to_dict(material, extra), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    atomic_write(path, [text])
+    return path

@@ -1,0 +1,212 @@
+"""Where results may be written: checked before any work, so that no command loses a user's file.
+
+The commands call these before reading data or starting JAX: an output that is one of the
+inputs, a read-only file, a folder that cannot be created or written, or an HDF5 chain that
+would be wiped is refused with an :class:`OutputError` naming the user's path and the option.
+The writing itself is :func:`ctfit._io.files.atomic_write`.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import stat
+from pathlib import Path
+
+from .files import writes_in_place
+
+__all__ = [
+    "OutputError",
+    "check_output",
+    "check_output_folder",
+    "check_backend",
+    "result_targets",
+    "unconverged_target",
+]
+
+
+class OutputError(ValueError):
+    """An output path that would lose or damage a file, or cannot be written; the message names it."""
+
+
+def _identity(p: Path):
+    """What makes two paths the same file: device and inode where it exists, else the resolved path."""
+    try:
+        st = p.stat()
+        return ("inode", st.st_dev, st.st_ino)
+    except OSError:
+        return ("path", str(p.resolve()))
+
+
+@functools.lru_cache(maxsize=4096)
+def _input_identity(p: str):
+    """:func:`_identity` of an input, looked up once per run (inputs are read, never written)."""
+    return _identity(Path(p))
+
+
+
+
+def _at(option: str, path) -> str:
+    return f"{option} {path}" if option else str(path)
+
+
+def _folder_ok(folder: Path, shown: Path, option: str) -> None:
+    """Create ``folder`` if needed and check that files can be made in it (``shown``: the user's path)."""
+    blocker = next((p for p in (folder, *folder.parents) if p.exists() or p.is_symlink()), None)
+    if blocker is not None and not blocker.is_dir():
+        raise OutputError(f"{_at(option, shown)}: {blocker} is a file, not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputError(f"{_at(option, shown)}: cannot create the folder {folder} ({e.strerror})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise OutputError(f"{_at(option, shown)}: the folder {folder} is not writable")
+
+
+def _writable_file(path: Path, shown: Path, option: str) -> None:
+    """Refuse an existing regular file without write permission.
+
+    A file whose mode has no write bit (``chmod a-w``) is refused even for root, who could
+    write it anyway: the mode says the user wants it kept.
+    """
+    st = path.stat()
+    if not st.st_mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH) or not os.access(path, os.W_OK):
+        raise OutputError(
+            f"{_at(option, shown)}: the file is read-only (mode {stat.filemode(st.st_mode)}); "
+            "make it writable (chmod u+w) or choose another name"
+        )
+
+
+def check_output(path, inputs=(), *, option: str = "-o") -> Path:
+    """Check, before any work, that a result may be written to the file ``path``; return it.
+
+    Refused (:class:`OutputError`): ``path`` is the same file as one of ``inputs``; it is a
+    folder; it exists and is read-only (no write bit in its mode, even for root, or not writable
+    by this user); its folder cannot be created or written. Missing parent folders are created.
+    Messages start with ``option`` and the path (``option=""``: the path alone).
+    A symbolic link is checked at its target (the write goes through it); a device or FIFO
+    (``/dev/null``, ``/dev/stdout``) is accepted as it is.
+    """
+    path = Path(path)
+    if writes_in_place(path):  # nothing there to lose (a terminal may be both input and output)
+        return path
+    mine = _identity(path)  # once, compared with every input's (each looked up once per run)
+    for inp in inputs:
+        if inp is not None and mine == _input_identity(str(Path(inp))):
+            raise OutputError(f"{_at(option, path)}: is the input {inp}; write the result to another file")
+    if path.is_dir():
+        raise OutputError(f"{_at(option, path)}: is a folder; give a file name")
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path  # written through: check where it leads
+    if target.exists():
+        _writable_file(target, path, option)
+    _folder_ok(target.parent, path, option)
+    return path
+
+
+def check_output_folder(path, option: str = "-o") -> Path:
+    """Check, before any work, that results may be written into the folder ``path`` (created if missing)."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"{_at(option, path)}: is a file, not a folder")
+    _folder_ok(path, path, option)
+    return path
+
+
+def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--resume", "--overwrite"), option: str = "--backend") -> Path:
+    """Check an HDF5 chain file before sampling: a stored chain is never wiped unasked.
+
+    An existing, non-empty ``path`` needs ``resume`` (continue the chain there; refused when
+    the file is not HDF5) or ``overwrite`` (start again); ``flags`` name the two in messages
+    (the command's options, or the library's ``resume=True`` / ``overwrite=True``). The other
+    checks are :func:`check_output`'s.
+    """
+    path = Path(path)
+    if resume and overwrite:
+        raise OutputError(f"{flags[0]} and {flags[1]} exclude each other: continue the stored chain, or start again")
+    check_output(path, inputs, option=option)
+    if overwrite or not path.is_file() or path.stat().st_size == 0:
+        return path
+    if not resume:
+        raise OutputError(
+            f"{_at(option, path)}: the file exists; continue the chain stored there with {flags[0]}, "
+            f"or start again (replacing it) with {flags[1]}"
+        )
+    import h5py
+
+    if not h5py.is_hdf5(path):
+        raise OutputError(f"{_at(option, path)}: is not an HDF5 file, so it holds no chain to continue")
+    return path
+
+
+def _names(paths: list[Path]) -> list[str]:
+    """Distinct file stems: shared names get their parent folders' names in front (a/x, b/x → a-x, b-x),
+    and a number where the folders cannot tell them apart."""
+    parts = [Path(os.path.abspath(p)).parent.parts[1:] for p in paths]
+    level = [0] * len(paths)
+
+    def name(i: int) -> str:
+        k = min(level[i], len(parts[i]))
+        return "-".join([*parts[i][len(parts[i]) - k :], paths[i].stem])
+
+    while True:
+        seen: dict[str, list[int]] = {}
+        for i in range(len(paths)):
+            seen.setdefault(name(i).casefold(), []).append(i)
+        clashes = [g for g in seen.values() if len(g) > 1]
+        grow = [i for g in clashes for i in g if level[i] < len(parts[i])]
+        if not grow:
+            break
+        for i in grow:
+            level[i] += 1
+    out = [name(i) for i in range(len(paths))]
+    used = {n.casefold() for n in out}
+    count: dict[str, int] = {}
+    for i, n in enumerate(out):
+        key = n.casefold()
+        count[key] = count.get(key, 0) + 1
+        if count[key] > 1:  # the same folders all the way up: number the later ones
+            j = count[key]
+            while f"{n}-{j}".casefold() in used:
+                j += 1
+            out[i] = f"{n}-{j}"
+            used.add(out[i].casefold())
+    return out
+
+
+def result_targets(inputs, folder, suffix: str) -> dict[Path, Path]:
+    """One result file in ``folder`` per input: ``<stem><suffix>`` (``x.csv`` → ``x.fit.json``).
+
+    Inputs that share a stem get their parent folders' names in front, as many as it takes
+    (``a/x.csv``, ``b/x.csv`` → ``a-x.fit.json``, ``b-x.fit.json``; compared ignoring case), then
+    a number. The names depend only on the inputs, in order, so two suffixes (``.fit.json``,
+    ``.fit.png``) pair up. Keys are the inputs as given; the same input twice has one target.
+    """
+    paths = list(dict.fromkeys(Path(p) for p in inputs))
+    folder = Path(folder)
+    return {p: folder / (n + suffix) for p, n in zip(paths, _names(paths))}
+
+
+def _holds_converged_fit(path: Path) -> bool:
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(doc, dict) and isinstance(doc.get("fit"), dict) and doc["fit"].get("converged") is True
+
+
+def unconverged_target(target) -> tuple[Path, str | None]:
+    """Where a fit that did not converge is written, and what to tell the user.
+
+    If ``target`` holds a converged fit (its JSON ``fit.converged`` is true), it is kept and the
+    new result goes beside it, ``<name>.not-converged.json``; otherwise the result goes to
+    ``target``, and the message says when that replaces a file. ``None``: nothing to say.
+    """
+    target = Path(target)
+    if _holds_converged_fit(target):
+        stem = target.name[: -len(".json")] if target.name.endswith(".json") else target.name
+        beside = target.with_name(stem + ".not-converged.json")
+        return beside, f"{target} holds a converged fit and is kept; the fit that did not converge is written to {beside}"
+    if target.exists() and not writes_in_place(target):
+        return target, f"{target} replaced by a fit that did not converge"
+    return target, None

@@ -1,0 +1,61 @@
+"""One entry point for every measurement format: :func:`read_measurement` picks the reader.
+
+``.csv`` → measurement CSV (:func:`~ctfit.read_csv`), ``.binary`` → MERL (:func:`~ctfit.read_merl`),
+``.alta`` → ALTA text (:func:`~ctfit.read_alta`). ``.dat`` files and files with another
+extension are recognised by their content (a ``#DIM`` line: ALTA; a header naming ``theta_i``:
+CSV; a MERL-sized file with MERL dimensions: MERL); an unrecognised ``.dat`` is read as ALTA,
+whose reader then says what is missing.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+
+from .alta import read_alta
+from .csv_files import read_csv
+from .errors import DataError
+from .._model import Measurement
+from .merl import MERL_FILE_BYTES, MERL_SHAPE, read_merl
+
+__all__ = ["READERS", "read_measurement", "reader_for"]
+
+READERS = {".csv": read_csv, ".binary": read_merl, ".alta": read_alta}
+_SNIFF_BYTES = 64 * 1024
+
+
+def read_measurement(path, **options) -> Measurement:
+    """Read BRDF samples from a measurement CSV, a MERL ``.binary`` or an ALTA text file.
+
+    ``options`` go to the reader (e.g. ``param_out=`` for an ALTA file without ``#PARAM_OUT``).
+    A file in no supported format raises :class:`~ctfit.DataError` listing the formats.
+    """
+    return reader_for(path)(path, **options)
+
+
+def reader_for(path):
+    """The reader of ``path``: by its suffix, else by its content (``.dat``: ALTA text)."""
+    suffix = pathlib.Path(path).suffix.lower()
+    reader = READERS.get(suffix) or _sniff(path) or (read_alta if suffix == ".dat" else None)
+    if reader is None:
+        raise DataError(
+            f"unknown measurement format{f' {suffix!r}' if suffix else ''}: supported are .csv (measurement CSV), "
+            ".binary (MERL BRDF database) and .alta or .dat (ALTA text); see docs/measurement-formats.md",
+            path=path,
+        )
+    return reader
+
+
+def _sniff(path):
+    """The reader for a file recognised by its content, or None."""
+    with open(path, "rb") as f:
+        head = f.read(_SNIFF_BYTES)
+    if os.path.getsize(path) == MERL_FILE_BYTES and head[:12] == b"".join(d.to_bytes(4, "little") for d in MERL_SHAPE):
+        return read_merl
+    for line in head.decode("utf-8", errors="replace").splitlines():
+        line = line.strip()
+        if line.startswith(("#DIM", "#PARAM_IN", "#PARAM_OUT")):
+            return read_alta
+        if line and not line.startswith("#"):
+            return read_csv if "theta_i" in line and "," in line else None
+    return None

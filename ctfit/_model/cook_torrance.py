@@ -1,0 +1,152 @@
+"""The Cook–Torrance BRDF R = s R_s + d R_d (Cook & Torrance 1982, eqs. 1–2, 5).
+
+R_s = K · F(V·H, λ) · Σ_j w_j D̂(α; m_j) G_j / ((N·L)(N·V)) with K = 1/(4π) ("normalized") or
+1/π ("cook-torrance-1982"), D̂ the distribution without its 1/π (``_distribution``), G the
+shadowing term (``_shadowing``; shared by all lobes for the V-cavity, per lobe for Smith).
+R_d is F0/π, a spectrum, or a constant. Values are in sr⁻¹, not multiplied by any cosine,
+and 0 for directions on or below the horizon.
+
+Work is split by what it depends on: everything that depends on the direction only — D̂, G and
+the lobe sum — is computed once per direction (:func:`specular_geometric`), and the spectral part
+(F and R_d) per band. Only the terms the :class:`~ctfit.Structure` uses are traced.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from .distribution import beckmann, gaussian
+from .fresnel_equations import (
+    f0_from_n,
+    f0_from_nk,
+    fresnel_conductor,
+    fresnel_dielectric,
+    fresnel_dielectric_f0,
+)
+from .directions import Geometry
+from .material import Params, Structure
+from .shadowing import smith_g1_reduced, smith_rational_g1_reduced, v_cavity_reduced
+
+__all__ = [
+    "brdf",
+    "brdf_pairs",
+    "specular_geometric",
+    "fresnel",
+    "normal_reflectance",
+    "diffuse_reflectance",
+    "ambient_reflectance",
+    "specular_constant",
+]
+
+_INV_PI = 0.3183098861837907
+
+
+def specular_constant(structure: Structure) -> float:
+    """K in R_s = K F D̂ G/((N·L)(N·V)): 1/(4π) normalised, 1/π for the paper's literal form."""
+    return 0.25 * _INV_PI if structure.normalization == "normalized" else _INV_PI
+
+
+def _distribution(structure: Structure, tan2, m):
+    if structure.distribution == "beckmann":
+        return beckmann(tan2, m)
+    return gaussian(tan2, m, normalized=structure.normalization == "normalized")
+
+
+def specular_geometric(structure: Structure, params: Params, geom: Geometry):
+    """K Σ_j w_j D̂(α; m_j) G_j/((N·L)(N·V)) per direction: everything in R_s but F."""
+    m, w = params.m, params.w
+    # The lobe sum (eq. 5) is unrolled (lobes is static and small): no reduce op, so XLA fuses
+    # it with F into one loop (and it avoids an XLA CPU miscompilation of a small reduction
+    # whose result is broadcast over the bands, see tests/test_brdf.py).
+    total = None
+    for j in range(structure.lobes):
+        term = w[j] * _distribution(structure, geom.tan2_h, m[j])
+        if structure.geometry != "v-cavity":  # Smith: G1(L) G1(V) per lobe, exact or rational
+            g1 = smith_g1_reduced if structure.geometry == "smith" else smith_rational_g1_reduced
+            term = term * g1(geom.cos_l, geom.sin_l, m[j]) * g1(geom.cos_v, geom.sin_v, m[j])
+        total = term if total is None else total + term
+    if structure.geometry == "v-cavity":
+        total = v_cavity_reduced(geom.cos_l, geom.cos_v, geom.cos_h, geom.cos_vh) * total
+    return specular_constant(structure) * total
+
+
+def fresnel(structure: Structure, params: Params, cos_vh):
+    """F(V·H) with the material's Fresnel form; ``cos_vh`` broadcasts against the band axis."""
+    if structure.fresnel == "f0":
+        return fresnel_dielectric_f0(cos_vh, params.f0)
+    if structure.fresnel == "n":
+        return fresnel_dielectric(cos_vh, params.n)
+    return fresnel_conductor(cos_vh, params.n, params.k)
+
+
+def normal_reflectance(structure: Structure, params: Params):
+    """F0 per band from whichever Fresnel parameters the material has."""
+    if structure.fresnel == "f0":
+        return params.f0
+    if structure.fresnel == "n":
+        return f0_from_n(params.n)
+    return f0_from_nk(params.n, params.k)
+
+
+def diffuse_reflectance(structure: Structure, params: Params):
+    """R_d in sr⁻¹ per band (or scalar): F0/π, the ``rd`` spectrum, or the ``rd`` constant."""
+    if structure.diffuse == "F0/pi" or structure.diffuse is None:
+        return normal_reflectance(structure, params) * _INV_PI
+    return params.rd
+
+
+def ambient_reflectance(structure: Structure, params: Params):
+    """The paper's ambient reflectance R_a = π R_d (§2.1), R_d as in :func:`diffuse_reflectance`.
+
+    For a material without a diffuse part the default R_d = F0/π is used, so a metal still
+    reflects ambient light with its normal reflectance.
+    """
+    return jnp.pi * diffuse_reflectance(structure, params)
+
+
+def combine_parts(structure: Structure, params: Params, geom_valid, spec, cos_vh):
+    """s R_s + d R_d from the per-direction factor ``spec`` (already broadcast to the bands)."""
+    if structure.has_specular:
+        rs = fresnel(structure, params, cos_vh) * spec
+    if not structure.has_diffuse:
+        out = rs
+    else:
+        rd = diffuse_reflectance(structure, params)
+        if structure.has_s:
+            out = params.s * rs + (1 - params.s) * rd
+        else:
+            out = jnp.broadcast_to(rd, jnp.broadcast_shapes(jnp.shape(geom_valid), jnp.shape(rd)))
+    return jnp.where(geom_valid, out, 0)
+
+
+def brdf(structure: Structure, params: Params, geom: Geometry):
+    """R for every direction pair × every band: shape ``geom.shape + (bands,)``.
+
+    Per-band fields of ``params`` (f0, n, k, rd) have shape (bands,). D and G are evaluated once
+    per direction, F once per (direction, band).
+    """
+    valid = geom.valid[..., None]
+    if not structure.has_specular:
+        return combine_parts(structure, params, valid, None, None)
+    spec = specular_geometric(structure, params, geom)[..., None]
+    return combine_parts(structure, params, valid, spec, geom.cos_vh[..., None])
+
+
+def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band):
+    """R for samples that each have their own direction pair and band index ``band`` (int array).
+
+    The scattered layout of a measurement file: per-band parameters are gathered per sample.
+    """
+    gathered = Params(
+        s=params.s,
+        m=params.m,
+        w=params.w,
+        f0=None if params.f0 is None else params.f0[band],
+        n=None if params.n is None else params.n[band],
+        k=None if params.k is None else params.k[band],
+        rd=None if params.rd is None or jnp.ndim(params.rd) == 0 else params.rd[band],
+    )
+    if not structure.has_specular:
+        return combine_parts(structure, gathered, geom.valid, None, None)
+    spec = specular_geometric(structure, params, geom)
+    return combine_parts(structure, gathered, geom.valid, spec, geom.cos_vh)

@@ -1,0 +1,128 @@
+"""Directions and the per-direction quantities the model needs, computed once per direction pair.
+
+Conventions (stated once here, and in ``docs/conventions.md``):
+
+- The local frame has the surface normal N = +z. θ is the polar angle from N, φ the azimuth
+  from +x towards +y. Angles in files and on the command line are in degrees; the functions
+  here that take angles say so in their names (``*_deg``).
+- L (light, "incident", ``i``) and V (viewer, "outgoing", ``o``) both point *away* from the
+  surface. The mirror direction of (θ_i, φ_i) is (θ_i, φ_i + 180°).
+- H = (L + V)/|L + V| is the microfacet normal that reflects L into V (paper, §2.2); α is the
+  angle between N and H.
+- Directions on or below the horizon (N·L ≤ 0 or N·V ≤ 0) have a BRDF of 0.
+
+Everything that depends on direction only (cosines, tan²α, sines for Smith's G) is collected in
+:class:`Geometry`, so the spectral part of the model touches each direction once.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array
+
+from .numerics import safe_sqrt
+
+__all__ = ["Geometry", "geometry", "direction_from_angles_deg", "geometry_from_angles_deg"]
+
+
+class Geometry(eqx.Module):
+    """Per-direction-pair quantities (all broadcast to one batch shape).
+
+    Fields: ``cos_l`` = N·L, ``cos_v`` = N·V, ``sin_l``, ``sin_v``, ``cos_h`` = N·H,
+    ``tan2_h`` = tan²α, ``cos_vh`` = V·H (= L·H), and ``valid`` (both directions strictly
+    above the horizon). Invalid entries hold harmless stand-in values (a normal-incidence
+    configuration) so that no NaN is produced; the BRDF masks them to 0.
+    """
+
+    cos_l: Array
+    cos_v: Array
+    sin_l: Array
+    sin_v: Array
+    cos_h: Array
+    tan2_h: Array
+    cos_vh: Array
+    valid: Array
+
+
+def _components(x):
+    return x[..., 0], x[..., 1], x[..., 2]
+
+
+def _dot(a, b):
+    # Written out, not jnp.sum(a * b, -1): no reduce op, so XLA fuses it with the rest (and it
+    # avoids an XLA CPU miscompilation of small reductions, see tests/test_brdf.py).
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross_norm2(a, b):
+    cx = a[1] * b[2] - a[2] * b[1]
+    cy = a[2] * b[0] - a[0] * b[2]
+    cz = a[0] * b[1] - a[1] * b[0]
+    return cx * cx + cy * cy + cz * cz
+
+
+def geometry(l, v, n=None) -> Geometry:
+    """Geometry of unit vectors ``l`` (to the light) and ``v`` (to the viewer), shape (..., 3).
+
+    ``n`` is the unit surface normal (default +z). Sines and tan²α come from cross products,
+    not from 1 − cos², so they keep full relative precision near normal incidence and at the
+    specular peak.
+    """
+    l = jnp.asarray(l)
+    v = jnp.asarray(v)
+    lc, vc = _components(l), _components(v)
+    if n is None:
+        # N = +z: N·x is the z component and |N × x|² = x_x² + x_y².
+        cos_l, cos_v = lc[2], vc[2]
+    else:
+        nc = _components(jnp.asarray(n, dtype=l.dtype))
+        cos_l, cos_v = _dot(nc, lc), _dot(nc, vc)
+    valid = (cos_l > 0) & (cos_v > 0)
+    # Stand-ins for invalid pairs: L = V = N.
+    if n is None:
+        zero, one = jnp.zeros((), l.dtype), jnp.ones((), l.dtype)
+        nc = (zero, zero, one)
+    lc = tuple(jnp.where(valid, a, b) for a, b in zip(lc, nc))
+    vc = tuple(jnp.where(valid, a, b) for a, b in zip(vc, nc))
+    cos_l = jnp.where(valid, cos_l, 1)
+    cos_v = jnp.where(valid, cos_v, 1)
+    hc = tuple(a + b for a, b in zip(lc, vc))
+    h_len = jnp.sqrt(_dot(hc, hc))  # > 0: both directions are above the horizon
+    if n is None:
+        h_n = hc[2]
+        sin2_l = lc[0] * lc[0] + lc[1] * lc[1]
+        sin2_v = vc[0] * vc[0] + vc[1] * vc[1]
+        sin2_h = hc[0] * hc[0] + hc[1] * hc[1]
+    else:
+        h_n = _dot(nc, hc)
+        sin2_l, sin2_v, sin2_h = _cross_norm2(nc, lc), _cross_norm2(nc, vc), _cross_norm2(nc, hc)
+    return Geometry(
+        cos_l=cos_l,
+        cos_v=cos_v,
+        sin_l=safe_sqrt(sin2_l),
+        sin_v=safe_sqrt(sin2_v),
+        cos_h=h_n / h_len,
+        tan2_h=sin2_h / (h_n * h_n),
+        cos_vh=0.5 * h_len,
+        valid=valid,
+    )
+
+
+def direction_from_angles_deg(theta, phi):
+    """Unit vector(s) for polar angle θ and azimuth φ in degrees, shape (..., 3).
+
+    cos θ is computed as sin(90° − θ), so θ = 90° gives exactly 0 (on the horizon) in every
+    dtype, and θ = 0 gives exactly (0, 0, 1).
+    """
+    theta = jnp.asarray(theta)
+    phi = jnp.mod(jnp.asarray(phi), 360)
+    st = jnp.sin(jnp.deg2rad(theta))
+    ct = jnp.sin(jnp.deg2rad(90 - theta))
+    phi_r = jnp.deg2rad(phi)
+    return jnp.stack([st * jnp.cos(phi_r), st * jnp.sin(phi_r), ct], axis=-1)
+
+
+def geometry_from_angles_deg(theta_i, phi_i, theta_o, phi_o) -> Geometry:
+    """:func:`geometry` for angles in degrees (the measurement-CSV convention)."""
+    return geometry(direction_from_angles_deg(theta_i, phi_i), direction_from_angles_deg(theta_o, phi_o))

@@ -1,0 +1,173 @@
+"""A material: its static structure, its parameters (a pytree) and the spectral bands they live on.
+
+The structure (number of lobes, distribution, geometry term, Fresnel form, presence of a
+specular and of a diffuse part, normalisation) is static: it decides which terms the compiled
+model contains. Parameters a structure does not use are ``None`` in :class:`Params` — they do
+not exist in the pytree, so they are neither traced nor fitted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import equinox as eqx
+import numpy as np
+from jaxtyping import Array
+
+from .measurement import band_labels
+
+__all__ = ["Structure", "Params", "Material", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "MAX_LOBES"]
+
+DISTRIBUTIONS = ("beckmann", "gaussian")
+GEOMETRIES = ("v-cavity", "smith", "smith-rational")
+MAX_LOBES = 8
+"""Most Beckmann/Gaussian lobes in one structure (paper eq. 5's weighted sum); every reader and the CLI use this."""
+FRESNELS = ("f0", "n", "conductor")
+DIFFUSES = (None, "F0/pi", "spectrum", "constant")
+NORMALIZATIONS = ("normalized", "cook-torrance-1982")
+
+
+@dataclasses.dataclass(frozen=True)
+class Structure:
+    """Static shape of a Cook–Torrance material (hashable; a jit static argument).
+
+    - ``lobes``: number of facet-slope distributions in the specular sum Σ w_j D(m_j)
+      (paper eq. 5); 0 means no specular part (s = 0).
+    - ``distribution``: "beckmann" (eq. 4) or "gaussian" (eq. 3).
+    - ``geometry``: "v-cavity" (the paper's G, eq. 8), "smith" (Beckmann–Smith, per lobe) or
+      "smith-rational" (the same with Walter et al.'s rational G1, as Mitsuba 3 evaluates it).
+    - ``fresnel``: how F is parameterised — "f0" (normal reflectance with the paper's
+      effective index, k = 0), "n" (real index, k = 0) or "conductor" (n + i k).
+    - ``diffuse``: None (d = 0), "F0/pi" (R_d = F0/π, the paper's homogeneous material),
+      "spectrum" (an independent R_d per band) or "constant" (one R_d for all bands).
+    - ``normalization``: "normalized" (R_s = F D G/(4 (N·L)(N·V)), D = D̂/π) or
+      "cook-torrance-1982" (R_s = F D̂ G/(π (N·L)(N·V))); the latter is 4× the former.
+    """
+
+    lobes: int = 1
+    distribution: Literal["beckmann", "gaussian"] = "beckmann"
+    geometry: Literal["v-cavity", "smith", "smith-rational"] = "v-cavity"
+    fresnel: Literal["f0", "n", "conductor"] = "f0"
+    diffuse: Literal["F0/pi", "spectrum", "constant"] | None = None
+    normalization: Literal["normalized", "cook-torrance-1982"] = "normalized"
+
+    def __post_init__(self):
+        if not isinstance(self.lobes, int) or not 0 <= self.lobes <= MAX_LOBES:
+            raise ValueError(f"lobes must be an integer in 0..{MAX_LOBES}, got {self.lobes!r}")
+        for name, allowed in (
+            ("distribution", DISTRIBUTIONS),
+            ("geometry", GEOMETRIES),
+            ("fresnel", FRESNELS),
+            ("diffuse", DIFFUSES),
+            ("normalization", NORMALIZATIONS),
+        ):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        if self.lobes == 0 and self.diffuse is None:
+            raise ValueError("a material needs a specular part (lobes ≥ 1) or a diffuse part")
+
+    @property
+    def has_specular(self) -> bool:
+        return self.lobes > 0
+
+    @property
+    def has_diffuse(self) -> bool:
+        return self.diffuse is not None
+
+    @property
+    def has_s(self) -> bool:
+        """Whether s is a parameter (both parts present; otherwise s is 1 or 0 exactly)."""
+        return self.has_specular and self.has_diffuse
+
+    @property
+    def needs_fresnel_params(self) -> bool:
+        return self.has_specular or self.diffuse == "F0/pi"
+
+
+class Params(eqx.Module):
+    """Parameters of a material; fields a structure does not use are None.
+
+    - ``s``: specular fraction (scalar), d = 1 − s (only when both parts exist).
+    - ``m``: rms slopes, shape (lobes,); ``w``: lobe weights, shape (lobes,), Σ w = 1.
+    - ``f0``: normal reflectance per band (fresnel "f0"); ``n``: real index per band
+      (fresnel "n" or "conductor"); ``k``: extinction coefficient per band ("conductor").
+    - ``rd``: diffuse BRDF R_d in sr⁻¹ per band ("spectrum") or a scalar ("constant").
+      An albedo ρ corresponds to R_d = ρ/π.
+    """
+
+    s: Array | None = None
+    m: Array | None = None
+    w: Array | None = None
+    f0: Array | None = None
+    n: Array | None = None
+    k: Array | None = None
+    rd: Array | None = None
+
+
+_SPECTRAL_FIELDS = ("f0", "n", "k", "rd")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Material:
+    """Structure + parameters + the bands they are given on.
+
+    ``wavelength_nm`` (for spectral materials) or ``channels`` (e.g. ("R", "G", "B")) names the
+    bands of the per-band parameters. ``name`` and ``meta`` are free text carried along.
+    ``band_unknown``: one band whose wavelength is not known (a fit of single-band data, e.g. an
+    ALTA file); ``wavelength_nm`` is then a placeholder, and the material has no colour.
+    """
+
+    structure: Structure
+    params: Params
+    wavelength_nm: np.ndarray | None = None
+    channels: tuple[str, ...] | None = None
+    name: str = ""
+    meta: dict = dataclasses.field(default_factory=dict)
+    band_unknown: bool = False
+
+    def __post_init__(self):
+        if self.band_unknown and (self.wavelength_nm is None or len(self.wavelength_nm) != 1):
+            raise ValueError(f"material {self.name!r}: band_unknown needs exactly one wavelength band (a placeholder)")
+
+    @property
+    def is_rgb(self) -> bool:
+        return self.channels is not None
+
+    @property
+    def band_labels(self) -> list[str]:
+        """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""
+        return band_labels(self.wavelength_nm, self.channels, self.band_unknown)
+
+    def params_at(self, wavelength_nm=None, channels=None) -> Params:
+        """Per-band parameters resampled to other bands.
+
+        Spectral: linear interpolation between the listed wavelengths, held at the end values
+        outside (``docs/formats.md``). RGB: the channels are picked by name.
+        """
+        p = self.params
+        if channels is not None:
+            if self.channels is None:
+                raise ValueError(f"material {self.name!r} is spectral; data asks for channels {list(channels)}")
+            missing = [c for c in channels if c not in self.channels]
+            if missing:
+                raise ValueError(f"material {self.name!r} has no channel(s) {missing}")
+            idx = [self.channels.index(c) for c in channels]
+            return _map_bands(p, lambda a: np.asarray(a)[idx])
+        if wavelength_nm is None:
+            return p
+        if self.wavelength_nm is None:
+            raise ValueError(f"material {self.name!r} has RGB channels; data asks for wavelengths")
+        wl = np.asarray(wavelength_nm, dtype=float)
+        src = np.asarray(self.wavelength_nm, dtype=float)
+
+        return _map_bands(p, lambda a: np.interp(wl, src, np.asarray(a, dtype=float)))
+
+
+def _map_bands(p: Params, fn) -> Params:
+    """Apply ``fn`` to every per-band (non-scalar) spectral field of ``p``."""
+    out = {}
+    for f in _SPECTRAL_FIELDS:
+        a = getattr(p, f)
+        out[f] = a if a is None or np.ndim(a) == 0 else fn(a)
+    return Params(s=p.s, m=p.m, w=p.w, **out)

@@ -1,0 +1,17 @@
+"""What runs the work: compiled-program caches, the Dask cluster, memory, progress output.
+
+The names the rest of the package uses, loaded on first use (``lazy_loader``).
+"""
+
+import lazy_loader
+
+__getattr__, __dir__, __all__ = lazy_loader.attach(
+    __name__,
+    submod_attrs={
+        "cluster": ['dask_client', 'prepare_worker', 'worker_count'],
+        "compile_cache": ['enable_compilation_cache', 'matplotlib_config_fallback'],
+        "memory": ['return_large_blocks'],
+        "progress": ['bar', 'echo', 'progress_enabled'],
+        "stored_programs": ['cached_call'],
+    },
+)

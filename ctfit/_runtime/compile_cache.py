@@ -1,0 +1,98 @@
+"""JAX's persistent compilation cache, and with it ctfit's store of compiled fit programs.
+
+The ``ctfit`` command calls :func:`enable_compilation_cache`; library users may too. A second
+process then skips XLA's compilation (JAX's cache) and the tracing of the fit program
+(``_runtime/stored_programs.py`` keeps it in ``ctfit-aot/`` inside the same folder). The cache is an optimisation:
+a folder that cannot be created or written (no HOME, a read-only one) gives one
+:class:`CacheWarning`, and everything runs without it.
+"""
+
+from __future__ import annotations
+
+import atexit
+import os
+import shutil
+import sys
+import tempfile
+import warnings
+from pathlib import Path
+
+__all__ = ["CacheWarning", "enable_compilation_cache", "matplotlib_config_fallback", "warn_once"]
+
+_warned: set[str] = set()
+
+
+class CacheWarning(UserWarning):
+    """The compilation cache (or the program store) is not used; the message says why and what to do."""
+
+
+def warn_once(message: str) -> None:
+    """Issue ``message`` as a :class:`CacheWarning` once per process."""
+    if message not in _warned:
+        _warned.add(message)
+        warnings.warn(message, CacheWarning, stacklevel=3)
+
+
+def _home() -> Path | None:
+    home = os.environ.get("HOME")
+    if home is None:
+        try:
+            home = str(Path.home())  # the password database
+        except (RuntimeError, KeyError):
+            return None
+    return Path(home) if os.path.isabs(home) else None
+
+
+def _default() -> Path | None:
+    home = _home()
+    return None if home is None else home / ".cache" / "ctfit" / "jax"
+
+
+def _usable(where: Path) -> str | None:
+    """Why files cannot be kept in ``where`` (created if missing), or None when they can."""
+    try:
+        where.mkdir(parents=True, exist_ok=True, mode=0o700)
+        with tempfile.TemporaryFile(dir=where):
+            pass
+    except OSError as e:
+        return f"cannot write to {where} ({e.strerror or e})"
+    return None
+
+
+def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | None:
+    """Point JAX's persistent cache at ``path``, ``$JAX_COMPILATION_CACHE_DIR`` or ~/.cache/ctfit/jax.
+
+    Returns the folder, or None (with one :class:`CacheWarning`) when it cannot be created or
+    written, or there is no home folder: JAX then runs without a persistent cache.
+    """
+    import jax
+
+    given = path or os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    where = Path(given) if given else _default()
+    problem = "no home folder (HOME is empty or relative)" if where is None else _usable(where)
+    if problem:
+        warn_once(
+            f"compilation cache off: {problem}; every run compiles again. "
+            "Set JAX_COMPILATION_CACHE_DIR to a writable folder to keep compiled programs"
+        )
+        jax.config.update("jax_compilation_cache_dir", None)
+        return None
+    jax.config.update("jax_compilation_cache_dir", str(where))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return where
+
+
+def matplotlib_config_fallback() -> str | None:
+    """Give matplotlib a temporary configuration folder (removed at exit) when HOME cannot hold
+    one, so that it runs without printing two lines about it; return the folder, or None when
+    nothing was needed (``MPLCONFIGDIR`` set, matplotlib already imported, or a usable folder)."""
+    if "MPLCONFIGDIR" in os.environ or "matplotlib" in sys.modules:
+        return None
+    base = os.environ.get("XDG_CONFIG_HOME") or (None if _home() is None else str(_home() / ".config"))
+    if base and os.path.isabs(base) and _usable(Path(base) / "matplotlib") is None:
+        return None
+    folder = tempfile.mkdtemp(prefix="ctfit-matplotlib-")
+    atexit.register(shutil.rmtree, folder, True)
+    os.environ["MPLCONFIGDIR"] = folder
+    return folder

@@ -1,0 +1,242 @@
+"""Compiled programs kept on disk, so that a new process skips tracing, lowering and compiling.
+
+JAX's persistent compilation cache (``_runtime/compile_cache.py``) saves only the XLA compile: every new process
+still traces the Python program and lowers it to HLO to compute the cache key, which for a fit
+(optimistix's solver loop, the structured normal equations, the seeds) costs seconds, and it
+leaves out programs that compile in under half a second, which a process then compiles again.
+Here the *compiled executable itself* is stored (``jax.experimental.serialize_executable``:
+loading one takes milliseconds, no tracing, lowering or compiling), keyed by everything that
+determines it:
+
+- the function's name and the source of the ctfit package (any edit invalidates every entry);
+- the versions of jax, jaxlib, equinox, optimistix, lineax and numpy, the backend, its
+  platform version, the device kind and the CPU's feature flags (executables are compiled for
+  the host's instruction set);
+- the static part of the arguments (structure, spec, solver options: their ``repr``) and the
+  shape and dtype of every array argument.
+
+An entry is used only when its key matches exactly; if it cannot be read, loaded or called
+(a truncated file, a jaxlib that cannot deserialise it), it is discarded and the program is
+compiled as usual. Entries are written atomically. The store lives in ``ctfit-aot/`` inside
+the directory of JAX's persistent cache, and only when that cache is enabled (the ``ctfit``
+command enables it; library users call :func:`ctfit._runtime.compile_cache.enable_compilation_cache`). Since
+its programs are run, the folder is made with mode 0700 and is not used (one warning) when it
+belongs to another user or others can write to it.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import importlib.metadata
+import os
+import pathlib
+import pickle
+import platform
+import stat
+import warnings
+from typing import Callable
+
+import equinox as eqx
+import jax
+from jax.experimental import serialize_executable
+
+from .compile_cache import warn_once
+from .._io import atomic_write
+
+_FORMAT = 2  # 1: jax.export programs (compiled again in every process); 2: executables
+_memory: dict[str, Callable] = {}
+_jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
+
+
+def _count_jax_cache_hit(event: str, **_) -> None:
+    global _jax_cache_hits
+    if event == "/jax/compilation_cache/cache_hits":
+        _jax_cache_hits += 1
+
+
+jax.monitoring.register_event_listener(_count_jax_cache_hit)
+_stores: dict[str, pathlib.Path | None] = {}  # cache folder → its checked store
+
+
+@functools.cache
+def _source_digest() -> str:
+    """A digest of every Python source of the package, subpackages included (by relative path)."""
+    root = pathlib.Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for p in sorted(root.rglob("*.py")):
+        h.update(p.relative_to(root).as_posix().encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def _cpu_flags() -> str:
+    try:
+        for line in pathlib.Path("/proc/cpuinfo").read_text(errors="replace").splitlines():
+            if line.startswith(("flags", "Features")):
+                return line
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+@functools.cache
+def _environment_digest() -> str:
+    versions = []
+    for dist in ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy"):
+        try:
+            versions.append(f"{dist}={importlib.metadata.version(dist)}")
+        except importlib.metadata.PackageNotFoundError:
+            versions.append(f"{dist}=?")
+    backend = jax.extend.backend.get_backend()
+    device = jax.devices()[0]
+    parts = [f"format={_FORMAT}", *versions, backend.platform, backend.platform_version, device.device_kind, _cpu_flags(), _source_digest()]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def _store() -> pathlib.Path | None:
+    """``ctfit-aot/`` in JAX's cache folder, made (mode 0700) on first use; None without a cache,
+    or (with one :class:`~ctfit._runtime.compile_cache.CacheWarning`) when the folder cannot be trusted."""
+    where = jax.config.jax_compilation_cache_dir
+    if not where or not _runtime_ready():
+        return None
+    if where not in _stores:
+        _stores[where] = _trusted(pathlib.Path(where) / "ctfit-aot")
+    return _stores[where]
+
+
+def _trusted(store: pathlib.Path) -> pathlib.Path | None:
+    """``store`` if only this user can write there: programs loaded from it are run, so nobody else
+    may plant one. Otherwise warn and go without it."""
+    try:
+        store.mkdir(mode=0o700, parents=True, exist_ok=True)
+        st = store.lstat()
+    except OSError as e:
+        problem = f"cannot be created ({e.strerror or e})"
+    else:
+        if not stat.S_ISDIR(st.st_mode):
+            problem = "is not a folder"
+        elif hasattr(os, "getuid") and st.st_uid != os.getuid():
+            problem = "belongs to another user"
+        elif st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+            problem = f"can be written by other users (mode {stat.filemode(st.st_mode)}); run chmod go-w on it"
+        else:
+            return store
+    warn_once(f"compiled-program store off: {store} {problem}; fits trace their programs again in every run")
+    return None
+
+
+def _abstract(x):
+    if eqx.is_array(x):
+        return jax.ShapeDtypeStruct(x.shape, x.dtype)
+    return x
+
+
+def _key(name: str, args: tuple) -> str | None:
+    """The entry's key, or None when the static part has no stable ``repr`` (e.g. a closure)."""
+    text = repr(jax.tree.map(_abstract, args))
+    if " at 0x" in text:
+        return None
+    config = (jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision, jax.config.jax_numpy_rank_promotion)
+    h = hashlib.sha256("\n".join([_environment_digest(), name, repr(config), text]).encode())
+    return h.hexdigest()
+
+
+@functools.cache
+def _runtime_ready() -> bool:
+    """Register the LAPACK kernels that compiled fits call (JAX does this when it lowers a
+    linear-algebra op, which a loaded executable skips: without it the call crashes). False
+    when this JAX has no such hook: then the store is not used."""
+    try:
+        from jax._src.lax.linalg import initialize_lapack
+    except ImportError:
+        return False
+    initialize_lapack()
+    return True
+
+
+def _load(path: pathlib.Path):
+    """The executable stored at ``path`` (the store is this user's alone, see :func:`_trusted`)."""
+    blob, in_tree, out_tree = pickle.loads(path.read_bytes())
+    return serialize_executable.deserialize_and_load(blob, in_tree, out_tree)
+
+
+def _save(path: pathlib.Path, compiled) -> None:
+    atomic_write(path, [pickle.dumps(serialize_executable.serialize(compiled), protocol=pickle.HIGHEST_PROTOCOL)])
+
+
+def _plain(treedef) -> bool:
+    """Whether a tree structure uses only containers that survive pickling (no custom nodes)."""
+    probe = jax.tree.unflatten(treedef, [0] * treedef.num_leaves)
+
+    def ok(x):
+        if isinstance(x, dict):
+            return all(isinstance(k, str) and ok(v) for k, v in x.items())
+        if type(x) in (list, tuple):
+            return all(ok(v) for v in x)
+        return x is None or x == 0
+
+    return ok(probe)
+
+
+def _compile_fresh(lowered):
+    """``lowered.compile()`` past JAX's persistent cache: an executable that JAX loaded from its
+    cache serialises without some of its functions, and the store keeps the program anyway."""
+    before = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    try:
+        return lowered.compile()
+    finally:
+        jax.config.update("jax_enable_compilation_cache", before)
+
+
+def cached_call(name: str, fn: Callable, *args):
+    """``fn(*args)`` through a compiled executable kept in memory and, when enabled, on disk.
+
+    ``fn`` is traced with the arrays of ``args`` (anything :func:`equinox.is_array` accepts) as
+    inputs and everything else static, as :func:`equinox.filter_jit` would. The result is the
+    same as ``eqx.filter_jit(fn)(*args)``. The output must be built of dicts, lists, tuples,
+    ``None`` and arrays only (its structure is stored with the executable, and JAX cannot
+    store the structure of an Equinox module).
+    """
+    key = _key(name, args)
+    if key is None:
+        return eqx.filter_jit(fn)(*args)
+    dynamic, static = eqx.partition(args, eqx.is_array)
+    leaves, in_def = jax.tree.flatten(dynamic)
+    run = _memory.get(key)
+    store = _store()
+    path = store / f"{name}-{key[:32]}.xla" if store is not None else None
+    if run is None and path is not None and path.is_file():
+        try:
+            run = _load(path)
+            out = jax.block_until_ready(run(*leaves))  # a damaged program fails here, not later
+        except Exception as err:  # noqa: BLE001 — a stale or damaged entry: trace instead
+            warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
+            path.unlink(missing_ok=True)
+            run = None
+        else:
+            _memory[key] = run
+            return out
+    if run is None:
+        # The program takes a flat list of arrays and returns plain containers, which is what
+        # an executable can be stored with.
+        def flat(*ls):
+            out = fn(*eqx.combine(jax.tree.unflatten(in_def, list(ls)), static))
+            if not _plain(jax.tree.structure(out)):
+                raise TypeError(f"cached_call({name!r}): the output must be built of dicts, lists, tuples, None and arrays")
+            return out
+
+        flat.__name__ = flat.__qualname__ = f"ctfit_{name}"  # the program's name in JAX's logs
+        lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
+        run = _compile_fresh(lowered) if path is not None else lowered.compile()
+        _memory[key] = run
+        # Once this process has loaded an executable from JAX's cache, executables compiled
+        # after it serialise without some of their functions ("Function … not found" when the
+        # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.
+        if path is not None and not _jax_cache_hits:
+            try:
+                _save(path, run)
+            except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
+                warnings.warn(f"could not write the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
+    return run(*leaves)

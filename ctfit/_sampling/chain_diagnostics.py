@@ -1,0 +1,106 @@
+"""How the run went: burn-in, emcee's autocorrelation time, ArviZ's ESS and R̂, and plain notes.
+
+emcee's integrated autocorrelation time τ (Sokal 1997; the "50 τ" rule) sets the default
+burn-in and says whether the chain is long enough; ArviZ's bulk/tail ESS and split-R̂
+(:mod:`ctfit._sampling.arviz_export`) are reported per quantity beside it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import math
+
+import numpy as np
+
+__all__ = ["ChainTooShortWarning", "default_burn", "run_notes", "residual_spread", "likelihood_description"]
+
+
+class ChainTooShortWarning(UserWarning):
+    """The chain (after burn-in) is shorter than 50 integrated autocorrelation times."""
+
+
+@contextlib.contextmanager
+def _quiet_emcee_log():
+    """emcee logs its own "chain too short" message; ctfit raises ChainTooShortWarning instead."""
+    logger = logging.getLogger("emcee")
+    old = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        logger.setLevel(old)
+
+
+def autocorr_time(chain_u: np.ndarray) -> np.ndarray:
+    """emcee's τ per sampled coordinate of a (steps, walkers, ndim) chain (quiet when short)."""
+    import emcee
+
+    with _quiet_emcee_log():
+        return np.asarray(emcee.autocorr.integrated_time(chain_u, quiet=True), dtype=float)
+
+
+def default_burn(chain_u: np.ndarray) -> int:
+    """max(2 τ_max, steps/10), at most steps/2 (τ from the second half of the chain)."""
+    n = chain_u.shape[0]
+    tau = autocorr_time(chain_u[n // 2 :])
+    tau_max = float(np.max(tau)) if np.all(np.isfinite(tau)) else float(n)
+    return int(min(n // 2, max(math.ceil(2 * tau_max), n // 10)))
+
+
+def run_notes(kept: int, tau: np.ndarray, labels: list[str], acceptance: np.ndarray, spread: float | None) -> list[str]:
+    """Plain notes on the run: chain shorter than 50 τ, acceptance outside 0.15–0.7, one noise scale."""
+    notes = []
+    tau_max = float(np.max(tau))
+    if kept < 50 * tau_max:
+        notes.append(
+            f"the chain is too short for reliable intervals: {kept} steps after burn-in < 50 τ_max = "
+            f"{50 * tau_max:.0f} (τ_max = {tau_max:.1f} steps, for {labels[int(np.argmax(tau))]}); run more steps"
+        )
+    if not 0.15 <= np.mean(acceptance) <= 0.7:
+        notes.append(f"mean acceptance fraction {np.mean(acceptance):.2f} is outside 0.15–0.7: the posterior may be multimodal or badly scaled")
+    if spread is not None and spread > 2:
+        notes.append(
+            f"the residuals' scale varies by ×{spread:.3g} between the lowest and highest quarter of the data "
+            f"(by value): one σ_noise for all of them is a poor noise model, and the intervals may be too narrow; "
+            "give the data a sigma column (loss 'sigma'), or use a loss whose residuals have one scale"
+        )
+    return notes
+
+
+def residual_spread(r: np.ndarray, y: np.ndarray) -> float | None:
+    """rms residual of the quarter of the samples (sorted by value) where it is largest, over the
+    quarter where it is smallest: ≈ 1 when one noise scale fits every residual (None: < 40 samples)."""
+    if r.size < 40:
+        return None
+    groups = np.array_split(np.argsort(y, kind="stable"), 4)
+    rms = np.array([np.sqrt(np.mean(r[g] ** 2)) for g in groups])
+    return float(np.max(rms) / np.min(rms)) if np.min(rms) > 0 else float("inf")
+
+
+_RESIDUAL = {
+    "sigma": "r_i = (R_i − y_i)/sigma_i",
+    "absolute": "r_i = R_i − y_i",
+    "relative": "r_i = (R_i − y_i)/R_i, R_i the model at θ (max(R_i, tiny))",
+    "cosine": "r_i = (R_i − y_i) cos θ_i",
+    "log": "r_i = log(1 + R_i cos θ_i) − log(1 + y_i cos θ_i)",
+}
+
+
+def likelihood_description(loss: str, n_obs: int, floor: float) -> dict:
+    """The ``likelihood`` section of the JSON."""
+    out = {"model": "gaussian", "loss": loss, "residual": _RESIDUAL[loss], "n_samples": n_obs}
+    if loss == "sigma":
+        return {**out, "log_likelihood": "−½ Σ r_i² + const", "noise": "the data's sigma column"}
+    out.update(log_likelihood="−N log σ_noise − ½ Σ r_i²/σ_noise² + const",
+               noise="σ_noise sampled (parameter sigma_noise); prior as in priors.parameters.sigma_noise")
+    if loss == "relative":
+        out.update(
+            log_likelihood="−Σ log R_i − N log σ_noise − ½ Σ r_i²/σ_noise² + const",
+            noise=("proportional to the model: y_i ~ N(R_i, (σ_noise R_i)²), σ_noise (a relative noise) sampled "
+                   "(parameter sigma_noise); prior as in priors.parameters.sigma_noise"),
+            note=(f"the fit's relative loss divides by max(y_i, floor) (floor = {floor:.6g}); the likelihood divides by the "
+                  "model, without a floor, so its mode is near, not at, the fit's optimum, and samples far below the peak "
+                  "count with their relative noise"),
+        )
+    return out

@@ -1,0 +1,232 @@
+"""Posterior sampling of the Cook–Torrance parameters with emcee (Foreman-Mackey et al. 2013),
+built on the least-squares fit.
+
+``sample(fit_result_or_material, data, ...)`` → :class:`SampleResult`. The run:
+
+1. the fit's optimum and its JᵀJ (:mod:`ctfit._sampling.start`; the fit is run first when the
+   material is not a fit with this loss);
+2. emcee's affine-invariant ensemble sampler on the log-posterior of
+   :mod:`ctfit._sampling.logprob` (priors of :mod:`ctfit._sampling.priors`), walkers started around the
+   optimum with its Laplace covariance, the chain kept in an HDF5 file on request
+   (:mod:`ctfit._sampling.backend`);
+3. burn-in, emcee's τ and ArviZ's ESS and R̂ (:mod:`ctfit._sampling.chain_diagnostics`,
+   :mod:`ctfit._sampling.arviz_export`), the colour of the draws (:mod:`ctfit._sampling.draw_colours`), and the
+   checks that say whether the posterior is usable (:mod:`ctfit._sampling.checks`).
+
+References
+----------
+- Foreman-Mackey, D., Hogg, D. W., Lang, D., Goodman, J. (2013). emcee: The MCMC Hammer.
+  PASP 125(925), 306. doi:10.1086/670067
+- Goodman, J., Weare, J. (2010). Ensemble samplers with affine invariance. CAMCoS 5(1), 65–80.
+  doi:10.2140/camcos.2010.5.65
+- Sokal, A. (1997). Monte Carlo methods in statistical mechanics: foundations and new
+  algorithms. In Functional Integration, 131–192.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.flatten_util import ravel_pytree
+
+from .._fitting import undetermined
+from .._model import Measurement
+from .priors import PRIOR_KINDS, describe_priors, normalise_priors
+from .._fitting import LOSSES, from_params, make_problem
+from .backend import fingerprint, open_run
+from .checks import check_posterior, fit_distance
+from .draw_colours import colour_summary, draw_colours
+from .chain_diagnostics import (
+    ChainTooShortWarning,
+    autocorr_time,
+    default_burn,
+    likelihood_description,
+    residual_spread,
+    run_notes,
+)
+from .engine import Engine
+from .logprob import Layout
+from .result import SampleResult, summarise
+from .start import fit_covariance, laplace_start, resolve_fit, start_params, start_walkers
+
+__all__ = ["sample", "SampleResult", "ChainTooShortWarning", "PRIOR_KINDS", "default_walkers", "draw_colours"]
+
+
+def default_walkers(ndim: int) -> int:
+    """max(2·ndim + 2, 32), rounded up to an even number (emcee's stretch move splits in halves)."""
+    n = max(2 * ndim + 2, 32)
+    return n + (n % 2)
+
+
+@dataclasses.dataclass
+class _Setup:
+    """One sampling problem, laid out: the fit it starts from and the compiled log-probability."""
+
+    material: object
+    loss: str
+    fixed: tuple[str, ...]
+    note: str | None
+    layout: Layout
+    prior: tuple
+    engine: Engine
+    x_u: np.ndarray  # the fit's optimum, flat, in the sampled coordinates
+    walkers: int
+
+
+def _set_up(target, data: Measurement, *, loss, fixed, priors, walkers) -> _Setup:
+    if loss is not None and loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    material, loss, fixed, note = resolve_fit(target, data, loss, fixed)
+    st = material.structure
+    dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+    start = start_params(material, data)
+    problem = make_problem(st, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, space="unconstrained")
+    u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
+    if not u0:
+        raise ValueError("nothing to sample: every parameter of the material is fixed")
+    names = tuple(sorted(u0))
+    layout = Layout(names, tuple(tuple(np.shape(u0[k])) for k in names), noise=loss != "sigma", conductor=st.fresnel == "conductor",
+                    order_lobes=st.lobes > 1 and "m" in u0, relative=loss == "relative")
+    prior = normalise_priors(priors, names, layout.noise)
+    nwalkers = default_walkers(layout.ndim) if walkers is None else int(walkers)
+    if nwalkers < 2 * layout.ndim or nwalkers % 2:
+        raise ValueError(f"walkers must be even and ≥ 2·ndim = {2 * layout.ndim}, got {nwalkers}")
+    engine = Engine(problem, layout, prior, nwalkers // 2)
+    x_u = np.asarray(ravel_pytree(u0)[0], dtype=float)
+    return _Setup(material, loss, fixed, note, layout, prior, engine, x_u, nwalkers)
+
+
+def _run(s: _Setup, x0, cov, *, steps, seed, backend, resume, overwrite, progress):
+    """Run (or continue) the chain: (sampler, steps run now, steps done before, seconds)."""
+    import emcee
+
+    labels = s.layout.labels()
+    shape = (s.walkers, s.layout.ndim)
+    be, done = open_run(backend, resume=resume, overwrite=overwrite, steps=steps, shape=shape,
+                        fingerprint=fingerprint(s.engine.problem.y, s.loss, labels), labels=labels, seed=seed)
+    sampler = emcee.EnsembleSampler(s.walkers, s.layout.ndim, s.engine, vectorize=True, backend=be)
+    state, todo = None, steps - done  # resumed: the backend's last sample and random state
+    if done == 0:
+        coords, lp = start_walkers(s.engine, x0, cov, s.walkers, np.random.default_rng(seed))
+        sampler.random_state = np.random.RandomState(seed).get_state()
+        state = emcee.State(coords, log_prob=lp)
+    t = time.perf_counter()
+    if todo > 0:
+        sampler.run_mcmc(state, todo, progress=progress)
+    return sampler, todo, done, time.perf_counter() - t
+
+
+def _checks(s: _Setup, x0, flat, draw_lp, chain, optimum) -> dict:
+    """The usability checks, with the posterior density in θ (the density in u less log|∂θ/∂u|)."""
+    lp_theta = draw_lp - s.engine.log_jacobian(flat)
+    lp_opt = float(s.engine(x0[None])[0] - s.engine.log_jacobian(x0[None])[0])
+    distance = fit_distance(flat[:, : s.layout.n_u], s.x_u, fit_covariance(s.engine, s.x_u))
+    labels = s.layout.labels()
+    loose = [labels[i] for i in np.flatnonzero(undetermined(s.engine.normal(s.x_u)[2]))]
+    return check_posterior(chain, s.prior, s.layout.fresnel, lp_theta, lp_opt, optimum, distance, loose)
+
+
+def _diagnostics(s: _Setup, sampler, *, burn, thin, todo, done, run_s, seed, backend) -> dict:
+    chain_u = np.asarray(sampler.get_chain())
+    n_steps = chain_u.shape[0]
+    tau = autocorr_time(chain_u[burn:])
+    acc = np.asarray(sampler.acceptance_fraction, dtype=float)
+    labels = s.layout.labels()
+    return {
+        "walkers": s.walkers, "ndim": s.layout.ndim, "steps": n_steps, "steps_run_now": int(max(todo, 0)), "resumed_from": done,
+        "burn": int(burn), "thin": int(thin), "seed": int(seed),
+        "acceptance_fraction": {"mean": float(np.mean(acc)), "min": float(np.min(acc)), "max": float(np.max(acc))},
+        "autocorr_time": dict(zip(labels, map(float, tau))), "autocorr_time_max": float(np.max(tau)),
+        "ess_emcee": dict(zip(labels, map(float, s.walkers * (n_steps - burn) / np.maximum(tau, 1.0)))),
+        "chain_long_enough": bool(n_steps - burn >= 50 * float(np.max(tau))),
+        "sampling_time_s": run_s, "walker_steps_per_s": (s.walkers * todo / run_s) if run_s > 0 and todo > 0 else None,
+        "backend": None if backend is None else str(backend),
+        "autocorr_note": "τ in steps, per sampled coordinate (u of ctfit._model.parameters); ess_emcee = walkers · (steps − burn)/τ; "
+                         "ess_bulk, ess_tail, r_hat: ArviZ's, per reported quantity (one chain per walker)",
+    }
+
+
+def sample(
+    fit_result_or_material, data: Measurement, *, walkers: int | None = None, steps: int = 2000, burn: int | None = None,
+    thin: int = 1, seed: int = 0, backend=None, resume: bool = False, overwrite: bool = False, progress: bool = False,
+    priors: dict | None = None, loss: str | None = None, fixed: tuple[str, ...] | None = None, colour: bool = True,
+) -> SampleResult:
+    """Sample the posterior of the material's parameters given ``data``, starting from the fit.
+
+    ``fit_result_or_material``: a :class:`~ctfit.FitResult`, or a :class:`~ctfit.Material` (a
+    loaded fit JSON is used as the fit; other values, or another ``loss``, are fitted first).
+    ``loss``: one of the fit's losses (default: the fit's, else "sigma" with a sigma column, else
+    "relative"); ``fixed``: parameters held fixed (default: the material's ``fixed`` key);
+    ``priors``: {name: (kind, *args)} (:mod:`ctfit._sampling.priors`). ``walkers`` (default
+    :func:`default_walkers`), ``steps`` per walker (the total, also when resuming), ``burn``
+    (default max(2 τ_max, steps/10), at most steps/2), ``thin``; ``seed`` fixes the start and
+    emcee's generator. ``backend``: HDF5 file of the chain; ``resume`` continues a stored run to
+    ``steps`` (bit-identical to an uninterrupted run), ``overwrite`` starts it again.
+    ``colour``: also summarise the colour (sRGB, CIELAB) of the draws.
+
+    Warns :class:`ChainTooShortWarning` when steps − burn < 50 τ_max. The result's ``usable``
+    is False, and ``problems`` says why, when the posterior left the fit, runs to a prior bound
+    or is not constrained by the data (:mod:`ctfit._sampling.checks`).
+    """
+    t0 = time.perf_counter()
+    if steps < 1 or thin < 1:
+        raise ValueError(f"steps and thin must be ≥ 1, got steps={steps}, thin={thin}")
+    if resume and backend is None:
+        raise ValueError("resume=True needs a backend (the HDF5 file of the run to continue)")
+    if backend is not None:
+        from .._io import check_backend
+
+        check_backend(backend, resume=resume, overwrite=overwrite, flags=("resume=True", "overwrite=True"), option="backend")
+    s = _set_up(fit_result_or_material, data, loss=loss, fixed=fixed, priors=priors, walkers=walkers)
+    x0, cov, laplace = laplace_start(s.engine, s.x_u)
+    sampler, todo, done, run_s = _run(s, x0, cov, steps=steps, seed=seed, backend=backend, resume=resume, overwrite=overwrite, progress=progress)
+    chain_u = np.asarray(sampler.get_chain())
+    burn = default_burn(chain_u) if burn is None else int(burn)
+    if not 0 <= burn < chain_u.shape[0]:
+        raise ValueError(f"burn must be in [0, steps), got {burn} with steps={chain_u.shape[0]}")
+    flat = np.asarray(sampler.get_chain(discard=burn, thin=thin, flat=True))
+    draw_lp = np.asarray(sampler.get_log_prob(discard=burn, thin=thin, flat=True))
+    chain = s.engine.constrained(flat)
+    optimum = {k: v[0] for k, v in s.engine.constrained(x0[None]).items()}
+    d = _diagnostics(s, sampler, burn=burn, thin=thin, todo=todo, done=done, run_s=run_s, seed=seed, backend=backend)
+    checks = _checks(s, x0, flat, draw_lp, chain, optimum)
+    return _result(s, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0)
+
+
+def _result(s: _Setup, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0) -> SampleResult:
+    """The :class:`SampleResult`: summaries, ArviZ's diagnostics, notes and warnings."""
+    problem = s.engine.problem
+    keep = np.asarray(problem.mask).reshape(-1) > 0
+    best = flat[int(np.argmax(draw_lp)), : s.layout.n_u]  # the likelihood's own best draw (the fit's optimum is another loss's)
+    spread = residual_spread(s.engine.residuals(best)[keep], np.asarray(problem.y).reshape(-1)[keep]) if s.layout.noise else None
+    tau = np.asarray(list(d["autocorr_time"].values()))
+    run = run_notes(d["steps"] - d["burn"], tau, s.layout.labels(), sampler.acceptance_fraction, spread)
+    if not d["chain_long_enough"]:  # run_notes says so first
+        warnings.warn(run[0], ChainTooShortWarning, stacklevel=3)
+    notes = ([s.note] if s.note else []) + run
+    if laplace is None:
+        notes.append("Laplace standard errors not computed: JᵀJ is singular or ill conditioned (cond > 1e12), as in the fit")
+    col = None
+    if colour:
+        col, note = colour_summary(s.material, chain)
+        notes += [note] if note else []
+    res = SampleResult(
+        material=s.material, chain=chain, chain_u=np.asarray(sampler.get_chain()), log_prob=np.asarray(sampler.get_log_prob()),
+        labels=s.layout.labels(), summary={k: summarise(v) for k, v in chain.items()}, colour=col, diagnostics=d,
+        likelihood=likelihood_description(s.loss, int(np.sum(keep)), float(problem.floor)),
+        priors=describe_priors(s.prior, s.fixed, s.layout.fresnel, s.layout.order_lobes), laplace_stderr=laplace, optimum=optimum,
+        warnings=checks["problems"] + notes, usable=checks["usable"], problems=checks["problems"],
+        checks={k: v for k, v in checks.items() if k not in ("usable", "problems")}, draw_log_prob=draw_lp,
+    )
+    from .arviz_export import diagnostics
+
+    per = diagnostics(res.to_inference_data())
+    d.update(draws=int(flat.shape[0]), ess_bulk={k: v["ess_bulk"] for k, v in per.items()}, ess_tail={k: v["ess_tail"] for k, v in per.items()},
+             r_hat={k: v["r_hat"] for k, v in per.items()}, residual_scale_ratio=spread, time_s=time.perf_counter() - t0)
+    d.update(ess_min=min(d["ess_bulk"].values(), default=float("nan")), r_hat_max=max(d["r_hat"].values(), default=float("nan")))
+    return res
