@@ -74,6 +74,8 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "residual_structure": "._fitting",
     "select_structure": "._fitting",
     "TexelFits": "._fitting",
+    "seed_params": "._fitting",
+    "read_texel_geometry": "._fitting",
     "ChainTooShortWarning": "._sampling",
     "format_uncertainty_table": "._sampling",
     "plot_corner": "._sampling",
@@ -200,6 +202,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         residual_structure as residual_structure,
         select_structure as select_structure,
         TexelFits as TexelFits,
+        seed_params as seed_params,
+        read_texel_geometry as read_texel_geometry,
     )
     from ._sampling import (
         ChainTooShortWarning as ChainTooShortWarning,

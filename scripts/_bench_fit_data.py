@@ -80,7 +80,7 @@ def write_batch(folder: Path, n_files: int, n_samples: int, seed: int) -> list[P
 
 
 def default_start_x0(lobes: int, n_bands: int, diffuse: bool) -> list[float]:
-    """ctfit's default start (``ctfit._fitting.least_squares._default_start``: m log-spaced 0.1 … 0.3, equal
+    """ctfit's default start (``ctfit.fit``'s default: m log-spaced 0.1 … 0.3, equal
     weights, F0 = 0.5, s = 0.5) in the NumPy model's coordinates (logit F0, log m, logit w, logit s)."""
     x = [np.zeros(n_bands), np.log(np.geomspace(0.1, 0.3, lobes)), np.zeros(lobes - 1)]
     return np.concatenate(x + ([np.zeros(1)] if diffuse else [])).tolist()
@@ -89,9 +89,10 @@ def default_start_x0(lobes: int, n_bands: int, diffuse: bool) -> list[float]:
 def write_merl_file(path: Path, pairs: int | None, seed: int) -> int:
     """A MERL table of the one-lobe RGB metal; ``pairs`` cells above the horizon measured (all
     when None), the rest marked unmeasured. Returns the number of samples a reader gets."""
-    from ctfit._io.merl import MERL_SHAPE, _cell_directions
-
-    (ti, pi, to, po), above = _cell_directions()
+    angles = lambda th, td, pd: ctfit.half_diff_to_angles_deg(th, td, pd)  # noqa: E731 — every cell's directions, in file order
+    ti, pi, to = (a.reshape(-1) for a in ctfit.merl_table(lambda *c: angles(*c)[:3]))
+    po = ctfit.merl_table(lambda *c: angles(*c)[3])[0].reshape(-1)
+    above = (ti < 90) & (to < 90)
     cells = np.flatnonzero(above)
     rng = np.random.default_rng([seed, 9])
     if pairs is not None:
@@ -102,7 +103,7 @@ def write_merl_file(path: Path, pairs: int | None, seed: int) -> int:
     values = noisy(mat, geometry, seed).brdf
     table = np.full((3, ti.size), np.nan)
     table[:, cells] = values.reshape(cells.size, 3).T
-    ctfit.write_merl(path, table.reshape(3, *MERL_SHAPE))
+    ctfit.write_merl(path, table.reshape(3, 90, 90, 180))
     return values.size
 
 

@@ -72,8 +72,7 @@ t = time.perf_counter(); r = ctfit.fit(d, st); second = time.perf_counter() - t
 # Step cost: a one-start fit's time per step against one evaluation of the residual, Jᵀr and
 # JᵀJ alone (the structured normal equations, jitted; best of 7). The fit's time includes its
 # set-up and report, so the ratio is an upper bound.
-from ctfit._fitting.least_squares import prepare_fit
-from ctfit._fitting.problem import normal_equations
+from ctfit.internal import normal_equations, prepare_fit
 prep = prepare_fit(d, st, start=None, fixed=(), loss="relative", dtype=jax.numpy.float64, starts=1)
 ne = jax.jit(normal_equations)
 jax.block_until_ready(ne(prep.problem, prep.u0))

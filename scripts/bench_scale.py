@@ -60,9 +60,8 @@ TEXEL_LOOP = r"""
 import sys, jax, xarray as xr
 jax.config.update("jax_enable_x64", True)
 import ctfit
-from ctfit._fitting.texel_maps import read_texel_geometry
 ctfit.enable_compilation_cache()
-geometry, _, _ = read_texel_geometry(sys.argv[1])
+geometry, _, _ = ctfit.read_texel_geometry(sys.argv[1])
 with xr.open_zarr(sys.argv[1], consolidated=False) as ds:
     values = ds["values"][: int(sys.argv[2])].values
 for row in values:
@@ -72,9 +71,8 @@ TEXEL_BATCH = r"""
 import sys, jax, xarray as xr
 jax.config.update("jax_enable_x64", True)
 import ctfit
-from ctfit._fitting.texel_maps import read_texel_geometry
 ctfit.enable_compilation_cache()
-geometry, _, _ = read_texel_geometry(sys.argv[1])
+geometry, _, _ = ctfit.read_texel_geometry(sys.argv[1])
 with xr.open_zarr(sys.argv[1], consolidated=False) as ds:
     values = ds["values"].values
 ctfit.fit_batch(geometry, ctfit.Structure(lobes=1), values=values)

@@ -132,7 +132,7 @@ def f0_true(wl):
 
 def make_case(case: Case):
     import ctfit  # noqa: PLC0415
-    from ctfit._model.evaluation import evaluate, simulate  # noqa: PLC0415
+    from ctfit import evaluate, simulate  # noqa: PLC0415
 
     wl = np.linspace(400.0, 700.0, case.bands)
     st = ctfit.Structure(lobes=case.lobes)
@@ -149,7 +149,7 @@ def _rel_rms(f, ref):
 def errors(d, m, w, f0, cost) -> dict:
     """Error measures of fitted (m, w, F0) on data set ``d`` (model evaluated by ctfit in float64)."""
     import ctfit  # noqa: PLC0415
-    from ctfit._model.evaluation import evaluate  # noqa: PLC0415
+    from ctfit import evaluate  # noqa: PLC0415
 
     m, w, f0 = (np.asarray(a, dtype=float).reshape(-1) for a in (m, w, f0))
     order = np.argsort(m)
@@ -176,7 +176,7 @@ def errors(d, m, w, f0, cost) -> dict:
 def run_ctfit(d, cfg: Config) -> dict:
     import jax.numpy as jnp  # noqa: PLC0415
 
-    from ctfit._fitting.least_squares import fit  # noqa: PLC0415
+    from ctfit import fit  # noqa: PLC0415
 
     dtype = getattr(jnp, cfg.dtype)
 
@@ -199,23 +199,18 @@ def run_ctfit(d, cfg: Config) -> dict:
 
 
 def scipy_start(d):
-    """ctfit's best grid seed (the start of its best-ranked solve), as SciPy's flat vector."""
-    import jax  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    """ctfit's best grid seed (the start of its best-ranked solve, ``ctfit.seed_params``), as
+    SciPy's flat vector: logit F0, log m and the weights' logits against w_0 (the sampler's
+    unconstrained coordinates)."""
+    import ctfit  # noqa: PLC0415
 
-    from ctfit._fitting.least_squares import _default_start, _m_grid, _seed_points  # noqa: PLC0415
-    from ctfit._fitting.problem import from_params, make_problem, to_params  # noqa: PLC0415
-
-    st = d["structure"]
-    start = _default_start(st, d["data"])
-    pb = make_problem(st, d["data"], fixed_params=start, loss="sigma")
-    u0 = {k: jnp.asarray(v) for k, v in from_params(pb.spec, start).items()}
-    seed = jax.tree.map(lambda a: np.asarray(a)[0], _seed_points(pb, u0, 1, jnp.asarray(np.log(_m_grid(st.lobes, st.diffuse is not None)))))
-    # ctfit's seed is in its bounded coordinates (F0, log m, stick fractions); SciPy's model takes
-    # logit F0, log m and the weights' logits against w_0: the sampler's unconstrained coordinates.
-    params = to_params(pb.spec, seed, pb.fixed)
-    u = from_params(dataclasses.replace(pb.spec, space="unconstrained"), params)
-    return np.concatenate([u["f0"], u["m"]] + ([u["w"]] if "w" in u else []))
+    seed = ctfit.seed_params(d["data"], d["structure"], starts=1, loss="sigma")[0]
+    f0, m = np.asarray(seed.f0, dtype=float), np.asarray(seed.m, dtype=float)
+    u = [np.log(f0) - np.log1p(-f0), np.log(m)]
+    if m.size > 1:
+        w = np.asarray(seed.w, dtype=float)
+        u.append(np.log(w[1:]) - np.log(w[0]))
+    return np.concatenate(u)
 
 
 def run_scipy(d, method: str, loss: str, x0) -> dict:

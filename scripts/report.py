@@ -30,7 +30,7 @@ import sys
 import tempfile
 import time
 
-from ctfit._runtime.progress import bar, echo, progress_enabled
+from tqdm import tqdm
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPTS = ROOT / "scripts"
@@ -58,6 +58,12 @@ def steps(docs: pathlib.Path, small: bool, scratch: pathlib.Path) -> list[tuple[
     ]
 
 
+def progress_shown(quiet: bool) -> bool:
+    """A bar as ``ctfit`` draws one: never with --quiet; ``CTFIT_PROGRESS`` 1/0 forces it; else on a terminal."""
+    forced = os.environ.get("CTFIT_PROGRESS", "").strip()
+    return not quiet and (forced == "1" if forced in ("0", "1") else sys.stderr.isatty())
+
+
 def run_step(cmd: list[str], show: bool) -> int:
     """Run one command (Python arguments); with a progress bar its output is passed on above the bar."""
     if not show:
@@ -65,7 +71,7 @@ def run_step(cmd: list[str], show: bool) -> int:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with subprocess.Popen([sys.executable, *cmd], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env) as proc:
         for line in proc.stdout:
-            echo(line.rstrip("\n"))
+            tqdm.write(line.rstrip("\n"))
     return proc.returncode
 
 
@@ -87,16 +93,16 @@ def main(argv=None) -> int:
         if unknown:
             ap.error(f"unknown step(s) {unknown}; the steps are {names}")
         todo = [(name, cmd) for name, commands in plan if not args.only or name in args.only for cmd in commands]
-        show = progress_enabled(args.quiet) and not args.list
-        for name, cmd in bar(todo, desc="report", enabled=show, leave=True):
+        show = progress_shown(args.quiet) and not args.list
+        for name, cmd in tqdm(todo, desc="report", disable=not show, leave=True, file=sys.stderr, dynamic_ncols=True):
             line = " ".join([pathlib.Path(sys.executable).name, *(pathlib.Path(c).name if c.startswith(str(SCRIPTS)) else c for c in cmd)])
             if args.list:
                 print(f"{name}: {line}")
                 continue
-            echo(f"== {name}: {line}")
+            tqdm.write(f"== {name}: {line}")
             t = time.perf_counter()
             code = run_step(cmd, show)
-            echo(f"== {name}: exit {code} after {time.perf_counter() - t:.0f} s")
+            tqdm.write(f"== {name}: exit {code} after {time.perf_counter() - t:.0f} s")
             if code != 0:
                 return code
     return 0

@@ -7,9 +7,7 @@ import numpy as np
 import pytest
 from conftest import MEASURED
 
-from ctfit._io.alta import read_alta
-from ctfit._io.csv_files import read_csv, write_csv
-from ctfit._io.errors import DataError, DataWarning
+from ctfit import DataError, DataWarning, read_alta, read_csv, write_csv
 
 HEAD_3D = "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n"
 

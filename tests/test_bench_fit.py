@@ -10,7 +10,7 @@ import pytest
 from conftest import ROOT, load_script
 
 import ctfit
-from ctfit._fitting.least_squares import _default_start
+from ctfit._fitting.starts import default_start
 
 sys.path.insert(0, str(ROOT / "scripts"))  # the scripts import their helpers by name
 import _bench_fit_data as data  # noqa: E402
@@ -58,10 +58,10 @@ def test_numpy_reader_reads_what_ctfit_writes(tmp_path):
     assert ours.n_bands == theirs.n_bands == 31 and ours.sigma is None
 
 
-def test_scipy_start_is_ctfits_default_start():
+def test_scipy_start_is_ctfitsdefault_start():
     """The docs say SciPy starts where ctfit's seeding starts; ctfit's default must still be that point."""
     geometry = data.scattered_geometry(100, seed=1)
-    start = _default_start(data.SCATTERED, geometry)
+    start = default_start(data.SCATTERED, geometry)
     nd = model.NumpyData(geometry.theta_i, geometry.phi_i, geometry.theta_o, geometry.phi_o, geometry.band, 31, np.ones(100))
     f0, m, w, s = model.NumpyProblem(nd, lobes=2, loss="relative", diffuse=True).params(np.asarray(data.default_start_x0(2, 31, True)))
     np.testing.assert_allclose(f0, start.f0)

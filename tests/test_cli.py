@@ -58,9 +58,7 @@ def test_fit_json_equals_library_serialisation_and_file(simulated):
     assert printed["fit"]["converged"] is True
     np.testing.assert_allclose(sorted(lobe["m"] for lobe in printed["lobes"]), [0.2, 0.4], rtol=0.02)
     # The library produces the same document for the same data and options.
-    from ctfit._fitting.least_squares import fit
-    from ctfit._fitting.results import fit_result_to_dict
-    from ctfit._io.readers import read_measurement
+    from ctfit import fit, fit_result_to_dict, read_measurement
 
     res = fit(read_measurement(csv), ctfit.Structure(lobes=2))
     res.material.meta["data"] = str(csv)
@@ -76,7 +74,7 @@ def test_fit_result_is_a_material_for_eval(simulated):
     model = d / "model.csv"
     r = run("eval", out, csv, "-o", model)
     assert r.exit_code == 0, r.output
-    from ctfit._io.readers import read_measurement
+    from ctfit import read_measurement
 
     data, fitted = read_measurement(csv), read_measurement(model)
     rel = np.abs(fitted.brdf - data.brdf) / np.maximum(data.brdf, 1e-3 * data.brdf.max())

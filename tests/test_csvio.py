@@ -9,9 +9,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ctfit._io import csv_files as _csvio
-from ctfit._io.csv_files import read_csv, write_csv
-from ctfit._io.errors import DataError
-from ctfit._model.measurement import Measurement
+from ctfit import DataError, Measurement, read_csv, write_csv
 
 HEADER = "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf"
 

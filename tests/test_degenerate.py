@@ -20,11 +20,24 @@ from typer.testing import CliRunner
 
 import ctfit
 import ctfit._fitting.least_squares as _fit
-from ctfit import DataError, DataWarning, Material, Measurement, Params, Structure
-from ctfit._colour.report import colour_report
-from ctfit._fitting.results import fit_result_to_dict, format_fit_table
-from ctfit._io.material_files import MaterialError, load_material, material_from_dict, material_to_dict, save_material_json
-from ctfit._render.rendering import render_compare, render_materials
+from ctfit import (
+    DataError,
+    DataWarning,
+    Material,
+    MaterialError,
+    Measurement,
+    Params,
+    Structure,
+    colour_report,
+    fit_result_to_dict,
+    format_fit_table,
+    load_material,
+    material_from_dict,
+    material_to_dict,
+    render_compare,
+    render_materials,
+    save_material_json,
+)
 from ctfit._sampling.emcee_run import draw_colours
 from ctfit._fitting.validate import check_fittable, n_free_parameters, nonfinite_reason, representable_range
 from ctfit.cli import app

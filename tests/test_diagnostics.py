@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._fitting.diagnostics import residual_structure
-from ctfit._io.errors import DataWarning
+from ctfit import DataWarning, residual_structure
 
 from conftest import MEASURED
 

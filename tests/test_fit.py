@@ -8,9 +8,9 @@ import optimistix as optx
 import pytest
 
 import ctfit
-from ctfit._fitting.least_squares import fit
+from ctfit import fit
 from ctfit._fitting.problem import from_params, make_problem, residual, to_params
-from ctfit._model.evaluation import simulate
+from ctfit import simulate
 
 WL8 = np.linspace(400.0, 700.0, 8)
 WL31 = np.linspace(400.0, 700.0, 31)
@@ -176,7 +176,7 @@ def test_a_fit_result_names_its_values_and_errors_alike():
     """``parameters`` and ``parameter_errors``: the fit JSON's names and layout, key for key."""
     import json
 
-    from ctfit._fitting.results import fit_result_to_dict
+    from ctfit import fit_result_to_dict
 
     mat = ctfit.Material(ctfit.Structure(lobes=2, diffuse="F0/pi"),
                          ctfit.Params(s=np.asarray(0.8), m=np.array([0.1, 0.3]), w=np.array([0.6, 0.4]), f0=np.array([0.5, 0.8])),

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._io.material_files import load_material
+from ctfit import load_material
 from ctfit._fitting.problem import _stick_fractions, _weights
-from ctfit._model.evaluation import simulate
+from ctfit import simulate
 from ctfit._fitting.solvers import active_set, predicted_decrease
 from conftest import ROOT
 

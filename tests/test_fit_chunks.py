@@ -9,6 +9,7 @@ import pytest
 
 import ctfit
 from ctfit._fitting import least_squares as _fit
+from ctfit._fitting import fit_report
 from ctfit._fitting import problem as _problem
 from ctfit._fitting.problem import CHUNK, bucket, half_squared_norm, make_problem, normal_equations
 
@@ -125,8 +126,8 @@ def test_the_rms_of_chunks_does_not_overflow(dtype):
     big = 1e30 if dtype == jnp.float32 else 1e200
 
     def rms(chunks):
-        parts = [_fit._scaled_squares(jnp.asarray(c, dtype)) for c in chunks]
-        return float(_fit._combined_rms(jnp.stack([p[0] for p in parts]), jnp.stack([p[1] for p in parts]), sum(len(c) for c in chunks)))
+        parts = [fit_report._scaled_squares(jnp.asarray(c, dtype)) for c in chunks]
+        return float(fit_report._combined_rms(jnp.stack([p[0] for p in parts]), jnp.stack([p[1] for p in parts]), sum(len(c) for c in chunks)))
 
     assert rms([[big, -big], [0.0, 0.0]]) == pytest.approx(big / np.sqrt(2), rel=1e-6)
     assert rms([[3.0], [4.0]]) == pytest.approx(np.sqrt(12.5), rel=1e-6)

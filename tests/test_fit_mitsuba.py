@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._fitting.least_squares import fit
+from ctfit import fit
 
 pytest.importorskip("mitsuba")
 from mitsuba_render import render  # noqa: E402

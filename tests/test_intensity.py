@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit import Params, Structure
-from ctfit._model.intensity import Light, reflected_intensity
+from ctfit import Light, Params, Structure, reflected_intensity
 from helpers import make_params, structure_id
 
 intensity = eqx.filter_jit(reflected_intensity)

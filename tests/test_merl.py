@@ -5,19 +5,15 @@ import math
 import numpy as np
 import pytest
 
-from ctfit._io.errors import DataError
-from ctfit._io.merl import (
-    MERL_SCALE,
+from ctfit import (
+    DataError,
     angles_deg_to_half_diff,
     half_diff_to_angles_deg,
-    merl_cell_centres,
-    merl_phi_d_index,
     merl_table,
-    merl_theta_d_index,
-    merl_theta_h_index,
     read_merl,
     write_merl,
 )
+from ctfit._io.merl import MERL_SCALE, merl_cell_centres, merl_phi_d_index, merl_theta_d_index, merl_theta_h_index
 
 
 def model(th, td, pd):

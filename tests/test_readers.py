@@ -6,9 +6,7 @@ import numpy as np
 import pytest
 from conftest import MEASURED
 
-from ctfit._io.errors import DataError, DataWarning
-from ctfit._io.merl import merl_table, write_merl
-from ctfit._io.readers import read_measurement
+from ctfit import DataError, DataWarning, merl_table, read_measurement, write_merl
 
 CSV = "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,550,0.5\n"
 ALTA = "#DIM 1 1\n#PARAM_IN COS_TH\n#PARAM_OUT INV_STERADIAN\n0.5 0.25\n"

@@ -9,7 +9,8 @@ from typer.testing import CliRunner
 
 import ctfit
 from ctfit._runtime.cluster import dask_client
-from ctfit._fitting.texel_maps import TexelMapError, read_texel_geometry
+from ctfit import read_texel_geometry
+from ctfit._fitting.texel_maps import TexelMapError
 from ctfit.cli import app
 
 WL = np.array([450.0, 650.0])

@@ -31,7 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._runtime import cached_call
-from .least_squares import FitResult, finish_fit, fit_core, prepare_fit, PreparedFit
+from .least_squares import FitResult, PreparedFit, finish_fit, fit, fit_core, prepare_fit
+from .options import takes_fit_options
 from .._model import Measurement, Params, Structure
 
 __all__ = ["fit_batch", "mapped", "default_width", "batch_size", "SAMPLE_BUDGET"]
@@ -41,20 +42,15 @@ SAMPLE_BUDGET = 2**21
 bounds the memory of one call (a few hundred bytes per cell in the solver's intermediates)."""
 
 
+@takes_fit_options(fit)
 def fit_batch(
     measurements: Sequence[Measurement],
     structure: Structure | None = None,
     *,
-    start: Params | Sequence[Params | None] | None = None,
-    fixed: tuple[str, ...] = (),
-    loss: str = "auto",
-    solver: str = "lm",
-    dtype=jnp.float64,
-    starts: int = 3,
-    max_steps: int = 256,
     values=None,
     return_errors: bool = False,
     width: int | None = None,
+    **options,
 ) -> list:
     """Fit ``structure`` to every measurement, in as few compiled programs as possible.
 
@@ -73,8 +69,8 @@ def fit_batch(
         from .texels import fit_texels
 
         data = measurements if isinstance(measurements, Measurement) else _single(measurements)
-        return fit_texels(data, values, structure, start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps,
-                          width=width)
+        return fit_texels(data, values, structure, width=width, **options)
+    start, solver, max_steps = options.pop("start"), options.pop("solver"), options.pop("max_steps")
     t0 = time.perf_counter()
     width = default_width() if width is None else width
     if width < 1:
@@ -86,7 +82,7 @@ def fit_batch(
     results: list = [None] * len(measurements)
     preps: dict[int, PreparedFit] = {}
     for i, (data, begin) in enumerate(zip(measurements, begins)):
-        got = _caught(lambda: prepare_fit(data, structure, start=begin, fixed=fixed, loss=loss, dtype=dtype, starts=starts), return_errors)
+        got = _caught(lambda: prepare_fit(data, structure, start=begin, **options), return_errors)
         if isinstance(got, Exception):
             results[i] = got
         else:

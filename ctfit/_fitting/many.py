@@ -232,7 +232,7 @@ def _fit_task(items: list, structure, options: dict, param_out, x64: bool) -> li
     options = dict(options)
     base = options.pop("material")
     if base is not None:  # each item's start on its own bands, as `ctfit fit --material` makes it
-        from .results import start_from_material
+        from .starts import start_from_material
 
         starts, kept = [], []
         for j, meas in ready:

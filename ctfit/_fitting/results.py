@@ -1,4 +1,4 @@
-"""Fit results to and from the outside: the fit-result JSON, the readable table, starts from files.
+"""Fit results to the outside: the fit-result JSON and the readable table.
 
 The JSON is the material document of ``docs/formats.md`` plus a ``fit`` section:
 ``{"converged", "steps", "cost", "rmse", "rel_rmse", "time_s", "n_samples", "n_params", "bic",
@@ -11,12 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._model import Material, Params, Structure
-from .._io import MaterialError, material_to_dict
-from .._model import Measurement
-from .problem import free_names
+from .._io import material_to_dict
+from .._model import Material
 
-__all__ = ["fit_result_to_dict", "format_fit_table", "start_from_material", "stderr_block"]
+__all__ = ["fit_result_to_dict", "format_fit_table", "stderr_block"]
 
 
 def stderr_block(res) -> dict | None:
@@ -108,17 +106,3 @@ def _at(a, i):
     return None if a is None else float(np.asarray(a).reshape(-1)[i])
 
 
-def start_from_material(base: Material, structure: Structure, data: Measurement) -> tuple[Params, tuple[str, ...]]:
-    """Starting values on the data's bands and the names of fixed parameters (key ``fixed``)."""
-    fixed = tuple(base.meta.get("fixed", ()))
-    allowed = set(free_names(structure))
-    bad = [f for f in fixed if f not in allowed]
-    if bad:
-        raise MaterialError(f"material {base.name!r}: key 'fixed' names {bad}; this structure's parameters are {sorted(allowed)}")
-    params = base.params_at(data.wavelength_nm if data.channels is None else None, data.channels)
-    if structure.fresnel == "f0" and params.f0 is None and params.n is not None:
-        from .._model import f0_from_n, f0_from_nk
-
-        f0 = f0_from_nk(params.n, params.k) if params.k is not None else f0_from_n(params.n)
-        params = Params(s=params.s, m=params.m, w=params.w, f0=np.asarray(f0), rd=params.rd)
-    return params, fixed

@@ -28,7 +28,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._runtime import cached_call
-from .least_squares import FitResult, fit_core, prepare_fit, fit, judge_converged
+from .least_squares import FitResult, fit, fit_core, prepare_fit
+from .options import takes_fit_options
+from .seeded_solve import judge_converged
 from .batch import default_width, mapped
 from .._model import Material, Measurement, Params, Structure
 from .validate import representable_range
@@ -80,20 +82,15 @@ class TexelFits:
         return fit(data, self.structure, **self.options)
 
 
+@takes_fit_options(fit)
 def fit_texels(
     measurement: Measurement,
     values,
     structure: Structure | None = None,
     *,
-    start: Params | None = None,
-    fixed: tuple[str, ...] = (),
-    loss: str = "auto",
-    solver: str = "lm",
-    dtype=jnp.float64,
-    starts: int = 3,
-    max_steps: int = 256,
     chunk: int = CHUNK,
     width: int | None = None,
+    **options,
 ) -> TexelFits:
     """Fit ``structure`` to every texel: ``values[t]`` is texel t's BRDF at ``measurement``'s rows.
 
@@ -105,6 +102,7 @@ def fit_texels(
     of them side by side (vmapped; None: :func:`~ctfit._fitting.batch.default_width`).
     """
     t0 = time.perf_counter()
+    loss, solver, dtype, max_steps = options["loss"], options["solver"], options["dtype"], options["max_steps"]
     shape = getattr(values, "shape", None)
     if shape is None or len(shape) != 2 or shape[1] != len(measurement):
         raise ValueError(f"values must have shape (texels, {len(measurement)}) (one row per texel, one column per sample of "
@@ -125,8 +123,8 @@ def fit_texels(
     template = measurement.replace(brdf=np.asarray(values[0], dtype=float), sigma=None)
     loss = "relative" if loss == "auto" else loss
     # One size for every texel: laid out at its own size, no bucket padding.
-    prep = prepare_fit(template, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts,
-                    pad_to=(len(template.directions()[0]), len(template)))
+    prep = prepare_fit(template, structure, start=options["start"], fixed=options["fixed"], loss=loss, dtype=dtype, starts=options["starts"],
+                       pad_to=(len(template.directions()[0]), len(template)))
     problem, layout = prep.problem, _Layout(prep.problem, template)
     core_options = prep.options(solver, max_steps)
     pending, outs = None, []  # one chunk dispatched while the previous one's results are fetched
@@ -141,8 +139,7 @@ def fit_texels(
         pending = run
     outs.append(jax.device_get(pending))
     out = jax.tree.map(lambda *xs: np.concatenate(xs)[:n_texels], *outs)
-    options = dict(start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
-    return _result(measurement, prep.structure, out, values, n_texels, t0, options)
+    return _result(measurement, prep.structure, out, values, n_texels, t0, dict(options, loss=loss))
 
 
 def _check_values(values, chunk: int, dtype, source: str) -> None:

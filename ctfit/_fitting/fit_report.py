@@ -1,0 +1,179 @@
+"""What a fit reports besides its values: the constrained quantities, residual summaries,
+standard errors from (JᵀJ)⁻¹ by the delta method, undetermined coordinates and warnings.
+
+Standard errors are scaled by the residual variance unless the loss is sigma-weighted, and
+reported only where JᵀJ is well conditioned; near-degenerate solutions get plain-language notes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._model import Params, n_from_f0, normal_reflectance, parameter
+from .problem import Problem, map_over_chunks, model_values, to_params
+
+__all__ = [
+    "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
+    "undetermined", "labelled", "coordinate_names", "fit_warnings",
+]
+
+
+def effective_index(f0):
+    """The paper's effective index of a fitted F0, finite where F0 rounds to 1 (about 10¹⁶ in
+    float64, 10⁸ in float32, instead of :func:`~ctfit._model.fresnel_equations.n_from_f0`'s infinity)."""
+    f0 = jnp.asarray(f0)
+    return n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
+
+
+def constrained_quantities(problem: Problem, unravel, f):
+    """The reported (constrained) parameters as a dict, from the flat free values."""
+    spec = problem.spec
+    p = to_params(spec, unravel(f), problem.fixed)
+    f0 = normal_reflectance(spec.structure, p) if spec.structure.needs_fresnel_params else None
+    out = {k: getattr(p, k) for k in ("s", "m", "w", "n", "k", "rd") if getattr(p, k) is not None}
+    if f0 is not None:
+        out["F0"] = f0
+        if spec.structure.fresnel == "f0":
+            out["n"] = effective_index(f0)
+    return out
+
+
+def residual_summary(problem: Problem, u: dict) -> dict:
+    """What the report needs of the model at ``u``, chunk by chunk on a large problem
+    (:func:`~ctfit._fitting.problem.map_over_chunks`): the relative residuals ``rel``, stacked by chunk
+    (the host reshapes them to the problem's layout; 0 where nothing is measured; float32, for
+    the residual diagnostics), ``rmse`` and ``rel_rmse`` (as max|e| · rms(e / max|e|), so that
+    squares cannot overflow), and ``bad``, how many measured cells have a model value that is
+    not finite."""
+
+    def one(part):
+        pred = model_values(part, u)
+        err = jnp.where(part.mask, pred - part.y, 0)
+        rel = err / jnp.maximum(jnp.abs(part.y), part.floor)
+        stats = [_scaled_squares(e) for e in (err, rel)]
+        big = jnp.asarray(jnp.finfo(jnp.float32).max, rel.dtype)
+        return jnp.clip(rel, -big, big).astype(jnp.float32), stats, jnp.sum(part.mask & ~jnp.isfinite(pred))
+
+    rel, stats, bad = map_over_chunks(problem, one)
+    n = jnp.maximum(jnp.sum(problem.mask), 1)
+    rmse, rel_rmse = (_combined_rms(big, sq, n) for big, sq in stats)
+    return dict(rel=rel, rmse=rmse, rel_rmse=rel_rmse, bad=jnp.sum(bad))  # rel reshaped on the host: no copy
+
+
+def _scaled_squares(e):
+    """(max|e|, Σ (e / max|e|)²) of one chunk."""
+    big = jnp.max(jnp.abs(e))
+    return big, jnp.sum((e / jnp.where(big > 0, big, 1)) ** 2)
+
+
+def _combined_rms(big, sq, n):
+    """The rms of all chunks from their (max|e|, Σ (e / max|e|)²): rescaled to the largest max."""
+    top = jnp.max(big)
+    safe = jnp.where(top > 0, top, 1)
+    return jnp.where(top == 0, jnp.zeros((), big.dtype), top * jnp.sqrt(jnp.sum(sq * (big / safe) ** 2) / n))  # NaN stays NaN
+
+
+def sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
+    if params.m is None:
+        return params, None
+    order = np.argsort(np.asarray(params.m))
+    return dataclasses.replace(params, m=np.asarray(params.m)[order], w=np.asarray(params.w)[order]), order
+
+
+def standard_errors(jtj, jt: dict | None, scale2: float, order, free=None) -> dict | None:
+    """Standard errors of the constrained parameters from JᵀJ and their Jacobian ``jt``.
+
+    Only the ``free`` coordinates enter (not those held on a bound, nor those the data does not
+    determine); a parameter that depends on no free coordinate gets NaN: it has no standard
+    error (a bound that holds is the result)."""
+    jtj = np.asarray(jtj)
+    if jtj.size == 0 or jt is None:
+        return None
+    free = np.ones(jtj.shape[0], bool) if free is None else np.asarray(free, bool)
+    sub = jtj[np.ix_(free, free)]
+    if sub.size:
+        try:
+            cond = np.linalg.cond(sub)
+        except np.linalg.LinAlgError:
+            return None
+        if not np.isfinite(cond) or cond > 1e12:
+            return None
+    cov_u = np.zeros_like(jtj)
+    if sub.size:
+        cov_u[np.ix_(free, free)] = np.linalg.inv(sub) * scale2
+    se = {}
+    for k, jk in jt.items():
+        jk = np.asarray(jk).reshape(-1, jtj.shape[0])
+        var = np.einsum("ij,jk,ik->i", jk, cov_u, jk)
+        v = np.sqrt(np.maximum(var, 0))
+        v = np.where(np.any(jk[:, ~free] != 0, axis=1) & ~np.any(jk[:, free] != 0, axis=1), np.nan, v)
+        if k in ("m", "w") and order is not None:
+            v = v[order]
+        se[k] = v
+    return {("weight" if k == "w" else k): v for k, v in se.items()}
+
+
+def undetermined(jtj) -> np.ndarray:
+    """Coordinates the data does not constrain at all: their row of JᵀJ is zero (to rounding,
+    relative to the largest diagonal entry), e.g. R_d when s = 1 or the m of a lobe of weight 0."""
+    d = np.abs(np.diag(np.asarray(jtj)))
+    return d <= np.finfo(np.asarray(jtj).dtype).eps * 1e-2 * (np.max(d) if d.size else 0.0)
+
+
+def labelled(u: dict, flags) -> list[str]:
+    """Public labels ("s", "F0[2]", "weight[1]") of the flat coordinates where ``flags`` is set."""
+    out, i = [], 0
+    for k in sorted(u):
+        size = int(np.size(u[k]))
+        for j in range(size):
+            if flags[i]:
+                out.append(parameter(k).public + (f"[{j}]" if np.ndim(u[k]) else ""))
+            i += 1
+    return out
+
+
+def coordinate_names(u: dict) -> list[str]:
+    """The parameter name of every flat coordinate (``ravel_pytree`` order: sorted names)."""
+    return [k for k in sorted(u) for _ in range(int(np.size(u[k])))]
+
+
+def fit_warnings(params: Params, stderr, not_determined=()) -> list[str]:
+    """Plain-language notes on a degenerate or suspicious solution: lobes that merge or vanish, s
+    or F0 on a bound, coordinates the data does not determine, standard errors not computed."""
+    out = []
+    if params.m is not None and len(params.m) > 1:
+        m = np.asarray(params.m)
+        for a, b in zip(m[:-1], m[1:]):
+            if abs(b - a) <= 0.02 * max(a, b):
+                out.append(f"degenerate: two lobes with nearly equal m ({a:.4g}, {b:.4g}); one lobe may suffice")
+        for j, w in enumerate(np.asarray(params.w)):
+            if w == 0.0:
+                out.append(f"degenerate: lobe {j} has weight 0 (on its bound): the data needs fewer lobes, and this lobe's m = {m[j]:.4g} means nothing")
+            elif w < 1e-3:
+                out.append(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} → 0; fewer lobes may suffice")
+            elif stderr is not None and "weight" in stderr and w < 2 * np.asarray(stderr["weight"])[j]:
+                out.append(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} ± {np.asarray(stderr['weight'])[j]:.2g}, "
+                           "not significantly above 0; fewer lobes may suffice")
+    if params.s is not None:
+        s = float(params.s)
+        if s == 0.0:
+            out.append("s = 0 (on its bound): the data shows no specular part, and m, F0 are not determined by it")
+        elif s == 1.0:
+            out.append("s = 1 (on its bound): the data shows no diffuse part")
+        elif s < 1e-4:
+            out.append(f"s = {s:.2g} is near its lower bound: the data shows almost no specular part")
+        elif s > 1 - 1e-4:
+            out.append(f"s = {s:.6g} is near its upper bound: the data shows almost no diffuse part")
+    if params.f0 is not None:
+        f0 = np.asarray(params.f0)
+        if np.any(f0 < 1e-6) or np.any(f0 > 1 - 1e-6):
+            out.append("F0 at a bound (0 or 1) in some bands: the effective index is at its limit there")
+    if not_determined:
+        names = ", ".join(parameter(k).public for k in dict.fromkeys(not_determined))
+        out.append(f"degenerate: the data does not determine {names} (no standard error there): the model has more freedom than the data shows")
+    if stderr is None:
+        out.append("standard errors not computed: JᵀJ is singular or ill-conditioned (cond > 1e12)")
+    return out

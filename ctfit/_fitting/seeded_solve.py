@@ -1,0 +1,204 @@
+"""The solve: optimistix Levenberg–Marquardt from every seed, raced, and when a fit has converged.
+
+Levenberg–Marquardt runs on the structured normal equations (JᵀJ from the factored Jacobian,
+never the N × P matrix: :class:`~ctfit._fitting.solvers.StructuredLevenbergMarquardt`,
+:func:`~ctfit._fitting.problem.normal_equations`) from each seed in one scan; the lowest finite
+cost wins. optimistix Gauss–Newton, Dogleg (normal equations with Cholesky) or BFGS on request.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
+
+from .problem import Problem, bounds, half_squared_norm, normal_equations, residual
+from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, predicted_decrease
+
+__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "judge_converged", "flat_bounds", "solve_seeds", "gauss_newton_decrease"]
+
+SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
+
+
+def _solver(name: str, dtype):
+    rtol, atol = (1e-8, 1e-12) if dtype == jnp.float64 else (1e-5, 1e-8)
+    if name == "lm":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    if name == "gauss-newton":
+        return optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    if name == "dogleg":
+        return optx.Dogleg(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    if name == "bfgs":
+        return optx.BFGS(rtol=rtol, atol=atol)
+    raise ValueError(f"solver must be one of {SOLVERS}, got {name!r}")
+
+
+def _gauss_newton(flat, data):
+    """Jᵀr and JᵀJ at the flat free values (one pass of the structured normal equations)."""
+    problem, unravel = data
+    return normal_equations(problem, unravel(flat))[1:]
+
+
+def _half_squared_norm(flat, data):
+    problem, unravel = data
+    return half_squared_norm(problem, unravel(flat))
+
+
+STATIONARY_TOLERANCE = {"float64": 1e-6, "float32": 1e-3}
+"""``converged`` needs one more Gauss–Newton step to promise less than this relative decrease
+of the cost: the solver's own tests (small steps, small changes) also pass where it has stalled,
+e.g. float32 rounding making every step look useless far from the minimum."""
+
+
+NO_SIGNAL = 0.99
+"""A fit whose cost is at least this fraction of the cost of a model that is 0 everywhere has not
+converged, even at a stationary point: it describes none of the data (a lobe far from the
+samples, F0 → 0)."""
+
+
+def explains_none(cost, zero_cost):
+    """Whether a fit's cost is at least ``NO_SIGNAL`` of a zero model's (arrays or scalars)."""
+    return (np.asarray(zero_cost) > 0) & (np.asarray(cost) >= NO_SIGNAL * np.asarray(zero_cost))
+
+
+def judge_converged(ok, finite, gn_decrease, cost, zero_cost, dtype):
+    """``converged`` of one fit or of many (arrays): no numerical failure, finite, stationary
+    (``STATIONARY_TOLERANCE``) and describing some of the data (:func:`explains_none`)."""
+    stationary = np.asarray(gn_decrease) <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
+    return np.asarray(ok, bool) & np.asarray(finite, bool) & stationary & ~explains_none(cost, zero_cost)
+
+
+RACE_STEPS = 4
+"""Levenberg–Marquardt steps every seed gets in the first phase (``_structured_lm``)."""
+
+
+RACE_MARGIN = float("inf")
+"""A seed goes on after the first phase if its cost is within this factor of the lowest. Every
+seed goes on (∞): cutting at 1.5× after 4 (or 8) steps kept wrong basins — an absolute-loss fit
+whose right seed was 20× behind after 4 steps (docs/fitting-tradeoffs.md), grazing-only data
+and n crossing 1 with 8 (docs/stability.md); the best of the converged seeds is kept."""
+
+
+def flat_bounds(problem: Problem, u: dict):
+    """The box bounds of the free coordinates, flattened as ``ravel_pytree(u)`` orders them."""
+    lower, upper = bounds(problem.spec, u)
+    return ravel_pytree(lower)[0], ravel_pytree(upper)[0]
+
+
+def _with_aux(flat, data):
+    return _half_squared_norm(flat, data), None
+
+
+def _run_solver(solver, y0, data, budget):
+    """optimistix's iteration (``solver.init``, then ``step`` until ``terminate``) for at most
+    ``budget`` steps — a *traced* count, so one compiled loop serves every phase of the race.
+    Returns (value, converged, steps); the solver's own tests decide ``converged``."""
+    f_struct = jax.ShapeDtypeStruct((), y0.dtype)
+    state = solver.init(_with_aux, y0, data, {}, f_struct, None, frozenset())
+    dynamic, static = eqx.partition(state, eqx.is_array)
+
+    def stop_and_result(y, st):
+        done, result = solver.terminate(_with_aux, y, data, {}, st, frozenset())
+        return done, optx.RESULTS.where(jnp.all(jnp.isfinite(y)), result, optx.RESULTS.nonfinite)
+
+    done, result = stop_and_result(y0, state)
+
+    def cond(carry):
+        _, k, _, done, result = carry
+        return ~done & (result == optx.RESULTS.successful) & (k < budget)
+
+    def body(carry):
+        y, k, dyn, _, _ = carry
+        st = eqx.combine(static, dyn)
+        y, st, _ = solver.step(_with_aux, y, data, {}, st, frozenset())
+        done, result = stop_and_result(y, st)
+        return y, k + 1, eqx.partition(st, eqx.is_array)[0], done, result
+
+    y, k, _, done, result = jax.lax.while_loop(cond, body, (y0, jnp.zeros((), jnp.int32), dynamic, done, result))
+    sound = result == optx.RESULTS.successful  # no numerical failure (a spent budget is none)
+    return y, done & sound, k, sound
+
+
+def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
+    """optimistix Levenberg–Marquardt on the structured normal equations, the seeds raced.
+
+    Every seed gets ``RACE_STEPS`` steps; the seeds whose cost is then within ``RACE_MARGIN``
+    of the lowest go on to convergence (a fresh solve from where they stopped, unless converged
+    already). The others keep their cost after the race, so they can only lose. With one seed
+    this is a plain solve. Both phases are one scan over (seed, phase) tasks around *one*
+    instance of the solver loop, which keeps the compiled program small.
+    """
+    flat_seeds = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
+    unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
+    rtol, atol = (1e-8, 1e-12) if flat_seeds.dtype == jnp.float64 else (1e-5, 1e-8)
+    data = (problem, jax.tree_util.Partial(unravel))
+    lower, upper = flat_bounds(problem, jax.tree.map(lambda a: a[0], seeds))
+    descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
+    gtol = STATIONARY_TOLERANCE[flat_seeds.dtype.name] * 1e-3
+    solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton, descent=descent, gtol=gtol,
+                                          stol=STATIONARY_TOLERANCE[flat_seeds.dtype.name])
+    n = flat_seeds.shape[0]
+    race = n > 1 and max_steps > RACE_STEPS
+    tasks = jnp.arange(2 * n if race else n)
+
+    def task(carry, i):
+        values, ok, steps, costs, sound = carry
+        j = i % n
+        if race:
+            second = i >= n
+            go = ~ok[j] & (costs[j] <= RACE_MARGIN * jnp.min(costs))
+            budget = jnp.where(second, jnp.where(go, max_steps - RACE_STEPS, 0), RACE_STEPS)
+        else:
+            budget = jnp.asarray(max_steps)
+        v, o, k, fine = _run_solver(solver, values[j], data, budget)
+        c = _half_squared_norm(v, data)
+        keep = k > 0  # a seed that did not go on keeps what it had
+        values = values.at[j].set(jnp.where(keep, v, values[j]))
+        ok = ok.at[j].set(jnp.where(keep, o, ok[j]))
+        sound = sound.at[j].set(jnp.where(keep, fine, sound[j]))
+        costs = costs.at[j].set(jnp.where(keep, jnp.where(jnp.isfinite(c), c, jnp.inf), costs[j]))
+        return (values, ok, steps.at[j].add(k), costs, sound), None
+
+    init = (flat_seeds, jnp.zeros(n, bool), jnp.zeros(n, jnp.int32), jnp.full(n, jnp.inf, flat_seeds.dtype), jnp.ones(n, bool))
+    (values, ok, steps, costs, sound), _ = jax.lax.scan(task, init, tasks)
+    # Reported per seed: no numerical failure. Whether the point is a minimum is judged after the
+    # solve, by first-order optimality on the free variables (``STATIONARY_TOLERANCE``), so a
+    # stationary point reached at the step limit (a flat valley the data does not determine) counts.
+    return jax.vmap(unravel)(values), sound, steps, costs
+
+
+def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
+    """Every seed; values, success flags, steps and final costs per seed."""
+    if solver_name == "lm":
+        return _structured_lm(problem, seeds, max_steps)
+    solver = _solver(solver_name, problem.y.dtype)
+
+    def one(u0):
+        if solver_name == "bfgs":
+            fn = lambda u, a: 0.5 * jnp.sum(residual(u, a) ** 2)  # noqa: E731
+            sol = optx.minimise(fn, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
+        else:
+            sol = optx.least_squares(residual, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
+        r = residual(sol.value, (problem.y, problem))
+        sound = (sol.result == optx.RESULTS.successful) | (sol.result == optx.RESULTS.nonlinear_max_steps_reached)
+        return sol.value, sound, sol.stats["num_steps"], 0.5 * jnp.sum(r * r)
+
+    return jax.vmap(one)(seeds)
+
+
+def gauss_newton_decrease(jtj, jtr, cost, scale):
+    """Relative decrease of ½‖r‖² that one Gauss–Newton step from here predicts,
+    ½ gᵀ(JᵀJ)⁺g / max(cost, ε·scale), with ``scale`` the cost of a zero model (so that an exact
+    fit, cost → 0, does not divide rounding by rounding).
+
+    Zero at a minimum (g = Jᵀr = 0). Directions the data does not determine (tiny eigenvalues
+    of JᵀJ, relative to the largest, below the dtype's rounding) are left out, so a degenerate
+    but stationary point still reads as stationary.
+    """
+    dec = predicted_decrease(jtj, jtr)
+    eps = jnp.finfo(cost.dtype).eps
+    return dec / jnp.maximum(cost, jnp.maximum(eps * scale, jnp.finfo(cost.dtype).tiny))
