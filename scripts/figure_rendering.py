@@ -27,7 +27,7 @@ def main():
 
     jax.config.update("jax_enable_x64", True)
     import ctfit  # noqa: PLC0415
-    from ctfit._render.rendering import render_compare, render_materials, save_png  # noqa: PLC0415
+    from ctfit import render_compare, render_materials, save_png  # noqa: PLC0415
 
     names = ("copper", "gold", "obsidian", "rust", "lunar-dust")
     mats = [ctfit.load_material(ROOT / "configs" / f"{n}.toml") for n in names]

@@ -6,7 +6,7 @@ Runs, one after another so that their timings do not disturb each other:
 - ``bench_fit.py``      → docs/benchmarks.md, "## Fitting" (whole processes vs SciPy and Mitsuba; many files, MERL-sized, per texel)
 - ``coverage.py`` (sigma, absolute and relative likelihoods) and ``bench_sample.py``
                         → docs/benchmarks.md, "## Sampling" (emcee speed vs NumPy; coverage)
-- ``bench_color.py``    → docs/benchmarks.md, "## Colour: error against run time", and its plot
+- ``bench_colour.py``    → docs/benchmarks.md, "## Colour: error against run time", and its plot
 - ``fit_tradeoffs.py``  → docs/fitting-tradeoffs.md (error against run time; the recommended default)
 - ``stability.py``      → docs/stability.md (stiff and extreme cases)
 - ``run_notebooks.py``  → notebooks/*.ipynb executed in place, with their outputs
@@ -51,7 +51,7 @@ def steps(docs: pathlib.Path, small: bool, scratch: pathlib.Path) -> list[tuple[
         ("bench_eval", [[str(SCRIPTS / "bench_eval.py"), *d, *q]]),
         ("bench_fit", [[str(SCRIPTS / "bench_fit.py"), *d, *q] + (["--no-merl"] if small else [])]),
         ("bench_sample", [*coverage, sample]),
-        ("bench_color", [[str(SCRIPTS / "bench_color.py"), *d, *q]]),
+        ("bench_colour", [[str(SCRIPTS / "bench_colour.py"), *d, *q]]),
         ("fit_tradeoffs", [[str(SCRIPTS / "fit_tradeoffs.py"), *d, *q]]),
         ("stability", [[str(SCRIPTS / "stability.py"), *d, *q]]),
         ("notebooks", [] if small else [[str(SCRIPTS / "run_notebooks.py")]]),

@@ -259,3 +259,13 @@ def test_benchmark_numpy_implementations_compute_the_same_model():
     per_value = bench.numpy_brdf_per_value(np.repeat(l, 7, 0), np.repeat(v, 7, 0), f0[band], rd[band], s, m, w)
     np.testing.assert_allclose(grid, ours, rtol=1e-10)
     np.testing.assert_allclose(per_value.reshape(500, 7), ours, rtol=1e-10)
+
+
+def test_angles_broadcast_like_arrays():
+    """A scalar θ with an array of φ (and the other way round) is every pair, as NumPy broadcasts."""
+    phi = np.array([0.0, 90.0, 180.0, 270.0])
+    d = np.asarray(ctfit.direction_from_angles_deg(30.0, phi))
+    np.testing.assert_allclose(d, np.asarray(ctfit.direction_from_angles_deg(np.full(4, 30.0), phi)), rtol=0, atol=0)
+    np.testing.assert_allclose(d[:, 2], np.cos(np.radians(30.0)), rtol=1e-12)
+    g = ctfit.geometry_from_angles_deg(45.0, 0.0, 45.0, np.array([180.0, 0.0]))
+    np.testing.assert_allclose(np.asarray(g.tan2_h), [0.0, 1.0], atol=1e-12)

@@ -10,7 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit._cli.app import _read_data, app
+from ctfit._cli.inputs import read_data as _read_data
+from ctfit.cli import app
 
 WL = np.array([450.0, 650.0])
 BAR = re.compile(r"files:\s+\d+%")

@@ -8,7 +8,8 @@ import pytest
 import typer.main
 from typer.testing import CliRunner
 
-from ctfit._cli.app import _cli_message, app
+from ctfit._cli.messages import cli_message as _cli_message
+from ctfit.cli import app
 
 from conftest import ROOT
 

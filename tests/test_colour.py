@@ -17,6 +17,7 @@ from ctfit._colour.colorimetry import (
     SpectralResamplingWarning,
     XYZ_to_Lab,
     XYZ_to_RGB,
+    XYZ_to_display_RGB,
     XYZ_to_xy,
     delta_E_CIE2000,
     dominant_wavelength,
@@ -252,6 +253,24 @@ def test_encoded_srgb_matches_colour():
     np.testing.assert_allclose(mine, ref, atol=1e-3)
 
 
+@pytest.mark.parametrize("colourspace", ["sRGB", "Adobe RGB (1998)", "Display P3"])
+def test_xyz_to_display_rgb_is_the_encoding_in_gamut_and_the_paper_mapping_beyond(colourspace):
+    w = spectral_weights(np.arange(360.0, 831.0, 5.0))
+    conv = rgb_conversion(colourspace, w.white_XYZ, "CAT02")
+    rgb = np.random.default_rng(5).uniform(0.02, 0.98, (50, 3))  # inside the gamut: untouched
+    XYZ = np.asarray(RGB_to_XYZ(rgb, conv))
+    encoded = np.asarray(colour.RGB_COLOURSPACES[colourspace].cctf_encoding(rgb), dtype=float)
+    np.testing.assert_allclose(np.asarray(XYZ_to_display_RGB(XYZ, conv)), encoded, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(XYZ_to_display_RGB(XYZ, conv, encode=False)), rgb, atol=1e-12)
+    beyond = np.array([[1.5, 0.2, -0.1], [0.3, 0.9, 1.4], [2.0, 2.0, 2.0]])
+    shown = np.asarray(XYZ_to_display_RGB(RGB_to_XYZ(beyond, conv), conv, encode=False))
+    assert np.all((shown >= 0) & (shown <= 1))
+    lum = np.asarray(conv.luminance)
+    np.testing.assert_allclose(shown @ lum, np.minimum(beyond @ lum, 1), atol=1e-12)  # luminance kept, up to white
+    unbounded = np.asarray(XYZ_to_display_RGB(RGB_to_XYZ(beyond, conv), conv, upper=None, encode=False))
+    assert unbounded.min() >= 0 and unbounded.max() > 1
+
+
 def test_eotf_inverse_srgb_matches_colour_and_is_smooth():
     x = np.array([-0.5, -1e-9, 0, 1e-6, 0.0031308, 0.0031309, 0.2, 0.5, 1, 2])
     np.testing.assert_allclose(np.asarray(eotf_inverse_sRGB(x)), colour.models.eotf_inverse_sRGB(x), atol=1e-12)
@@ -460,3 +479,14 @@ def test_colour_report_rgb_material():
 def test_colour_report_rejects_bad_angles(angle):
     with pytest.raises(ValueError, match="angle_deg"):
         colour_report(_spectral_material(), angle)
+
+
+def test_importing_colour_science_leaves_numpy_printing_alone():
+    """colour-science's import sets ``legacy="1.13"``; through ctfit it does not reach the user."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np; before = np.get_printoptions()\n"
+            "from ctfit._colour import colour_science; colour_science()\n"
+            "print(np.get_printoptions() == before)")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "True"

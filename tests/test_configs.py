@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._io.material_files import load_material, read_optical_constants
+from ctfit import load_material, read_optical_constants
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 CONFIGS = sorted((ROOT / "configs").glob("*.toml"))

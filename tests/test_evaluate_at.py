@@ -1,12 +1,9 @@
 """``ctfit.evaluate_at``: the material at any directions (angles or unit vectors) and bands."""
 
-import doctest
-
 import numpy as np
 import pytest
 
 import ctfit
-from ctfit._model import evaluation as _simulate
 
 GOLD = ctfit.Material(ctfit.Structure(lobes=1, diffuse="F0/pi"), ctfit.Params(s=np.asarray(0.8), m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
                       wavelength_nm=np.array([450.0, 650.0]))
@@ -46,8 +43,3 @@ def test_other_wavelengths_are_interpolated_and_the_horizon_gives_zero():
 def test_directions_must_be_given_one_way(kwargs):
     with pytest.raises(ValueError, match="either as angles"):
         ctfit.evaluate_at(GOLD, **kwargs)
-
-
-def test_docstring_example_runs():
-    result = doctest.testmod(_simulate, optionflags=doctest.NORMALIZE_WHITESPACE)
-    assert result.attempted >= 2 and result.failed == 0

@@ -99,6 +99,28 @@ def test_effective_index_round_trip():
     np.testing.assert_allclose(np.asarray(f0_from_nk(n, 0.0)), np.asarray(f0_from_n(n)), rtol=1e-15)
 
 
+def test_numpy_float64_in_gives_the_float64_formulas_whatever_jax_x64():
+    """NumPy float64 in, NumPy float64 out, the formulas' values to the last bit, with JAX in
+    float32 (as the material files need); JAX input gives the same values in float64."""
+    rng = np.random.default_rng(3)
+    n = np.concatenate([rng.uniform(0.05, 10.0, 200), [0.0, 1.0, 1e200, 1e300]])
+    k = np.concatenate([rng.uniform(0.0, 10.0, 200), [0.0, 0.0, 1e3, 1e300]])
+    f0 = np.concatenate([rng.uniform(0.0, 1.0, 200), [0.0, 0.04, 1 - 1e-16, 1.0]])
+    with jax.enable_x64(False):
+        got = f0_from_n(n), f0_from_nk(n, k), n_from_f0(f0)
+    assert all(isinstance(g, np.ndarray) and g.dtype == np.float64 for g in got)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        nk = ((n - 1) ** 2 + k * k) / ((n + 1) ** 2 + k * k)
+        np.testing.assert_array_equal(got[0], ((n - 1) / (n + 1)) ** 2)
+        np.testing.assert_array_equal(got[2], (1 + np.sqrt(f0)) / (1 - np.sqrt(f0)))  # ∞ at F0 = 1
+    finite = np.isfinite(nk)
+    np.testing.assert_array_equal(got[1][finite], nk[finite])
+    # Where the squares overflow (n = 1e200, 1e300): the same ratio of the scaled values, ≈ 1 there.
+    assert list(n[~finite]) == [1e200, 1e300]
+    np.testing.assert_allclose(got[1][~finite], 1.0, rtol=1e-12)
+    np.testing.assert_array_equal(np.asarray(f0_from_nk(jnp.asarray(n), jnp.asarray(k))), got[1])
+
+
 # --------------------------------------------------------------------------- against mpmath
 
 N_GRID = np.geomspace(1.0001, 1e6, 37)
@@ -203,7 +225,7 @@ def test_gradients_finite_over_the_range(dtype):
 
     Caught: dF/dF0 = NaN at F0 = 0, c = 1e-7 in float32 (maximum's mask times an infinite
     cotangent), and dF/dn = NaN at n = 1, k = 0, c = 1e-7 in float32 (x/y with y² underflowing
-    in the derivative); both fixed in ctfit/_fresnel.py.
+    in the derivative); both fixed in ctfit/_model/fresnel_equations.py.
     """
     c = np.concatenate([[0.0, 1e-8, 1e-7, 1e-5], np.linspace(0.01, 1, 12)])
     n = np.array([0.05, 0.7, 1.0, 1.0001, 1.5, 4.0, 1e3, 1e6])

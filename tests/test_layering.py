@@ -2,6 +2,7 @@
 ``ctfit/__init__.py`` the one public list, and no module reaching into another's private names."""
 
 import ast
+import re
 import importlib
 from pathlib import Path
 
@@ -87,3 +88,36 @@ def test_the_public_list_is_one_table():
     for name, package in ctfit._EXPORTS.items():
         assert name in _table(package[1:]), f"{name}: not exported by ctfit{package}"
         assert getattr(ctfit, name) is getattr(importlib.import_module(f"ctfit{package}"), name)
+
+
+def test_the_architecture_page_names_every_module():
+    """``docs/architecture.md`` has a row per folder that names each of its modules."""
+    rows = {}
+    for line in (PACKAGE.parent / "docs" / "architecture.md").read_text(encoding="utf-8").splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 3 and cells[0].startswith("`_"):
+            rows[cells[0].strip("`/")] = cells[2]
+    assert sorted(rows) == SUBPACKAGES
+    for package in SUBPACKAGES:
+        modules = sorted(p.stem for p in (PACKAGE / package).glob("*.py") if p.stem != "__init__")
+        assert [m for m in modules if f"`{m}`" not in rows[package]] == [], package
+
+
+def test_no_function_is_longer_than_80_lines():
+    """Counting its decorators' lines, signature and docstring."""
+    long = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                first = min([node.lineno] + [d.lineno for d in node.decorator_list])
+                if node.end_lineno - first + 1 > 80:
+                    long.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name}: {node.end_lineno - first + 1} lines")
+    assert not long, "\n".join(long)
+
+
+def test_scripts_and_notebooks_use_the_public_api():
+    """``scripts/`` and ``notebooks/`` import ``ctfit`` and ``ctfit.internal`` only, never ``ctfit._*``."""
+    root = PACKAGE.parent
+    found = [f"{p.relative_to(root)}" for p in sorted([*root.glob("scripts/*.py"), *root.glob("notebooks/*.ipynb")])
+             if re.search(r"\bctfit\._[a-z]", p.read_text(encoding="utf-8"))]
+    assert not found, found

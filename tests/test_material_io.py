@@ -16,14 +16,7 @@ from hypothesis import HealthCheck, given, settings
 
 import ctfit
 from ctfit import Material, Params, Structure
-from ctfit._io.material_files import (
-    MaterialError,
-    load_material,
-    material_from_dict,
-    material_to_dict,
-    read_optical_constants,
-    save_material_json,
-)
+from ctfit import MaterialError, load_material, material_from_dict, material_to_dict, read_optical_constants, save_material_json
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 CONFIGS = sorted((ROOT / "configs").glob("*.toml"))
@@ -521,8 +514,19 @@ def test_byte_order_mark_is_ignored(tmp_path, name, text):
     assert load_material(path).structure.has_specular
 
 
-def test_undecodable_file(tmp_path):
-    path = tmp_path / "m.toml"
-    path.write_bytes(b"s = 1\nname = '\xff'\n")
-    with pytest.raises(MaterialError, match=r"m\.toml: cannot read: 'utf-8' codec can't decode"):
-        load_material(path)
+@pytest.mark.parametrize("read, name", [(load_material, "m.toml"), (read_optical_constants, "t.csv")])
+def test_undecodable_file(tmp_path, read, name):
+    path = tmp_path / name
+    path.write_bytes(b"# x\nwavelength_nm,n,k\n500,1,2 # \xff\n")
+    with pytest.raises(MaterialError, match=rf"{name.replace('.', '[.]')}:3: byte 0xff at byte offset \d+ \(byte 11 of the line\) is not UTF-8"):
+        read(path)
+
+
+@pytest.mark.parametrize("read, name", [(load_material, "none.toml"), (read_optical_constants, "none.csv")])
+def test_missing_and_unreadable_files_are_named(tmp_path, read, name):
+    with pytest.raises(MaterialError, match=rf"{name.replace('.', '[.]')}: no such file"):
+        read(tmp_path / name)
+    folder = tmp_path / ("folder" + pathlib.Path(name).suffix)
+    folder.mkdir()
+    with pytest.raises(MaterialError, match=rf"{folder.name.replace('.', '[.]')}: cannot read: "):
+        read(folder)

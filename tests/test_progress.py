@@ -1,4 +1,4 @@
-"""Progress bars (ctfit/_progress.py): when they show, and ``make report``'s bar over its steps."""
+"""Progress bars (ctfit/_runtime/progress.py): when they show, and ``make report``'s bar over its steps."""
 
 import pytest
 

@@ -8,24 +8,11 @@ from conftest import ROOT
 
 import ctfit
 from ctfit import Material, Params, Structure
-from ctfit._render.rendering import (
-    BACKGROUND,
-    RADIUS,
-    VASE_SCALE,
-    VIEW,
-    grid_layout,
-    render_bands,
-    render_compare,
-    render_linear,
-    render_material,
-    render_materials,
-    save_png,
-    scene_lights,
-    shade_linear,
-    surface,
-    tone_map,
-    vase_profile,
-)
+from ctfit import render_compare, render_linear, render_material, render_materials, save_png, tone_map
+from ctfit._render.scene import render_scene, shade_linear
+from ctfit._render.sheet import grid_layout
+from ctfit._render.surfaces import RADIUS, VASE_SCALE, VIEW_DIRECTION, surface_normals, vase_profile
+from ctfit._render.tone import BACKGROUND
 from ctfit._cli.render_command import render_command_body
 
 RGB = ("R", "G", "B")
@@ -58,7 +45,7 @@ def luminance(rgb):
 
 @pytest.mark.parametrize("shape", ["sphere", "vase"])
 def test_surface_normals(shape):
-    surf = surface(shape, 64, 2)
+    surf = surface_normals(shape, 64, 2)
     assert surf.normal.shape == (128, 128, 3) and surf.mask.shape == (128, 128)
     n = surf.normal[surf.mask]
     np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1, atol=1e-12)
@@ -76,7 +63,7 @@ def test_vase_normal_is_perpendicular_to_the_surface():
     np.testing.assert_allclose(dr, fd, atol=1e-6)
     # Near the meridian (x ≈ 0) the surface point is (x, y, z(y)), z = √(r² − x²), and a tangent
     # along the meridian is (0, 1, dz/dy) = (0, 1, r r′/z); r = 0.9 p(y/0.9), r′ = p′(y/0.9).
-    surf = surface("vase", 200)
+    surf = surface_normals("vase", 200)
     col = 100
     x = (col + 0.5) / 200 * 2 - 1
     rows = np.flatnonzero(surf.mask[:, col])
@@ -106,7 +93,7 @@ def test_highlight_where_the_mirror_condition_holds():
     tile = render_linear(mirror_material(), size, directions=(light,), solid_angles=(1e-4,), ambient=0.0, supersample=1)
     y = np.where(tile.mask, luminance(tile.rgb), -np.inf)
     row, col = np.unravel_index(np.argmax(y), y.shape)
-    expect = pixel_of(unit(light + np.asarray(VIEW)), size)
+    expect = pixel_of(unit(light + np.asarray(VIEW_DIRECTION)), size)
     assert abs(row - expect[0]) <= 1.5 and abs(col - expect[1]) <= 1.5
     # The highlight is small: away from it the sphere is dark (no ambient here).
     assert np.mean(y[tile.mask] > 0.05 * y.max()) < 0.1
@@ -118,7 +105,7 @@ def test_highlight_moves_with_the_light():
     for light in (unit([-0.6, 0.2, 0.8]), unit([0.2, -0.6, 0.8])):
         tile = render_linear(mirror_material(), size, directions=(light,), solid_angles=(1e-4,), ambient=0.0, supersample=1)
         y = np.where(tile.mask, luminance(tile.rgb), -np.inf)
-        peaks.append((np.unravel_index(np.argmax(y), y.shape), pixel_of(unit(light + np.asarray(VIEW)), size)))
+        peaks.append((np.unravel_index(np.argmax(y), y.shape), pixel_of(unit(light + np.asarray(VIEW_DIRECTION)), size)))
     for (row, col), (er, ec) in peaks:
         assert abs(row - er) <= 1.5 and abs(col - ec) <= 1.5
 
@@ -133,7 +120,7 @@ def test_matte_material_has_no_highlight():
     row, col = np.unravel_index(np.argmax(y), y.shape)
     er, ec = pixel_of(light, size)
     assert abs(row - er) <= 1.5 and abs(col - ec) <= 1.5
-    cos = np.maximum(surface("sphere", size).normal[tile.mask] @ light, 0)
+    cos = np.maximum(surface_normals("sphere", size).normal[tile.mask] @ light, 0)
     a, b = np.polyfit(cos, y[tile.mask], 1)
     np.testing.assert_allclose(a * cos + b, y[tile.mask], rtol=1e-9)
     assert b > 0  # the ambient term lifts the unlit side
@@ -182,9 +169,8 @@ def test_rendered_pixel_gradients_are_finite():
     st = Structure(lobes=1, fresnel="f0", diffuse="spectrum")
     params = Params(s=jnp.asarray(0.8), m=jnp.array([0.1]), w=jnp.array([1.0]), f0=jnp.array([0.6, 0.7, 0.9]), rd=jnp.array([0.1, 0.05, 0.02]))
     mat = Material(st, params, channels=RGB)
-    _, spectrum, to_rgb = render_bands(mat)
-    lights = scene_lights(spectrum)
-    surf = surface("sphere", 12)
+    scene = render_scene(mat, ambient=1e-6 * np.pi / 3e-4)  # I_ia = 1e-6 per channel
+    surf = surface_normals("sphere", 12)
     phi = np.linspace(0, 2 * np.pi, 9)
     rim = [np.stack([np.cos(phi) * np.sqrt(1 - z * z), np.sin(phi) * np.sqrt(1 - z * z), np.full_like(phi, z)], -1) for z in (0.0, 1e-300, 1e-9, -1e-9)]
     normals = np.concatenate([surf.normal[surf.mask], *rim])
@@ -193,7 +179,7 @@ def test_rendered_pixel_gradients_are_finite():
     @eqx.filter_jit
     @eqx.filter_grad
     def grad(p):
-        rgb = shade_linear(st, p, normals, jnp.asarray(VIEW), lights, 1e-6, to_rgb)
+        rgb = shade_linear(st, scene._replace(params=p), normals)
         shown = ctfit.eotf_inverse_sRGB(ctfit.desaturate_to_gamut(rgb * scale, upper=1.0))
         return jnp.sum(shown[len(normals) // 3]) + jnp.sum(shown[-40:]) + jnp.sum(rgb)
 

@@ -1,6 +1,6 @@
 """The body of ``ctfit render``: materials → a labelled PNG grid, or a fit beside its measurement.
 
-The typer command in ``ctfit/cli.py`` parses the options and calls :func:`render_command_body`;
+The typer command ``ctfit render`` (``ctfit/_cli``) parses the options and calls :func:`render_command_body`;
 this module holds no CLI framework code, and imports nothing heavy at import time.
 """
 

@@ -70,6 +70,7 @@ __all__ = [
     "RGB_to_XYZ",
     "eotf_inverse_sRGB",
     "encode_RGB",
+    "XYZ_to_display_RGB",
     "spectrum_to_RGB",
     "XYZ_to_xy",
     "XYZ_to_Lab",
@@ -82,37 +83,47 @@ DEFAULT_OBSERVER = "CIE 1931 2 Degree Standard Observer"
 
 
 class SpectralResamplingWarning(UserWarning):
-    """Colour-matching functions or an illuminant had to be interpolated to the spectrum."""
+    """Colour-matching functions or an illuminant had to be interpolated to the spectrum.
+
+    >>> import warnings, numpy as np
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     _ = spectral_weights(np.arange(400.5, 700.0, 10.0))  # off the CMFs' 1 nm grid
+    >>> caught[0].category.__name__
+    'SpectralResamplingWarning'
+    """
 
 
 def colour_science():
-    """The colour-science package, imported on first use (it takes a while)."""
-    import colour  # noqa: PLC0415  (heavy; imported on first use)
+    """The colour-science package, imported on first use (it takes a while). Its import sets
+    NumPy's print options to ``legacy="1.13"``; ctfit keeps the user's settings as they were."""
+    with np.printoptions():
+        import colour  # noqa: PLC0415  (heavy; imported on first use)
 
     return colour
 
 
+def _entry(table: str, key: str, what: str, names: list[str], also: str = ""):
+    """``colour.<table>[key]``; a ValueError naming ``what`` and ``names`` (some of the keys) if absent."""
+    try:
+        return getattr(colour_science(), table)[key]
+    except KeyError:
+        raise ValueError(f"unknown {what} {key!r}; one of colour.{table}, e.g. {names}{also}") from None
+
+
 @functools.cache
 def observer_cmfs(observer: str):
-    colour = colour_science()
-    try:
-        return colour.MSDS_CMFS[observer]
-    except KeyError:
-        names = sorted(k for k in colour.MSDS_CMFS.keys() if "Observer" in k)
-        raise ValueError(f"unknown observer {observer!r}; one of {names}") from None
+    """The colour-matching functions of ``observer`` (a name in ``colour.MSDS_CMFS``)."""
+    names = sorted(k for k in colour_science().MSDS_CMFS.keys() if "Observer" in k)
+    return _entry("MSDS_CMFS", observer, "observer", names)
 
 
 def _illuminant_sd(illuminant):
     """(name, SpectralDistribution, user_supplied) from a name, an SD or (wavelengths, values)."""
     colour = colour_science()
     if isinstance(illuminant, str):
-        try:
-            return illuminant, colour.SDS_ILLUMINANTS[illuminant], False
-        except KeyError:
-            raise ValueError(
-                f"unknown illuminant {illuminant!r}; one of colour.SDS_ILLUMINANTS, e.g. "
-                f"{list(colour.SDS_ILLUMINANTS.keys())[:12]}, or a (wavelengths, values) pair"
-            ) from None
+        names = list(colour.SDS_ILLUMINANTS.keys())[:12]
+        return illuminant, _entry("SDS_ILLUMINANTS", illuminant, "illuminant", names, ", or a (wavelengths, values) pair"), False
     if isinstance(illuminant, colour.SpectralDistribution):
         return illuminant.name, illuminant, True
     try:
@@ -140,6 +151,11 @@ def _on_grid(wl, grid):
     return best if np.all(np.abs(grid[best] - wl) < 1e-9) else None
 
 
+def _warn_resampling(message: str) -> None:
+    """A :class:`SpectralResamplingWarning` attributed to the caller of :func:`spectral_weights`."""
+    warnings.warn(message, SpectralResamplingWarning, stacklevel=3)
+
+
 def _cell_widths(wl):
     """Δ(λ): half-way to each neighbour; the end cells are symmetric (Δλ on a uniform grid)."""
     d = np.diff(wl)
@@ -157,6 +173,11 @@ class SpectralWeights(eqx.Module):
     - ``illuminant``, ``observer``: names (``"custom"`` for a user spectrum).
 
     Build it with :func:`spectral_weights`.
+
+    >>> import numpy as np
+    >>> w = spectral_weights(np.arange(400.0, 701.0, 10.0))
+    >>> w.weights.shape, w.illuminant, [round(float(v), 4) for v in w.white_xy]
+    ((31, 3), 'D65', [0.3127, 0.3293])
     """
 
     wavelength_nm: np.ndarray
@@ -210,11 +231,9 @@ def spectral_weights(wavelength_nm, illuminant="D65", observer: str = DEFAULT_OB
     if idx is not None:
         cmf = np.asarray(cmfs.values, dtype=float)[idx]
     else:
-        warnings.warn(
+        _warn_resampling(
             f"the {observer} colour-matching functions (tabulated every {cmfs.shape.interval:g} nm) "
-            f"are interpolated (Sprague) to {wl_in.size} wavelengths not all on that grid",
-            SpectralResamplingWarning,
-            stacklevel=2,
+            f"are interpolated (Sprague) to {wl_in.size} wavelengths not all on that grid"
         )
         cmf = np.asarray(cmfs[wl_in], dtype=float)
 
@@ -222,11 +241,9 @@ def spectral_weights(wavelength_nm, illuminant="D65", observer: str = DEFAULT_OB
     sd_wl = np.asarray(sd.wavelengths, dtype=float)
     if user and (_on_grid(wl_in, sd_wl) is None):
         outside = np.any((wl_in < sd_wl[0]) | (wl_in > sd_wl[-1]))
-        warnings.warn(
+        _warn_resampling(
             f"illuminant {name!r} is {'interpolated and extrapolated' if outside else 'interpolated'} "
-            f"to the spectrum's wavelengths ({sd_wl[0]:g}–{sd_wl[-1]:g} nm tabulated)",
-            SpectralResamplingWarning,
-            stacklevel=2,
+            f"to the spectrum's wavelengths ({sd_wl[0]:g}–{sd_wl[-1]:g} nm tabulated)"
         )
     s = np.asarray(sd[wl_in], dtype=float)
 
@@ -250,6 +267,11 @@ def spectrum_to_XYZ(reflectance, weights: SpectralWeights):
 
     Y of a perfect white reflector is 1. One matrix product: differentiable, batched.
     Non-finite values propagate (a NaN anywhere in a spectrum gives NaN XYZ).
+
+    >>> import numpy as np
+    >>> w = spectral_weights(np.arange(360.0, 831.0, 5.0))
+    >>> [round(float(v), 4) for v in spectrum_to_XYZ(np.full(95, 0.5), w)]  # a 50 % grey under D65
+    [0.4752, 0.5, 0.5445]
     """
     r = jnp.asarray(reflectance)
     r = r.astype(_float_dtype(r))
@@ -261,14 +283,7 @@ def spectrum_to_XYZ(reflectance, weights: SpectralWeights):
 
 @functools.cache
 def _colourspace(name: str):
-    colour = colour_science()
-    try:
-        return colour.RGB_COLOURSPACES[name]
-    except KeyError:
-        raise ValueError(
-            f"unknown colourspace {name!r}; one of colour.RGB_COLOURSPACES, e.g. "
-            f"{sorted(colour.RGB_COLOURSPACES.keys())[:12]}"
-        ) from None
+    return _entry("RGB_COLOURSPACES", name, "colourspace", sorted(colour_science().RGB_COLOURSPACES.keys())[:12])
 
 
 class RGBConversion(eqx.Module):
@@ -279,6 +294,10 @@ class RGBConversion(eqx.Module):
     - ``luminance``: (3,) relative luminance of each linear channel (the Y row of the
       colourspace's RGB → XYZ matrix, scaled to sum to 1): the luminance used by the gamut
       mapping, for which white of luminance Y is (Y, Y, Y).
+
+    >>> conv = rgb_conversion("sRGB")
+    >>> conv.colourspace, [round(float(v), 4) for v in conv.luminance]
+    ('sRGB', [0.2126, 0.7152, 0.0722])
     """
 
     matrix: np.ndarray
@@ -301,6 +320,12 @@ def rgb_conversion(colourspace: str = "sRGB", white_XYZ=None, chromatic_adaptati
     colourspace's white ``M⁻¹ (1, 1, 1)`` (M: the colourspace's published XYZ → RGB matrix), so
     that the scene white is RGB (1, 1, 1) exactly. ``white_XYZ=None`` or
     ``chromatic_adaptation=None`` passes XYZ to M unchanged.
+
+    >>> import numpy as np
+    >>> white_A = spectral_weights(np.arange(360.0, 831.0, 5.0), "A").white_XYZ  # incandescent light
+    >>> conv = rgb_conversion("sRGB", white_A, "CAT02")
+    >>> [round(float(v), 6) for v in conv.matrix @ white_A]  # its white is display white
+    [1.0, 1.0, 1.0]
     """
     colour = colour_science()
     cs = _colourspace(colourspace)
@@ -327,14 +352,25 @@ def rgb_conversion(colourspace: str = "sRGB", white_XYZ=None, chromatic_adaptati
 
 
 def XYZ_to_RGB(XYZ, conversion: RGBConversion):
-    """Linear RGB (…, 3) from XYZ (…, 3); no encoding, no gamut mapping (channels may be < 0)."""
+    """Linear RGB (…, 3) from XYZ (…, 3); no encoding, no gamut mapping (channels may be < 0).
+
+    >>> import numpy as np
+    >>> conv = rgb_conversion("sRGB")
+    >>> [round(float(v), 4) for v in XYZ_to_RGB(np.array([0.4124, 0.2126, 0.0193]), conv)]  # sRGB's red primary
+    [1.0, 0.0, 0.0]
+    """
     x = jnp.asarray(XYZ)
     x = x.astype(_float_dtype(x))
     return x @ jnp.asarray(conversion.matrix).astype(x.dtype).T
 
 
 def RGB_to_XYZ(rgb, conversion: RGBConversion):
-    """Inverse of :func:`XYZ_to_RGB`."""
+    """Inverse of :func:`XYZ_to_RGB`.
+
+    >>> import numpy as np
+    >>> [round(float(v), 4) for v in RGB_to_XYZ(np.ones(3), rgb_conversion("sRGB"))]  # sRGB's white, D65
+    [0.9505, 1.0, 1.089]
+    """
     x = jnp.asarray(rgb)
     x = x.astype(_float_dtype(x))
     return x @ jnp.asarray(np.linalg.inv(np.asarray(conversion.matrix))).astype(x.dtype).T
@@ -345,6 +381,10 @@ def eotf_inverse_sRGB(L):
 
     JAX, differentiable everywhere (the power is never evaluated at 0). Negative values use
     the linear segment; NaN and ±inf propagate.
+
+    >>> import numpy as np
+    >>> [round(float(v), 4) for v in eotf_inverse_sRGB(np.array([0.0, 0.002, 0.18, 1.0]))]  # 18 % grey → 0.46
+    [0.0, 0.0258, 0.4614, 1.0]
     """
     L = jnp.asarray(L)
     L = L.astype(_float_dtype(L))
@@ -359,6 +399,10 @@ def encode_RGB(rgb, colourspace: str = "sRGB"):
     In JAX (differentiable, jittable) when the encoding is sRGB's curve (sRGB, Display P3, …)
     or linear (ACES2065-1, …). Any other curve is colour-science's own function on NumPy
     arrays: not differentiable and not traceable (a TypeError says so under jit/grad).
+
+    >>> import numpy as np
+    >>> [round(float(encode_RGB(np.array([0.18]), cs)[0]), 4) for cs in ("sRGB", "Adobe RGB (1998)", "ACES2065-1")]
+    [0.4614, 0.4585, 0.18]
     """
     colour = colour_science()
     cs = _colourspace(colourspace)
@@ -377,16 +421,36 @@ def encode_RGB(rgb, colourspace: str = "sRGB"):
         return np.asarray(cs.cctf_encoding(a), dtype=float)
 
 
-def spectrum_to_RGB(reflectance, weights: SpectralWeights, conversion: RGBConversion, *, upper=1.0, encode=True):
-    """The whole pipeline: reflectance (…, λ) → XYZ → linear RGB → gamut mapping → encoding.
+def XYZ_to_display_RGB(XYZ, conversion: RGBConversion, *, upper=1.0, encode=True):
+    """XYZ (…, 3) → linear RGB → the paper's gamut mapping → encoding: the colour to show.
 
     The gamut mapping is :func:`ctfit.desaturate_to_gamut` with the colourspace's luminance and
-    ``upper`` (None: only negative channels are mapped). Differentiable for colourspaces whose
-    encoding is evaluated in JAX (see :func:`encode_RGB`).
+    ``upper`` (None: only negative channels are mapped); ``encode=False`` stops before the
+    encoding (:func:`encode_RGB`). Differentiable for colourspaces whose encoding is evaluated
+    in JAX.
+
+    >>> import numpy as np
+    >>> w = spectral_weights(np.arange(360.0, 831.0, 5.0))
+    >>> conv = rgb_conversion("sRGB", w.white_XYZ)
+    >>> [round(float(v), 4) for v in XYZ_to_display_RGB(w.white_XYZ * 0.2, conv)]  # 20 % grey, encoded
+    [0.4845, 0.4845, 0.4845]
     """
-    rgb = XYZ_to_RGB(spectrum_to_XYZ(reflectance, weights), conversion)
-    rgb = desaturate_to_gamut(rgb, conversion.luminance, upper=upper)
+    rgb = desaturate_to_gamut(XYZ_to_RGB(XYZ, conversion), conversion.luminance, upper=upper)
     return encode_RGB(rgb, conversion.colourspace) if encode else rgb
+
+
+def spectrum_to_RGB(reflectance, weights: SpectralWeights, conversion: RGBConversion, *, upper=1.0, encode=True):
+    """The whole pipeline: reflectance (…, λ) → XYZ → :func:`XYZ_to_display_RGB`.
+
+    >>> import numpy as np
+    >>> wl = np.arange(360.0, 831.0, 5.0)
+    >>> w = spectral_weights(wl)
+    >>> conv = rgb_conversion("sRGB", w.white_XYZ)
+    >>> red = np.where(wl > 600, 0.9, 0.05)  # reflects the long wavelengths
+    >>> [round(float(v), 3) for v in spectrum_to_RGB(red, w, conv)]
+    [0.869, 0.13, 0.223]
+    """
+    return XYZ_to_display_RGB(spectrum_to_XYZ(reflectance, weights), conversion, upper=upper, encode=encode)
 
 
 def _safe_div(a, b):
@@ -395,7 +459,12 @@ def _safe_div(a, b):
 
 
 def XYZ_to_xy(XYZ, xy_n=None):
-    """CIE xy chromaticity (…, 2). Where X + Y + Z = 0 (black) it is ``xy_n`` if given, else (0, 0)."""
+    """CIE xy chromaticity (…, 2). Where X + Y + Z = 0 (black) it is ``xy_n`` if given, else (0, 0).
+
+    >>> import numpy as np
+    >>> [round(float(v), 4) for v in XYZ_to_xy(np.array([0.9505, 1.0, 1.089]))]  # D65's white point
+    [0.3127, 0.329]
+    """
     x = jnp.asarray(XYZ)
     x = x.astype(_float_dtype(x))
     s = jnp.sum(x, axis=-1, keepdims=True)
@@ -418,6 +487,11 @@ def XYZ_to_Lab(XYZ, white_XYZ):
     """CIELAB (CIE 15:2004 §8.2.1) relative to ``white_XYZ``: L* = 100 for the white. JAX.
 
     Differentiable at black (the cube root is only taken above (6/29)³).
+
+    >>> import numpy as np
+    >>> white = np.array([0.9505, 1.0, 1.089])
+    >>> [round(float(v), 2) for v in XYZ_to_Lab(0.18 * white, white)]  # an 18 % grey: L* ≈ 50
+    [49.5, 0.0, 0.0]
     """
     x = jnp.asarray(XYZ)
     x = x.astype(_float_dtype(x))
@@ -437,6 +511,10 @@ def delta_E_CIE2000(Lab1, Lab2):
 
     Agrees with ``colour.delta_E(..., method="CIE 2000")``; differentiable, with zero gradient
     where both colours are equal or achromatic (the hue terms are switched off there).
+
+    >>> import numpy as np
+    >>> round(float(delta_E_CIE2000(np.array([50, 2.6772, -79.7751]), np.array([50, 0, -82.7485]))), 4)  # Sharma's pair 1
+    2.0425
     """
     L1, a1, b1 = (jnp.asarray(Lab1)[..., i] for i in range(3))
     L2, a2, b2 = (jnp.asarray(Lab2)[..., i] for i in range(3))
@@ -546,6 +624,11 @@ def dominant_wavelength(xy, xy_n, observer: str = DEFAULT_OBSERVER) -> np.ndarra
     interpolated along the segment. Where it meets the line of purples instead, the value is
     −λ_c, the complementary wavelength with a minus sign (colour-science's convention).
     NaN where ``xy`` is within 1e-12 of ``xy_n`` (achromatic) or is not finite. NumPy.
+
+    >>> import numpy as np
+    >>> d65 = np.array([0.3127, 0.3290])
+    >>> [round(float(v), 1) for v in dominant_wavelength(np.array([[0.5, 0.4], [0.3, 0.15]]), d65)]  # orange, purple
+    [589.5, -554.8]
     """
     return _dominant(xy, xy_n, observer)[0]
 
@@ -554,5 +637,10 @@ def excitation_purity(xy, xy_n, observer: str = DEFAULT_OBSERVER) -> np.ndarray:
     """Excitation purity |xy − xy_n| / |xy_b − xy_n|, xy_b the locus or purple-line point. NumPy.
 
     0 for achromatic colours; greater than 1 outside the spectral locus; NaN for non-finite input.
+
+    >>> import numpy as np
+    >>> d65 = np.array([0.3127, 0.3290])
+    >>> [round(float(v), 3) for v in excitation_purity(np.array([[0.5, 0.4], [0.3127, 0.3290]]), d65)]
+    [0.722, 0.0]
     """
     return _dominant(xy, xy_n, observer)[1]

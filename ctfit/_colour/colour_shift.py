@@ -47,6 +47,13 @@ def average_normal_reflectance(f0, weights: SpectralWeights | None = None):
 
     With ``weights``: the luminance-weighted mean, i.e. Y of the F0 spectrum (Y(white) = 1).
     Without: the plain mean over the listed wavelengths.
+
+    >>> import numpy as np
+    >>> from ctfit import spectral_weights
+    >>> wl = np.arange(400.0, 701.0, 10.0)
+    >>> f0 = np.where(wl > 580, 0.9, 0.4)  # a copper-like step
+    >>> round(float(average_normal_reflectance(f0)), 3), round(float(average_normal_reflectance(f0, spectral_weights(wl))), 3)
+    (0.594, 0.522)
     """
     f0 = jnp.asarray(f0)
     if weights is None:
@@ -60,6 +67,11 @@ def colour_shift_weight(cos_theta, f0_mean):
     F_avg is :func:`ctfit.fresnel_dielectric_f0` — the paper's dielectric F with
     n = (1 + √F0_avg)/(1 − √F0_avg) — finite for F0_avg in [0, 1]; the weight is 0 when
     F0_avg = 1 (then both end colours agree) and when F0_avg = 0 (F ≡ 0).
+
+    >>> import numpy as np
+    >>> w = colour_shift_weight(np.array([1.0, 0.5, 0.1, 0.0]), 0.04)  # glass at 0°, 60°, 84°, 90°
+    >>> [round(float(v), 3) for v in w]
+    [0.0, 0.051, 0.554, 1.0]
     """
     c = jnp.asarray(cos_theta)
     f0 = jnp.asarray(f0_mean)
@@ -76,6 +88,11 @@ def colour_shift_approximation(rgb_normal, rgb_light, f0_mean, cos_theta):
     ``cos_theta`` broadcast against their leading axes. ``rgb_light`` is the colour of a
     perfect reflector under the light: (1, 1, 1) in linear RGB after chromatic adaptation, or
     the illuminant's white XYZ.
+
+    >>> import numpy as np
+    >>> rgb = colour_shift_approximation(np.array([0.9, 0.6, 0.5]), np.ones(3), 0.04, np.array([1.0, 0.1, 0.0]))
+    >>> np.round(np.asarray(rgb, dtype=float), 3).tolist()  # towards the light's white at grazing
+    [[0.9, 0.6, 0.5], [0.955, 0.821, 0.777], [1.0, 1.0, 1.0]]
     """
     w = colour_shift_weight(cos_theta, f0_mean)[..., None]
     a = jnp.asarray(rgb_normal)
@@ -88,6 +105,11 @@ def fresnel_reflectance_spectrum(cos_theta, *, f0=None, n=None, k=None):
     - ``f0``: the paper's effective index per wavelength (k = 0), :func:`ctfit.fresnel_dielectric_f0`;
     - ``n``: a real index, :func:`ctfit.fresnel_dielectric`;
     - ``n`` and ``k``: the conductor Fresnel, :func:`ctfit.fresnel_conductor`.
+
+    >>> import numpy as np
+    >>> F = fresnel_reflectance_spectrum(np.array([1.0, 0.0]), f0=np.array([0.04, 0.9]))
+    >>> np.round(np.asarray(F, dtype=float), 4).tolist()  # F0 at normal incidence, 1 at grazing
+    [[0.04, 0.9], [1.0, 1.0]]
     """
     c = jnp.asarray(cos_theta)[..., None]
     if f0 is not None:
@@ -102,5 +124,14 @@ def fresnel_reflectance_spectrum(cos_theta, *, f0=None, n=None, k=None):
 
 
 def colour_shift_spectral(cos_theta, weights: SpectralWeights, *, f0=None, n=None, k=None):
-    """Exact XYZ (…, 3) of the reflection at cos θ: F(θ, λ) on ``weights.wavelength_nm`` integrated."""
+    """Exact XYZ (…, 3) of the reflection at cos θ: F(θ, λ) on ``weights.wavelength_nm`` integrated.
+
+    >>> import numpy as np
+    >>> from ctfit import spectral_weights
+    >>> wl = np.arange(400.0, 701.0, 10.0)
+    >>> w = spectral_weights(wl)
+    >>> XYZ = colour_shift_spectral(np.array([1.0, 0.0]), w, f0=np.where(wl > 580, 0.9, 0.4))
+    >>> round(float(XYZ[0, 1]), 3), bool(np.allclose(XYZ[1], w.white_XYZ, rtol=1e-5))  # Y(0°) = F0_avg; white at 90°
+    (0.522, True)
+    """
     return spectrum_to_XYZ(fresnel_reflectance_spectrum(cos_theta, f0=f0, n=n, k=k), weights)

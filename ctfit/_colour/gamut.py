@@ -34,10 +34,14 @@ __all__ = ["desaturate_to_gamut", "in_gamut", "scale_to_display", "srgb_luminanc
 
 @functools.cache
 def srgb_luminance() -> np.ndarray:
-    """Luminance of sRGB's linear channels (Y row of its RGB → XYZ matrix, summing to 1)."""
-    import colour  # noqa: PLC0415
+    """Luminance of sRGB's linear channels (Y row of its RGB → XYZ matrix, summing to 1).
 
-    m_inv = np.linalg.inv(np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, dtype=float))
+    >>> [round(float(v), 4) for v in srgb_luminance()]
+    [0.2126, 0.7152, 0.0722]
+    """
+    from .colorimetry import colour_science
+
+    m_inv = np.linalg.inv(np.asarray(colour_science().RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, dtype=float))
     return m_inv[1] / m_inv[1].sum()
 
 
@@ -62,10 +66,11 @@ def desaturate_to_gamut(rgb, luminance=None, *, upper=1.0):
 
     Examples
     --------
-    >>> import jax.numpy as jnp
-    >>> c = desaturate_to_gamut(jnp.array([0.5, 0.2, -0.1]))
-    >>> bool(jnp.all(c >= -1e-12))
-    True
+    >>> import numpy as np
+    >>> rgb = np.array([0.5, 0.2, -0.1])  # beyond sRGB's gamut: a negative blue
+    >>> c = desaturate_to_gamut(rgb)
+    >>> [round(float(v), 4) for v in c], round(float(c @ srgb_luminance()), 4) == round(float(rgb @ srgb_luminance()), 4)
+    ([0.4246, 0.2123, 0.0], True)
     """
     c = _float(rgb)
     lum = jnp.asarray(srgb_luminance() if luminance is None else luminance).astype(c.dtype)
@@ -85,7 +90,12 @@ def desaturate_to_gamut(rgb, luminance=None, *, upper=1.0):
 
 
 def in_gamut(rgb, *, upper=1.0, atol=0.0):
-    """Whether every channel of each colour (…, 3) is in [−atol, upper + atol] (False for NaN)."""
+    """Whether every channel of each colour (…, 3) is in [−atol, upper + atol] (False for NaN).
+
+    >>> import numpy as np
+    >>> in_gamut(np.array([[0.5, 0.2, 0.1], [1.2, 0.5, 0.1], [0.5, -0.01, 0.2]])).tolist()
+    [True, False, False]
+    """
     c = jnp.asarray(rgb)
     ok = c >= -atol
     if upper is not None:
@@ -106,6 +116,11 @@ def scale_to_display(rgb, luminance=None):
 
     An all-black (or all non-finite) scene gets ``scale = 1``. Differentiable; the gradient
     of ``scale`` flows through the brightest pixel.
+
+    >>> import numpy as np
+    >>> shown, scale = scale_to_display(np.array([[2.0, 1.0, 0.5], [0.5, 0.5, 0.5]]))
+    >>> float(scale), np.asarray(shown, dtype=float).tolist()  # the brightest channel at 1
+    (0.5, [[1.0, 0.5, 0.25], [0.25, 0.25, 0.25]])
     """
     c = desaturate_to_gamut(rgb, luminance, upper=None)
     finite = jnp.all(jnp.isfinite(c), axis=-1, keepdims=True)

@@ -22,28 +22,30 @@ report refuses it.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import equinox as eqx
 import numpy as np
 
-from .._model import ambient_reflectance, fresnel
+from .._io import float_list
+from .._model import Material, ambient_reflectance, fresnel
 from .colorimetry import (
     DEFAULT_OBSERVER,
     RGB_to_XYZ,
+    RGBConversion,
+    XYZ_to_display_RGB,
     XYZ_to_RGB,
     XYZ_to_xy,
-    observer_cmfs,
     colour_science,
-    encode_RGB,
     dominant_wavelength,
+    encode_RGB,
     excitation_purity,
+    observer_cmfs,
     rgb_conversion,
     spectral_weights,
     spectrum_to_XYZ,
 )
-from .gamut import desaturate_to_gamut, in_gamut
-from .._model import Material
-from .._io import float_list
+from .gamut import in_gamut
 
 __all__ = ["colour_report", "reflectance_spectrum"]
 
@@ -55,9 +57,9 @@ _spectrum_to_XYZ = eqx.filter_jit(spectrum_to_XYZ)
 
 @eqx.filter_jit
 def _to_rgb(XYZ, conv):
-    """Linear RGB, and gamut-mapped linear RGB of a colourspace (compiled once per shape)."""
-    lin = XYZ_to_RGB(XYZ, conv)
-    return lin, desaturate_to_gamut(lin, conv.luminance, upper=1.0)
+    """Linear RGB, and gamut-mapped linear RGB, of a colourspace (compiled once per shape). The
+    encoding is applied outside: some colourspaces' encodings are evaluated in NumPy."""
+    return XYZ_to_RGB(XYZ, conv), XYZ_to_display_RGB(XYZ, conv, encode=False)
 
 
 def _cos(angle_deg: float) -> float:
@@ -73,6 +75,12 @@ def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_
     ``quantity`` is ``"F(theta)"`` (specular part present) or ``"pi*Rd"`` (diffuse only). ``R``
     has one value per ``wavelength_nm`` (spectral materials; default: the material's own
     wavelengths), or per R, G, B channel (RGB materials).
+
+    >>> from ctfit import material_from_dict
+    >>> glass = material_from_dict({"s": 1, "lobes": [{"m": 0.2}], "channels": ["R", "G", "B"], "n": 1.5})
+    >>> quantity, r = reflectance_spectrum(glass, 60.0)
+    >>> quantity, [round(float(v), 4) for v in r]  # F(60°) of n = 1.5: 0.089, up from F0 = 0.04
+    ('F(theta)', [0.0892, 0.0892, 0.0892])
     """
     cos = _cos(angle_deg)
     st = material.structure
@@ -99,6 +107,48 @@ def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_
 def _hex(srgb) -> str:
     v = np.clip(np.round(np.asarray(srgb, dtype=float) * 255), 0, 255).astype(int)
     return "#" + "".join(f"{c:02x}" for c in v)
+
+
+class _Reflection(NamedTuple):
+    """The reflected colour before its conversions: XYZ (float64), its white and the conversion."""
+
+    quantity: str
+    XYZ: np.ndarray
+    eps: float  # machine epsilon of the dtype the spectrum was integrated in
+    white_XYZ: np.ndarray
+    illuminant: str
+    conversion: RGBConversion  # to the report's colourspace
+
+
+def _reflection(material: Material, angle_deg, illuminant, colourspace, observer, chromatic_adaptation) -> _Reflection:
+    """XYZ of the reflected spectrum (spectral materials) or of the linear RGB (RGB materials)."""
+    if material.is_rgb:
+        conv = rgb_conversion(colourspace, None, None)
+        quantity, r = reflectance_spectrum(material, angle_deg)
+        XYZ = RGB_to_XYZ(np.asarray(r, dtype=float), conv)
+        return _Reflection(quantity, np.asarray(XYZ, dtype=float), float(np.finfo(XYZ.dtype).eps), conv.white_XYZ, f"{colourspace} white", conv)
+    grid = np.asarray(observer_cmfs(observer).wavelengths, dtype=float)
+    quantity, r = reflectance_spectrum(material, angle_deg, grid)
+    weights = spectral_weights(grid, illuminant, observer)
+    conv = rgb_conversion(colourspace, weights.white_XYZ, chromatic_adaptation)
+    XYZ = _spectrum_to_XYZ(r, weights)
+    white = np.asarray(weights.white_XYZ, dtype=float)
+    return _Reflection(quantity, np.asarray(XYZ, dtype=float), float(np.finfo(XYZ.dtype).eps), white, weights.illuminant, conv)
+
+
+def _shown(XYZ, conv: RGBConversion) -> tuple[np.ndarray, np.ndarray]:
+    """(linear RGB, encoded gamut-mapped RGB) of ``conv``'s colourspace."""
+    lin, mapped = _to_rgb(XYZ, conv)
+    return np.asarray(lin, dtype=float), np.asarray(encode_RGB(mapped, conv.colourspace), dtype=float)
+
+
+def _dominant(xy, white_xy, observer: str, eps: float) -> tuple[float, float]:
+    """Dominant wavelength and excitation purity; (NaN, 0) for a white up to the dtype's rounding."""
+    lam = float(dominant_wavelength(xy, white_xy, observer))
+    purity = float(excitation_purity(xy, white_xy, observer))
+    if purity < 100 * eps:  # a white, up to the rounding of the dtype the spectrum was integrated in
+        return math.nan, 0.0
+    return lam, purity
 
 
 def colour_report(
@@ -129,66 +179,45 @@ def colour_report(
       ``excitation_purity``.
     - ``quantity`` (``"F(theta)"`` or ``"pi*Rd"``), ``material``, ``angle_deg``,
       ``illuminant``, ``observer``, ``colourspace``, ``chromatic_adaptation``.
+
+    >>> from ctfit import material_from_dict
+    >>> gold = material_from_dict({"s": 1, "lobes": [{"m": 0.3}], "optical_constants": "Au"})
+    >>> report = colour_report(gold)
+    >>> report["hex"], round(report["dominant_wavelength_nm"])  # at normal incidence: yellow
+    ('#ffdeae', 579)
     """
     if material.band_unknown:
         raise ValueError(
             f"material {material.name!r}: its band's wavelength is unknown (single-band data), so there is no colour to report"
         )
-    colour = colour_science()
-    if material.is_rgb:
-        conv = rgb_conversion(colourspace, None, None)
-        quantity, r = reflectance_spectrum(material, angle_deg)
-        XYZ = RGB_to_XYZ(np.asarray(r, dtype=float), conv)
-        eps = float(np.finfo(XYZ.dtype).eps)
-        XYZ = np.asarray(XYZ, dtype=float)
-        white_XYZ = conv.white_XYZ
-        illuminant_name = f"{colourspace} white"
-        srgb_conv = None
-    else:
-        grid = np.asarray(observer_cmfs(observer).wavelengths, dtype=float)
-        quantity, r = reflectance_spectrum(material, angle_deg, grid)
-        weights = spectral_weights(grid, illuminant, observer)
-        conv = rgb_conversion(colourspace, weights.white_XYZ, chromatic_adaptation)
-        XYZ = _spectrum_to_XYZ(r, weights)
-        eps = float(np.finfo(XYZ.dtype).eps)
-        XYZ = np.asarray(XYZ, dtype=float)
-        white_XYZ = np.asarray(weights.white_XYZ, dtype=float)
-        illuminant_name = weights.illuminant
-        srgb_conv = rgb_conversion("sRGB", weights.white_XYZ, chromatic_adaptation)
-    white_xy = white_XYZ[:2] / white_XYZ.sum()
-    lin, mapped = _to_rgb(XYZ, conv)
-    lin = np.asarray(lin, dtype=float)
-    rgb = np.asarray(encode_RGB(mapped, colourspace), dtype=float)
+    c = _reflection(material, angle_deg, illuminant, colourspace, observer, chromatic_adaptation)
+    white_xy = c.white_XYZ[:2] / c.white_XYZ.sum()
+    lin, rgb = _shown(c.XYZ, c.conversion)
     if colourspace == "sRGB":
         srgb = rgb
-    else:
-        if srgb_conv is None:  # RGB material in another colourspace: through XYZ to sRGB
-            srgb_conv = rgb_conversion("sRGB", white_XYZ, chromatic_adaptation or "CAT02")
-        srgb = np.asarray(encode_RGB(_to_rgb(XYZ, srgb_conv)[1], "sRGB"), dtype=float)
-    xy = np.asarray(XYZ_to_xy(XYZ, white_xy), dtype=float)
-    lab = np.asarray(colour.XYZ_to_Lab(XYZ, illuminant=white_xy), dtype=float)
-    lam = float(dominant_wavelength(xy, white_xy, observer))
-    purity = float(excitation_purity(xy, white_xy, observer))
-    if purity < 100 * eps:  # a white, up to the rounding of the dtype the spectrum was integrated in
-        lam, purity = math.nan, 0.0
+    else:  # an RGB material in another colourspace goes through XYZ, adapted with CAT02 by default
+        adaptation = (chromatic_adaptation or "CAT02") if material.is_rgb else chromatic_adaptation
+        srgb = _shown(c.XYZ, rgb_conversion("sRGB", c.white_XYZ, adaptation))[1]
+    xy = np.asarray(XYZ_to_xy(c.XYZ, white_xy), dtype=float)
+    lam, purity = _dominant(xy, white_xy, observer, c.eps)
     return {
         "material": material.name,
-        "quantity": quantity,
+        "quantity": c.quantity,
         "angle_deg": float(angle_deg),
-        "illuminant": illuminant_name,
+        "illuminant": c.illuminant,
         "observer": observer,
         "colourspace": colourspace,
         "chromatic_adaptation": chromatic_adaptation if not material.is_rgb else None,
-        "XYZ": float_list(XYZ),
+        "XYZ": float_list(c.XYZ),
         "xy": float_list(xy),
-        "white_XYZ": float_list(white_XYZ),
+        "white_XYZ": float_list(c.white_XYZ),
         "white_xy": float_list(white_xy),
         "linear_rgb": float_list(lin),
-        "in_gamut": bool(in_gamut(lin, atol=max(1e-9, 100 * eps))),
+        "in_gamut": bool(in_gamut(lin, atol=max(1e-9, 100 * c.eps))),
         "rgb": float_list(rgb),
         "sRGB": float_list(srgb),
         "hex": _hex(srgb),
-        "Lab": float_list(lab),
+        "Lab": float_list(colour_science().XYZ_to_Lab(c.XYZ, illuminant=white_xy)),
         "dominant_wavelength_nm": None if not math.isfinite(lam) else lam,
         "excitation_purity": None if not math.isfinite(purity) else purity,
     }

@@ -30,10 +30,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._model import Measurement, Structure
 from .._runtime import cached_call
 from .least_squares import FitResult, PreparedFit, finish_fit, fit, fit_core, prepare_fit
 from .options import takes_fit_options
-from .._model import Measurement, Params, Structure
 
 __all__ = ["fit_batch", "mapped", "default_width", "batch_size", "SAMPLE_BUDGET"]
 
@@ -64,6 +64,15 @@ def fit_batch(
 
     With ``values`` (texels × samples) and one measurement, the per-texel fit
     :func:`~ctfit.fit_texels` of that geometry: returns its :class:`~ctfit.TexelFits`.
+
+    >>> import numpy as np, ctfit
+    >>> def gold(m):
+    ...     return ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                           ctfit.Params(m=np.array([m]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                           wavelength_nm=np.array([450.0, 650.0]))
+    >>> results = ctfit.fit_batch([ctfit.simulate(gold(m), n_pairs=300, seed=1) for m in (0.2, 0.35)], gold(0.2).structure)
+    >>> [round(float(r.material.params.m[0]), 4) for r in results]
+    [0.2, 0.35]
     """
     if values is not None:
         from .texels import fit_texels

@@ -61,7 +61,18 @@ _GROUPS = (
 def residual_structure(
     data: Measurement, model: np.ndarray, *, floor: float | None = None, threshold: float = 0.1, min_count: int = 20
 ) -> list[str]:
-    """Plain-language warnings about systematic residual structure (empty when there is none)."""
+    """Plain-language warnings about systematic residual structure (empty when there is none).
+
+    >>> import dataclasses, numpy as np, ctfit
+    >>> paint = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(s=np.asarray(0.3), m=np.array([0.2]), w=np.ones(1),
+    ...                        f0=np.array([0.05])), wavelength_nm=np.array([550.0]))
+    >>> data = ctfit.simulate(paint, n_pairs=2000, seed=1)
+    >>> ctfit.residual_structure(data, ctfit.evaluate(paint, data))
+    []
+    >>> rough = dataclasses.replace(paint, params=dataclasses.replace(paint.params, m=np.array([0.3])))
+    >>> ctfit.residual_structure(data, ctfit.evaluate(rough, data))  # a lobe too wide  # doctest: +ELLIPSIS
+    ['systematic residuals: the model is ...% above the data for ...
+    """
     y = np.asarray(data.brdf, dtype=float)
     if floor is None:
         floor = 1e-3 * float(np.max(y)) if np.any(y > 0) else 1.0

@@ -12,7 +12,7 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from .._model import Params, n_from_f0, normal_reflectance, parameter
+from .._model import PUBLIC_NAMES, Params, n_from_f0, normal_reflectance, parameter
 from .problem import Problem, map_over_chunks, model_values, to_params
 
 __all__ = [
@@ -29,11 +29,12 @@ def effective_index(f0):
 
 
 def constrained_quantities(problem: Problem, unravel, f):
-    """The reported (constrained) parameters as a dict, from the flat free values."""
+    """The reported (constrained) parameters from the flat free values, under their public names
+    (``s``, ``m``, ``weight``, ``F0``, ``n``, ``k``, ``Rd``): F0 and the effective n are computed."""
     spec = problem.spec
     p = to_params(spec, unravel(f), problem.fixed)
     f0 = normal_reflectance(spec.structure, p) if spec.structure.needs_fresnel_params else None
-    out = {k: getattr(p, k) for k in ("s", "m", "w", "n", "k", "rd") if getattr(p, k) is not None}
+    out = {PUBLIC_NAMES[k]: getattr(p, k) for k in ("s", "m", "w", "n", "k", "rd") if getattr(p, k) is not None}
     if f0 is not None:
         out["F0"] = f0
         if spec.structure.fresnel == "f0":
@@ -110,10 +111,10 @@ def standard_errors(jtj, jt: dict | None, scale2: float, order, free=None) -> di
         var = np.einsum("ij,jk,ik->i", jk, cov_u, jk)
         v = np.sqrt(np.maximum(var, 0))
         v = np.where(np.any(jk[:, ~free] != 0, axis=1) & ~np.any(jk[:, free] != 0, axis=1), np.nan, v)
-        if k in ("m", "w") and order is not None:
+        if k in ("m", "weight") and order is not None:
             v = v[order]
         se[k] = v
-    return {("weight" if k == "w" else k): v for k, v in se.items()}
+    return se
 
 
 def undetermined(jtj) -> np.ndarray:

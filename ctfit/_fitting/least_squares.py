@@ -65,8 +65,18 @@ class FitResult:
 
     ``material`` is a full :class:`~ctfit.Material` (usable by every command); ``stats`` holds
     converged, steps, cost, rmse, rel_rmse, time_s, n_samples, n_params, bic; ``stderr`` the
-    standard errors of s, m, weight, F0, n, k, R_d (None where not computed); ``warnings``
+    standard errors under the public names s, m, weight, F0, n, k, Rd (None where not computed); ``warnings``
     plain-language notes on degenerate or suspicious solutions.
+
+    >>> import numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                       ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                       wavelength_nm=np.array([450.0, 650.0]))
+    >>> res = ctfit.fit(ctfit.simulate(gold, n_pairs=300, noise=0.01, seed=1), gold.structure)
+    >>> sorted(res.parameters), sorted(res.parameter_errors)
+    (['F0', 'lobes', 'n', 's'], ['F0', 'lobes', 'n'])
+    >>> 0 < res.parameter_errors["lobes"][0]["m"] < 0.01
+    True
     """
 
     material: Material
@@ -194,6 +204,14 @@ def fit(
     ``start`` gives starting values (and the values of the ``fixed`` parameters); ``loss`` is
     one of ``LOSSES`` or "auto" (sigma-weighted when the data has sigma, else relative).
     Per-band parameters of ``start`` must already be on the data's bands.
+
+    >>> import numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                       ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                       wavelength_nm=np.array([450.0, 650.0]))
+    >>> res = ctfit.fit(ctfit.simulate(gold, n_pairs=300, seed=1), gold.structure)
+    >>> res.converged, np.round(res.material.params.m, 4), np.round(res.material.params.f0, 4)
+    (True, array([0.2]), array([0.4, 0.9]))
     """
     t0 = time.perf_counter()
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)

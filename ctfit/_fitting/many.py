@@ -67,10 +67,20 @@ def fit_many(
     ``material``: a :class:`~ctfit.Material` whose values, on each item's bands, start its fit
     and whose ``meta["fixed"]`` names the fixed parameters (as ``ctfit fit --material``); the
     other fitting options are those of :func:`~ctfit.fit`.
+
+    >>> import numpy as np, ctfit
+    >>> def gold(m):
+    ...     return ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                           ctfit.Params(m=np.array([m]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                           wavelength_nm=np.array([450.0, 650.0]))
+    >>> items = [ctfit.simulate(gold(m), n_pairs=300, seed=1) for m in (0.2, 0.35)]  # or file paths
+    >>> results = ctfit.fit_many(items, gold(0.2).structure, workers=1)  # a local cluster of one worker
+    >>> [round(float(r.material.params.m[0]), 4) for r in results]
+    [0.2, 0.35]
     """
     import jax.numpy as jnp
 
-    from .._runtime import bar, dask_client, worker_count
+    from .._runtime import dask_client, worker_count
 
     items = list(items)
     dtype = jnp.float64 if dtype is None else dtype
@@ -89,26 +99,32 @@ def fit_many(
         if on_result is not None:
             on_result(i, got)
 
-    from distributed import as_completed
-
     with dask_client(client, workers=workers) as cl:
-        keys = _keys(cl, items, param_out, x64)
-        tasks = _tasks(keys, files_per_task, worker_count(cl), settle)
+        tasks = _tasks(_keys(cl, items, param_out, x64), files_per_task, worker_count(cl), settle)
         futures = {cl.submit(_fit_task, [_located(items[i]) for i in members], structure, options, param_out, x64, pure=False): members
                    for members in tasks}
-        for future in bar(as_completed(futures), desc="tasks", enabled=progress, total=len(futures)):
-            members = futures.pop(future)
-            try:
-                outs = future.result()
-            except Exception as e:  # the task itself was lost (its workers died): every member fails
-                outs = [RuntimeError(f"the task fitting it failed: {type(e).__name__}: {e}")] * len(members)
-            for i, got in zip(members, outs):
-                settle(i, got)
+        _settle_as_completed(futures, settle, progress)
     if not return_errors:
         for got in results:
             if isinstance(got, Exception):
                 raise got
     return results
+
+
+def _settle_as_completed(futures: dict, settle: Callable, progress: bool) -> None:
+    """``settle(i, result)`` for every member ``i`` of each task (future → members) as it completes."""
+    from distributed import as_completed
+
+    from .._runtime import bar
+
+    for future in bar(as_completed(futures), desc="tasks", enabled=progress, total=len(futures)):
+        members = futures.pop(future)
+        try:
+            outs = future.result()
+        except Exception as e:  # the task itself was lost (its workers died): every member fails
+            outs = [RuntimeError(f"the task fitting it failed: {type(e).__name__}: {e}")] * len(members)
+        for i, got in zip(members, outs):
+            settle(i, got)
 
 
 def _keys(client, items: list, param_out, x64: bool) -> list:

@@ -30,7 +30,7 @@ import numpy as np
 
 from .._model import normal_reflectance
 from .diagnostics import angle_lv_deg, half_angle_deg
-from .._model import Measurement, evaluate
+from .._model import Measurement, band_labels, evaluate
 
 __all__ = ["make_fit_figure", "plot_fit", "signed_in_plane_angle"]
 
@@ -76,7 +76,7 @@ def make_fit_figure(result, data: Measurement):
     axes = [fig.add_subplot(grid[0, j]) for j in range(3)]
     strips = [fig.add_subplot(grid[1, j]) for j in range(3)]
     mat = result.material
-    labels = _band_labels(data)
+    labels = band_labels(data.wavelength_nm, data.channels, data.band_unknown)
     model = evaluate(mat, data)
     if _is_half_angle_slice(data):
         _half_angle_panel(axes[0], mat, data, labels)
@@ -109,10 +109,6 @@ def _title(result, data) -> str:
 
 def _band_unknown(data: Measurement, mat=None) -> bool:
     return bool(getattr(data, "band_unknown", False) or getattr(mat, "band_unknown", False))
-
-
-def _band_labels(data: Measurement) -> list[str]:
-    return ["unknown band"] * data.n_bands if _band_unknown(data) else list(data.band_labels)
 
 
 def _is_half_angle_slice(data: Measurement) -> bool:

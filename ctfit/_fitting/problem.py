@@ -49,7 +49,6 @@ __all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bou
 
 LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
-_BAND = ("f0", "n", "k")  # per-band parameters (rd too when it is a spectrum)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -28,15 +28,24 @@ def stderr_block(res) -> dict | None:
     if "m" in se:
         w = se.get("weight", np.full(len(se["m"]), np.nan)) if len(se["m"]) > 1 else [0.0]
         out["lobes"] = [{"m": float(m), "weight": float(wj)} for m, wj in zip(se["m"], w)]
-    for key, name in (("F0", "F0"), ("n", "n"), ("k", "k"), ("rd", "Rd")):
-        if key in se:
-            v = np.asarray(se[key], dtype=float).reshape(-1)
-            out[name] = [float(x) for x in v] if res.material.structure.diffuse != "constant" or key != "rd" else float(v[0])
+    for name in ("F0", "n", "k", "Rd"):
+        if name in se:
+            v = np.asarray(se[name], dtype=float).reshape(-1)
+            out[name] = [float(x) for x in v] if res.material.structure.diffuse != "constant" or name != "Rd" else float(v[0])
     return out
 
 
 def fit_result_to_dict(res, material_keys: bool = True) -> dict:
-    """The fit result as a JSON-ready dict; with ``material_keys=False`` only the ``fit`` section."""
+    """The fit result as a JSON-ready dict; with ``material_keys=False`` only the ``fit`` section.
+
+    >>> import numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                       ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                       wavelength_nm=np.array([450.0, 650.0]))
+    >>> doc = ctfit.fit_result_to_dict(ctfit.fit(ctfit.simulate(gold, n_pairs=300, seed=1), gold.structure))
+    >>> round(doc["lobes"][0]["m"], 4), doc["fit"]["converged"]
+    (0.2, True)
+    """
     block = dict(res.stats)
     block["stderr"] = stderr_block(res)
     block["warnings"] = list(res.warnings)
@@ -53,7 +62,18 @@ def _pm(value, err) -> str:
 
 
 def format_fit_table(res, label: str = "") -> str:
-    """A plain-text table of the parameters ± standard errors and the fit statistics."""
+    """A plain-text table of the parameters ± standard errors and the fit statistics.
+
+    >>> import numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                       ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                       wavelength_nm=np.array([450.0, 650.0]))
+    >>> table = ctfit.format_fit_table(ctfit.fit(ctfit.simulate(gold, n_pairs=300, noise=0.01, seed=1), gold.structure), "gold")
+    >>> print(*table.splitlines()[:3], sep=chr(10))
+    fit of gold
+    ------------------------------------------------------------
+      s = 1 (fixed by the structure)
+    """
     mat, st, se = res.material, res.material.structure, res.stderr or {}
     p = mat.params
     lines = [f"fit of {label}" if label else "fit", "-" * 60]

@@ -3,7 +3,7 @@
 The seeds (``seed_points``): a grid over the rms slopes (one value per lobe, ascending), each
 scored by the loss after the best per-band amplitude (a linear least-squares problem), one
 vmapped pass over the data; the best ``starts`` distinct grid points seed the solver.
-:func:`seed_params` gives them to analysis code as :class:`~ctfit.Params`.
+:func:`~ctfit.seed_params` gives them to analysis code as :class:`~ctfit.Params`.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from .._io import MaterialError
 from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0
 from .problem import Problem, chunk_count, free_names, model_values, sum_over_chunks
 
-__all__ = ["default_start", "m_grid", "seed_points", "seed_params", "start_from_material"]
+__all__ = ["default_start", "m_grid", "seed_points", "start_from_material"]
 
 
 def default_start(structure: Structure, data: Measurement) -> Params:
@@ -139,8 +139,6 @@ def start_from_material(base: Material, structure: Structure, data: Measurement)
         raise MaterialError(f"material {base.name!r}: key 'fixed' names {bad}; this structure's parameters are {sorted(allowed)}")
     params = base.params_at(data.wavelength_nm if data.channels is None else None, data.channels)
     if structure.fresnel == "f0" and params.f0 is None and params.n is not None:
-        from .._model import f0_from_n, f0_from_nk
-
         f0 = f0_from_nk(params.n, params.k) if params.k is not None else f0_from_n(params.n)
         params = Params(s=params.s, m=params.m, w=params.w, f0=np.asarray(f0), rd=params.rd)
     return params, fixed

@@ -21,7 +21,17 @@ def select_structure(
     lobe with weight 0, or s = 1), so its cost is never above the smaller candidate's.
     Candidates with more free parameters than the data has samples are left out (all of them
     too many: the first one's error). ``progress`` wraps the candidate loop (e.g. a progress
-    bar); ``kwargs`` go to :func:`fit`."""
+    bar); ``kwargs`` go to :func:`fit`.
+
+    >>> import numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                       ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                       wavelength_nm=np.array([450.0, 650.0]))
+    >>> data = ctfit.simulate(gold, n_pairs=300, noise=0.01, seed=1)
+    >>> best, tried = ctfit.select_structure(data, [ctfit.Structure(lobes=j, diffuse=None) for j in (1, 2)])
+    >>> best.material.structure.lobes, len(tried)
+    (1, 2)
+    """
     enough = [st for st in candidates if n_free_parameters(st, data.n_bands, kwargs.get("fixed", ())) <= len(data)]
     results: list[tuple[Structure, FitResult]] = []
     for st in (progress or (lambda it: it))(enough or candidates[:1]):

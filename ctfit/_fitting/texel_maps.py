@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._model import Measurement
+from .._model import PARAMETER_AXES, PUBLIC_NAMES, Measurement
 
 __all__ = ["fit_texel_maps", "read_texel_geometry", "save_map_pngs", "TexelMapError"]
 
@@ -54,7 +54,18 @@ def _open(path):
 
 def read_texel_geometry(path) -> tuple[Measurement, tuple[str, ...], tuple[int, ...]]:
     """The shared geometry of a texel file (a :class:`~ctfit.Measurement` without values), the
-    texel dims (``("texel",)`` or ``("y", "x")``) and their sizes."""
+    texel dims (``("texel",)`` or ``("y", "x")``) and their sizes.
+
+    >>> import numpy as np, xarray as xr, ctfit
+    >>> theta = np.array([10.0, 30.0, 50.0])  # three samples, one band: the mirror direction
+    >>> table = {"theta_i": theta, "phi_i": 0 * theta, "theta_o": theta, "phi_o": 180 + 0 * theta, "band": np.zeros(3, int)}
+    >>> ds = xr.Dataset({"values": (("y", "x", "sample"), np.ones((2, 4, 3))), "wavelength_nm": ("band", [550.0]),
+    ...                  **{k: ("sample", v) for k, v in table.items()}})
+    >>> ds.to_netcdf("texels.nc", engine="h5netcdf")
+    >>> data, dims, sizes = ctfit.read_texel_geometry("texels.nc")
+    >>> data.theta_o, dims, sizes
+    (array([10., 30., 50.]), ('y', 'x'), (2, 4))
+    """
     with _open(path) as ds:
         missing = [k for k in ("values", *_GEOMETRY) if k not in ds.variables]
         if missing:
@@ -107,6 +118,22 @@ def fit_texel_maps(
     ``client`` (None: a :class:`~distributed.LocalCluster` of ``workers`` processes) and
     written as they complete; chunks already in ``output`` (same input, same options) are
     skipped. Returns the maps as an :class:`xarray.Dataset` (opened from ``output``).
+
+    >>> import numpy as np, ctfit
+    >>> def gold(m):
+    ...     return ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                           ctfit.Params(m=np.array([m]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                           wavelength_nm=np.array([450.0, 650.0]))
+    >>> import xarray as xr
+    >>> geometry = ctfit.simulate(gold(0.2), n_pairs=300, seed=1)
+    >>> values = np.stack([ctfit.evaluate(gold(m), geometry) for m in (0.1, 0.2, 0.3)])  # three texels
+    >>> columns = {k: ("sample", getattr(geometry, k)) for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band")}
+    >>> xr.Dataset({"values": (("texel", "sample"), values), "wavelength_nm": ("band", geometry.wavelength_nm),
+    ...             **columns}).to_zarr("texels.zarr", consolidated=False, mode="w")  # doctest: +ELLIPSIS
+    <xarray.backends.zarr.ZarrStore object at ...>
+    >>> maps = ctfit.fit_texel_maps("texels.zarr", "maps.zarr", gold(0.2).structure, workers=1)
+    >>> np.round(maps["m"].values[:, 0], 4)
+    array([0.1, 0.2, 0.3])
     """
     import jax.numpy as jnp
     import xarray as xr
@@ -180,7 +207,7 @@ def _fit_rows(source: tuple[str, str], span: tuple[int, int], *, data: Measureme
     fits = fit_texels(data.replace(source=f"{shown}, rows {span[0]}–{span[1] - 1}"), padded, structure, chunk=size, **options)
     p, s = fits.params, fits.stats
     out = {"cost": s["cost"], "rmse": s["rmse"], "rel_rmse": s["rel_rmse"], "steps": s["steps"], "converged": s["converged"]}
-    for name, key in (("s", "s"), ("m", "m"), ("weight", "w"), ("F0", "f0"), ("n", "n"), ("k", "k"), ("Rd", "rd")):
+    for key, name in PUBLIC_NAMES.items():
         value = getattr(p, key)
         if value is not None:
             out[name] = np.asarray(value)
@@ -191,11 +218,8 @@ def _fit_rows(source: tuple[str, str], span: tuple[int, int], *, data: Measureme
     return None
 
 
-_EXTRA = {"m": "lobe", "weight": "lobe", "F0": "band", "n": "band", "k": "band", "Rd": "band"}
-
-
 def _variables(maps: dict, dims: tuple[str, ...]) -> dict:
-    return {k: ((*dims, _EXTRA[k]) if k in _EXTRA and v.ndim > len(dims) else dims, v) for k, v in maps.items()}
+    return {k: ((*dims, PARAMETER_AXES[k]) if PARAMETER_AXES.get(k) and v.ndim > len(dims) else dims, v) for k, v in maps.items()}
 
 
 def _create(output, first: dict, dims, sizes, data: Measurement, stamp: dict, rows: int) -> None:

@@ -51,6 +51,17 @@ class TexelFits:
     the "f0" Fresnel form). ``stats``: arrays (T,) — converged, steps, cost, rmse, rel_rmse,
     gauss_newton_decrease — and the scalars loss, solver, dtype, starts, max_steps, time_s and
     texels_per_s. ``converged`` means what it means for :func:`~ctfit.fit`.
+
+    >>> import dataclasses, numpy as np, ctfit
+    >>> smooth = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1),
+    ...                         f0=np.array([0.8])), wavelength_nm=np.array([550.0]))
+    >>> rough = dataclasses.replace(smooth, params=dataclasses.replace(smooth.params, m=np.array([0.4])))
+    >>> geometry = ctfit.simulate(smooth, n_pairs=200, wavelength_nm=[550.0], seed=3)
+    >>> fits = ctfit.fit_texels(geometry, np.stack([ctfit.evaluate(smooth, geometry), ctfit.evaluate(rough, geometry)]), smooth.structure)
+    >>> len(fits), np.asarray(fits.params.m).round(4).tolist()
+    (2, [[0.2], [0.4]])
+    >>> fits.material(1).name, round(float(fits.fit_result(1).material.params.m[0]), 4)
+    ('texel 1 of <simulated>', 0.4)
     """
 
     measurement: Measurement
@@ -100,6 +111,17 @@ def fit_texels(
     not all 0, in the dtype's range): a ``ValueError`` names the first texel that is not. Other
     arguments as for :func:`~ctfit.fit`; ``chunk`` texels are fitted per compiled call, ``width``
     of them side by side (vmapped; None: :func:`~ctfit._fitting.batch.default_width`).
+
+    >>> import numpy as np, ctfit
+    >>> def gold(m):
+    ...     return ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                           ctfit.Params(m=np.array([m]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+    ...                           wavelength_nm=np.array([450.0, 650.0]))
+    >>> geometry = ctfit.simulate(gold(0.2), n_pairs=300, seed=1)
+    >>> values = np.stack([ctfit.evaluate(gold(m), geometry) for m in (0.1, 0.2, 0.3)])  # three texels
+    >>> fits = ctfit.fit_texels(geometry, values, gold(0.2).structure)
+    >>> np.round(fits.params.m[:, 0], 4), bool(fits.stats["converged"].all())
+    (array([0.1, 0.2, 0.3]), True)
     """
     t0 = time.perf_counter()
     loss, solver, dtype, max_steps = options["loss"], options["solver"], options["dtype"], options["max_steps"]

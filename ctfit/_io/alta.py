@@ -58,12 +58,25 @@ _HEADER = re.compile(r"#([A-Z][A-Z0-9_]*)(?:\s+(.*))?")
 
 
 def read_alta(path, *, param_out: str | None = None, param_out_default: str | None = None) -> Measurement:
-    """Read an ALTA text data file.
+    r"""Read an ALTA text data file.
 
     ``param_out`` names the output parametrisation for a file without a ``#PARAM_OUT`` line
     (ALTA's own default is "unknown", which ctfit refuses to guess); it must agree with the
     file when the file has one. ``param_out_default`` serves only a file without the line (the
     file's own line wins: ``ctfit --param-out``).
+
+    Examples
+    --------
+    One sample: light at θ_l = π/12 in the plane φ = 0, viewer at θ_v = π/12 with Δφ = π (the
+    mirror direction), BRDF 2.5 sr⁻¹; one band of unknown wavelength:
+
+    >>> import ctfit
+    >>> with open("mirror.alta", "w") as f:
+    ...     _ = f.write("#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n#PARAM_OUT INV_STERADIAN\n"
+    ...                 "0.2617993877991494 -0.2617993877991494 0 2.5\n")
+    >>> m = ctfit.read_alta("mirror.alta")
+    >>> m.theta_i.tolist(), m.theta_o.tolist(), m.phi_o.tolist(), m.brdf.tolist(), m.band_labels
+    ([15.0], [15.0], [180.0], [2.5], ['unknown band'])
     """
     text = read_text(path)
     header, rows, lines = _split(text, path)

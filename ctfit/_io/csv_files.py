@@ -40,12 +40,27 @@ _WRITE_ROWS = 100_000
 
 
 def read_csv(path) -> Measurement:
-    """Read a measurement CSV.
+    r"""Read a measurement CSV.
 
     ``# key: value`` lines before the header become ``meta`` (other ``#`` lines are free text
     and are skipped). Columns may come in any order; unknown columns are ignored. Spectral
     bands are the sorted distinct wavelengths, RGB channels are listed in the order R, G, B
     (those present). φ is taken modulo 360. Without a ``brdf`` column, ``brdf`` is None.
+
+    Examples
+    --------
+    >>> import ctfit
+    >>> with open("rgb.csv", "w") as f:
+    ...     _ = f.write("# sample: demo\nchannel,theta_i,phi_i,theta_o,phi_o,brdf\nG,30,0,30,-180,0.2\nR,30,0,30,180,0.1\n")
+    >>> m = ctfit.read_csv("rgb.csv")
+    >>> m.channels, m.band.tolist(), m.phi_o.tolist(), m.meta
+    (('R', 'G'), [1, 0], [180.0, 180.0], {'sample': 'demo'})
+    >>> with open("bad.csv", "w") as f:
+    ...     _ = f.write("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n95,0,30,180,550,0.1\n")
+    >>> ctfit.read_csv("bad.csv")
+    Traceback (most recent call last):
+    ...
+    ctfit._io.errors.DataError: bad.csv:2: column 'theta_i' (1): 95.0 is outside [0, 90] degrees
     """
     raw = read_utf8(path)
     if b"\r" in raw:
@@ -377,6 +392,20 @@ def write_csv(measurement: Measurement, path, brdf=None, extra_columns=None, *, 
     further column names to numeric arrays, written after the standard columns; ``meta``
     adds to (and overrides) ``measurement.meta`` in the ``# key: value`` lines. Numbers are
     written with Python's ``repr`` (at most 17 significant digits), so they read back exactly.
+
+    Examples
+    --------
+    >>> import numpy as np, ctfit
+    >>> from pathlib import Path
+    >>> m = ctfit.Measurement(theta_i=np.array([30.0]), phi_i=np.zeros(1), theta_o=np.array([30.0]), phi_o=np.array([180.0]),
+    ...                       band=np.zeros(1, int), wavelength_nm=np.array([550.0]), brdf=np.array([1 / 3]))
+    >>> ctfit.write_csv(m, "one.csv", meta={"sample": "demo"})
+    >>> print(Path("one.csv").read_text(), end="")
+    # sample: demo
+    theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf
+    30.0,0.0,30.0,180.0,550.0,0.3333333333333333
+    >>> bool(ctfit.read_csv("one.csv").brdf[0] == 1 / 3)  # read back exactly
+    True
     """
     m = measurement
     n = len(m)

@@ -1,4 +1,4 @@
-"""Errors and warnings about data files.
+"""Errors and warnings about data and material files.
 
 Every reader reports a bad input as a :class:`DataError` whose message names the file and,
 where they apply, the 1-based line number (counting comment lines) and the column (its name
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["DataError", "DataWarning"]
+__all__ = ["DataError", "DataWarning", "MaterialError"]
 
 
 class DataError(ValueError):
@@ -17,6 +17,15 @@ class DataError(ValueError):
 
     The parts are also attributes: ``path``, ``line``, ``column`` (name), ``index`` (1-based
     column index) and ``reason`` (the message without the location).
+
+    Examples
+    --------
+    >>> import ctfit
+    >>> err = ctfit.DataError("95.0 is outside [0, 90] degrees", path="data.csv", line=17, column="theta_i", index=1)
+    >>> print(err)
+    data.csv:17: column 'theta_i' (1): 95.0 is outside [0, 90] degrees
+    >>> err.line, err.reason, isinstance(err, ValueError)
+    (17, '95.0 is outside [0, 90] degrees', True)
     """
 
     def __init__(self, reason: str, *, path=None, line: int | None = None, column: str | None = None, index: int | None = None):
@@ -30,4 +39,32 @@ class DataError(ValueError):
 
 
 class DataWarning(UserWarning):
-    """Something in a data file was dropped or assumed; the message says what and why."""
+    r"""Something in a data file was dropped or assumed; the message says what and why.
+
+    Examples
+    --------
+    An ALTA file of cosine-weighted values with a viewer on the horizon (θ_v = π/2), where the
+    value cannot be divided by cos θ_v = 0:
+
+    >>> import warnings, ctfit
+    >>> with open("grazing.alta", "w") as f:
+    ...     _ = f.write("#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n#PARAM_OUT INV_STERADIAN_COSINE_FACTOR\n"
+    ...                 "0 0.5 0 0.2\n0 1.5707963267948966 0 0.1\n")
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     samples = ctfit.read_alta("grazing.alta")
+    >>> print(len(samples), caught[0].category.__name__, caught[0].message)
+    1 DataWarning grazing.alta: 1 samples with theta_o ≥ 90° dropped (a cosine-weighted value cannot be divided by cos θ_o = 0)
+    """
+
+
+class MaterialError(ValueError):
+    """A material or optical-constants file that cannot be read; the message names the place.
+
+    >>> from ctfit import load_material
+    >>> try:
+    ...     load_material("no-such-material.toml")
+    ... except MaterialError as err:
+    ...     print(err)
+    no-such-material.toml: no such file
+    """

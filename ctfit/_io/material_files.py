@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import datetime
 import difflib
-import importlib.resources
 import json
 import math
 import pathlib
@@ -31,138 +30,31 @@ import tomllib
 import numpy as np
 
 from .files import atomic_write
+from .errors import MaterialError
+from .optical_constants import is_table_name, read_material_text, read_optical_constants, table_names
 from .._model import (
     DISTRIBUTIONS,
     FRESNELS,
     GEOMETRIES,
     MAX_LOBES,
     NORMALIZATIONS,
+    PUBLIC_NAMES,
     Material,
     Params,
     Structure,
+    f0_from_n,
+    f0_from_nk,
+    n_from_f0,
 )
 
-__all__ = [
-    "MaterialError",
-    "load_material",
-    "material_from_dict",
-    "material_to_dict",
-    "save_material_json",
-    "read_optical_constants",
-]
+__all__ = ["load_material", "material_from_dict", "material_to_dict", "save_material_json", "float_list", "jsonable"]
 
-_TABLES = importlib.resources.files("ctfit") / "data" / "optical_constants"  # package data
 _TOL = 1e-9
 _MODEL_KEYS = (
     "name", "s", "d", "lobes", "distribution", "geometry", "normalization", "fresnel",
     "wavelength_nm", "channels", "optical_constants", "F0", "n", "k", "Rd", "band_unknown",
 )  # fmt: skip
 _FRESNEL_KEYS = {"f0": ("F0",), "n": ("n",), "conductor": ("n", "k")}
-
-
-class MaterialError(ValueError):
-    """A material or optical-constants file that cannot be read; the message names the place."""
-
-
-# --- numpy Fresnel conversions (float64, independent of JAX's x64 setting) ---------------------
-
-
-def _f0_from_n(n):
-    return ((n - 1) / (n + 1)) ** 2
-
-
-def _f0_from_nk(n, k):
-    with np.errstate(over="ignore", invalid="ignore"):
-        f0 = ((n - 1) ** 2 + k * k) / ((n + 1) ** 2 + k * k)
-    if np.all(np.isfinite(f0)):
-        return f0
-    scale = np.maximum(np.abs(n) + 1, np.abs(k))  # n or k beyond ~1e154: the squares overflow
-    a, b, c = (n - 1) / scale, k / scale, (n + 1) / scale
-    return np.where(np.isfinite(f0), f0, (a * a + b * b) / (c * c + b * b))
-
-
-def _n_from_f0(f0):
-    r = np.sqrt(f0)
-    with np.errstate(divide="ignore"):
-        return (1 + r) / (1 - r)  # the paper's effective index; ∞ at F0 = 1
-
-
-# --- reading ------------------------------------------------------------------------------------
-
-
-def read_optical_constants(path) -> dict:
-    """Read an optical constants CSV (``docs/formats.md``): a path, or the name of a table that
-    ships with ctfit (``"Cu"``, ``"Au"``, ``"Ag"``, ``"Al"``, ``"Fe"``, ``"stainless-steel"``;
-    a name has no folder and no suffix).
-
-    ``#`` lines first (``# key: value`` pairs go to ``meta``), then the header
-    ``wavelength_nm,n,k[,F0]`` and one wavelength per row, strictly increasing. A missing
-    ``F0`` column is computed as ((n − 1)² + k²)/((n + 1)² + k²).
-
-    Returns ``{"wavelength_nm", "n", "k", "F0"}`` as float64 arrays plus ``"meta"`` (a dict).
-    """
-    path = _bundled_table(path) if _is_table_name(path) else pathlib.Path(path)
-    lines = _read_text(path).splitlines()
-    meta, header, rows = {}, None, []
-    for lineno, line in enumerate(lines, 1):
-        if not line.strip():
-            continue
-        if line.startswith("#"):
-            if header is None and ":" in line:
-                key, value = line[1:].split(":", 1)
-                meta[key.strip()] = value.strip()
-            continue
-        cells = [c.strip() for c in line.split(",")]
-        if header is None:
-            header = cells
-            missing = [c for c in ("wavelength_nm", "n", "k") if c not in header]
-            if missing:
-                raise MaterialError(f"{path}:{lineno}: header lacks column(s) {missing}; got {header}")
-            continue
-        if len(cells) != len(header):
-            raise MaterialError(f"{path}:{lineno}: {len(cells)} values, header has {len(header)}")
-        try:
-            rows.append([float(c) for c in cells])
-        except ValueError:
-            raise MaterialError(f"{path}:{lineno}: not a number in {line!r}") from None
-    if not rows:
-        raise MaterialError(f"{path}: no data rows")
-    table = np.asarray(rows, dtype=float)
-    out = {name: table[:, header.index(name)] for name in ("wavelength_nm", "n", "k")}
-    out["F0"] = table[:, header.index("F0")] if "F0" in header else _f0_from_nk(out["n"], out["k"])
-    if not np.all(np.isfinite(table)):
-        raise MaterialError(f"{path}: values must be finite")
-    if np.any(np.diff(out["wavelength_nm"]) <= 0):
-        raise MaterialError(f"{path}: wavelength_nm must be strictly increasing")
-    out["meta"] = meta
-    return out
-
-
-def _is_table_name(name) -> bool:
-    """A bare name (``"Cu"``) rather than a path: a string without folder or suffix."""
-    return isinstance(name, str) and bool(name) and pathlib.PurePath(name).name == name and "." not in name and "\\" not in name
-
-
-def _table_names() -> list[str]:
-    """The optical constants tables that ship with ctfit (package data), by name."""
-    return sorted(p.name[: -len(".csv")] for p in _TABLES.iterdir() if p.name.endswith(".csv"))
-
-
-def _bundled_table(name: str):
-    """The package-data file of table ``name`` (an ``importlib.resources`` Traversable)."""
-    resource = _TABLES / f"{name}.csv"
-    if not resource.is_file():
-        raise MaterialError(f"{name!r}: no such optical constants table; ctfit ships {', '.join(_table_names())}")
-    return resource
-
-
-def _read_text(path: pathlib.Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8-sig")  # a leading byte-order mark is dropped
-    except FileNotFoundError:
-        raise MaterialError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise MaterialError(f"{path}: cannot read: {err}") from err
 
 
 def _toml_position(err: tomllib.TOMLDecodeError, text: str) -> tuple[int, int, str]:
@@ -181,7 +73,7 @@ def _read_document(path: pathlib.Path) -> dict:
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".json"):
         raise MaterialError(f"{path}: unknown material file type {suffix!r}; expected .toml or .json")
-    text = _read_text(path)
+    text = read_material_text(path)
     if suffix == ".toml":
         try:
             return tomllib.loads(text)
@@ -200,11 +92,18 @@ def _read_document(path: pathlib.Path) -> dict:
 def load_material(path) -> Material:
     """Load a material from a TOML config or a fit-result JSON file (chosen by the suffix).
 
-    Examples
-    --------
-    >>> m = load_material("configs/copper-vase.toml")  # doctest: +SKIP
-    >>> m.structure.lobes, m.structure.fresnel  # doctest: +SKIP
-    (2, 'f0')
+    >>> import pathlib
+    >>> _ = pathlib.Path("plastic.toml").write_text('''
+    ... name = "plastic"
+    ... s = 0.2
+    ... lobes = [{ m = 0.15 }]
+    ... wavelength_nm = [450, 550, 650]
+    ... F0 = 0.04
+    ... Rd = [0.05, 0.1, 0.3]
+    ... ''')
+    >>> m = load_material("plastic.toml")
+    >>> m.name, m.structure.lobes, m.structure.fresnel, m.structure.diffuse
+    ('plastic', 1, 'f0', 'spectrum')
     """
     path = pathlib.Path(path)
     data = _read_document(path)
@@ -297,11 +196,11 @@ class _Parser:
 
     def resolve(self, name: str):
         """A table's name, or a CSV path relative to the file's folder (or the working directory)."""
-        if _is_table_name(name):
+        if is_table_name(name):
             return name
         path = pathlib.Path(self.base_dir if self.base_dir is not None else pathlib.Path.cwd()) / name
         if not path.is_file():
-            raise self.error("optical_constants", f"no file {name!r} (looked for {path}); ctfit ships {', '.join(_table_names())}")
+            raise self.error("optical_constants", f"no file {name!r} (looked for {path}); ctfit ships {', '.join(table_names())}")
         return path
 
     def bands(self):
@@ -355,6 +254,15 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
 
     ``source`` names the document in error messages; ``base_dir`` is where a relative
     ``optical_constants`` path is looked up first (default: the working directory).
+
+    >>> glass = material_from_dict({"s": 1, "lobes": [{"m": 0.2}], "channels": ["R", "G", "B"], "n": 1.5})
+    >>> glass.structure.fresnel, glass.params.n
+    ('n', array([1.5, 1.5, 1.5]))
+    >>> try:
+    ...     material_from_dict({"s": 1, "lobes": [{"m": 0.2, "weigth": 1}], "F0": 0.5, "wavelength_nm": [550]})
+    ... except ValueError as err:  # a MaterialError
+    ...     print(err)
+    <material>: key 'lobes[0].weigth': unknown key; a lobe has 'm' and 'weight'
     """
     if not isinstance(data, dict):
         raise MaterialError(f"{source}: a material is a table of keys, got {type(data).__name__}")
@@ -442,9 +350,9 @@ def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tup
             for key in keys
         }
         derived = {
-            "f0": ("n", lambda: _n_from_f0(values["F0"])),
-            "n": ("F0", lambda: _f0_from_n(values["n"])),
-            "conductor": ("F0", lambda: _f0_from_nk(values["n"], values["k"])),
+            "f0": ("n", lambda: n_from_f0(values["F0"])),
+            "n": ("F0", lambda: f0_from_n(values["n"])),
+            "conductor": ("F0", lambda: f0_from_nk(values["n"], values["k"])),
         }[mode]
         if derived[0] in values:
             given, expected = values[derived[0]], derived[1]()
@@ -498,6 +406,11 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     null. What is written always reads back (:func:`material_from_dict`): a material whose
     parameters are not finite (a failed fit), or that would not read back for another reason,
     raises :class:`MaterialError` instead.
+
+    >>> glass = material_from_dict({"name": "glass", "s": 1, "lobes": [{"m": 0.2}], "channels": ["R", "G", "B"], "n": 1.5})
+    >>> doc = material_to_dict(glass, {"fit": {"converged": True}})
+    >>> doc["fresnel"], [round(f, 4) for f in doc["F0"]], doc["fit"]  # F0 = ((n - 1)/(n + 1))²
+    ('n', [0.04, 0.04, 0.04], {'converged': True})
     """
     _check_finite(material)
     st, p = material.structure, material.params
@@ -523,11 +436,11 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
         out["fresnel"] = st.fresnel
         if st.fresnel == "f0":
             f0 = np.asarray(p.f0, dtype=float)
-            out["F0"], out["n"] = float_list(f0), float_list(_n_from_f0(f0))
+            out["F0"], out["n"] = float_list(f0), float_list(n_from_f0(f0))
         else:
             n = np.asarray(p.n, dtype=float)
             k = np.asarray(p.k, dtype=float) if st.fresnel == "conductor" else None
-            out["F0"] = float_list(_f0_from_n(n) if k is None else _f0_from_nk(n, k))
+            out["F0"] = float_list(f0_from_n(n) if k is None else f0_from_nk(n, k))
             out["n"] = float_list(n)
             if k is not None:
                 out["k"] = float_list(k)
@@ -553,7 +466,8 @@ def _check_finite(material: Material) -> None:
     """A parameter that is not finite (a fit that failed) has no material document."""
     st = material.structure
     fresnel = {"f0": ("f0",), "n": ("n",), "conductor": ("n", "k")}[st.fresnel] if st.needs_fresnel_params else ()
-    for name, key in (("s", "s"), ("m", "lobes[].m"), ("w", "lobes[].weight"), ("f0", "F0"), ("n", "n"), ("k", "k"), ("rd", "Rd")):
+    for name, public in PUBLIC_NAMES.items():
+        key = f"lobes[].{public}" if name in ("m", "w") else public
         value = getattr(material.params, name) if name in ("s", "m", "w", "rd") or name in fresnel else None
         if value is not None and not np.all(np.isfinite(np.asarray(value, dtype=float))):
             raise MaterialError(
@@ -563,7 +477,13 @@ def _check_finite(material: Material) -> None:
 
 
 def save_material_json(material: Material, path, extra: dict | None = None) -> pathlib.Path:
-    """Write :func:`material_to_dict` as JSON atomically (:func:`~ctfit._io.files.atomic_write`)."""
+    """Write :func:`material_to_dict` as JSON atomically (:func:`~ctfit._io.files.atomic_write`).
+
+    >>> glass = material_from_dict({"name": "glass", "s": 1, "lobes": [{"m": 0.2}], "channels": ["R", "G", "B"], "n": 1.5})
+    >>> path = save_material_json(glass, "glass.json")  # relative to the working directory
+    >>> load_material(path).params.n
+    array([1.5, 1.5, 1.5])
+    """
     path = pathlib.Path(path)
     text = json.dumps(material_to_dict(material, extra), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
     atomic_write(path, [text])

@@ -25,10 +25,27 @@ _SNIFF_BYTES = 64 * 1024
 
 
 def read_measurement(path, **options) -> Measurement:
-    """Read BRDF samples from a measurement CSV, a MERL ``.binary`` or an ALTA text file.
+    r"""Read BRDF samples from a measurement CSV, a MERL ``.binary`` or an ALTA text file.
 
     ``options`` go to the reader (e.g. ``param_out=`` for an ALTA file without ``#PARAM_OUT``).
     A file in no supported format raises :class:`~ctfit.DataError` listing the formats.
+
+    Examples
+    --------
+    A ``.dat`` file with a ``#DIM`` line is read as ALTA text; a ``.txt`` file of another kind is refused:
+
+    >>> import ctfit
+    >>> with open("sample.dat", "w") as f:
+    ...     _ = f.write("#DIM 1 1\n#PARAM_IN COS_TH\n#PARAM_OUT INV_STERADIAN\n1.0 3.0\n0.5 0.2\n")
+    >>> m = ctfit.read_measurement("sample.dat")
+    >>> m.theta_i.tolist(), m.brdf.tolist(), m.meta["alta_param_out"]
+    ([0.0, 60.0], [3.0, 0.2], 'INV_STERADIAN')
+    >>> with open("notes.txt", "w") as f:
+    ...     _ = f.write("not a measurement\n")
+    >>> ctfit.read_measurement("notes.txt")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ctfit._io.errors.DataError: notes.txt: unknown measurement format '.txt': supported are .csv (measurement CSV), ...
     """
     return reader_for(path)(path, **options)
 

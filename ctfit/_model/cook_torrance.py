@@ -42,7 +42,16 @@ _INV_PI = 0.3183098861837907
 
 
 def specular_constant(structure: Structure) -> float:
-    """K in R_s = K F D̂ G/((N·L)(N·V)): 1/(4π) normalised, 1/π for the paper's literal form."""
+    """K in R_s = K F D̂ G/((N·L)(N·V)): 1/(4π) normalised, 1/π for the paper's literal form.
+
+    Examples
+    --------
+    >>> import ctfit
+    >>> print(f"{ctfit.specular_constant(ctfit.Structure()):.6f}")  # 1/(4π)
+    0.079577
+    >>> print(f"{ctfit.specular_constant(ctfit.Structure(normalization='cook-torrance-1982')):.6f}")  # 1/π
+    0.318310
+    """
     return 0.25 * _INV_PI if structure.normalization == "normalized" else _INV_PI
 
 
@@ -53,7 +62,18 @@ def _distribution(structure: Structure, tan2, m):
 
 
 def specular_geometric(structure: Structure, params: Params, geom: Geometry):
-    """K Σ_j w_j D̂(α; m_j) G_j/((N·L)(N·V)) per direction: everything in R_s but F."""
+    """K Σ_j w_j D̂(α; m_j) G_j/((N·L)(N·V)) per direction: everything in R_s but F.
+
+    Examples
+    --------
+    Seen and lit along the normal (α = 0, D̂ = 1/m², G = 1) one lobe gives K/m² = 1/(4π · 0.25):
+
+    >>> import numpy as np, ctfit
+    >>> peak = ctfit.geometry_from_angles_deg(0.0, 0.0, 0.0, 0.0)
+    >>> p = ctfit.Params(m=np.array([0.5]), w=np.array([1.0]), f0=np.array([0.04]))
+    >>> print(f"{float(ctfit.specular_geometric(ctfit.Structure(), p, peak)):.6f}")  # 1/π
+    0.318310
+    """
     m, w = params.m, params.w
     # The lobe sum (eq. 5) is unrolled (lobes is static and small): no reduce op, so XLA fuses
     # it with F into one loop (and it avoids an XLA CPU miscompilation of a small reduction
@@ -71,7 +91,17 @@ def specular_geometric(structure: Structure, params: Params, geom: Geometry):
 
 
 def fresnel(structure: Structure, params: Params, cos_vh):
-    """F(V·H) with the material's Fresnel form; ``cos_vh`` broadcasts against the band axis."""
+    """F(V·H) with the material's Fresnel form; ``cos_vh`` broadcasts against the band axis.
+
+    Examples
+    --------
+    At normal incidence (V·H = 1) F is the normal reflectance F0; at grazing incidence it is 1:
+
+    >>> import numpy as np, ctfit
+    >>> p = ctfit.Params(m=np.array([0.3]), w=np.array([1.0]), f0=np.array([0.04, 0.9]))
+    >>> np.asarray(ctfit.fresnel(ctfit.Structure(), p, np.array([[1.0], [0.0]])), float).round(6).tolist()
+    [[0.04, 0.9], [1.0, 1.0]]
+    """
     if structure.fresnel == "f0":
         return fresnel_dielectric_f0(cos_vh, params.f0)
     if structure.fresnel == "n":
@@ -80,7 +110,17 @@ def fresnel(structure: Structure, params: Params, cos_vh):
 
 
 def normal_reflectance(structure: Structure, params: Params):
-    """F0 per band from whichever Fresnel parameters the material has."""
+    """F0 per band from whichever Fresnel parameters the material has.
+
+    Examples
+    --------
+    A real index n gives F0 = ((n − 1)/(n + 1))²:
+
+    >>> import numpy as np, ctfit
+    >>> p = ctfit.Params(m=np.array([0.3]), w=np.array([1.0]), n=np.array([1.5, 2.0]))
+    >>> np.asarray(ctfit.normal_reflectance(ctfit.Structure(fresnel="n"), p), float).round(6).tolist()
+    [0.04, 0.111111]
+    """
     if structure.fresnel == "f0":
         return params.f0
     if structure.fresnel == "n":
@@ -89,7 +129,17 @@ def normal_reflectance(structure: Structure, params: Params):
 
 
 def diffuse_reflectance(structure: Structure, params: Params):
-    """R_d in sr⁻¹ per band (or scalar): F0/π, the ``rd`` spectrum, or the ``rd`` constant."""
+    """R_d in sr⁻¹ per band (or scalar): F0/π, the ``rd`` spectrum, or the ``rd`` constant.
+
+    Examples
+    --------
+    The paper's homogeneous material (``diffuse="F0/pi"``) has R_d = F0/π:
+
+    >>> import numpy as np, ctfit
+    >>> p = ctfit.Params(s=np.asarray(0.5), m=np.array([0.3]), w=np.array([1.0]), f0=np.array([0.04, 0.9]))
+    >>> np.asarray(ctfit.diffuse_reflectance(ctfit.Structure(diffuse="F0/pi"), p), float).round(6).tolist()
+    [0.012732, 0.286479]
+    """
     if structure.diffuse == "F0/pi" or structure.diffuse is None:
         return normal_reflectance(structure, params) * _INV_PI
     return params.rd
@@ -100,6 +150,18 @@ def ambient_reflectance(structure: Structure, params: Params):
 
     For a material without a diffuse part the default R_d = F0/π is used, so a metal still
     reflects ambient light with its normal reflectance.
+
+    Examples
+    --------
+    A diffuse surface of albedo ρ = 0.5 (R_d = ρ/π) reflects half the ambient light, a metal F0:
+
+    >>> import numpy as np, ctfit
+    >>> matte = ctfit.Params(rd=np.asarray(0.5 / np.pi))
+    >>> print(f"{float(ctfit.ambient_reflectance(ctfit.Structure(lobes=0, diffuse='constant'), matte)):.6f}")
+    0.500000
+    >>> metal = ctfit.Params(m=np.array([0.3]), w=np.array([1.0]), f0=np.array([0.9]))
+    >>> np.asarray(ctfit.ambient_reflectance(ctfit.Structure(), metal), float).round(6).tolist()
+    [0.9]
     """
     return jnp.pi * diffuse_reflectance(structure, params)
 
@@ -124,6 +186,17 @@ def brdf(structure: Structure, params: Params, geom: Geometry):
 
     Per-band fields of ``params`` (f0, n, k, rd) have shape (bands,). D and G are evaluated once
     per direction, F once per (direction, band).
+
+    Examples
+    --------
+    Lit and seen along the normal, R = F0 K D̂ G/((N·L)(N·V)) = F0/(4π m²), here F0/π; a viewer
+    below the horizon sees 0:
+
+    >>> import numpy as np, ctfit
+    >>> p = ctfit.Params(m=np.array([0.5]), w=np.array([1.0]), f0=np.array([0.04, 0.9]))
+    >>> geom = ctfit.geometry_from_angles_deg(np.zeros(2), 0.0, np.array([0.0, 95.0]), 0.0)
+    >>> np.asarray(np.pi * ctfit.brdf(ctfit.Structure(), p, geom), float).round(6).tolist()  # (directions, bands)
+    [[0.04, 0.9], [0.0, 0.0]]
     """
     valid = geom.valid[..., None]
     if not structure.has_specular:
@@ -136,6 +209,16 @@ def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band):
     """R for samples that each have their own direction pair and band index ``band`` (int array).
 
     The scattered layout of a measurement file: per-band parameters are gathered per sample.
+
+    Examples
+    --------
+    Two samples lit and seen along the normal, in bands 1 and 0 (R = F0/π there, see :func:`brdf`):
+
+    >>> import numpy as np, ctfit
+    >>> p = ctfit.Params(m=np.array([0.5]), w=np.array([1.0]), f0=np.array([0.04, 0.9]))
+    >>> geom = ctfit.geometry_from_angles_deg(np.zeros(2), 0.0, np.zeros(2), 0.0)
+    >>> np.asarray(np.pi * ctfit.brdf_pairs(ctfit.Structure(), p, geom, np.array([1, 0])), float).round(6).tolist()
+    [0.9, 0.04]
     """
     gathered = Params(
         s=params.s,

@@ -33,6 +33,15 @@ class Geometry(eqx.Module):
     ``tan2_h`` = tan²α, ``cos_vh`` = V·H (= L·H), and ``valid`` (both directions strictly
     above the horizon). Invalid entries hold harmless stand-in values (a normal-incidence
     configuration) so that no NaN is produced; the BRDF masks them to 0.
+
+    Examples
+    --------
+    With the viewer in the mirror direction of the light, H = N (α = 0) and V·H = cos θ_i:
+
+    >>> import ctfit
+    >>> g = ctfit.geometry_from_angles_deg(30.0, 0.0, 30.0, 180.0)
+    >>> print(f"{float(g.cos_h):.6f} {float(g.tan2_h):.6f} {float(g.cos_vh):.6f} {bool(g.valid)}")
+    1.000000 0.000000 0.866025 True
     """
 
     cos_l: Array
@@ -68,6 +77,15 @@ def geometry(l, v, n=None) -> Geometry:
     ``n`` is the unit surface normal (default +z). Sines and tan²α come from cross products,
     not from 1 − cos², so they keep full relative precision near normal incidence and at the
     specular peak.
+
+    Examples
+    --------
+    Light along the normal, viewer at 60°: H lies halfway, α = 30°, so tan²α = 1/3 and V·H = cos 30°:
+
+    >>> import numpy as np, ctfit
+    >>> g = ctfit.geometry(np.array([0.0, 0.0, 1.0]), np.array([np.sin(np.pi / 3), 0.0, 0.5]))
+    >>> print(f"{float(g.tan2_h):.6f} {float(g.cos_vh):.6f}")
+    0.333333 0.866025
     """
     l = jnp.asarray(l)
     v = jnp.asarray(v)
@@ -114,9 +132,18 @@ def direction_from_angles_deg(theta, phi):
 
     cos θ is computed as sin(90° − θ), so θ = 90° gives exactly 0 (on the horizon) in every
     dtype, and θ = 0 gives exactly (0, 0, 1).
+
+    Examples
+    --------
+    >>> import numpy as np, ctfit
+    >>> np.asarray(ctfit.direction_from_angles_deg(90.0, 0.0)).tolist()  # on the horizon: z is exactly 0
+    [1.0, 0.0, 0.0]
+    >>> ctfit.direction_from_angles_deg(np.array([0.0, 45.0, 60.0]), 90.0).shape  # θ and φ broadcast
+    (3, 3)
+    >>> ctfit.direction_from_angles_deg(30.0, np.array([0.0, 90.0, 180.0, 270.0])).shape
+    (4, 3)
     """
-    theta = jnp.asarray(theta)
-    phi = jnp.mod(jnp.asarray(phi), 360)
+    theta, phi = jnp.broadcast_arrays(jnp.asarray(theta), jnp.mod(jnp.asarray(phi), 360))
     st = jnp.sin(jnp.deg2rad(theta))
     ct = jnp.sin(jnp.deg2rad(90 - theta))
     phi_r = jnp.deg2rad(phi)
@@ -124,5 +151,16 @@ def direction_from_angles_deg(theta, phi):
 
 
 def geometry_from_angles_deg(theta_i, phi_i, theta_o, phi_o) -> Geometry:
-    """:func:`geometry` for angles in degrees (the measurement-CSV convention)."""
+    """:func:`geometry` for angles in degrees (the measurement-CSV convention).
+
+    Examples
+    --------
+    Light at 45°: in the mirror direction (φ_o = 180°) H = N, back towards the light (φ_o = 0°)
+    H = L, so α is 0° and 45°:
+
+    >>> import numpy as np, ctfit
+    >>> g = ctfit.geometry_from_angles_deg(45.0, 0.0, 45.0, np.array([180.0, 0.0]))
+    >>> np.asarray(g.tan2_h, float).round(6).tolist()  # tan²α
+    [0.0, 1.0]
+    """
     return geometry(direction_from_angles_deg(theta_i, phi_i), direction_from_angles_deg(theta_o, phi_o))

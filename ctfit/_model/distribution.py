@@ -31,7 +31,20 @@ _GL_W = 0.5 * _GL_W
 
 
 def beckmann(tan2, m):
-    """Beckmann D̂(α; m) = exp(−tan²α/m²)(1 + tan²α)²/m² (paper eq. 4, without 1/π)."""
+    """Beckmann D̂(α; m) = exp(−tan²α/m²)(1 + tan²α)²/m² (paper eq. 4, without 1/π).
+
+    Examples
+    --------
+    D̂ = 1/m² at α = 0, and D = D̂/π is normalised: ∫ D cos α dω = ∫₀^{π/2} 2 D̂ cos α sin α dα = 1:
+
+    >>> import numpy as np, ctfit
+    >>> print(f"{float(ctfit.beckmann(0.0, 0.5)):.6f}")
+    4.000000
+    >>> alpha = np.linspace(0, np.pi / 2, 100_001)
+    >>> d = np.asarray(ctfit.beckmann(np.tan(alpha) ** 2, 0.3))
+    >>> print(f"{np.trapezoid(2 * d * np.cos(alpha) * np.sin(alpha), alpha):.6f}")
+    1.000000
+    """
     t = jnp.minimum(jnp.asarray(tan2), _TAN2_MAX)
     inv_m2 = 1 / jnp.asarray(m) ** 2  # once per lobe, not per direction
     return jnp.exp(-t * inv_m2) * ((1 + t) * (1 + t)) * inv_m2
@@ -62,7 +75,21 @@ def _alpha2(t):
 
 
 def gaussian(tan2, m, *, normalized: bool = True):
-    """Gaussian D̂(α; m) = exp(−(α/m)²)/(2 m² J(m)) (normalised) or exp(−(α/m)²)/m² (1982)."""
+    """Gaussian D̂(α; m) = exp(−(α/m)²)/(2 m² J(m)) (normalised) or exp(−(α/m)²)/m² (1982).
+
+    Examples
+    --------
+    Normalised like :func:`beckmann` (∫ D cos α dω = 1 with D = D̂/π); in the paper's form
+    (``normalized=False``) the peak is 1/m², Beckmann's:
+
+    >>> import numpy as np, ctfit
+    >>> alpha = np.linspace(0, np.pi / 2, 100_001)
+    >>> d = np.asarray(ctfit.gaussian(np.tan(alpha) ** 2, 0.3))
+    >>> print(f"{np.trapezoid(2 * d * np.cos(alpha) * np.sin(alpha), alpha):.6f}")
+    1.000000
+    >>> print(f"{float(ctfit.gaussian(0.0, 0.5, normalized=False)):.6f}")
+    4.000000
+    """
     t = jnp.minimum(jnp.asarray(tan2), _TAN2_MAX)
     m = jnp.asarray(m)
     inv_m2 = 1 / (m * m)  # the constants once per lobe, not per direction

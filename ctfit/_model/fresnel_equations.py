@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
     "f0_from_n",
@@ -54,23 +55,65 @@ __all__ = [
 _TINY_F0 = 1e-30
 
 
+def _array_module(*values):
+    """NumPy for NumPy input (float64 stays float64 whatever JAX's x64 setting), else jax.numpy.
+
+    NumPy when at least one value is a NumPy array or scalar and none is a JAX array (or a
+    tracer); Python numbers alone go to JAX, as before.
+    """
+    numpy_in = any(isinstance(v, (np.ndarray, np.generic)) for v in values)
+    return np if numpy_in and not any(isinstance(v, jax.Array) for v in values) else jnp
+
+
 def f0_from_n(n):
-    """Normal reflectance of a dielectric, F0 = ((n − 1)/(n + 1))² (paper, eq. in §4)."""
-    n = jnp.asarray(n)
+    """Normal reflectance of a dielectric, F0 = ((n − 1)/(n + 1))² (paper, eq. in §4).
+
+    NumPy in, NumPy out (float64 kept); otherwise JAX (jit-able, differentiable).
+
+    >>> import numpy as np
+    >>> f0_from_n(np.array([1.5, 2.0]))  # glass: 4 %
+    array([0.04      , 0.11111111])
+    """
+    xp = _array_module(n)
+    n = xp.asarray(n)
     r = (n - 1) / (n + 1)
     return r * r
 
 
 def f0_from_nk(n, k):
-    """Normal reflectance of a conductor, F0 = ((n − 1)² + k²)/((n + 1)² + k²)."""
-    n, k = jnp.asarray(n), jnp.asarray(k)
-    return ((n - 1) ** 2 + k * k) / ((n + 1) ** 2 + k * k)
+    """Normal reflectance of a conductor, F0 = ((n − 1)² + k²)/((n + 1)² + k²).
+
+    NumPy in, NumPy out (float64 kept); otherwise JAX (jit-able, differentiable). Where n or k
+    is so large that the squares overflow (beyond ~1e154 in float64), the same ratio is taken
+    of n, k scaled down by the larger of |n| + 1 and |k|.
+
+    >>> import numpy as np
+    >>> f0 = f0_from_nk(np.array([0.49366]), np.array([2.962441]))  # copper at 600 nm (Cu table)
+    >>> f0.dtype, round(float(f0[0]), 4)
+    (dtype('float64'), 0.8206)
+    """
+    xp = _array_module(n, k)
+    n, k = xp.asarray(n), xp.asarray(k)
+    with np.errstate(over="ignore", invalid="ignore"):  # NumPy's warnings; JAX has none
+        f0 = ((n - 1) ** 2 + k * k) / ((n + 1) ** 2 + k * k)
+        scale = xp.maximum(xp.abs(n) + 1, xp.abs(k))
+        a, b, c = (n - 1) / scale, k / scale, (n + 1) / scale
+        return xp.where(xp.isfinite(f0), f0, (a * a + b * b) / (c * c + b * b))
 
 
 def n_from_f0(f0):
-    """The paper's effective index n = (1 + √F0)/(1 − √F0) (k = 0). Infinite at F0 = 1."""
-    r = jnp.sqrt(jnp.asarray(f0))
-    return (1 + r) / (1 - r)
+    """The paper's effective index n = (1 + √F0)/(1 − √F0) (k = 0). Infinite at F0 = 1.
+
+    NumPy in, NumPy out (float64 kept); otherwise JAX (jit-able, differentiable).
+
+    >>> import numpy as np
+    >>> n_from_f0(np.array([0.04, 1.0]))
+    array([1.5, inf])
+    """
+    xp = _array_module(f0)
+    r = xp.sqrt(xp.asarray(f0))
+    with np.errstate(divide="ignore"):
+        return (1 + r) / (1 - r)
 
 
 def _clip_cos(c):
@@ -135,8 +178,8 @@ def fresnel_dielectric_f0(c, f0):
     Examples
     --------
     >>> import jax.numpy as jnp
-    >>> float(fresnel_dielectric_f0(jnp.asarray(1.0), jnp.asarray(0.04)))  # doctest: +ELLIPSIS
-    0.04...
+    >>> round(float(fresnel_dielectric_f0(jnp.asarray(1.0), jnp.asarray(0.04))), 6)  # F(c = 1) = F0
+    0.04
     """
     f0 = jnp.asarray(f0)
     # A select, not jnp.maximum: maximum's derivative multiplies by a 0/1 mask, which turns an
@@ -154,6 +197,11 @@ def fresnel_dielectric(c, n):
 
     ``n`` is the ratio of refractive indices (material over the surrounding medium); n < 1
     gives total internal reflection (F = 1) beyond the critical angle.
+
+    >>> import numpy as np
+    >>> c = np.cos(np.radians([0.0, 45.0, 90.0]))
+    >>> [round(float(v), 4) for v in fresnel_dielectric(c, 1.5)]  # glass: 4 %, 5 % at 45°, 1 at grazing
+    [0.04, 0.0502, 1.0]
     """
     n = jnp.asarray(n)
     u = 1 / n
@@ -177,6 +225,11 @@ def fresnel_conductor(c, n, k):
     derivative the small x multiplies the cotangent before 1/y² does (no overflow to inf·0 in
     float32 near grazing with n ≈ 1, k ≈ 0). With k = 0 and n ≥ 1 this equals
     :func:`fresnel_dielectric`; at grazing (cos θ = 0) F = 1 unless n = 1, k = 0.
+
+    >>> import numpy as np
+    >>> c = np.cos(np.radians([0.0, 60.0, 90.0]))
+    >>> [round(float(v), 4) for v in fresnel_conductor(c, 0.49366, 2.962441)]  # copper at 600 nm: F0 = 0.8206
+    [0.8206, 0.8128, 1.0]
     """
     c, s2 = _clip_cos(c)
     n, k = jnp.asarray(n), jnp.asarray(k)

@@ -50,6 +50,15 @@ class Light(eqx.Module):
     - ``spectrum``: (bands,) intensity I_il per band (a wavelength or an RGB channel), or a
       scalar for the same intensity in every band.
     - ``solid_angle``: dω_il in steradians (scalar).
+
+    Examples
+    --------
+    The direction is normalised; the spectrum gives I_il per band:
+
+    >>> import ctfit
+    >>> light = ctfit.Light([0.0, 0.0, 2.0], [1.0, 0.5], 1e-3)
+    >>> light.direction.tolist(), light.spectrum.tolist(), float(light.solid_angle)
+    ([0.0, 0.0, 1.0], [1.0, 0.5], 0.001)
     """
 
     direction: Array
@@ -89,7 +98,7 @@ def reflected_intensity(
     Examples
     --------
     >>> import jax.numpy as jnp
-    >>> from ctfit import Params, Structure
+    >>> from ctfit import Light, Params, Structure, reflected_intensity
     >>> st = Structure(lobes=0, diffuse="constant")
     >>> light = Light(jnp.array([0.0, 0.0, 1.0]), jnp.ones(1), 1e-4)
     >>> I = reflected_intensity(st, Params(rd=jnp.asarray(0.2)), jnp.array([0.0, 0.0, 1.0]), jnp.array([0.0, 0.0, 1.0]), [light])

@@ -43,6 +43,17 @@ class Structure:
       "spectrum" (an independent R_d per band) or "constant" (one R_d for all bands).
     - ``normalization``: "normalized" (R_s = F D G/(4 (N·L)(N·V)), D = D̂/π) or
       "cook-torrance-1982" (R_s = F D̂ G/(π (N·L)(N·V))); the latter is 4× the former.
+
+    Examples
+    --------
+    >>> import ctfit
+    >>> st = ctfit.Structure(lobes=2, diffuse="F0/pi")  # two Beckmann lobes and R_d = F0/π
+    >>> st.has_s, st == ctfit.Structure(lobes=2, diffuse="F0/pi")  # s is fitted; equal structures compile once
+    (True, True)
+    >>> ctfit.Structure(lobes=0)
+    Traceback (most recent call last):
+    ...
+    ValueError: a material needs a specular part (lobes ≥ 1) or a diffuse part
     """
 
     lobes: int = 1
@@ -94,6 +105,15 @@ class Params(eqx.Module):
       (fresnel "n" or "conductor"); ``k``: extinction coefficient per band ("conductor").
     - ``rd``: diffuse BRDF R_d in sr⁻¹ per band ("spectrum") or a scalar ("constant").
       An albedo ρ corresponds to R_d = ρ/π.
+
+    Examples
+    --------
+    A pytree whose leaves are the fields that are set (here s, k, n and rd are None):
+
+    >>> import jax, numpy as np, ctfit
+    >>> p = ctfit.Params(m=np.array([0.3, 0.1]), w=np.array([0.6, 0.4]), f0=np.array([0.04]))
+    >>> p.s is None, len(jax.tree.leaves(p))
+    (True, 3)
     """
 
     s: Array | None = None
@@ -116,6 +136,16 @@ class Material:
     bands of the per-band parameters. ``name`` and ``meta`` are free text carried along.
     ``band_unknown``: one band whose wavelength is not known (a fit of single-band data, e.g. an
     ALTA file); ``wavelength_nm`` is then a placeholder, and the material has no colour.
+
+    Examples
+    --------
+    >>> import numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(), ctfit.Params(m=np.array([0.2]), w=np.array([1.0]), f0=np.array([0.4, 0.9])),
+    ...                       wavelength_nm=np.array([450.0, 650.0]), name="gold")
+    >>> gold.band_labels
+    ['450 nm', '650 nm']
+    >>> gold.params_at([550.0]).f0.round(6).tolist()  # linear in λ between the listed wavelengths
+    [0.65]
     """
 
     structure: Structure

@@ -51,6 +51,18 @@ class Measurement:
     - ``band_unknown``: the data has one band whose wavelength is not known (ALTA files without
       wavelengths); ``wavelength_nm`` then holds a placeholder that must not be shown as a
       wavelength or turned into a colour.
+
+    Examples
+    --------
+    Two direction pairs (the mirror direction at 30° and at 45°), each measured in two bands:
+
+    >>> import numpy as np, ctfit
+    >>> m = ctfit.Measurement(theta_i=np.array([30.0, 30.0, 45.0, 45.0]), phi_i=np.zeros(4),
+    ...                       theta_o=np.array([30.0, 30.0, 45.0, 45.0]), phi_o=np.full(4, 180.0),
+    ...                       band=np.array([0, 1, 0, 1]), wavelength_nm=np.array([450.0, 650.0]),
+    ...                       brdf=np.array([0.8, 0.9, 0.5, 0.6]))
+    >>> len(m), m.band_labels, m.directions()[1].tolist()  # each sample's direction pair
+    (4, ['450 nm', '650 nm'], [0, 0, 1, 1])
     """
 
     theta_i: np.ndarray

@@ -31,12 +31,6 @@ import numpy as np
 
 __all__ = ["Parameter", "PARAMETERS", "PUBLIC_NAMES", "PARAMETER_AXES", "M_MIN", "M_MAX", "parameter", "box_bounds", "clip_box", "value_range"]
 
-PUBLIC_NAMES = {"s": "s", "m": "m", "w": "weight", "f0": "F0", "n": "n", "k": "k", "rd": "Rd"}
-"""The one mapping from :class:`~ctfit.Params` field names to the names of the material and
-fit-result files, the standard errors, the posterior summary and the parameter maps."""
-PARAMETER_AXES = {"s": None, "m": "lobe", "weight": "lobe", "F0": "band", "n": "band", "k": "band", "Rd": "band"}
-"""The axis a parameter runs along, by public name: one value per lobe or per spectral band
-(``Rd`` is per band when it is a spectrum), or a single value."""
 
 M_MIN, M_MAX = 1e-5, 4.0
 """Range of an rms slope m in a fit (the model is finite down to m → 0; beyond m ≈ 1 the
@@ -94,7 +88,8 @@ class Parameter:
     coordinates to values and back (jnp / NumPy), ``free``/``free_inverse`` the same for the
     sampler's unconstrained coordinates (for n, added to :func:`n_lower`: n ≥ 1 for a real index),
     ``log_jacobian`` the sum of log |dθ/du| over a parameter's entries, ``transform`` says both in
-    words, ``log_scale``: its prior and its checks read it in log θ (a scale, like m).
+    words, ``log_scale``: its prior and its checks read it in log θ (a scale, like m); ``axis``:
+    one value per ``"lobe"`` or per ``"band"`` (R_d when it is a spectrum), or None: one value.
     """
 
     name: str
@@ -109,6 +104,7 @@ class Parameter:
     log_jacobian: Callable = _softplus_jacobian
     transform: str = ""
     log_scale: bool = False
+    axis: str | None = None
 
 
 PARAMETERS: dict[str, Parameter] = {
@@ -119,20 +115,25 @@ PARAMETERS: dict[str, Parameter] = {
                   transform="s = sigmoid(u): log|ds/du| = log σ(u) + log σ(−u)"),
         Parameter("m", "m", "rms facet slope of each lobe (paper eqs. 3–4)", float(np.log(M_MIN)), float(np.log(M_MAX)),
                   box=jnp.exp, box_inverse=np.log, free=jnp.exp, free_inverse=np.log, log_jacobian=_exp_jacobian,
-                  transform="m = exp(u): log|dm/du| = u", log_scale=True),
+                  transform="m = exp(u): log|dm/du| = u", log_scale=True, axis="lobe"),
         Parameter("w", "weight", "lobe weights, Σ w = 1 (paper eq. 5)", 0.0, 1.0, log_jacobian=_softmax_jacobian,
-                  transform="w = softmax(0, u): log|det ∂(w_2..w_J)/∂u| = Σ_j log w_j"),
+                  transform="w = softmax(0, u): log|det ∂(w_2..w_J)/∂u| = Σ_j log w_j", axis="lobe"),
         Parameter("f0", "F0", "normal reflectance per band (paper eq. 9, k = 0)", 0.0, 1.0,
                   free=jax.nn.sigmoid, free_inverse=_np_logit, log_jacobian=_logit_jacobian,
-                  transform="F0 = sigmoid(u): log|dF0/du| = log σ(u) + log σ(−u)"),
+                  transform="F0 = sigmoid(u): log|dF0/du| = log σ(u) + log σ(−u)", axis="band"),
         Parameter("n", "n", "refractive index per band", 0.0, INDEX_MAX,
-                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="n = n_min + softplus(u): log|dn/du| = log σ(u)"),
+                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="n = n_min + softplus(u): log|dn/du| = log σ(u)", axis="band"),
         Parameter("k", "k", "extinction coefficient per band", 0.0, INDEX_MAX,
-                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="k = softplus(u): log|dk/du| = log σ(u)"),
+                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="k = softplus(u): log|dk/du| = log σ(u)", axis="band"),
         Parameter("rd", "Rd", "diffuse BRDF in sr⁻¹ (per band or one constant)", 0.0, RD_MAX,
-                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="R_d = softplus(u): log|dR_d/du| = log σ(u)"),
+                  free=jax.nn.softplus, free_inverse=_np_softplus_inv, transform="R_d = softplus(u): log|dR_d/du| = log σ(u)", axis="band"),
     )
 }
+PUBLIC_NAMES = {name: p.public for name, p in PARAMETERS.items()}
+""":class:`~ctfit.Params` field name → the name in material and fit-result files, standard
+errors, the posterior summary and parameter maps (``w`` → ``weight``, ``f0`` → ``F0``, ``rd`` → ``Rd``)."""
+PARAMETER_AXES = {p.public: p.axis for p in PARAMETERS.values()}
+"""Public name → ``"lobe"``, ``"band"`` or None (see :class:`Parameter`)."""
 
 
 def parameter(name: str) -> Parameter:

@@ -40,6 +40,17 @@ def v_cavity_reduced(cos_l, cos_v, cos_h, cos_vh):
     """G/((N·L)(N·V)) = min{1/((N·L)(N·V)), 2(N·H)/((V·H)(N·L)), 2(N·H)/((V·H)(N·V))}.
 
     Requires N·L > 0, N·V > 0 and V·H > 0 (callers mask other directions).
+
+    Examples
+    --------
+    1 at normal incidence; with light and viewer both at θ (V = L = H) G = 2 cos²θ once θ > 45°,
+    which goes to 0 at grazing angles while G/((N·L)(N·V)) stays 2:
+
+    >>> import numpy as np, ctfit
+    >>> theta = np.array([0.0, 80.0, 89.9])
+    >>> g = ctfit.geometry_from_angles_deg(theta, 0.0, theta, 0.0)
+    >>> np.asarray(ctfit.v_cavity_reduced(g.cos_l, g.cos_v, g.cos_h, g.cos_vh), float).round(4).tolist()
+    [1.0, 2.0, 2.0]
     """
     # = min{1, 2(N·H)(N·V)/(V·H), 2(N·H)(N·L)/(V·H)} / ((N·L)(N·V)), with two divisions.
     two_h = 2 * cos_h / cos_vh
@@ -54,6 +65,14 @@ def smith_g1_reduced(cos_t, sin_t, m):
         G1/cos θ = 2√π / (√π cos θ (1 + erf a) + m sin θ exp(−a²)),
 
     finite at θ = 90° (= 2√π/m) and equal to 1/cos θ once erf a = 1 (a ≥ 30).
+
+    Examples
+    --------
+    G1 = 1 at normal incidence; on the horizon G1/cos θ = 2√π/m = 7.0898 for m = 0.5:
+
+    >>> import numpy as np, ctfit
+    >>> np.asarray(ctfit.smith_g1_reduced(np.array([1.0, 0.0]), np.array([0.0, 1.0]), 0.5), float).round(4).tolist()
+    [1.0, 7.0898]
     """
     a = cos_t / jnp.maximum(m * sin_t, cos_t / _A_MAX)
     return 2 * _SQRT_PI / (_SQRT_PI * cos_t * (1 + erf(a)) + m * sin_t * jnp.exp(-a * a))

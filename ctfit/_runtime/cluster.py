@@ -9,7 +9,7 @@ The cluster's own log lines (ports, workers starting and stopping) are kept belo
 
 Workers are separate processes: :func:`prepare_worker` runs at the start of every task and
 switches float64 on where the task asks for it and the persistent compilation cache on
-(``ctfit/_cache.py``), once per process, so every worker keeps and reuses the compiled programs.
+(``ctfit/_runtime/compile_cache.py``), once per process, so every worker keeps and reuses the compiled programs.
 """
 
 from __future__ import annotations

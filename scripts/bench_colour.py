@@ -1,13 +1,13 @@
 """Colour of a rendered sphere: error against run time for five ways of computing it.
 
 Every method shades the same sphere (orthographic camera, the renderer's lights, ambient
-1 %, ``ctfit._render.rendering``) and returns linear sRGB per pixel. The reference is the full spectral
+1 %: ``ctfit.render_scene``, ``ctfit.shade_linear``) and returns linear sRGB per pixel. The reference is the full spectral
 computation at 1 nm over 360–830 nm (every CIE 1931 2° sample). Compared:
 
 - ``spectral 5/10/20 nm``: eq. 1 per band on 380–780 nm every 5, 10 or 20 nm, integrated to
   XYZ with the equal-energy weights at that step and the D65 spectrum in the lights (what
   ``ctfit render`` does, at its default 5 nm);
-- ``RGB (paper's approximation)``: the paper's shortcut (§4, ``ctfit._colour.colour_shift``): the
+- ``RGB (paper's approximation)``: the paper's shortcut (§4, ``ctfit.colour_shift_approximation``): the
   specular colour is the colour of F0 (from the 1 nm spectrum) moved towards the light's colour
   with max(0, F_avg(θ) − F0_avg)/(1 − F0_avg), F0_avg = Y of F0; the diffuse and ambient parts
   use the colour of R_d. Per pixel: three channels instead of λ bands;
@@ -23,7 +23,7 @@ brightest channel at 1; the same scale for every method), Lab relative to the D6
 Times: the jitted per-pixel shading + conversion to linear RGB on the first scene (2 lights),
 warm, ``block_until_ready``, best of ``--repeat``, per million pixels on the sphere.
 
-Usage: ``python scripts/bench_color.py [--size 256] [--repeat 7] [--x64] [--write-docs]``
+Usage: ``python scripts/bench_colour.py [--size 256] [--repeat 7] [--x64] [--write-docs]``
 """
 
 from __future__ import annotations
@@ -54,111 +54,128 @@ def _setup(x64: bool):
     return jax
 
 
-def build(jax, material, directions, solid_angles, ambient):
-    """{method: (jitted fn(params, normals) -> linear sRGB, params)} for one material and scene."""
+def spectral_methods(jax, material, directions, solid_angles, ambient):
+    """{method: (jitted fn(params, normals) -> linear sRGB, params)}: the renderer's shading
+    (``ctfit.render_scene``, ``ctfit.shade_linear``) at 1 nm (the reference), 5, 10 and 20 nm."""
     import equinox as eqx  # noqa: PLC0415
     import jax.numpy as jnp  # noqa: PLC0415
 
-    from ctfit._model.cook_torrance import ambient_reflectance, diffuse_reflectance, fresnel, normal_reflectance, specular_geometric  # noqa: PLC0415
-    from ctfit._colour.colorimetry import XYZ_to_RGB, rgb_conversion, spectral_weights, spectrum_to_XYZ  # noqa: PLC0415
-    from ctfit._colour.colour_shift import average_normal_reflectance, colour_shift_approximation  # noqa: PLC0415
-    from ctfit._model.directions import geometry  # noqa: PLC0415
-    from ctfit._render.rendering import VIEW, _ambient, render_bands, scene_lights, shade_linear  # noqa: PLC0415
-
-    st = material.structure
-    view = jnp.asarray(VIEW)
-    out = {}
+    from ctfit import render_scene, shade_linear  # noqa: PLC0415
 
     def spectral(wl):
-        params, spectrum, to_rgb = render_bands(material, wavelength_nm=wl)
-        lights = scene_lights(spectrum, directions, solid_angles)
-        amb = _ambient(lights, ambient)
-        params = jax.tree_util.tree_map(jnp.asarray, params)
+        scene = render_scene(material, directions=directions, solid_angles=solid_angles, ambient=ambient, wavelength_nm=wl)
 
         @eqx.filter_jit
         def fn(p, n):
-            return shade_linear(st, p, n, view, lights, amb, to_rgb)
+            return shade_linear(material.structure, scene._replace(params=p), n)
 
-        return fn, params
+        return fn, jax.tree_util.tree_map(jnp.asarray, scene.params)
 
-    out["spectral 1 nm (reference)"] = spectral(np.arange(360.0, 830.5, 1.0))
+    out = {"spectral 1 nm (reference)": spectral(np.arange(360.0, 830.5, 1.0))}
     for step in (5.0, 10.0, 20.0):
         out[f"spectral {step:g} nm"] = spectral(np.arange(380.0, 780.5, step))
+    return out
 
-    # RGB methods: reflectance colours under D65 at 1 nm, white lights of Y = 1.
+
+def rgb_shader(structure, directions, solid_angles, ambient, ra_rgb, rd_rgb, fresnel_rgb):
+    """Jitted fn(params, normals) -> linear sRGB of eq. 1 in three channels: the ambient and
+    diffuse parts with the colours of R_a and R_d, the specular part with ``fresnel_rgb(V·H)``."""
+    import equinox as eqx  # noqa: PLC0415
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    from ctfit import VIEW_DIRECTION, geometry, specular_geometric  # noqa: PLC0415
+
+    st = structure
+    view = jnp.asarray(VIEW_DIRECTION)
+    e = [float(w) for w in solid_angles]
+    dirs = [np.asarray(d, dtype=float) / np.linalg.norm(d) for d in directions]
+    amb = ambient * sum(e) / np.pi
+
+    @eqx.filter_jit
+    def fn(p, n):
+        total = amb * jnp.asarray(ra_rgb)
+        for d, dw in zip(dirs, e):
+            geom = geometry(jnp.asarray(d), view, n)
+            cos_l = jnp.where(geom.valid, geom.cos_l, 0)[..., None]
+            if st.has_specular:
+                rs = specular_geometric(st, p, geom)[..., None] * fresnel_rgb(geom.cos_vh)
+            if not st.has_diffuse:
+                r = rs
+            elif not st.has_specular:
+                r = jnp.broadcast_to(jnp.asarray(rd_rgb), cos_l.shape[:-1] + (3,))
+            else:
+                r = p.s * rs + (1 - p.s) * jnp.asarray(rd_rgb)
+            total = total + dw * cos_l * jnp.where(geom.valid[..., None], r, 0)
+        return total
+
+    return fn
+
+
+def rgb_methods(jax, material, directions, solid_angles, ambient):
+    """{method: (fn, params)} of the RGB methods (reflectance colours under D65 at 1 nm, white
+    lights of Y = 1): the paper's approximation and, with a specular part, the 256-angle table;
+    and the table's set-up time in ms (None without a specular part)."""
+    import jax.numpy as jnp  # noqa: PLC0415
+
+    from ctfit import (  # noqa: PLC0415
+        XYZ_to_RGB,
+        ambient_reflectance,
+        average_normal_reflectance,
+        colour_shift_approximation,
+        diffuse_reflectance,
+        fresnel,
+        normal_reflectance,
+        rgb_conversion,
+        spectral_weights,
+        spectrum_to_XYZ,
+    )
+
+    st = material.structure
     wl1 = np.arange(360.0, 831.0, 1.0)
     w1 = spectral_weights(wl1, "D65")
     conv = rgb_conversion("sRGB", w1.white_XYZ, "CAT02")
-    p1 = material.params_at(wavelength_nm=wl1)
-    p1 = jax.tree_util.tree_map(jnp.asarray, p1)
+    p1 = jax.tree_util.tree_map(jnp.asarray, material.params_at(wavelength_nm=wl1))
 
     def colour_of(spectrum):
         r = np.broadcast_to(np.asarray(spectrum, dtype=float), wl1.shape)
         return np.asarray(XYZ_to_RGB(spectrum_to_XYZ(jnp.asarray(r), w1), conv), dtype=float)
 
     rd_rgb = colour_of(diffuse_reflectance(st, p1)) if st.has_diffuse else None
-    ra_rgb = colour_of(ambient_reflectance(st, p1))
-    f0 = np.asarray(normal_reflectance(st, p1), dtype=float) if st.has_specular else None
-    e = [float(w) for w in solid_angles]
-    dirs = [np.asarray(d, dtype=float) / np.linalg.norm(d) for d in directions]
-    amb = ambient * sum(e) / np.pi
+    scene = (st, directions, solid_angles, ambient, colour_of(ambient_reflectance(st, p1)), rd_rgb)
+    if not st.has_specular:
+        return {"RGB (paper's approximation)": (rgb_shader(*scene, None), p1)}, None
+    f0 = np.asarray(normal_reflectance(st, p1), dtype=float)
+    f0_rgb = colour_of(f0)
+    f0_avg = float(average_normal_reflectance(jnp.asarray(f0), w1))
 
-    def rgb_shader(fresnel_rgb):
-        @eqx.filter_jit
-        def fn(p, n):
-            total = amb * jnp.asarray(ra_rgb)
-            for d, dw in zip(dirs, e):
-                geom = geometry(jnp.asarray(d), view, n)
-                cos_l = jnp.where(geom.valid, geom.cos_l, 0)[..., None]
-                if st.has_specular:
-                    rs = specular_geometric(st, p, geom)[..., None] * fresnel_rgb(geom.cos_vh)
-                if not st.has_diffuse:
-                    r = rs
-                elif not st.has_specular:
-                    r = jnp.broadcast_to(jnp.asarray(rd_rgb), cos_l.shape[:-1] + (3,))
-                else:
-                    r = p.s * rs + (1 - p.s) * jnp.asarray(rd_rgb)
-                total = total + dw * cos_l * jnp.where(geom.valid[..., None], r, 0)
-            return total
+    def approx(c):
+        return colour_shift_approximation(jnp.asarray(f0_rgb), jnp.ones(3), f0_avg, c)
 
-        return fn
+    # The table: F(θ, λ) at 1 nm → linear sRGB, 256 angles uniform in θ.
+    t0 = time.perf_counter()
+    theta = np.linspace(0, np.pi / 2, 256)
+    cos = np.cos(theta)
+    cos[-1] = 0.0
+    spectra = fresnel(st, p1, jnp.asarray(cos)[:, None])
+    table = np.asarray(XYZ_to_RGB(spectrum_to_XYZ(spectra, w1), conv), dtype=float)
+    lut_setup_ms = 1e3 * (time.perf_counter() - t0)
+    step = (np.pi / 2) / 255
 
-    if st.has_specular:
-        f0_rgb = colour_of(f0)
-        f0_avg = float(average_normal_reflectance(jnp.asarray(f0), w1))
+    def lut(c):
+        x = jnp.arccos(jnp.clip(c, 0, 1)) / step
+        i = jnp.clip(jnp.floor(x), 0, 254).astype(jnp.int32)
+        f = (x - i)[..., None]
+        tab = jnp.asarray(table).astype(c.dtype)
+        return (1 - f) * tab[i] + f * tab[i + 1]
 
-        def approx(c):
-            return colour_shift_approximation(jnp.asarray(f0_rgb), jnp.ones(3), f0_avg, c)
-
-        # The table: F(θ, λ) at 1 nm → linear sRGB, 256 angles uniform in θ.
-        t0 = time.perf_counter()
-        theta = np.linspace(0, np.pi / 2, 256)
-        cos = np.cos(theta)
-        cos[-1] = 0.0
-        spectra = fresnel(st, p1, jnp.asarray(cos)[:, None])
-        table = np.asarray(XYZ_to_RGB(spectrum_to_XYZ(spectra, w1), conv), dtype=float)
-        lut_setup_ms = 1e3 * (time.perf_counter() - t0)
-        step = (np.pi / 2) / 255
-
-        def lut(c):
-            x = jnp.arccos(jnp.clip(c, 0, 1)) / step
-            i = jnp.clip(jnp.floor(x), 0, 254).astype(jnp.int32)
-            f = (x - i)[..., None]
-            tab = jnp.asarray(table).astype(c.dtype)
-            return (1 - f) * tab[i] + f * tab[i + 1]
-
-        out["RGB (paper's approximation)"] = (rgb_shader(approx), p1)
-        out["LUT 256 angles"] = (rgb_shader(lut), p1)
-        out["_lut_setup_ms"] = lut_setup_ms
-    else:
-        out["RGB (paper's approximation)"] = (rgb_shader(None), p1)
-    return out
+    methods = {"RGB (paper's approximation)": (rgb_shader(*scene, approx), p1), "LUT 256 angles": (rgb_shader(*scene, lut), p1)}
+    return methods, lut_setup_ms
 
 
 def delta_e(jax, rgb, ref, scale):
     import jax.numpy as jnp  # noqa: PLC0415
 
-    from ctfit._colour.colorimetry import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion, spectral_weights  # noqa: PLC0415
+    from ctfit import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion, spectral_weights  # noqa: PLC0415
 
     w = spectral_weights(np.arange(360.0, 831.0, 1.0), "D65")
     conv = rgb_conversion("sRGB", w.white_XYZ, "CAT02")
@@ -182,9 +199,9 @@ def best_time(fn, args, repeat):
 def run(args):
     jax = _setup(args.x64)
     import ctfit  # noqa: PLC0415
-    from ctfit._render.rendering import AMBIENT_FRACTION, LIGHT_DIRECTIONS, SOLID_ANGLES, surface  # noqa: PLC0415
+    from ctfit import AMBIENT_FRACTION, LIGHT_DIRECTIONS, SOLID_ANGLES, surface_normals  # noqa: PLC0415
 
-    surf = surface("sphere", args.size)
+    surf = surface_normals("sphere", args.size)
     normals = surf.normal[surf.mask]
     dtype = np.float64 if args.x64 else np.float32
     n_jax = jax.numpy.asarray(normals.astype(dtype))
@@ -200,9 +217,11 @@ def run(args):
         results = {}
         times = {}
         for scene, (dirs, dws) in scenes.items():
-            methods = build(jax, mat, dirs, dws, AMBIENT_FRACTION)
-            if "_lut_setup_ms" in methods:
-                setup[name] = methods.pop("_lut_setup_ms")
+            methods = spectral_methods(jax, mat, dirs, dws, AMBIENT_FRACTION)
+            rgb_ways, lut_setup_ms = rgb_methods(jax, mat, dirs, dws, AMBIENT_FRACTION)
+            methods.update(rgb_ways)
+            if lut_setup_ms is not None:
+                setup[name] = lut_setup_ms
             rgb = {m: np.asarray(fn(p, n_jax), dtype=float) for m, (fn, p) in methods.items()}
             ref = rgb["spectral 1 nm (reference)"]
             scale = 1 / ref.max()
@@ -224,7 +243,7 @@ def table(rows, setup, n_pixels, args) -> str:
     lines = [
         SECTION,
         "",
-        f"`scripts/bench_color.py` ({datetime.date.today().isoformat()}; {platform.machine()} CPU, "
+        f"`scripts/bench_colour.py` ({datetime.date.today().isoformat()}; {platform.machine()} CPU, "
         f"{os.cpu_count()} cores shared with other jobs; Python {platform.python_version()}, JAX {jax.__version__}, "
         f"{'float64' if args.x64 else 'float32'}). A {args.size} × {args.size} sphere ({n_pixels} pixels on it), "
         "the renderer's camera and lights (`docs/rendering.md`). ΔE00 against the spectral computation at 1 nm "

@@ -1,0 +1,320 @@
+"""The ``ctfit`` command: eval, simulate, fit, sample, color, render (the typer app; the bodies of
+``fit`` and ``sample`` live in ``fit_command.py``, ``fit_cluster.py`` and ``sample_command.py``).
+
+Heavy imports (JAX, colour-science) happen inside the commands, so ``ctfit --version`` is fast.
+Errors in the input (bad files, bad options) print one ``error:`` line naming the file, line
+and column where known, and exit with status 2; a fit that does not converge exits with 1.
+Warnings print as one line ``warning: MESSAGE``; ``fit`` over several files goes on after a
+file's error and ends with a summary (docs/fitting.md). Outputs are checked before any work
+(``_io/output_paths.py``); Ctrl-C exits with status 130 and one line, ``interrupted`` (``_io/interrupt.py``).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+from typing import List, Optional
+
+import typer
+
+from .inputs import PARAM_OUT_HELP, load_material_file, parse_wavelengths, read_data, setup_jax
+from .messages import UserError, run_body
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
+
+
+def _version(value: bool):
+    if value:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            typer.echo(f"ctfit {version('ctfit')}")
+        except PackageNotFoundError:
+            typer.echo("ctfit (source tree)")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version and exit.")):
+    """ctfit: Cook–Torrance fitting in JAX."""
+
+
+@app.command("eval")
+def eval_cmd(
+    material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
+    data: Path = typer.Argument(..., help="Measurement CSV (a 'brdf' column is optional and replaced)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output CSV."),
+    float32: bool = typer.Option(False, "--float32", help="Evaluate in float32 (default float64)."),
+    param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP),
+):
+    """The material's BRDF at every row of DATA, written as a measurement CSV."""
+
+    def body():
+        from .._io import check_output
+
+        check_output(output, [material, data])
+        setup_jax(float32)
+        from .._io import write_csv
+        from .._model import evaluate
+
+        mat = load_material_file(material)
+        meas = read_data(data, param_out)
+        values = evaluate(mat, meas)
+        meta = dict(meas.meta)
+        meta.update({"evaluated_by": "ctfit eval", "material": str(material)})
+        write_csv(meas.replace(brdf=values, sigma=None, meta=meta), output)
+        typer.echo(f"wrote {len(values)} samples to {output}", err=True)
+
+    run_body(body)
+
+
+@app.command()
+def simulate(
+    material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output CSV."),
+    samples: int = typer.Option(2000, "--samples", min=1, help="Direction pairs (each measured in every band)."),
+    seed: int = typer.Option(0, "--seed"),
+    noise: float = typer.Option(0.0, "--noise", min=0.0, help="Relative Gaussian noise (0.02 = 2 %); adds a sigma column."),
+    wavelengths: Optional[str] = typer.Option(None, "--wavelengths", help="START:STOP:STEP or a list, nm (default: the material's within 400–700)."),
+    max_theta: float = typer.Option(85.0, "--max-theta", min=0.0, max=90.0, help="Largest polar angle of light and viewer, degrees."),
+):
+    """Synthetic goniometric measurements of MATERIAL (denser near the mirror direction)."""
+
+    def body():
+        from .._io import check_output
+
+        check_output(output, [material])
+        setup_jax()
+        from .._io import write_csv
+        from .._model import simulate as sim
+
+        mat = load_material_file(material)
+        meas = sim(mat, samples, wavelength_nm=parse_wavelengths(wavelengths), noise=noise, seed=seed, max_theta=max_theta)
+        meta = dict(meas.meta, material=str(material))
+        write_csv(meas.replace(meta=meta), output)
+        typer.echo(f"wrote {len(meas)} samples ({samples} direction pairs × {meas.n_bands} bands) to {output}", err=True)
+
+    run_body(body)
+
+
+@app.command()
+def fit(
+    data: List[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary) or folders of them."),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several: a folder)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
+    material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),
+    lobes: str = typer.Option("1", "--lobes", help="Number of lobes, or 'auto' (1–3, with/without diffuse, by BIC)."),
+    geometry: Optional[str] = typer.Option(None, "--geometry", help="v-cavity (default), smith or smith-rational (Smith with the rational G1 of Mitsuba 3)."),
+    fresnel: Optional[str] = typer.Option(None, "--fresnel", help="effective-n (default: k = 0, n from F0) or conductor (n, k)."),
+    diffuse: bool = typer.Option(True, "--diffuse/--no-diffuse", help="Include a diffuse part R_d = F0/π."),
+    loss: str = typer.Option("auto", "--loss", help="auto, absolute, relative, sigma, cosine or log."),
+    solver: str = typer.Option("lm", "--solver", help="lm, gauss-newton, dogleg or bfgs."),
+    float32: bool = typer.Option(False, "--float32", help="Fit in float32 (default float64)."),
+    starts: int = typer.Option(3, "--starts", min=1, help="Seeds from the grid over m, solved at once."),
+    max_steps: int = typer.Option(256, "--max-steps", min=1, help="Solver steps per start (more for a fit that stops short of a minimum)."),
+    param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP + " A file's own line wins."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit (one file: this path; several: a folder)."),
+    sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
+    walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
+    steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
+    burn: Optional[int] = typer.Option(None, "--burn", min=0, help="With --sample: steps discarded (fewer than --steps)."),
+    thin: int = typer.Option(1, "--thin", min=1, help="With --sample: keep every THIN-th step."),
+    seed: int = typer.Option(0, "--seed", help="With --sample: random seed."),
+    backend: Optional[Path] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder)."),
+    resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="With --sample: start the chain in --backend again (a stored chain is kept otherwise)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars (they show only on a terminal)."),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="Fit on a local Dask cluster of this many worker processes (needs -o; results are kept per file and a re-run skips the files done)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Fit on an existing Dask cluster: the scheduler's address (tcp://HOST:8786) or its scheduler file (.json); as --workers otherwise."),
+):
+    """Fit the Cook–Torrance parameters to DATA; prints a table of parameters ± standard errors.
+
+    Several files (or folders): each is fitted on its own; a file that cannot be read or fitted
+    is reported as 'error: FILE: reason' and the others go on; a summary follows on stderr.
+    Exit status: 0 every fit converged, 1 some fit did not converge, 2 a file failed or the
+    options are wrong.
+
+    --workers N / --scheduler ADDRESS: the files are fitted on a Dask cluster, each result written
+    as it completes, a re-run skipping the files done, OUTDIR/summary.json (docs/scaling.md).
+    One texel store (.zarr, .nc, .h5): every texel fitted, -o MAPS.zarr the parameter maps
+    (docs/formats.md).
+    """
+    opts = SimpleNamespace(**locals())
+    from .fit_command import fit_command
+
+    code = run_body(lambda: fit_command(opts))
+    if code:
+        raise typer.Exit(code)
+
+
+SAMPLE_NOT_USABLE = 1
+"""Exit status of ``ctfit sample`` when the chain ran but its posterior is not usable (it left the
+fit, runs to a prior bound, or the data do not constrain a parameter): the table and the JSON say why."""
+
+
+@app.command("sample")
+def sample_cmd(
+    fit_json: Path = typer.Argument(..., help="Fit-result JSON (a material TOML needs -o)."),
+    data: Path = typer.Argument(..., help="The measurement the material was fitted to."),
+    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
+    loss: Optional[str] = typer.Option(None, "--loss", help="absolute, relative, sigma, cosine or log (default: the fit's); another than the fit's fits again first."),
+    walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
+    steps: int = typer.Option(2000, "--steps", min=1, help="Steps per walker in all (also with --resume)."),
+    burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
+    thin: int = typer.Option(1, "--thin", min=1, help="Keep every THIN-th step."),
+    seed: int = typer.Option(0, "--seed"),
+    backend: Optional[Path] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file (its chain is lost)."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Folder for the corner and spectral-band PNGs."),
+    idata: Optional[Path] = typer.Option(None, "--idata", help="Also write the chain as ArviZ netCDF (az.from_netcdf) to this file."),
+    param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar (shown only on a terminal)."),
+):
+    """Posterior sampling (emcee) of a fitted material: medians and 68 %/95 % intervals, written into the fit JSON.
+
+    Exit status: 0 a usable posterior; 1 the chain ran but its posterior is not usable (it left
+    the fit, runs to a prior bound, or the data do not constrain a parameter; the table and the
+    JSON's uncertainty.problems say why); 2 an input error.
+    """
+    opts = SimpleNamespace(**locals())
+    code = run_body(lambda: _sample_command(opts))
+    if code:
+        raise typer.Exit(code)
+
+
+def _check_sample_options(o) -> Path:
+    """Options and outputs checked before any work; returns the JSON target."""
+    from .._io import check_backend, check_output, check_output_folder
+    from .._fitting import LOSSES
+
+    if (o.resume or o.overwrite) and o.backend is None:
+        raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
+    if o.loss is not None and o.loss not in LOSSES:
+        raise UserError(f"--loss must be one of {', '.join(LOSSES)}, got {o.loss!r}")
+    target = check_output(o.output or o.fit_json, [o.data], option="-o" if o.output else "")
+    if o.backend is not None:
+        check_backend(o.backend, [o.fit_json, o.data, target], resume=o.resume, overwrite=o.overwrite)
+    if o.idata is not None:
+        check_output(o.idata, [o.fit_json, o.data, target], option="--idata")
+    if o.plot is not None:
+        check_output_folder(o.plot, "--plot")
+    return target
+
+
+def _sample_command(o) -> int:
+    """The ``sample`` command's body: the exit status (0, or ``SAMPLE_NOT_USABLE``)."""
+    _check_sample_options(o)
+    setup_jax()
+    import warnings
+
+    from .._runtime import progress_enabled
+    from .._sampling import ChainTooShortWarning, format_uncertainty_table
+    from .sample_command import sample_command_body
+
+    meas = read_data(o.data, o.param_out)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
+        doc = sample_command_body(
+            o.fit_json, meas, o.walkers, o.steps, o.burn, o.thin, o.seed, o.backend, o.resume, o.plot, o.output,
+            progress=progress_enabled(o.quiet), overwrite=o.overwrite, loss=o.loss, idata=o.idata,
+        )  # fmt: skip
+    typer.echo(json.dumps(doc, indent=2) if o.as_json else format_uncertainty_table(doc, str(o.data)))
+    typer.echo(f"wrote {o.output or o.fit_json}", err=True)
+    return 0 if doc["uncertainty"]["usable"] else SAMPLE_NOT_USABLE
+
+
+@app.command()
+def render(
+    materials: List[Path] = typer.Argument(..., help="Material TOML or fit-result JSON files, one tile each."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output PNG."),
+    size: int = typer.Option(256, "--size", min=8, help="Tile side in pixels."),
+    shape: str = typer.Option("sphere", "--shape", help="sphere or vase."),
+    compare: Optional[Path] = typer.Option(None, "--compare", help="Measurement file: show the one MATERIAL beside a rendering that uses the nearest measured BRDF."),
+    labels: bool = typer.Option(True, "--labels/--no-labels", help="Write each material's name under its tile."),
+    columns: Optional[int] = typer.Option(None, "--columns", min=1, help="Tiles per row (default: up to 6)."),
+    step: float = typer.Option(5.0, "--step", min=0.0, help="Wavelength step of spectral rendering over 380–780 nm."),
+    supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
+    ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
+    exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),
+):
+    """Render materials on spheres or vases under the paper's two lights (Figures 6–7) to a PNG."""
+
+    def body():
+        from .._io import check_output
+
+        check_output(output, [*materials, compare])
+        setup_jax(float32=True)  # float32 is plenty for images
+        from .render_command import render_command_body
+
+        info = render_command_body(
+            materials, output, size, shape, compare, labels,
+            columns=columns, wavelength_step=step, supersample=supersample, ambient=ambient, exposure=exposure,
+        )
+        h, w = info["image_shape"][:2]
+        typer.echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
+
+    run_body(body)
+
+
+@app.command()
+def color(
+    material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
+    angle: float = typer.Option(0.0, "--angle", help="Angle of incidence, degrees."),
+    illuminant: str = typer.Option("D65", "--illuminant", help="CIE illuminant (colour-science's name): D65, A, D50, …"),
+    colourspace: str = typer.Option("sRGB", "--colorspace", "--colourspace", help="RGB colourspace (colour-science's name); --colourspace is the same option."),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of the table."),
+):
+    """The material's reflectance colour at normal incidence (or --angle): XYZ, xy, RGB, Lab, …
+
+    The CLI spells colour the American way (``color``, ``--colorspace``); ``ctfit colour`` and
+    ``--colourspace`` are the same command and option."""
+
+    def body():
+        setup_jax()
+        from .._colour import colour_report
+
+        mat = load_material_file(material)
+        rep = colour_report(mat, angle_deg=angle, illuminant=illuminant, colourspace=colourspace)
+        if as_json:
+            typer.echo(json.dumps(rep, indent=2, default=float))
+        else:
+            for k, v in rep.items():
+                typer.echo(f"{k:>24}: {v}")
+
+    run_body(body)
+
+
+app.command("colour", hidden=True, help="The same as ctfit color.")(color)
+
+
+def _interrupted_message() -> str:
+    """``interrupted``; after a chain was started in an HDF5 backend, the command that resumes it."""
+    import shlex
+
+    from .._io import resumable
+
+    args = sys.argv[1:]
+    has_backend = any(a == "--backend" or a.startswith("--backend=") for a in args)
+    if has_backend and (resumable() is not None or "--resume" in args):
+        again = [a for a in args if a != "--overwrite"] + ([] if "--resume" in args else ["--resume"])
+        return "interrupted; resume with: ctfit " + shlex.join(again)
+    return "interrupted"
+
+
+def main():  # console-script entry point
+    """Run the command; Ctrl-C at any moment exits with status 130 and one line (``_io/interrupt.py``)."""
+    from .._runtime import matplotlib_config_fallback
+    from .._io import install
+    from .._runtime import return_large_blocks
+
+    install(_interrupted_message)
+    return_large_blocks()  # peak memory: what a command holds at once (``_runtime/memory.py``)
+    matplotlib_config_fallback()  # no HOME: the compilation cache's one warning says it all
+    app()
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,134 @@
+"""``ctfit fit`` on a Dask cluster (``--workers``, ``--scheduler``) and on a texel store: results
+written as tasks complete, files already fitted from the same bytes and options kept, a summary."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .fit_command import check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options
+from .inputs import read_data, setup_jax
+from .messages import UserError, failure_line
+
+__all__ = ["TEXEL_SUFFIXES", "fit_on_cluster", "fit_texel_command"]
+
+
+def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[str, str]]:
+    """--workers / --scheduler: files whose stored result was fitted from the same bytes with the
+    same options are skipped; the others are fitted by ``fit_many`` on the cluster and each is
+    reported and written as its task completes. ``summary.json`` goes beside the results."""
+    from .._runtime import dask_client
+    from .._fitting import fit_many, input_sha256
+    from .._runtime import echo
+
+    options = _fit_options_record(o)
+    hashes, outcomes, pending = {}, {}, []
+    for path in files:
+        try:
+            hashes[path] = input_sha256(path)
+        except OSError as e:
+            outcomes[path] = ("failed", f"{path}: {e.strerror or e}")
+            continue
+        kept = _kept_result(plan[path].json, hashes[path], options)
+        if kept is None:
+            pending.append(path)
+        else:
+            outcomes[path] = (kept, f"{path}{_KEPT}")
+
+    def done(i: int, got) -> None:
+        path = pending[i]
+        try:
+            if isinstance(got, Exception):
+                raise got
+            got.material.meta.update(input_sha256=hashes[path], fit_options=options)
+            meas = read_data(path, o.param_out) if plan[path].plot is not None else None
+            outcomes[path] = (report_file(path, meas, got, o, plan[path], show), str(path))
+        except (UserError, ValueError, OSError, KeyError, RuntimeError) as e:
+            line = failure_line(path, e)
+            echo(f"error: {line}", err=True)
+            outcomes[path] = ("failed", line)
+
+    if pending:
+        st = structure_from_options(base.structure if base else None, int(o.lobes) if o.lobes != "auto" else 1, o.geometry, o.fresnel, o.diffuse)
+        kw = fit_kwargs(o)
+        with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
+            fit_many([str(p) for p in pending], st, client, material=base, param_out=o.param_out, return_errors=True, on_result=done,
+                     progress=show, **kw)
+    ordered = [outcomes[p] for p in files]
+    if len(files) > 1:
+        _write_summary(Path(o.output) / "summary.json", files, ordered, plan, hashes)
+    return ordered
+
+
+TEXEL_SUFFIXES = (".zarr", ".nc", ".h5", ".hdf5")
+
+
+def fit_texel_command(o) -> int:
+    """Texel data (``docs/formats.md``): every texel fitted on a Dask cluster (--workers, --scheduler,
+    else one local worker per core), the maps written to the Zarr store -o as chunks complete
+    (a re-run resumes), PNGs of the maps in the folder --plot. 0: every texel converged, 1: not."""
+    from .._runtime import dask_client, echo, progress_enabled
+    from .._fitting import fit_texel_maps, save_map_pngs
+
+    if o.output is None or o.output.suffix.lower() != ".zarr":
+        raise UserError("texel data: give -o MAPS.zarr (the parameter maps are written there as a Zarr store)")
+    if o.sample_ or o.material is not None or o.lobes == "auto" or o.as_json or o.backend is not None:
+        raise UserError("texel data: fits with --lobes N only; leave out --sample, --material, --lobes auto, --json and --backend")
+    setup_jax(o.float32)
+    check_fit_choices(o)
+    st = structure_from_options(None, int(o.lobes), o.geometry, o.fresnel, o.diffuse)
+    kw = fit_kwargs(o)
+    with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
+        maps = fit_texel_maps(o.data[0], o.output, st, client, loss=kw["loss"], solver=kw["solver"], dtype=kw["dtype"], starts=kw["starts"],
+                              max_steps=kw["max_steps"], progress=progress_enabled(o.quiet))
+    with maps:
+        import numpy as np
+
+        converged = int(maps["converged"].sum())
+        total = int(maps["converged"].size)
+        echo(f"{o.data[0]}: {total} texels, {converged} converged, {total - converged} did not; median rel_rmse "
+             f"{float(np.nanmedian(maps['rel_rmse'].values)):.4g}")
+        echo_wrote(o.output)
+        if o.plot is not None:
+            for png in save_map_pngs(maps, o.plot):
+                echo_wrote(png)
+    return 0 if converged == total else 1
+
+
+_KEPT = " (kept: fitted earlier from the same input)"
+
+
+def _fit_options_record(o) -> dict:
+    """The options a stored result was fitted with (a re-run keeps it only if they are equal)."""
+    from .._fitting import input_sha256
+
+    return dict(lobes=o.lobes, geometry=o.geometry, fresnel=o.fresnel, diffuse=o.diffuse, loss=o.loss, solver=o.solver, float32=o.float32,
+                starts=o.starts, max_steps=o.max_steps, param_out=o.param_out, material=input_sha256(o.material) if o.material else None)
+
+
+def _kept_result(target, sha: str, options: dict) -> str | None:
+    """'converged' or 'not converged' when ``target`` holds a fit of the same input and options, else None."""
+    if target is None or not Path(target).is_file():
+        return None
+    try:
+        doc = json.loads(Path(target).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    fit = doc.get("fit") if isinstance(doc, dict) else None
+    if not isinstance(fit, dict) or doc.get("input_sha256") != sha or doc.get("fit_options") != options:
+        return None
+    return "converged" if fit.get("converged") is True else "not converged"
+
+
+def _write_summary(target: Path, files: list[Path], outcomes: list[tuple[str, str]], plan: dict, hashes: dict) -> None:
+    """``summary.json``: per file its outcome, result file, input hash and (failed) the reason."""
+    from .._io import atomic_write
+
+    rows = []
+    for path, (outcome, what) in zip(files, outcomes):
+        rows.append(dict(data=str(path), outcome=outcome, kept=what.endswith(_KEPT),
+                         result=None if outcome == "failed" else str(plan[path].json), input_sha256=hashes.get(path),
+                         reason=what if outcome == "failed" else None))
+    count = {k: sum(r["outcome"] == k for r in rows) for k in ("converged", "not converged", "failed")}
+    atomic_write(target, [json.dumps(dict(files=len(rows), **count, results=rows), indent=2) + "\n"])
+    echo_wrote(target)

@@ -1,0 +1,72 @@
+"""What the ``ctfit`` command prints when something goes wrong: one line, in the CLI's words.
+
+Input errors print one ``error:`` line and exit with status 2; warnings print as one line
+``warning: MESSAGE``; a library message's Python argument names become the options that set them.
+"""
+
+from __future__ import annotations
+
+import re
+
+import typer
+
+__all__ = ["UserError", "cli_message", "failure_line", "run_body", "show_warning"]
+
+
+class UserError(Exception):
+    """An error caused by the input, reported without a traceback."""
+
+
+_CLI_PHRASES = {"pass resume=False": "leave out --resume", "resume=False": "leave out --resume", "param_out=...": "--param-out"}
+
+
+_CLI_NAMES = {  # library argument → the option that sets it, for library messages shown by the CLI
+    "param_out": "--param-out",
+    "max_steps": "--max-steps",
+    "max_theta": "--max-theta",
+    "n_pairs": "--samples",
+    "noise": "--noise",
+    "walkers": "--walkers",
+    "steps": "--steps",
+    "thin": "--thin",
+    "burn": "--burn",
+}
+
+
+_CLI_NAME = re.compile(r"(?<![\w-])(" + "|".join(_CLI_NAMES) + r")(?==|\s+must\b)")
+
+
+def cli_message(text: str) -> str:
+    """A library message with its Python argument names (``param_out=``) turned into options."""
+    for phrase, option in _CLI_PHRASES.items():
+        text = text.replace(phrase, option)
+    return _CLI_NAME.sub(lambda m: _CLI_NAMES[m[1]], text)
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None):
+    """``warnings.showwarning`` for the CLI: one ``warning: MESSAGE`` line, no source location."""
+    from .._runtime import echo
+
+    echo(f"warning: {cli_message(str(message))}", err=True)
+
+
+def run_body(fn):
+    """Run a command body: warnings as one line each, input errors as one line and exit status 2."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show_warning
+        try:
+            return fn()
+        except UserError as e:
+            typer.echo(f"error: {e}", err=True)
+            raise typer.Exit(2)
+        except (ValueError, OSError, KeyError) as e:
+            typer.echo(f"error: {cli_message(str(e))}", err=True)
+            raise typer.Exit(2)
+
+
+def failure_line(path, err: Exception) -> str:
+    """``PATH: reason`` for a file that failed among several (the reason in the CLI's words)."""
+    message = cli_message(str(err))
+    return message if message.startswith(f"{path}:") else f"{path}: {message}"

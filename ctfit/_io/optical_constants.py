@@ -1,0 +1,113 @@
+"""Optical constants tables: wavelength, n, k (and F0) of a metal, as CSV; six ship with ctfit.
+
+The format is documented in ``docs/formats.md``. A table is named by a path, or by the name of
+a table that ships with ctfit (package data: ``ctfit/data/optical_constants/<name>.csv``).
+Every problem raises :class:`MaterialError` naming the file (and the line).
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import pathlib
+
+import numpy as np
+
+from .errors import DataError, MaterialError
+from .files import read_text
+from .._model import f0_from_nk
+
+__all__ = ["read_material_text", "is_table_name", "table_names", "read_optical_constants"]
+
+_TABLES = importlib.resources.files("ctfit") / "data" / "optical_constants"  # package data
+
+
+def read_material_text(path) -> str:
+    """The text of a material or optical-constants file (:func:`~ctfit._io.files.read_text`:
+    UTF-8, a byte-order mark dropped); a missing, unreadable or undecodable file raises
+    :class:`MaterialError` naming it."""
+    try:
+        return read_text(path)
+    except FileNotFoundError:
+        raise MaterialError(f"{path}: no such file") from None
+    except DataError as err:  # not UTF-8: names the file, line and byte
+        raise MaterialError(str(err)) from None
+    except OSError as err:
+        raise MaterialError(f"{path}: cannot read: {err}") from err
+
+
+def is_table_name(name) -> bool:
+    """A bare name (``"Cu"``) rather than a path: a string without folder or suffix."""
+    return isinstance(name, str) and bool(name) and pathlib.PurePath(name).name == name and "." not in name and "\\" not in name
+
+
+def table_names() -> list[str]:
+    """The optical constants tables that ship with ctfit (package data), by name."""
+    return sorted(p.name[: -len(".csv")] for p in _TABLES.iterdir() if p.name.endswith(".csv"))
+
+
+def _bundled_table(name: str):
+    """The package-data file of table ``name`` (an ``importlib.resources`` Traversable)."""
+    resource = _TABLES / f"{name}.csv"
+    if not resource.is_file():
+        raise MaterialError(f"{name!r}: no such optical constants table; ctfit ships {', '.join(table_names())}")
+    return resource
+
+
+def _parse(path, lines: list[str]) -> tuple[dict, list[str], list[list[float]]]:
+    """``(meta, header, rows)`` of the table's lines."""
+    meta, header, rows = {}, None, []
+    for lineno, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        if line.startswith("#"):
+            if header is None and ":" in line:
+                key, value = line[1:].split(":", 1)
+                meta[key.strip()] = value.strip()
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        if header is None:
+            header = cells
+            missing = [c for c in ("wavelength_nm", "n", "k") if c not in header]
+            if missing:
+                raise MaterialError(f"{path}:{lineno}: header lacks column(s) {missing}; got {header}")
+            continue
+        if len(cells) != len(header):
+            raise MaterialError(f"{path}:{lineno}: {len(cells)} values, header has {len(header)}")
+        try:
+            rows.append([float(c) for c in cells])
+        except ValueError:
+            raise MaterialError(f"{path}:{lineno}: not a number in {line!r}") from None
+    if not rows:
+        raise MaterialError(f"{path}: no data rows")
+    return meta, header, rows
+
+
+def read_optical_constants(path) -> dict:
+    """Read an optical constants CSV (``docs/formats.md``): a path, or the name of a table that
+    ships with ctfit (``"Cu"``, ``"Au"``, ``"Ag"``, ``"Al"``, ``"Fe"``, ``"stainless-steel"``;
+    a name has no folder and no suffix).
+
+    ``#`` lines first (``# key: value`` pairs go to ``meta``), then the header
+    ``wavelength_nm,n,k[,F0]`` and one wavelength per row, strictly increasing. A missing
+    ``F0`` column is computed as ((n − 1)² + k²)/((n + 1)² + k²).
+
+    Returns ``{"wavelength_nm", "n", "k", "F0"}`` as float64 arrays plus ``"meta"`` (a dict).
+
+    >>> gold = read_optical_constants("Au")
+    >>> i = int(abs(gold["wavelength_nm"] - 600).argmin())
+    >>> print(f'{gold["wavelength_nm"][i]:g} nm: F0 = {gold["F0"][i]:.3f}')  # gold reflects red well
+    600 nm: F0 = 0.910
+    >>> gold["meta"]["material"]
+    'Gold (Au)'
+    """
+    path = _bundled_table(path) if is_table_name(path) else pathlib.Path(path)
+    meta, header, rows = _parse(path, read_material_text(path).splitlines())
+    table = np.asarray(rows, dtype=float)
+    out = {name: table[:, header.index(name)] for name in ("wavelength_nm", "n", "k")}
+    out["F0"] = table[:, header.index("F0")] if "F0" in header else f0_from_nk(out["n"], out["k"])
+    if not np.all(np.isfinite(table)):
+        raise MaterialError(f"{path}: values must be finite")
+    if np.any(np.diff(out["wavelength_nm"]) <= 0):
+        raise MaterialError(f"{path}: wavelength_nm must be strictly increasing")
+    out["meta"] = meta
+    return out
