@@ -82,6 +82,7 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "plot_spectra": "._sampling",
     "sample": "._sampling",
     "SampleResult": "._sampling",
+    "log_probability": "._sampling",
     "average_normal_reflectance": "._colour",
     "colour_report": "._colour",
     "colour_shift_approximation": "._colour",
@@ -222,6 +223,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         plot_spectra as plot_spectra,
         sample as sample,
         SampleResult as SampleResult,
+        log_probability as log_probability,
     )
     from ._colour import (
         average_normal_reflectance as average_normal_reflectance,

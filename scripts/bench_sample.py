@@ -5,15 +5,16 @@ walker (emcee's default, ``vectorize=False``).
 Every figure comes from the same run on the same machine, on the same synthetic data, same
 walkers, same number of steps, same starting ensemble and the same random numbers:
 
-- ``ctfit``: :class:`ctfit._sampling.engine.Engine`, the function :func:`ctfit.sample` hands to emcee
+- ``ctfit``: :func:`ctfit.log_probability`, the function :func:`ctfit.sample` hands to emcee
   (one call per half ensemble; compiled before the clock starts).
 - ``NumPy per sample``: the same posterior — one Beckmann lobe, V-cavity G, the paper's Fresnel
   with the effective index from F0, sigma-weighted Gaussian likelihood, flat priors in (m, F0)
   with the log-Jacobian of the (exp, sigmoid) transforms — written the straightforward way: one
   value per sample, H, D, G and F computed per sample on each call (unit vectors from the
   angles computed once), vectorised over the samples.
-- ``NumPy grid``: the same, written the efficient way: ctfit's own precomputed geometry per
-  direction pair, D·G once per pair, F per pair × band. It shows how much of the speed-up is
+- ``NumPy grid``: the same, written the efficient way: ctfit's layout (the geometry per
+  direction pair, :func:`ctfit.geometry_from_angles_deg`, the samples on a pair × band grid),
+  D·G once per pair, F per pair × band. It shows how much of the speed-up is
   the layout and how much is XLA (fusion, constant folding) and the batching over walkers.
 - ``emcee alone``: the same run with a trivial vectorised log-probability: emcee's own cost per
   step (the stretch move, its random numbers, the bookkeeping), paid by every column. It caps
@@ -57,19 +58,24 @@ def _setup():
 
 
 class NumpyLogProb:
-    """log p(u | y) for one walker u = (u_F0[0..W-1], u_m) of a one-lobe metal, in NumPy."""
+    """log p(u | y) for one walker u = (u_F0[0..W-1], u_m) of a one-lobe metal, in NumPy, on
+    ctfit's layout: the geometry per direction pair, the samples on a pair × band grid."""
 
-    def __init__(self, problem):
-        g = problem.geom
+    def __init__(self, data):
+        import ctfit
+
+        pairs, index = data.directions()
+        g = ctfit.geometry_from_angles_deg(*pairs.T)
         a = lambda x: np.asarray(x, dtype=float)  # noqa: E731
         self.valid = a(g.valid)[:, None] > 0
         self.tan2 = a(g.tan2_h)
         self.cos_vh = np.clip(a(g.cos_vh), 0, 1)[:, None]
         cl, cv, ch, cvh = a(g.cos_l), a(g.cos_v), a(g.cos_h), a(g.cos_vh)
         self.g_red = np.minimum(1 / (cl * cv), np.minimum(2 * ch / (cvh * cl), 2 * ch / (cvh * cv)))
-        self.y = a(problem.y)
-        self.inv_sigma = 1 / a(problem.sigma)
-        self.mask = a(problem.mask)
+        shape = (len(pairs), data.n_bands)
+        self.y, sigma, self.mask = np.zeros(shape), np.ones(shape), np.zeros(shape)
+        self.y[index, data.band], sigma[index, data.band], self.mask[index, data.band] = data.brdf, data.sigma, 1.0
+        self.inv_sigma = 1 / sigma
         self.k = 0.25 / np.pi
 
     def __call__(self, x):
@@ -129,27 +135,19 @@ class NumpyLogProbPerSample:
         return out if np.isfinite(out) else -np.inf
 
 
-def _setup_problem(pairs: int, bands: int, seed: int = 0):
-    import jax.numpy as jnp
-
+def _setup_problem(pairs: int, bands: int, walkers: int, seed: int = 0):
+    """The synthetic data and ctfit's log-probability of them (a one-lobe metal, sigma-weighted)."""
     import ctfit
-    from ctfit._fitting.problem import from_params, make_problem
-    from ctfit._sampling.priors import normalise_priors
-    from ctfit._sampling.engine import Engine
-    from ctfit._sampling.logprob import Layout
-    from ctfit._model.evaluation import simulate
 
     wl = np.linspace(400.0, 700.0, bands)
     f0 = 0.55 + 0.4 / (1 + np.exp(-(wl - 570.0) / 25.0))
     st = ctfit.Structure(lobes=1)
-    truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=f0), wavelength_nm=wl)
-    data = simulate(truth, pairs, noise=0.02, seed=seed)
-    problem = make_problem(st, data, fixed_params=truth.params, loss="sigma", space="unconstrained")
-    u0 = {k: jnp.asarray(v) for k, v in from_params(problem.spec, truth.params).items()}
-    names = tuple(sorted(u0))  # ("f0", "m"): flat = (u_F0..., u_m)
-    layout = Layout(names, tuple(np.shape(u0[k]) for k in names), False, False, False)
-    x0 = np.concatenate([np.ravel(u0[k]) for k in names])
-    return problem, layout, normalise_priors(None, layout.names, layout.noise), x0, data, Engine
+    params = ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=f0)
+    data = ctfit.simulate(ctfit.Material(st, params, wavelength_nm=wl), pairs, noise=0.02, seed=seed)
+    # The truth stands as the fit (a material fitted with this loss is sampled as it is): no fit
+    # is run, and the optimum, flat = (u_F0..., u_m), is the truth.
+    truth = ctfit.Material(st, params, wavelength_nm=wl, meta={"fit": {"loss": "sigma"}})
+    return ctfit.log_probability(truth, data, loss="sigma", walkers=walkers), data
 
 
 def run(pairs: int, bands: int, walkers: int, steps: int, seed: int = 0, repeat: int = 5) -> dict:
@@ -157,13 +155,13 @@ def run(pairs: int, bands: int, walkers: int, steps: int, seed: int = 0, repeat:
     import jax
     import jax.numpy as jnp
 
-    problem, layout, prior, x0, data, Engine = _setup_problem(pairs, bands, seed)
-    engine = Engine(problem, layout, prior, walkers // 2)
-    refs = {"numpy": NumpyLogProbPerSample(data), "numpy_grid": NumpyLogProb(problem)}
+    logp, data = _setup_problem(pairs, bands, walkers, seed)
+    x0 = logp.optimum
+    refs = {"numpy": NumpyLogProbPerSample(data), "numpy_grid": NumpyLogProb(data)}
     rng = np.random.default_rng(seed)
     start = x0 + 1e-3 * rng.standard_normal((walkers, x0.size))
     # Same posterior: compare on the starting ensemble.
-    lp_jax = engine(start)
+    lp_jax = logp(start)
     for ref in refs.values():
         np.testing.assert_allclose(np.array([ref(x) for x in start]), lp_jax, rtol=1e-9)
 
@@ -179,18 +177,20 @@ def run(pairs: int, bands: int, walkers: int, steps: int, seed: int = 0, repeat:
         return 1e6 * min(ts)
 
     half = np.ascontiguousarray(start[: walkers // 2])
-    out["ctfit_call_us"] = best(lambda: engine(half))
+    out["ctfit_call_us"] = best(lambda: logp(half))
     out["logprob_ctfit_per_walker_us"] = out["ctfit_call_us"] / (walkers // 2)
-    trivial = jax.jit(lambda leaves, xs: jnp.sum(xs, axis=1))
-    trivial(engine.leaves, half)
-    out["dispatch_us"] = best(lambda: np.asarray(trivial(engine.leaves, half)))
+    trivial = jax.jit(lambda _leaves, xs: jnp.sum(xs, axis=1))  # the arguments of ctfit's call, passed, unused
+    grid = refs["numpy_grid"]
+    leaves = [jnp.asarray(grid.y), jnp.asarray(1 / grid.inv_sigma), jnp.asarray(1.0)]  # the data arrays ctfit's call takes
+    trivial(leaves, half)
+    out["dispatch_us"] = best(lambda: np.asarray(trivial(leaves, half)))
     for name, ref in refs.items():
         out[f"logprob_{name}_per_walker_us"] = best(lambda: [ref(x) for x in start]) / walkers
 
     def emcee_alone(xs):
         return -0.5 * np.sum((xs - x0) ** 2, axis=1) * 1e6
 
-    runs = {"ctfit": (engine, True), "emcee_only": (emcee_alone, True)}
+    runs = {"ctfit": (logp, True), "emcee_only": (emcee_alone, True)}
     runs.update({name: (ref, False) for name, ref in refs.items()})
     times = {name: [] for name in runs}
     chains, acc = {}, {}

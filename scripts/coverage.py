@@ -56,7 +56,7 @@ def run(n: int, steps: int, pairs: int, noise: float, loss: str, seed: int = 0, 
     jax.config.update("jax_platforms", "cpu")
     jax.config.update("jax_enable_x64", True)
     import ctfit
-    from ctfit._sampling.emcee_run import ChainTooShortWarning, sample
+    from ctfit import ChainTooShortWarning, sample
 
     st = ctfit.Structure(lobes=1)
     truth = ctfit.Material(st, ctfit.Params(m=np.array([M_TRUE]), w=np.array([1.0]), f0=F0_TRUE), wavelength_nm=WL, name="truth")

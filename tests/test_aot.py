@@ -1,4 +1,4 @@
-"""ctfit/_aot.py: compiled programs kept on disk (serialised executables), so a new process skips
+"""ctfit/_runtime/stored_programs.py: compiled programs kept on disk (serialised executables), so a new process skips
 tracing, lowering and compiling."""
 
 from __future__ import annotations
@@ -23,9 +23,20 @@ def _fn(box, x, power):
 
 @pytest.fixture
 def store(tmp_path, monkeypatch):
+    """The store in ``tmp_path``, as in a fresh process without JAX's persistent cache: a process
+    that loaded a program from that cache stores nothing, and the CLI's tests leave it enabled
+    (in HOME) in the worker that ran them."""
+    from jax.experimental.compilation_cache import compilation_cache
+
     monkeypatch.setattr(_aot, "_store", lambda: tmp_path)
     monkeypatch.setattr(_aot, "_memory", {})
-    return tmp_path
+    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
+    folder = jax.config.jax_compilation_cache_dir
+    jax.config.update("jax_compilation_cache_dir", None)
+    compilation_cache.reset_cache()  # JAX opens its cache once: make it look again (and find none)
+    yield tmp_path
+    jax.config.update("jax_compilation_cache_dir", folder)
+    compilation_cache.reset_cache()
 
 
 def _args():
@@ -190,3 +201,22 @@ def test_the_source_digest_covers_subpackages(tmp_path, monkeypatch):
     before = digest()
     (pkg / "sub" / "model.py").write_text("x = 2\n")
     assert digest() != before
+
+
+def test_kept_programs_are_built_once_per_key_and_the_least_recently_used_dropped(store):
+    """kept_program: one program per name, static values and constants' values; with a limit, the
+    programs of that name used last (the other names' untouched)."""
+    _aot.cached_call("toy", _fn, *_args())
+    built = []
+
+    def kept(tag, static, constants):
+        return _aot.kept_program("toy_kept", lambda: built.append(tag) or (lambda: tag), static, constants, limit=2)
+
+    a = kept("a", (1,), jnp.arange(3.0))
+    assert kept("a again", (1,), jnp.arange(3.0)) is a and built == ["a"]
+    kept("b", (1,), jnp.arange(3.0) + 1)  # other constant values
+    kept("c", (2,), jnp.arange(3.0))  # other static values; "a" is dropped (limit 2)
+    kept("b again", (1,), jnp.arange(3.0) + 1)  # kept, and now the most recently used
+    kept("a", (1,), jnp.arange(3.0))  # built again; "c" is dropped
+    assert built == ["a", "b", "c", "a"]
+    assert sorted(k.partition("-")[0] for k in _aot._memory) == ["toy", "toy_kept", "toy_kept"]

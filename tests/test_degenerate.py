@@ -38,7 +38,7 @@ from ctfit import (
     render_materials,
     save_material_json,
 )
-from ctfit._sampling.emcee_run import draw_colours
+from ctfit._sampling.draw_colours import draw_colours
 from ctfit._fitting.validate import check_fittable, n_free_parameters, nonfinite_reason, representable_range
 from ctfit.cli import app
 

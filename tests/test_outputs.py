@@ -234,8 +234,8 @@ def test_images_and_figures_are_written_atomically(tmp_path):
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ctfit._render.rendering import save_png
-    from ctfit._sampling.outputs import _save_figure
+    from ctfit import save_png
+    from ctfit._sampling.plots import _save_figure
 
     for name, write in [
         ("tile.png", lambda p: save_png(np.zeros((4, 4, 3), np.uint8), p)),
@@ -320,12 +320,13 @@ def test_the_program_store_is_private(tmp_path, monkeypatch, cache_config):
 @pytest.fixture
 def no_work(monkeypatch):
     """Fail the test if a command gets as far as setting up JAX."""
-    import ctfit._cli.app
+    from ctfit._cli import commands, fit_cluster, fit_command
 
     def setup(*a, **k):
         raise AssertionError("the command started its work before checking its outputs")
 
-    monkeypatch.setattr(ctfit._cli.app, "_setup_jax", setup)
+    for module in (commands, fit_command, fit_cluster):
+        monkeypatch.setattr(module, "setup_jax", setup)
 
 
 def test_commands_refuse_an_output_that_is_an_input(tmp_path, no_work):
@@ -432,7 +433,7 @@ def _interrupt_when(proc, ready, settle: float = 1.0, timeout: float = 240.0):
 
 def test_the_interrupted_line(monkeypatch):
     from ctfit._io import interrupt as _interrupt
-    from ctfit._cli.app import _interrupted_message
+    from ctfit._cli.commands import _interrupted_message
 
     monkeypatch.setitem(_interrupt._state, "resumable", None)
     monkeypatch.setattr(sys, "argv", ["ctfit", "sample", "f.json", "d.csv", "--backend", "my run.h5", "--overwrite"])

@@ -7,7 +7,7 @@ import pytest
 
 from ctfit._sampling.priors import describe_priors, log_prior, normalise_priors, support
 from ctfit._sampling.checks import check_posterior, fit_distance
-from ctfit._sampling.outputs import _central_ranges
+from ctfit._sampling.plots import _central_ranges
 
 
 def test_default_priors_are_proper_and_physical():

@@ -16,7 +16,10 @@ import pytest
 import ctfit
 from ctfit._fitting.problem import from_params, make_problem, to_params
 from ctfit._sampling.priors import normalise_priors
-from ctfit._sampling.emcee_run import ChainTooShortWarning, default_walkers, draw_colours, sample
+from ctfit._sampling.chain_diagnostics import ChainTooShortWarning
+from ctfit._sampling.draw_colours import draw_colours
+from ctfit._sampling.emcee_run import sample
+from ctfit._sampling.posterior_density import default_walkers
 from ctfit._sampling.engine import Engine
 from ctfit._sampling.logprob import Layout
 from ctfit._model.evaluation import simulate
@@ -330,7 +333,9 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     from ctfit._colour.report import colour_report
     from ctfit._fitting.results import fit_result_to_dict
     from ctfit._io.material_files import load_material, save_material_json
-    from ctfit._sampling.outputs import format_uncertainty_table, plot_corner, plot_spectra, sample_command_body
+    from ctfit._cli.sample_command import sample_command_body
+    from ctfit._sampling.plots import plot_corner, plot_spectra
+    from ctfit._sampling.table import format_uncertainty_table
 
     truth, data, fitted = metal
     # The colour of a draw is colour_report's colour of that material.

@@ -104,11 +104,17 @@ def test_sample_loss_option_fits_again_and_refuses_unknown_losses(tmp_path):
 def test_single_band_data_of_unknown_wavelength_is_labelled_so(tmp_path):
     """ALTA files without wavelengths: the table and the corner plot say "unknown band", never
     the placeholder wavelength (550 nm)."""
-    from ctfit._sampling.outputs import _band_labels, format_uncertainty_table
+    from types import SimpleNamespace
+
+    from ctfit._sampling.plots import _global_columns
+    from ctfit._sampling.table import format_uncertainty_table
 
     material = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4])),
                               wavelength_nm=np.array([550.0]), band_unknown=True)  # as a fit of retro-3M-jaune.dat has it
-    assert _band_labels(material, 1) == ["unknown band"]
+    rng = np.random.default_rng(0)
+    draws = {"m": rng.normal(0.2, 0.01, (50, 1)), "F0": rng.normal(0.4, 0.01, (50, 1))}
+    result = SimpleNamespace(material=material, chain=draws, optimum={"m": [0.2], "F0": [0.4]})
+    assert _global_columns(result)[1] == ["m", "$F_0$[unknown band]"]  # the corner plot's panels
     doc = {"band_unknown": True, "wavelength_nm": [550.0], "uncertainty": {"F0": [{"median": 0.3, "p16": 0.29, "p84": 0.31}]}}
     table = format_uncertainty_table(doc, "felt")
     assert "unknown band" in table and "550" not in table

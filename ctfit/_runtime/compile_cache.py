@@ -1,10 +1,11 @@
-"""JAX's persistent compilation cache, and with it ctfit's store of compiled fit programs.
+"""Where compiled programs live on disk: JAX's persistent compilation cache, and in its folder
+ctfit's store of compiled executables (:func:`program_store_folder`; what is stored there, and
+under which key, is :mod:`ctfit._runtime.stored_programs`'s).
 
 The ``ctfit`` command calls :func:`enable_compilation_cache`; library users may too. A second
-process then skips XLA's compilation (JAX's cache) and the tracing of the fit program
-(``_runtime/stored_programs.py`` keeps it in ``ctfit-aot/`` inside the same folder). The cache is an optimisation:
-a folder that cannot be created or written (no HOME, a read-only one) gives one
-:class:`CacheWarning`, and everything runs without it.
+process then skips XLA's compilation (JAX's cache) and the tracing of the fit program (the
+store). The cache is an optimisation: a folder that cannot be created or written (no HOME, a
+read-only one) gives one :class:`CacheWarning`, and everything runs without it.
 """
 
 from __future__ import annotations
@@ -17,7 +18,10 @@ import tempfile
 import warnings
 from pathlib import Path
 
-__all__ = ["CacheWarning", "enable_compilation_cache", "matplotlib_config_fallback", "warn_once"]
+__all__ = ["CacheWarning", "enable_compilation_cache", "program_store_folder", "matplotlib_config_fallback", "warn_once"]
+
+PROGRAM_STORE = "ctfit-aot"
+"""The store's folder inside JAX's cache folder."""
 
 _warned: set[str] = set()
 
@@ -64,6 +68,13 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
 
     Returns the folder, or None (with one :class:`CacheWarning`) when it cannot be created or
     written, or there is no home folder: JAX then runs without a persistent cache.
+
+    >>> import jax, ctfit
+    >>> before = jax.config.jax_compilation_cache_dir
+    >>> where = ctfit.enable_compilation_cache("jax-cache")  # later runs load what this one compiles
+    >>> jax.config.jax_compilation_cache_dir == str(where), oct(where.stat().st_mode & 0o777)
+    (True, '0o700')
+    >>> jax.config.update("jax_compilation_cache_dir", before)  # as it was, for what runs after the example
     """
     import jax
 
@@ -81,6 +92,15 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return where
+
+
+def program_store_folder() -> Path | None:
+    """The folder of ctfit's compiled-program store: :data:`PROGRAM_STORE` inside JAX's cache
+    folder; None while JAX's cache is off."""
+    import jax
+
+    where = jax.config.jax_compilation_cache_dir
+    return Path(where) / PROGRAM_STORE if where else None
 
 
 def matplotlib_config_fallback() -> str | None:

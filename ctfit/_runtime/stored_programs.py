@@ -1,4 +1,5 @@
-"""Compiled programs kept on disk, so that a new process skips tracing, lowering and compiling.
+"""Compiled programs kept in memory and on disk, so that a new process skips tracing, lowering
+and compiling, and a process compiles a program once.
 
 JAX's persistent compilation cache (``_runtime/compile_cache.py``) saves only the XLA compile: every new process
 still traces the Python program and lowers it to HLO to compute the cache key, which for a fit
@@ -17,11 +18,17 @@ determines it:
 
 An entry is used only when its key matches exactly; if it cannot be read, loaded or called
 (a truncated file, a jaxlib that cannot deserialise it), it is discarded and the program is
-compiled as usual. Entries are written atomically. The store lives in ``ctfit-aot/`` inside
-the directory of JAX's persistent cache, and only when that cache is enabled (the ``ctfit``
-command enables it; library users call :func:`ctfit._runtime.compile_cache.enable_compilation_cache`). Since
+compiled as usual. Entries are written atomically. The store lives where
+:func:`ctfit._runtime.compile_cache.program_store_folder` says (``ctfit-aot/`` inside the folder
+of JAX's persistent cache), and only when that cache is enabled (the ``ctfit`` command
+enables it; library users call :func:`ctfit.enable_compilation_cache`). Since
 its programs are run, the folder is made with mode 0700 and is not used (one warning) when it
 belongs to another user or others can write to it.
+
+In memory, programs are kept under the same key: :func:`cached_call`'s executables for the
+process's lifetime, and programs that :func:`kept_program` builds once and hands out, to be
+called directly (the sampler's log-probability, called thousands of times per run, with the
+goniometer geometry compiled in: its key holds the geometry's values; the last few used).
 """
 
 from __future__ import annotations
@@ -39,13 +46,14 @@ from typing import Callable
 
 import equinox as eqx
 import jax
+import numpy as np
 from jax.experimental import serialize_executable
 
-from .compile_cache import warn_once
+from .compile_cache import program_store_folder, warn_once
 from .._io import atomic_write
 
 _FORMAT = 2  # 1: jax.export programs (compiled again in every process); 2: executables
-_memory: dict[str, Callable] = {}
+_memory: dict[str, Callable] = {}  # "name-key" → program, the least recently used first
 _jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
 
 
@@ -56,7 +64,7 @@ def _count_jax_cache_hit(event: str, **_) -> None:
 
 
 jax.monitoring.register_event_listener(_count_jax_cache_hit)
-_stores: dict[str, pathlib.Path | None] = {}  # cache folder → its checked store
+_stores: dict[pathlib.Path, pathlib.Path | None] = {}  # store folder → itself once checked, or None
 
 
 @functools.cache
@@ -95,14 +103,15 @@ def _environment_digest() -> str:
 
 
 def _store() -> pathlib.Path | None:
-    """``ctfit-aot/`` in JAX's cache folder, made (mode 0700) on first use; None without a cache,
-    or (with one :class:`~ctfit._runtime.compile_cache.CacheWarning`) when the folder cannot be trusted."""
-    where = jax.config.jax_compilation_cache_dir
-    if not where or not _runtime_ready():
+    """The store's folder (:func:`~ctfit._runtime.compile_cache.program_store_folder`), made (mode
+    0700) on first use; None without a cache, or (with one
+    :class:`~ctfit._runtime.compile_cache.CacheWarning`) when the folder cannot be trusted."""
+    folder = program_store_folder()
+    if folder is None or not _runtime_ready():
         return None
-    if where not in _stores:
-        _stores[where] = _trusted(pathlib.Path(where) / "ctfit-aot")
-    return _stores[where]
+    if folder not in _stores:
+        _stores[folder] = _trusted(folder)
+    return _stores[folder]
 
 
 def _trusted(store: pathlib.Path) -> pathlib.Path | None:
@@ -132,14 +141,61 @@ def _abstract(x):
     return x
 
 
-def _key(name: str, args: tuple) -> str | None:
-    """The entry's key, or None when the static part has no stable ``repr`` (e.g. a closure)."""
+def _key(name: str, args: tuple, constants=None) -> str | None:
+    """The entry's key, or None when the static part has no stable ``repr`` (e.g. a closure).
+
+    ``args`` count by their static part and the shape and dtype of their arrays; ``constants``
+    (a tree of arrays the program has compiled in) by its structure and its arrays' values."""
     text = repr(jax.tree.map(_abstract, args))
     if " at 0x" in text:
         return None
     config = (jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision, jax.config.jax_numpy_rank_promotion)
     h = hashlib.sha256("\n".join([_environment_digest(), name, repr(config), text]).encode())
+    if constants is not None:
+        leaves, treedef = jax.tree.flatten(constants)
+        h.update(str(treedef).encode())
+        for leaf in leaves:
+            a = np.asarray(leaf)
+            h.update(str((a.dtype, a.shape)).encode())
+            h.update(np.ascontiguousarray(a).tobytes())
     return h.hexdigest()
+
+
+def _recall(key: str) -> Callable | None:
+    """The program kept in memory under ``key`` (from now on the most recently used), or None."""
+    run = _memory.pop(key, None)
+    if run is not None:
+        _memory[key] = run
+    return run
+
+
+def _remember(key: str, run: Callable, limit: int | None = None) -> Callable:
+    """Keep ``run`` in memory under ``key``; with ``limit``, only that many programs of its name
+    (the key up to "-"), the least recently used dropped."""
+    _memory[key] = run
+    if limit is not None:
+        prefix = key.partition("-")[0] + "-"
+        same = [k for k in _memory if k.startswith(prefix)]
+        for k in same[: max(len(same) - limit, 0)]:
+            del _memory[k]
+    return run
+
+
+def kept_program(name: str, build: Callable[[], Callable], static: tuple = (), constants=None, *, limit: int | None = None) -> Callable:
+    """The program ``build()`` returns, built once per key and kept in this process's memory
+    (beside :func:`cached_call`'s; with ``limit``, the ``limit`` programs of ``name`` used last).
+
+    The key is :func:`cached_call`'s of ``name`` and ``static`` (their ``repr``; the environment),
+    with the values of the arrays in ``constants``: what the program has compiled in. For
+    programs that are called often, once built: the caller calls the program itself, with no
+    lookup per call. Without a stable key (a closure in ``static``) the program is built anew.
+    """
+    digest = _key(name, static, constants)
+    if digest is None:
+        return build()
+    key = f"{name}-{digest}"
+    run = _recall(key)
+    return run if run is not None else _remember(key, build(), limit)
 
 
 @functools.cache
@@ -199,14 +255,15 @@ def cached_call(name: str, fn: Callable, *args):
     ``None`` and arrays only (its structure is stored with the executable, and JAX cannot
     store the structure of an Equinox module).
     """
-    key = _key(name, args)
-    if key is None:
+    digest = _key(name, args)
+    if digest is None:
         return eqx.filter_jit(fn)(*args)
+    key = f"{name}-{digest}"
     dynamic, static = eqx.partition(args, eqx.is_array)
     leaves, in_def = jax.tree.flatten(dynamic)
-    run = _memory.get(key)
+    run = _recall(key)
     store = _store()
-    path = store / f"{name}-{key[:32]}.xla" if store is not None else None
+    path = store / f"{name}-{digest[:32]}.xla" if store is not None else None
     if run is None and path is not None and path.is_file():
         try:
             run = _load(path)
@@ -216,7 +273,7 @@ def cached_call(name: str, fn: Callable, *args):
             path.unlink(missing_ok=True)
             run = None
         else:
-            _memory[key] = run
+            _remember(key, run)
             return out
     if run is None:
         # The program takes a flat list of arrays and returns plain containers, which is what
@@ -229,8 +286,7 @@ def cached_call(name: str, fn: Callable, *args):
 
         flat.__name__ = flat.__qualname__ = f"ctfit_{name}"  # the program's name in JAX's logs
         lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
-        run = _compile_fresh(lowered) if path is not None else lowered.compile()
-        _memory[key] = run
+        run = _remember(key, _compile_fresh(lowered) if path is not None else lowered.compile())
         # Once this process has loaded an executable from JAX's cache, executables compiled
         # after it serialise without some of their functions ("Function … not found" when the
         # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.

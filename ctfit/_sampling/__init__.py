@@ -8,7 +8,11 @@ import lazy_loader
 __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
-        "emcee_run": ['ChainTooShortWarning', 'SampleResult', 'sample'],
-        "outputs": ['fit_sample_body', 'format_uncertainty_table', 'plot_corner', 'plot_spectra', 'sample_command_body'],
+        "chain_diagnostics": ['ChainTooShortWarning'],
+        "emcee_run": ['sample'],
+        "plots": ['plot_corner', 'plot_spectra'],
+        "posterior_density": ['log_probability'],
+        "result": ['SampleResult'],
+        "table": ['format_uncertainty_table'],
     },
 )

@@ -19,9 +19,9 @@ import warnings
 
 import numpy as np
 
-__all__ = ["arviz", "inference_data", "diagnostics"]
+from .._model import PARAMETER_AXES
 
-_DIMS = {"m": "lobe", "weight": "lobe", "F0": "band", "n": "band", "k": "band", "Rd": "band"}
+__all__ = ["arviz", "inference_data", "diagnostics"]
 
 
 def arviz():
@@ -43,7 +43,7 @@ def inference_data(chain: dict, log_prob: np.ndarray, walkers: int, bands: list,
     sample_stats (``lp``: the log-posterior in the sampled coordinates)."""
     az = arviz()
     posterior = {k: _by_walker(v, walkers) for k, v in chain.items()}
-    dims = {k: [_DIMS[k]] for k, v in posterior.items() if k in _DIMS and v.ndim == 3}
+    dims = {k: [PARAMETER_AXES[k]] for k, v in posterior.items() if PARAMETER_AXES.get(k) and v.ndim == 3}
     lobes = max((posterior[k].shape[2] for k in ("m", "weight") if k in dims), default=0)
     coords = {"band": list(bands)} if any(d == ["band"] for d in dims.values()) else {}
     if lobes:

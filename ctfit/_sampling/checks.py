@@ -13,7 +13,7 @@
   the 2.5 % or 97.5 % quantile to the bound is under a quarter of the 16–84 % width, read in
   log θ for m and σ_noise): the interval is the prior's cut, not the data's.
 - **not constrained**: a parameter's 95 % range covers more than half of its prior's range, or
-  JᵀJ at the optimum has no curvature along it (:func:`ctfit._fitting.least_squares.undetermined`).
+  JᵀJ at the optimum has no curvature along it (:func:`ctfit._fitting.fit_report.undetermined`).
 
 A run with any of them is not a usable posterior (``SampleResult.usable`` False; the ``ctfit
 sample`` exit status 1).

@@ -32,14 +32,6 @@ def _normal_fresnel(structure: Structure, params: Params):
     return fresnel(structure, params, jnp.ones((), params.f0.dtype if params.f0 is not None else params.n.dtype))
 
 
-def _srgb_lab(XYZ, conv, white) -> tuple[np.ndarray, np.ndarray]:
-    """Encoded, gamut-mapped sRGB and CIELAB of XYZ (…, 3): colour_report's steps."""
-    from .._colour import XYZ_to_Lab, XYZ_to_RGB, desaturate_to_gamut, encode_RGB
-
-    rgb = desaturate_to_gamut(XYZ_to_RGB(XYZ, conv), conv.luminance, upper=1.0)
-    return np.asarray(encode_RGB(rgb, conv.colourspace), dtype=float), np.asarray(XYZ_to_Lab(XYZ, white), dtype=float)
-
-
 def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws: int = 2000) -> dict:
     """sRGB (encoded, gamut-mapped as in :func:`ctfit._colour.report.colour_report`) and CIELAB
     under ``illuminant`` of every draw (at most ``max_draws``, evenly spaced): arrays (n, 3).
@@ -48,7 +40,7 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
     when there is a specular part (F(0) from the interpolated F0, n or n and k, as the report
     computes it), π R_d(λ) otherwise.
     """
-    from .._colour import DEFAULT_OBSERVER, observer_cmfs, rgb_conversion, spectral_weights
+    from .._colour import DEFAULT_OBSERVER, XYZ_to_display_RGB, XYZ_to_Lab, observer_cmfs, rgb_conversion, spectral_weights
 
     if material.band_unknown:
         raise ValueError("the band's wavelength is unknown (single-band data), so there is no colour")
@@ -89,7 +81,8 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
         XYZ = r @ np.asarray(weights.weights, dtype=float)
         white = np.asarray(weights.white_XYZ, dtype=float)
         illum = weights.illuminant
-    srgb, lab = _srgb_lab(XYZ, conv, white)
+    srgb = np.asarray(XYZ_to_display_RGB(XYZ, conv), dtype=float)  # encoded, gamut-mapped: colour_report's
+    lab = np.asarray(XYZ_to_Lab(XYZ, white), dtype=float)
     return {"sRGB": srgb, "Lab": lab, "XYZ": XYZ, "illuminant": illum, "draws": int(idx.size)}
 
 

@@ -6,7 +6,8 @@ built on the least-squares fit.
 1. the fit's optimum and its JᵀJ (:mod:`ctfit._sampling.start`; the fit is run first when the
    material is not a fit with this loss);
 2. emcee's affine-invariant ensemble sampler on the log-posterior of
-   :mod:`ctfit._sampling.logprob` (priors of :mod:`ctfit._sampling.priors`), walkers started around the
+   :mod:`ctfit._sampling.logprob` (priors of :mod:`ctfit._sampling.priors`; laid out by
+   :mod:`ctfit._sampling.posterior_density`, which also hands it out: :func:`ctfit.log_probability`), walkers started around the
    optimum with its Laplace covariance, the chain kept in an HDF5 file on request
    (:mod:`ctfit._sampling.backend`);
 3. burn-in, emcee's τ and ArviZ's ESS and R̂ (:mod:`ctfit._sampling.chain_diagnostics`,
@@ -25,83 +26,26 @@ References
 
 from __future__ import annotations
 
-import dataclasses
 import time
 import warnings
 
-import jax
-import jax.numpy as jnp
 import numpy as np
-from jax.flatten_util import ravel_pytree
 
 from .._fitting import undetermined
 from .._model import Measurement
-from .priors import PRIOR_KINDS, describe_priors, normalise_priors
-from .._fitting import LOSSES, from_params, make_problem
 from .backend import fingerprint, open_run
+from .chain_diagnostics import ChainTooShortWarning, autocorr_time, default_burn, likelihood_description, residual_spread, run_notes
 from .checks import check_posterior, fit_distance
-from .draw_colours import colour_summary, draw_colours
-from .chain_diagnostics import (
-    ChainTooShortWarning,
-    autocorr_time,
-    default_burn,
-    likelihood_description,
-    residual_spread,
-    run_notes,
-)
-from .engine import Engine
-from .logprob import Layout
+from .draw_colours import colour_summary
+from .posterior_density import PosteriorSetup, set_up_posterior
+from .priors import describe_priors
 from .result import SampleResult, summarise
-from .start import fit_covariance, laplace_start, resolve_fit, start_params, start_walkers
+from .start import fit_covariance, laplace_start, start_walkers
 
-__all__ = ["sample", "SampleResult", "ChainTooShortWarning", "PRIOR_KINDS", "default_walkers", "draw_colours"]
-
-
-def default_walkers(ndim: int) -> int:
-    """max(2·ndim + 2, 32), rounded up to an even number (emcee's stretch move splits in halves)."""
-    n = max(2 * ndim + 2, 32)
-    return n + (n % 2)
+__all__ = ["sample"]
 
 
-@dataclasses.dataclass
-class _Setup:
-    """One sampling problem, laid out: the fit it starts from and the compiled log-probability."""
-
-    material: object
-    loss: str
-    fixed: tuple[str, ...]
-    note: str | None
-    layout: Layout
-    prior: tuple
-    engine: Engine
-    x_u: np.ndarray  # the fit's optimum, flat, in the sampled coordinates
-    walkers: int
-
-
-def _set_up(target, data: Measurement, *, loss, fixed, priors, walkers) -> _Setup:
-    if loss is not None and loss not in LOSSES:
-        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
-    material, loss, fixed, note = resolve_fit(target, data, loss, fixed)
-    st = material.structure
-    dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
-    start = start_params(material, data)
-    problem = make_problem(st, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, space="unconstrained")
-    u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
-    if not u0:
-        raise ValueError("nothing to sample: every parameter of the material is fixed")
-    names = tuple(sorted(u0))
-    layout = Layout(names, tuple(tuple(np.shape(u0[k])) for k in names), noise=loss != "sigma", conductor=st.fresnel == "conductor",
-                    order_lobes=st.lobes > 1 and "m" in u0, relative=loss == "relative")
-    prior = normalise_priors(priors, names, layout.noise)
-    nwalkers = default_walkers(layout.ndim) if walkers is None else int(walkers)
-    if nwalkers < 2 * layout.ndim or nwalkers % 2:
-        raise ValueError(f"walkers must be even and ≥ 2·ndim = {2 * layout.ndim}, got {nwalkers}")
-    engine = Engine(problem, layout, prior, nwalkers // 2)
-    x_u = np.asarray(ravel_pytree(u0)[0], dtype=float)
-    return _Setup(material, loss, fixed, note, layout, prior, engine, x_u, nwalkers)
-
-
-def _run(s: _Setup, x0, cov, *, steps, seed, backend, resume, overwrite, progress):
+def _run(s: PosteriorSetup, x0, cov, *, steps, seed, backend, resume, overwrite, progress):
     """Run (or continue) the chain: (sampler, steps run now, steps done before, seconds)."""
     import emcee
 
@@ -121,7 +65,7 @@ def _run(s: _Setup, x0, cov, *, steps, seed, backend, resume, overwrite, progres
     return sampler, todo, done, time.perf_counter() - t
 
 
-def _checks(s: _Setup, x0, flat, draw_lp, chain, optimum) -> dict:
+def _checks(s: PosteriorSetup, x0, flat, draw_lp, chain, optimum) -> dict:
     """The usability checks, with the posterior density in θ (the density in u less log|∂θ/∂u|)."""
     lp_theta = draw_lp - s.engine.log_jacobian(flat)
     lp_opt = float(s.engine(x0[None])[0] - s.engine.log_jacobian(x0[None])[0])
@@ -131,7 +75,7 @@ def _checks(s: _Setup, x0, flat, draw_lp, chain, optimum) -> dict:
     return check_posterior(chain, s.prior, s.layout.fresnel, lp_theta, lp_opt, optimum, distance, loose)
 
 
-def _diagnostics(s: _Setup, sampler, *, burn, thin, todo, done, run_s, seed, backend) -> dict:
+def _diagnostics(s: PosteriorSetup, sampler, *, burn, thin, todo, done, run_s, seed, backend) -> dict:
     chain_u = np.asarray(sampler.get_chain())
     n_steps = chain_u.shape[0]
     tau = autocorr_time(chain_u[burn:])
@@ -163,7 +107,7 @@ def sample(
     ``loss``: one of the fit's losses (default: the fit's, else "sigma" with a sigma column, else
     "relative"); ``fixed``: parameters held fixed (default: the material's ``fixed`` key);
     ``priors``: {name: (kind, *args)} (:mod:`ctfit._sampling.priors`). ``walkers`` (default
-    :func:`default_walkers`), ``steps`` per walker (the total, also when resuming), ``burn``
+    :func:`~ctfit._sampling.posterior_density.default_walkers`), ``steps`` per walker (the total, also when resuming), ``burn``
     (default max(2 τ_max, steps/10), at most steps/2), ``thin``; ``seed`` fixes the start and
     emcee's generator. ``backend``: HDF5 file of the chain; ``resume`` continues a stored run to
     ``steps`` (bit-identical to an uninterrupted run), ``overwrite`` starts it again.
@@ -172,6 +116,20 @@ def sample(
     Warns :class:`ChainTooShortWarning` when steps − burn < 50 τ_max. The result's ``usable``
     is False, and ``problems`` says why, when the posterior left the fit, runs to a prior bound
     or is not constrained by the data (:mod:`ctfit._sampling.checks`).
+
+    >>> import warnings, numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
+    ...                       ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.6, 0.9])),
+    ...                       wavelength_nm=np.array([450.0, 650.0]))
+    >>> data = ctfit.simulate(gold, n_pairs=100, noise=0.02, seed=0)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore", ctfit.ChainTooShortWarning)  # a short chain, for the example
+    ...     post = ctfit.sample(ctfit.fit(data, gold.structure), data, steps=200, seed=0)
+    >>> post.labels  # the sampled coordinates: logit F0, log m
+    ['F0[0]', 'F0[1]', 'm[0]']
+    >>> m = post.summary["m"][0]  # the rms slope's posterior: median, 68 % and 95 % intervals
+    >>> bool(m["p2.5"] < m["p16"] < m["median"] < m["p84"] < m["p97.5"]), bool(m["p2.5"] < 0.25 < m["p97.5"])
+    (True, True)
     """
     t0 = time.perf_counter()
     if steps < 1 or thin < 1:
@@ -182,7 +140,7 @@ def sample(
         from .._io import check_backend
 
         check_backend(backend, resume=resume, overwrite=overwrite, flags=("resume=True", "overwrite=True"), option="backend")
-    s = _set_up(fit_result_or_material, data, loss=loss, fixed=fixed, priors=priors, walkers=walkers)
+    s = set_up_posterior(fit_result_or_material, data, loss=loss, fixed=fixed, priors=priors, walkers=walkers)
     x0, cov, laplace = laplace_start(s.engine, s.x_u)
     sampler, todo, done, run_s = _run(s, x0, cov, steps=steps, seed=seed, backend=backend, resume=resume, overwrite=overwrite, progress=progress)
     chain_u = np.asarray(sampler.get_chain())
@@ -198,7 +156,7 @@ def sample(
     return _result(s, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0)
 
 
-def _result(s: _Setup, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0) -> SampleResult:
+def _result(s: PosteriorSetup, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0) -> SampleResult:
     """The :class:`SampleResult`: summaries, ArviZ's diagnostics, notes and warnings."""
     problem = s.engine.problem
     keep = np.asarray(problem.mask).reshape(-1) > 0

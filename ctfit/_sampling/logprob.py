@@ -33,7 +33,7 @@ from .._model import PARAMETERS
 from .priors import log_prior, public_name, support
 from .._fitting import Problem, model_values, residual, to_params
 
-__all__ = ["Layout", "log_prob_one", "log_jacobian_one", "relative_residual"]
+__all__ = ["Layout", "log_prob_one", "log_jacobian_one", "likelihood_residual", "relative_residual", "relative_scale"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,8 +76,9 @@ class Layout:
         return out + (["sigma_noise"] if self.noise else [])
 
 
-def _relative_scale(problem: Problem, values):
-    """max(R_i, tiny) at the observed samples, 1 at missing cells."""
+def relative_scale(problem: Problem, values):
+    """max(R_i, tiny) at the observed samples, 1 at missing cells: σ_i / σ_noise of noise
+    proportional to the model."""
     tiny = jnp.finfo(values.dtype).tiny
     return jnp.where(problem.mask > 0, jnp.maximum(values, tiny), jnp.ones((), values.dtype))
 
@@ -85,7 +86,7 @@ def _relative_scale(problem: Problem, values):
 def relative_residual(problem: Problem, values):
     """Noise proportional to the model: r_i = (R_i − y_i)/R_i and the normalisation −Σ log R_i of
     the Gaussian with σ_i = σ_noise R_i (the −N log σ_noise part is added by the caller)."""
-    scale = _relative_scale(problem, values)
+    scale = relative_scale(problem, values)
     r = (values - problem.y) / scale * problem.mask
     return r.reshape(-1), -jnp.sum(jnp.log(scale))
 
@@ -104,10 +105,6 @@ def log_jacobian_one(layout: Layout, x):
     return out + (x[layout.n_u] if layout.noise else 0.0)
 
 
-def _values(params, name: str):
-    return {"m": params.m, "w": params.w, "s": params.s, "f0": params.f0, "n": params.n, "k": params.k, "rd": params.rd}[name]
-
-
 def log_prob_one(problem: Problem, layout: Layout, prior: tuple, x):
     """Log-posterior (up to a constant) of one flat sampling vector ``x``; −∞ outside the priors' support."""
     u = layout.unravel(x)
@@ -122,7 +119,7 @@ def log_prob_one(problem: Problem, layout: Layout, prior: tuple, x):
             log_l = log_l - jnp.sum(problem.mask) * log_sn - 0.5 * chi2 * jnp.exp(-2 * log_sn)
             log_p = log_p + log_prior(kind, args, jnp.exp(log_sn), lo, hi)
         else:
-            log_p = log_p + log_prior(kind, args, _values(params, name), lo, hi)
+            log_p = log_p + log_prior(kind, args, getattr(params, name), lo, hi)
     if not layout.noise:
         log_l = -0.5 * chi2
     ok = jnp.isfinite(log_l) & jnp.isfinite(log_p)

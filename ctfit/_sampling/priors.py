@@ -29,7 +29,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
-from .._model import PARAMETERS, value_range
+from .._model import PARAMETERS, PUBLIC_NAMES, value_range
 
 __all__ = ["PRIOR_KINDS", "SIGMA_NOISE_RANGE", "support", "public_name", "normalise_priors", "log_prior", "describe_priors", "prior_bounds"]
 
@@ -39,12 +39,12 @@ SIGMA_NOISE_RANGE = (1e-9, 1e9)
 any data, narrow enough to make 1/σ a proper prior."""
 
 _ARITY = {"flat": (0,), "uniform": (2,), "normal": (2,), "lognormal": (2,), "log-uniform": (0, 2)}
-_ALIASES = {"w": "weight", "weights": "weight", "f0": "F0", "rd": "Rd", "R_d": "Rd", "sigma": "sigma_noise"}
+_ALIASES = {**PUBLIC_NAMES, "weights": "weight", "R_d": "Rd", "sigma": "sigma_noise"}  # a prior's key → public name
 
 
 def public_name(name: str) -> str:
     """The JSON/table name of a sampled parameter ("w" → "weight", "sigma_noise" as it is)."""
-    return PARAMETERS[name].public if name in PARAMETERS else name
+    return PUBLIC_NAMES.get(name, name)
 
 
 def support(name: str, fresnel: str = "f0") -> tuple[float, float]:

@@ -55,6 +55,19 @@ class SampleResult:
     - ``usable``: whether the posterior passed the checks of :mod:`ctfit._sampling.checks`;
       ``problems``: one line per failed check (also among ``warnings``); ``checks``: their details.
     - ``draw_log_prob``: the log-posterior of each draw of ``chain``.
+
+    >>> import warnings, numpy as np, ctfit
+    >>> copper = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.3]), w=np.ones(1),
+    ...                         f0=np.array([0.95, 0.64, 0.54])), channels=("R", "G", "B"))
+    >>> data = ctfit.simulate(copper, n_pairs=100, noise=0.02, seed=1)
+    >>> with warnings.catch_warnings():
+    ...     warnings.simplefilter("ignore", ctfit.ChainTooShortWarning)  # a short chain, for the example
+    ...     post = ctfit.sample(copper, data, steps=200, seed=0)  # copper's values are fitted first
+    >>> sorted(post.chain), post.chain["F0"].shape[1]  # the reported quantities' draws, channels
+    (['F0', 'm', 'n', 'weight'], 3)
+    >>> section = post.to_dict()  # for the fit JSON
+    >>> sorted(section["lobes"][0]), len(section["F0"]), section["colour"]["illuminant"]
+    (['m', 'weight'], 3, 'sRGB white')
     """
 
     material: Material

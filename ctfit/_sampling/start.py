@@ -6,7 +6,7 @@ another loss) is fitted first, from its values. There is no second optimiser: th
 is (JᵀJ)⁻¹ of the fit's normal equations (:func:`ctfit._fitting.problem.normal_equations`) at that
 optimum, in the sampler's coordinates, scaled by the residual variance unless the loss is
 sigma-weighted, and used only where the fit would report standard errors (cond(JᵀJ) ≤ 1e12 on
-the coordinates the data determine, :func:`ctfit._fitting.least_squares.standard_errors`); elsewhere the walkers start in
+the coordinates the data determine, :func:`ctfit._fitting.fit_report.standard_errors`); elsewhere the walkers start in
 a small ball and the burn-in finds the scale.
 """
 
@@ -20,7 +20,7 @@ import numpy as np
 from .._fitting import FitResult, standard_errors, undetermined
 from .._model import Material, Params
 
-__all__ = ["start_params", "resolve_fit", "laplace_start", "fit_covariance", "start_walkers"]
+__all__ = ["start_params", "resolve_fit", "optimum_point", "laplace_start", "fit_covariance", "start_walkers"]
 
 BALL_SD = 1e-2
 """Spread (in u) of a coordinate without a usable Laplace variance."""
@@ -69,17 +69,36 @@ def resolve_fit(target, data, loss: str | None, fixed: tuple[str, ...] | None):
     return res.material, loss, fixed, why
 
 
+def _observed(engine) -> int:
+    """N, the measured samples (at least 1)."""
+    return max(int(np.sum(np.asarray(engine.problem.mask))), 1)
+
+
+def _residual_variance(engine, cost: float, n_free: int) -> float:
+    """2·cost/(N − p) where the noise scale is sampled; 1 for σ-weighted residuals."""
+    return 2 * cost / max(_observed(engine) - n_free, 1) if engine.layout.noise else 1.0
+
+
+def optimum_point(engine, x_u: np.ndarray, cost: float | None = None) -> np.ndarray:
+    """The fit's optimum in the sampled coordinates: the flat optimum ``x_u`` and, with a sampled
+    noise scale, log σ̂ (σ̂² = 2·cost/N; ``cost``, ½ Σ r² of the likelihood's residual at
+    ``x_u``, is computed when not given)."""
+    if not engine.layout.noise:
+        return np.asarray(x_u, float)
+    cost = engine.normal(x_u)[0] if cost is None else cost
+    return np.concatenate([x_u, [0.5 * np.log(max(2 * cost / _observed(engine), 1e-300))]])
+
+
 def laplace_start(engine, x_u: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict | None]:
-    """(x0, cov, Laplace standard errors or None) at the flat optimum ``x_u``; with a sampled
-    noise scale, x0 ends with log σ̂, σ̂² = Σ r²/N, and its variance 1/(2N)."""
+    """(x0, cov, Laplace standard errors or None) at the flat optimum ``x_u``: x0 is
+    :func:`optimum_point`, σ̂'s variance (with a sampled noise scale) 1/(2N)."""
     layout = engine.layout
-    n_obs = max(int(np.sum(np.asarray(engine.problem.mask))), 1)
     cost, _, hess = engine.normal(x_u)
-    scale2 = 2 * cost / max(n_obs - x_u.size, 1) if layout.noise else 1.0
-    x0 = np.concatenate([x_u, [0.5 * np.log(max(2 * cost / n_obs, 1e-300))]]) if layout.noise else np.asarray(x_u, float)
+    scale2 = _residual_variance(engine, cost, x_u.size)
+    x0 = optimum_point(engine, x_u, cost)
     cov = np.zeros((layout.ndim, layout.ndim))
     if layout.noise:
-        cov[-1, -1] = 1.0 / (2 * n_obs)
+        cov[-1, -1] = 1.0 / (2 * _observed(engine))
     stderr, cov_u = None, None
     if np.all(np.isfinite(hess)) and np.isfinite(scale2):
         free = ~undetermined(hess)
@@ -104,8 +123,7 @@ def fit_covariance(engine, x_u: np.ndarray) -> np.ndarray:
     cost, _, hess = engine.normal(x_u, likelihood=False)
     if not (np.all(np.isfinite(hess)) and np.isfinite(cost)):
         return np.zeros_like(hess)
-    n_obs = max(int(np.sum(np.asarray(engine.problem.mask))), 1)
-    scale2 = 2 * cost / max(n_obs - x_u.size, 1) if engine.layout.noise else 1.0
+    scale2 = _residual_variance(engine, cost, x_u.size)
     return np.linalg.pinv(0.5 * (hess + hess.T), rcond=1e-12, hermitian=True) * scale2
 
 
