@@ -121,3 +121,18 @@ def test_scripts_and_notebooks_use_the_public_api():
     found = [f"{p.relative_to(root)}" for p in sorted([*root.glob("scripts/*.py"), *root.glob("notebooks/*.ipynb")])
              if re.search(r"\bctfit\._[a-z]", p.read_text(encoding="utf-8"))]
     assert not found, found
+
+
+LAYERS = ["_model", "_io", "_runtime", "_colour", "_fitting", "_render", "_sampling", "_cli"]
+"""Lowest first: a folder imports only folders before it (docs/architecture.md)."""
+
+
+def test_folders_import_only_lower_folders():
+    assert sorted(LAYERS) == SUBPACKAGES
+    upward = []
+    for path in sorted(PACKAGE.glob("_*/*.py")):
+        here = LAYERS.index(path.parent.name)
+        for node in _imports(path):
+            if node.level == 2 and node.module in LAYERS and LAYERS.index(node.module) >= here:
+                upward.append(f"{path.relative_to(PACKAGE)} imports {node.module}")
+    assert not upward, "\n".join(upward)
