@@ -4,7 +4,9 @@ Relative residuals e = (model − data)/max(data, floor) are grouped by angular 
 separate the lobes a Cook–Torrance surface can and cannot produce:
 
 - the angle between L and V (0° is exact retro-reflection: a retro-reflective lobe shows up as
-  data far above the model there);
+  data far above the model there), counted only away from the specular peak (half-vector angle
+  α ≥ 10°): at normal incidence L ≈ V is the mirror direction too, where a missing or too narrow
+  specular lobe is no retro-reflection;
 - the half-vector angle α (0° is the specular peak);
 - the larger of θ_i and θ_o (grazing behaviour: Fresnel, shadowing).
 
@@ -27,6 +29,15 @@ def _angle_lv(ti, pi, to, po) -> np.ndarray:
     ti, to = np.deg2rad(ti), np.deg2rad(to)
     cos = np.sin(ti) * np.sin(to) * np.cos(np.deg2rad(po - pi)) + np.cos(ti) * np.cos(to)
     return np.rad2deg(np.arccos(np.clip(cos, -1, 1)))
+
+
+_OFF_PEAK_DEG = 10.0
+"""The retro-reflection group counts samples at least this far (half-vector angle α) from the peak."""
+
+
+def _angle_lv_off_peak(ti, pi, to, po) -> np.ndarray:
+    """The angle between L and V, NaN (no bin) within ``_OFF_PEAK_DEG`` of the specular peak."""
+    return np.where(_half_angle(ti, pi, to, po) >= _OFF_PEAK_DEG, _angle_lv(ti, pi, to, po), np.nan)
 
 
 def _half_angle(ti, pi, to, po) -> np.ndarray:
@@ -52,7 +63,7 @@ def half_angle_deg(data: Measurement) -> np.ndarray:
 
 
 _GROUPS = (
-    ("angle between L and V", _angle_lv, np.array([0, 2, 5, 10, 20, 40, 80, 180.0]), "retro-reflection"),
+    ("angle between L and V (α ≥ 10°)", _angle_lv_off_peak, np.array([0, 2, 5, 10, 20, 40, 80, 180.0]), "retro-reflection"),
     ("half-vector angle α", _half_angle, np.array([0, 2, 5, 10, 20, 40, 90.0]), "the specular peak"),
     ("max(θ_i, θ_o)", _max_theta, np.array([0, 30, 60, 75, 85, 90.0]), "grazing"),
 )
@@ -95,10 +106,15 @@ def relative_residual_structure(pairs, rel, *, index=None, mask=None, threshold:
     out = []
     for name, variable, edges, place in _GROUPS:
         bins = len(edges) - 1
-        b = np.concatenate([np.clip(np.digitize(variable(*pairs[s].T), edges) - 1, 0, bins - 1).astype(np.int8)
+
+        def bin_of(x):  # NaN (a sample the group leaves out) → the extra bin ``bins``
+            return np.where(np.isnan(x), bins, np.clip(np.digitize(x, edges) - 1, 0, bins - 1)).astype(np.int8)
+
+        b = np.concatenate([bin_of(variable(*pairs[s].T))
                             for s in (slice(i, i + _BLOCK) for i in range(0, len(pairs), _BLOCK))] or [np.zeros(0, np.int8)])
         if per_sample:
             b = b[index]
+        bins += 1  # the bins' sums below include the left-out bin; it is never reported
         n, total, spread = np.zeros(bins), np.zeros(bins), np.zeros(bins)
         for s in blocks:
             n += np.bincount(b[s], minlength=bins) if per_sample else np.bincount(b[s], weights=np.sum(mask[s], axis=1), minlength=bins)
@@ -110,14 +126,17 @@ def relative_residual_structure(pairs, rel, *, index=None, mask=None, threshold:
             spread += np.bincount(b[s], weights=dev if per_sample else np.sum(dev, axis=1), minlength=bins)
         se = np.sqrt(spread / np.maximum(n - 1, 1) / np.maximum(n, 1))
         worst = None
-        for k in np.flatnonzero(n >= min_count):
+        for k in np.flatnonzero(n[:-1] >= min_count):
             if abs(mean[k]) > threshold and abs(mean[k]) > 4 * se[k] and (worst is None or abs(mean[k]) > abs(worst[0])):
                 worst = (float(mean[k]), edges[k], edges[k + 1], int(n[k]))
         if worst is not None:
             mean_k, lo, hi, samples = worst
             side = "below" if mean_k < 0 else "above"
             span = f"[{lo:g}°, {hi:g}°" + ("]" if hi == edges[-1] else ")")  # the last bin holds its upper edge
-            out.append(f"systematic residuals: the model is {abs(mean_k):.0%} {side} the data for {name} in {span} ({samples} samples){_explain(place, mean_k, lo)}")
+            wide = edges[:-1] >= 20  # the bins far from retro-reflection: the level a lobe stands out from
+            baseline = float(np.sum(total[:-1][wide]) / max(np.sum(n[:-1][wide]), 1))
+            out.append(f"systematic residuals: the model is {abs(mean_k):.0%} {side} the data for {name} in {span} ({samples} samples)"
+                       f"{_explain(place, mean_k, lo, baseline - threshold)}")
     return out
 
 
@@ -125,8 +144,10 @@ _BLOCK = 1 << 16
 """Rows (samples or direction pairs) per block in :func:`relative_residual_structure`."""
 
 
-def _explain(place: str, mean: float, lo: float) -> str:
-    if place == "retro-reflection" and mean < 0 and lo < 10:
+def _explain(place: str, mean: float, lo: float, lobe_below: float) -> str:
+    """Where a systematic residual points; a retro-reflection *lobe* only where the model's deficit
+    near L = V stands out (below ``lobe_below``) from its level far from it."""
+    if place == "retro-reflection" and mean < min(0.0, lobe_below) and lo < 10:
         return " — a retro-reflection lobe, which the Cook–Torrance model cannot represent"
     if (place == "the specular peak" and lo < 5) or (place == "grazing" and lo >= 75):
         return f" (near {place})"

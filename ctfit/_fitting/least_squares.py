@@ -98,7 +98,7 @@ class FitResult:
         from .._io import material_to_dict
 
         doc = material_to_dict(self.material)
-        keys = ("s", "lobes", "F0", "n", "k") + (("Rd",) if self.material.structure.diffuse in ("spectrum", "constant") else ())  # R_d = F0/π is not fitted
+        keys = ("s", "lobes", "F0", "n", "k") + (("Rd",) if self.material.structure.has_rd else ())  # R_d = F0/π is not fitted
         return {k: doc[k] for k in keys if k in doc}
 
     @property

@@ -128,10 +128,13 @@ def to_params(spec: Spec, u: dict, fixed: Params) -> Params:
             return getattr(fixed, name)
         row = parameter(name)
         if spec.space == "box":
-            lo, hi = box_bounds(name, st.fresnel)
-            return row.box(clip_box(u[name], lo, hi))
-        offset = n_lower(st.fresnel) if name == "n" else 0.0
-        return offset + row.free(u[name])
+            lo, hi = box_bounds(name, st.fresnel, st.family)
+            value = row.box(clip_box(u[name], lo, hi))
+        else:
+            value = (n_lower(st.fresnel, st.family) if name == "n" else 0.0) + row.free(u[name])
+        if name == "n" and st.shared_index:  # a plastic: one free index, the same in every band
+            value = jnp.broadcast_to(value, jnp.shape(fixed.n))
+        return value
 
     w = None
     if st.has_specular:
@@ -148,7 +151,7 @@ def to_params(spec: Spec, u: dict, fixed: Params) -> Params:
         f0=pick("f0") if st.fresnel == "f0" and st.needs_fresnel_params else None,
         n=pick("n") if st.fresnel != "f0" and st.needs_fresnel_params else None,
         k=pick("k") if st.fresnel == "conductor" and st.needs_fresnel_params else None,
-        rd=pick("rd") if st.diffuse in ("spectrum", "constant") else None,
+        rd=pick("rd") if st.has_rd else None,
     )
 
 
@@ -162,11 +165,14 @@ def from_params(spec: Spec, params: Params) -> dict:
         if name == "w":
             v = np.clip(v, 1e-12, None)
             u[name] = _stick_fractions(v) if spec.space == "box" else np.log(v[1:]) - np.log(v[0])
-        elif spec.space == "box":
-            lo, hi = box_bounds(name, spec.structure.fresnel)
+            continue
+        if name == "n" and spec.structure.shared_index:
+            v = np.asarray(np.mean(v))  # a plastic's one index
+        if spec.space == "box":
+            lo, hi = box_bounds(name, spec.structure.fresnel, spec.structure.family)
             u[name] = np.clip(row.box_inverse(np.maximum(v, 1e-300) if name == "m" else v), lo, hi)
         else:
-            offset = n_lower(spec.structure.fresnel) if name == "n" else 0.0
+            offset = n_lower(spec.structure.fresnel, spec.structure.family) if name == "n" else 0.0
             u[name] = row.free_inverse(v - offset)
     return u
 
@@ -175,7 +181,7 @@ def bounds(spec: Spec, u: dict) -> tuple[dict, dict]:
     """Lower and upper bounds of the box coordinates ``u`` (same pytree, arrays of u's shapes)."""
     lo, hi = {}, {}
     for name, v in u.items():
-        a, b = box_bounds(name, spec.structure.fresnel)
+        a, b = box_bounds(name, spec.structure.fresnel, spec.structure.family)
         lo[name] = jnp.full(jnp.shape(v), a, jnp.result_type(v))
         hi[name] = jnp.full(jnp.shape(v), b, jnp.result_type(v))
     return lo, hi
@@ -192,7 +198,7 @@ def free_names(structure: Structure, fixed: tuple[str, ...] = ()) -> tuple[str, 
             names.append("w")
     if structure.needs_fresnel_params:
         names += ["f0"] if structure.fresnel == "f0" else (["n", "k"] if structure.fresnel == "conductor" else ["n"])
-    if structure.diffuse in ("spectrum", "constant"):
+    if structure.has_rd:
         names.append("rd")
     return tuple(n for n in names if n not in fixed)
 
@@ -394,14 +400,17 @@ def _values_from_s(problem: Problem, s_dir, u_rest: dict, u_shape: dict):
     spec = problem.spec
     params = to_params(spec, {**u_shape, **u_rest}, problem.fixed)
     geom = problem.geom
+    transmitted = spec.structure.diffuse == "transmitted"
     if spec.grid:
         valid = geom.valid[:, None]
         spec_v = None if s_dir is None else s_dir[:, None]
-        return combine_parts(spec.structure, params, valid, spec_v, geom.cos_vh[:, None])
+        cos_lv = (geom.cos_l[:, None], geom.cos_v[:, None]) if transmitted else None
+        return combine_parts(spec.structure, params, valid, spec_v, geom.cos_vh[:, None], cos_lv)
     p = _gather_bands(params, problem.band)
     valid = geom.valid[problem.pair]
     spec_v = None if s_dir is None else s_dir[problem.pair]
-    return combine_parts(spec.structure, p, valid, spec_v, geom.cos_vh[problem.pair])
+    cos_lv = (geom.cos_l[problem.pair], geom.cos_v[problem.pair]) if transmitted else None
+    return combine_parts(spec.structure, p, valid, spec_v, geom.cos_vh[problem.pair], cos_lv)
 
 
 def model_values(problem: Problem, u: dict):

@@ -32,7 +32,7 @@ def default_start(structure: Structure, data: Measurement) -> Params:
         f0=np.full(nb, 0.5) if structure.fresnel == "f0" and structure.needs_fresnel_params else None,
         n=np.full(nb, 1.5) if structure.fresnel != "f0" and structure.needs_fresnel_params else None,
         k=np.full(nb, 2.0) if structure.fresnel == "conductor" and structure.needs_fresnel_params else None,
-        rd=(np.full(nb, 0.05) if structure.diffuse == "spectrum" else (np.asarray(0.05) if structure.diffuse == "constant" else None)),
+        rd=(np.full(nb, 0.05) if structure.diffuse in ("spectrum", "transmitted") else (np.asarray(0.05) if structure.diffuse == "constant" else None)),
     )
 
 
@@ -106,7 +106,7 @@ def seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool 
     seeds["m"] = grid[order]
     if "f0" in u0:
         seeds["f0"] = jnp.clip(u0["f0"] * scales[order], 0.005, 0.995)
-    elif "n" in u0:
+    elif "n" in u0 and not problem.spec.structure.shared_index:  # a plastic's one n starts where u0 has it
         k0 = u0.get("k", jnp.zeros_like(u0["n"]))
         f0 = jnp.clip(f0_from_nk(u0["n"], k0) * scales[order], 1e-4, 0.995)
         n, kk = _index_seed(f0, jnp.broadcast_to(u0["n"], f0.shape), problem.spec.structure.fresnel == "conductor")

@@ -38,13 +38,14 @@ def representable_range(dtype) -> tuple[float, float]:
 
 def n_free_parameters(structure: Structure, n_bands: int, fixed: tuple[str, ...] = ()) -> int:
     """The number of values a fit of ``structure`` on ``n_bands`` bands adjusts."""
-    size = {"s": 1, "m": structure.lobes, "w": structure.lobes - 1, "f0": n_bands, "n": n_bands, "k": n_bands}
-    size["rd"] = n_bands if structure.diffuse == "spectrum" else 1
+    size = {"s": 1, "m": structure.lobes, "w": structure.lobes - 1, "f0": n_bands, "n": 1 if structure.shared_index else n_bands, "k": n_bands}
+    size["rd"] = 1 if structure.diffuse == "constant" else n_bands
     return sum(size[name] for name in free_names(structure, fixed))
 
 
 def _describe(structure: Structure) -> str:
-    parts = [f"{structure.lobes} lobe{'s' if structure.lobes != 1 else ''}"] if structure.lobes else []
+    parts = ["plastic"] if structure.family == "plastic" else []
+    parts += [f"{structure.lobes} lobe{'s' if structure.lobes != 1 else ''}"] if structure.lobes else []
     if structure.fresnel == "conductor" and structure.needs_fresnel_params:
         parts.append("conductor")
     if structure.has_diffuse:

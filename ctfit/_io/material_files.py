@@ -10,6 +10,10 @@ The format is documented in ``docs/formats.md`` ("Material file (TOML) and fit r
   :func:`read_optical_constants`). Fresnel is then "conductor" unless ``fresnel`` says otherwise.
 - ``channels = ["R", "G", "B"]`` in place of ``wavelength_nm`` for RGB materials.
 - ``F0``, ``n``, ``k`` may be single numbers, meaning the same value in every band.
+- ``family = "metal" | "plastic"`` (default metal): a plastic has one real index ``n`` for every
+  band and a diffuse part ``Rd`` of its own; with it, ``diffuse = "lambertian" | "transmitted"``
+  (default lambertian) says whether ``Rd`` is seen through the dielectric interface
+  (:func:`~ctfit.transmitted_diffuse_factor`).
 - ``name``; every other key (``fit``, ``uncertainty``, ...) is kept in ``Material.meta`` and
   written back unchanged. A key that looks like a misspelt model key is an error.
 
@@ -52,8 +56,9 @@ __all__ = ["load_material", "material_from_dict", "material_to_dict", "save_mate
 _TOL = 1e-9
 _MODEL_KEYS = (
     "name", "s", "d", "lobes", "distribution", "geometry", "normalization", "fresnel",
-    "wavelength_nm", "channels", "optical_constants", "F0", "n", "k", "Rd", "band_unknown",
+    "wavelength_nm", "channels", "optical_constants", "F0", "n", "k", "Rd", "band_unknown", "family", "diffuse",
 )  # fmt: skip
+_DIFFUSE_FORMS = ("lambertian", "transmitted")
 _FRESNEL_KEYS = {"f0": ("F0",), "n": ("n",), "conductor": ("n", "k")}
 
 
@@ -299,7 +304,13 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
         else:
             diffuse, rd = "spectrum", p.spectrum("Rd", nbands, band_key, 0, math.inf)
 
-    fresnel, spectral = _fresnel(p, table, s > 0 or diffuse == "F0/pi", nbands, band_key)
+    family, diffuse, rd = _family(p, diffuse, rd, nbands)
+    fresnel, spectral = _fresnel(p, table, s > 0 or diffuse in ("F0/pi", "transmitted"), nbands, band_key)
+    if family == "plastic":
+        if fresnel != "n":
+            raise p.error("n", f'a plastic has one real index: give n (a number), not fresnel = "{fresnel}"')
+        if np.ptp(spectral["n"]) > _TOL * np.max(spectral["n"]):
+            raise p.error("n", "a plastic has one real index for every band: give one number")
     structure = Structure(
         lobes=len(ms),
         distribution=distribution,
@@ -307,6 +318,7 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
         fresnel=fresnel,
         diffuse=diffuse,
         normalization=normalization,
+        family=family,
     )
     params = Params(
         s=np.asarray(s) if structure.has_s else None,
@@ -316,6 +328,22 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
         **spectral,
     )
     return Material(structure, params, wavelength_nm=wl, channels=channels, name=name, meta=meta, band_unknown=band_unknown)
+
+
+def _family(p: _Parser, diffuse, rd, nbands: int):
+    """(family, diffuse form, R_d) from the keys ``family`` and ``diffuse`` (a plastic's R_d
+    seen through its interface is a spectrum: a single number is repeated over the bands)."""
+    family = p.choice("family", ("metal", "plastic"), "metal")
+    form = p.choice("diffuse", _DIFFUSE_FORMS, "lambertian")
+    if family == "plastic" and diffuse == "F0/pi":
+        raise p.error("Rd", 'a plastic\'s diffuse part is its own: give Rd (a number or a spectrum), not "F0/pi"')
+    if form == "transmitted":
+        if family != "plastic":
+            raise p.error("diffuse", '"transmitted" (through a dielectric interface) needs family = "plastic"')
+        if diffuse is None:
+            raise p.error("diffuse", "not used: d = 0 (no diffuse part)")
+        diffuse, rd = "transmitted", np.broadcast_to(rd, (nbands,)).astype(float)
+    return family, diffuse, rd
 
 
 def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tuple[str, dict]:
@@ -424,6 +452,8 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
             w = [x / math.fsum(w) for x in w]
         out["lobes"] = [{"m": m[j], "weight": w[j]} for j in sorted(range(len(m)), key=m.__getitem__)]
     out["distribution"], out["geometry"], out["normalization"] = st.distribution, st.geometry, st.normalization
+    if st.family == "plastic":
+        out["family"] = "plastic"
     if material.channels is not None:
         out["channels"] = list(material.channels)
     elif material.wavelength_nm is not None:
@@ -432,7 +462,7 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
         raise MaterialError(f"material {material.name!r} has neither wavelength_nm nor channels")
     if material.band_unknown:
         out["band_unknown"] = True
-    if specular or diffuse == "F0/pi":
+    if specular or diffuse in ("F0/pi", "transmitted"):
         out["fresnel"] = st.fresnel
         if st.fresnel == "f0":
             f0 = np.asarray(p.f0, dtype=float)
@@ -442,14 +472,18 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
             k = np.asarray(p.k, dtype=float) if st.fresnel == "conductor" else None
             out["F0"] = float_list(f0_from_n(n) if k is None else f0_from_nk(n, k))
             out["n"] = float_list(n)
+            if st.shared_index:  # a plastic's one index: one number
+                out["F0"], out["n"] = out["F0"][0], out["n"][0]
             if k is not None:
                 out["k"] = float_list(k)
     if diffuse == "F0/pi":
         out["Rd"] = "F0/pi"
     elif diffuse == "constant":
         out["Rd"] = float(p.rd)
-    elif diffuse == "spectrum":
+    elif diffuse in ("spectrum", "transmitted"):
         out["Rd"] = float_list(p.rd)
+        if diffuse == "transmitted":
+            out["diffuse"] = "transmitted"
     for key, value in {**material.meta, **(extra or {})}.items():
         if key in _MODEL_KEYS:
             raise MaterialError(f"material {material.name!r}: extra key {key!r} would replace a model key")

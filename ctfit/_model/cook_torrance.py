@@ -3,7 +3,9 @@
 R_s = K · F(V·H, λ) · Σ_j w_j D̂(α; m_j) G_j / ((N·L)(N·V)) with K = 1/(4π) ("normalized") or
 1/π ("cook-torrance-1982"), D̂ the distribution without its 1/π (``_distribution``), G the
 shadowing term (``_shadowing``; shared by all lobes for the V-cavity, per lobe for Smith).
-R_d is F0/π, a spectrum, or a constant. Values are in sr⁻¹, not multiplied by any cosine,
+R_d is F0/π, a spectrum, or a constant; a plastic's R_d may instead be seen through its dielectric
+interface, weighted by the Fresnel transmission in and out (:func:`transmitted_diffuse_factor`).
+Values are in sr⁻¹, not multiplied by any cosine,
 and 0 for directions on or below the horizon.
 
 Work is split by what it depends on: everything that depends on the direction only — D̂, G and
@@ -22,6 +24,7 @@ from .fresnel_equations import (
     fresnel_conductor,
     fresnel_dielectric,
     fresnel_dielectric_f0,
+    fresnel_diffuse_reflectance,
 )
 from .directions import Geometry
 from .material import Params, Structure
@@ -36,6 +39,7 @@ __all__ = [
     "diffuse_reflectance",
     "ambient_reflectance",
     "specular_constant",
+    "transmitted_diffuse_factor",
 ]
 
 _INV_PI = 0.3183098861837907
@@ -145,11 +149,34 @@ def diffuse_reflectance(structure: Structure, params: Params):
     return params.rd
 
 
+def transmitted_diffuse_factor(n, cos_l, cos_v):
+    """T(θ_i) T(θ_o) / (n² (1 − F_dr(1/n))): what multiplies a plastic's R_d when its diffuse light
+    crosses the dielectric interface twice (``diffuse="transmitted"``).
+
+    T = 1 − F is the Fresnel transmission of the smooth interface (the paper's F with the real
+    index n, at the *surface* normal: cos θ_i = N·L, cos θ_o = N·V); light reflected back inside
+    at the interface (the internal diffuse reflectance F_dr(1/n),
+    :func:`~ctfit.fresnel_diffuse_reflectance`) returns to the diffuse layer, hence the
+    1/(1 − F_dr); 1/n² is the radiance's change of solid angle across the interface. This is
+    Mitsuba 3's ``plastic`` diffuse term (``src/bsdfs/plastic.cpp``, linear mode) exactly, and its
+    ``roughplastic``'s with the smooth interface's transmission in place of the rough one's
+    (equal for smooth surfaces; see docs/fitting.md).
+
+    >>> import numpy as np
+    >>> print(f"{float(transmitted_diffuse_factor(1.5, 1.0, 1.0)):.4f}")  # (1 − 0.04)² / (2.25 (1 − 0.597))
+    1.0168
+    """
+    f_int = fresnel_diffuse_reflectance(1 / jnp.asarray(n))
+    return (1 - fresnel_dielectric(cos_l, n)) * (1 - fresnel_dielectric(cos_v, n)) / (n * n * (1 - f_int))
+
+
 def ambient_reflectance(structure: Structure, params: Params):
     """The paper's ambient reflectance R_a = π R_d (§2.1), R_d as in :func:`diffuse_reflectance`.
 
     For a material without a diffuse part the default R_d = F0/π is used, so a metal still
-    reflects ambient light with its normal reflectance.
+    reflects ambient light with its normal reflectance. A transmitted diffuse part
+    (:func:`transmitted_diffuse_factor`) reflects π R_d (1 − F_dr(n))² / (n² (1 − F_dr(1/n))) of
+    uniform light: its factor averaged over both hemispheres.
 
     Examples
     --------
@@ -163,17 +190,24 @@ def ambient_reflectance(structure: Structure, params: Params):
     >>> np.asarray(ctfit.ambient_reflectance(ctfit.Structure(), metal), float).round(6).tolist()
     [0.9]
     """
+    if structure.diffuse == "transmitted":
+        n = params.n
+        through = (1 - fresnel_diffuse_reflectance(n)) ** 2 / (n * n * (1 - fresnel_diffuse_reflectance(1 / n)))
+        return jnp.pi * params.rd * through
     return jnp.pi * diffuse_reflectance(structure, params)
 
 
-def combine_parts(structure: Structure, params: Params, geom_valid, spec, cos_vh):
-    """s R_s + d R_d from the per-direction factor ``spec`` (already broadcast to the bands)."""
+def combine_parts(structure: Structure, params: Params, geom_valid, spec, cos_vh, cos_lv=None):
+    """s R_s + d R_d from the per-direction factor ``spec`` (already broadcast to the bands);
+    ``cos_lv`` = (N·L, N·V), broadcast like ``spec``, for a transmitted diffuse part."""
     if structure.has_specular:
         rs = fresnel(structure, params, cos_vh) * spec
     if not structure.has_diffuse:
         out = rs
     else:
         rd = diffuse_reflectance(structure, params)
+        if structure.diffuse == "transmitted":
+            rd = rd * transmitted_diffuse_factor(params.n, *cos_lv)
         if structure.has_s:
             out = params.s * rs + (1 - params.s) * rd
         else:
@@ -199,10 +233,11 @@ def brdf(structure: Structure, params: Params, geom: Geometry):
     [[0.04, 0.9], [0.0, 0.0]]
     """
     valid = geom.valid[..., None]
+    cos_lv = (geom.cos_l[..., None], geom.cos_v[..., None])
     if not structure.has_specular:
-        return combine_parts(structure, params, valid, None, None)
+        return combine_parts(structure, params, valid, None, None, cos_lv)
     spec = specular_geometric(structure, params, geom)[..., None]
-    return combine_parts(structure, params, valid, spec, geom.cos_vh[..., None])
+    return combine_parts(structure, params, valid, spec, geom.cos_vh[..., None], cos_lv)
 
 
 def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band):
@@ -229,7 +264,8 @@ def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band):
         k=None if params.k is None else params.k[band],
         rd=None if params.rd is None or jnp.ndim(params.rd) == 0 else params.rd[band],
     )
+    cos_lv = (geom.cos_l, geom.cos_v)
     if not structure.has_specular:
-        return combine_parts(structure, gathered, geom.valid, None, None)
+        return combine_parts(structure, gathered, geom.valid, None, None, cos_lv)
     spec = specular_geometric(structure, params, geom)
-    return combine_parts(structure, gathered, geom.valid, spec, geom.cos_vh)
+    return combine_parts(structure, gathered, geom.valid, spec, geom.cos_vh, cos_lv)

@@ -17,14 +17,19 @@ from jaxtyping import Array
 
 from .measurement import band_labels
 
-__all__ = ["Structure", "Params", "Material", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "MAX_LOBES"]
+__all__ = ["Structure", "Params", "Material", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "FAMILIES", "MAX_LOBES"]
 
 DISTRIBUTIONS = ("beckmann", "gaussian")
 GEOMETRIES = ("v-cavity", "smith", "smith-rational")
 MAX_LOBES = 8
 """Most Beckmann/Gaussian lobes in one structure (paper eq. 5's weighted sum); every reader and the CLI use this."""
 FRESNELS = ("f0", "n", "conductor")
-DIFFUSES = (None, "F0/pi", "spectrum", "constant")
+DIFFUSES = (None, "F0/pi", "spectrum", "constant", "transmitted")
+FAMILIES = ("metal", "plastic")
+"""The paper's two kinds of material (§4): a *metal* (F0(λ), or n(λ) and k(λ); its diffuse part,
+if any, is the paper's R_d = F0/π or a free spectrum) and a *plastic* (a dielectric: one real index
+n for every band, the specular part the colour of the light, and an independent diffuse R_d(λ),
+Lambertian or Fresnel-transmitted)."""
 NORMALIZATIONS = ("normalized", "cook-torrance-1982")
 
 
@@ -40,9 +45,16 @@ class Structure:
     - ``fresnel``: how F is parameterised — "f0" (normal reflectance with the paper's
       effective index, k = 0), "n" (real index, k = 0) or "conductor" (n + i k).
     - ``diffuse``: None (d = 0), "F0/pi" (R_d = F0/π, the paper's homogeneous material),
-      "spectrum" (an independent R_d per band) or "constant" (one R_d for all bands).
+      "spectrum" (an independent Lambertian R_d per band), "constant" (one R_d for all bands) or
+      "transmitted" (plastic only: R_d(λ) weighted by the Fresnel transmission into and out of
+      the surface, (1 − F(θ_i))(1 − F(θ_o)) / (n² (1 − F_dr,int)), as Mitsuba 3's ``plastic``
+      and ``roughplastic``; see :func:`~ctfit.transmitted_diffuse_factor`).
     - ``normalization``: "normalized" (R_s = F D G/(4 (N·L)(N·V)), D = D̂/π) or
       "cook-torrance-1982" (R_s = F D̂ G/(π (N·L)(N·V))); the latter is 4× the former.
+    - ``family``: "metal" (default) or "plastic" (:data:`FAMILIES`). A plastic's Fresnel term is
+      a dielectric's with *one* real index n for every band, fitted inside
+      :data:`~ctfit.PLASTIC_INDEX_RANGE` (``fresnel`` is "n"; left at its default it is set so),
+      and its diffuse part is independent of it ("spectrum", "constant" or "transmitted").
 
     Examples
     --------
@@ -50,6 +62,8 @@ class Structure:
     >>> st = ctfit.Structure(lobes=2, diffuse="F0/pi")  # two Beckmann lobes and R_d = F0/π
     >>> st.has_s, st == ctfit.Structure(lobes=2, diffuse="F0/pi")  # s is fitted; equal structures compile once
     (True, True)
+    >>> ctfit.Structure(family="plastic", diffuse="transmitted").fresnel  # one real index for all bands
+    'n'
     >>> ctfit.Structure(lobes=0)
     Traceback (most recent call last):
     ...
@@ -60,10 +74,13 @@ class Structure:
     distribution: Literal["beckmann", "gaussian"] = "beckmann"
     geometry: Literal["v-cavity", "smith", "smith-rational"] = "v-cavity"
     fresnel: Literal["f0", "n", "conductor"] = "f0"
-    diffuse: Literal["F0/pi", "spectrum", "constant"] | None = None
+    diffuse: Literal["F0/pi", "spectrum", "constant", "transmitted"] | None = None
     normalization: Literal["normalized", "cook-torrance-1982"] = "normalized"
+    family: Literal["metal", "plastic"] = "metal"
 
     def __post_init__(self):
+        if self.family == "plastic" and self.fresnel == "f0":
+            object.__setattr__(self, "fresnel", "n")  # a plastic's index is a real n
         if not isinstance(self.lobes, int) or not 0 <= self.lobes <= MAX_LOBES:
             raise ValueError(f"lobes must be an integer in 0..{MAX_LOBES}, got {self.lobes!r}")
         for name, allowed in (
@@ -72,11 +89,17 @@ class Structure:
             ("fresnel", FRESNELS),
             ("diffuse", DIFFUSES),
             ("normalization", NORMALIZATIONS),
+            ("family", FAMILIES),
         ):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         if self.lobes == 0 and self.diffuse is None:
             raise ValueError("a material needs a specular part (lobes ≥ 1) or a diffuse part")
+        if self.family == "plastic" and (self.fresnel != "n" or self.diffuse == "F0/pi"):
+            raise ValueError("a plastic has one real index n (fresnel 'n') and a diffuse part of its own "
+                             f"(diffuse 'spectrum', 'constant', 'transmitted' or None), got fresnel={self.fresnel!r}, diffuse={self.diffuse!r}")
+        if self.diffuse == "transmitted" and self.family != "plastic":
+            raise ValueError("diffuse 'transmitted' (through a dielectric interface) needs family='plastic'")
 
     @property
     def has_specular(self) -> bool:
@@ -93,7 +116,17 @@ class Structure:
 
     @property
     def needs_fresnel_params(self) -> bool:
-        return self.has_specular or self.diffuse == "F0/pi"
+        return self.has_specular or self.diffuse in ("F0/pi", "transmitted")
+
+    @property
+    def has_rd(self) -> bool:
+        """Whether R_d is a parameter of its own (not F0/π)."""
+        return self.diffuse in ("spectrum", "constant", "transmitted")
+
+    @property
+    def shared_index(self) -> bool:
+        """Whether n is one value for every band (a plastic) rather than a spectrum."""
+        return self.family == "plastic"
 
 
 class Params(eqx.Module):

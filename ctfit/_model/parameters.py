@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Parameter", "PARAMETERS", "PUBLIC_NAMES", "PARAMETER_AXES", "M_MIN", "M_MAX", "parameter", "box_bounds", "clip_box", "value_range"]
+__all__ = ["Parameter", "PARAMETERS", "PUBLIC_NAMES", "PARAMETER_AXES", "M_MIN", "M_MAX", "PLASTIC_INDEX_RANGE", "parameter", "box_bounds", "clip_box", "value_range"]
 
 
 M_MIN, M_MAX = 1e-5, 4.0
@@ -37,6 +37,9 @@ M_MIN, M_MAX = 1e-5, 4.0
 surface is a near-Lambertian scatterer and the facet model loses its meaning)."""
 INDEX_MAX = 1e3
 """Largest n or k in a fit (metals in the visible: n, k ≲ 10)."""
+PLASTIC_INDEX_RANGE = (1.2, 2.5)
+"""Range of a plastic's one real index n in a fit and its prior: the dielectrics of paints, plastics,
+papers, lacquers and rubbers (n ≈ 1.3–1.7), with room for mineral and high-index coatings."""
 RD_MAX = 1e3
 """Largest diffuse BRDF R_d in sr⁻¹ (an albedo of 1 is R_d = 1/π)."""
 
@@ -141,23 +144,30 @@ def parameter(name: str) -> Parameter:
     return PARAMETERS[name]
 
 
-def n_lower(fresnel: str) -> float:
-    """Lower bound of n: 1 for a real (dielectric) index, 0 for a conductor's n + ik."""
+def n_lower(fresnel: str, family: str = "metal") -> float:
+    """Lower bound of n: 1 for a real (dielectric) index, 0 for a conductor's n + ik, and the
+    lower end of :data:`PLASTIC_INDEX_RANGE` for a plastic."""
+    if family == "plastic" or fresnel == "plastic":
+        return PLASTIC_INDEX_RANGE[0]
     return 0.0 if fresnel == "conductor" else 1.0
 
 
-def box_bounds(name: str, fresnel: str = "f0") -> tuple[float, float]:
-    """Bounds of the box coordinate of parameter ``name``."""
+def box_bounds(name: str, fresnel: str = "f0", family: str = "metal") -> tuple[float, float]:
+    """Bounds of the box coordinate of parameter ``name`` (``family``: "metal" or "plastic";
+    ``fresnel="plastic"`` is short for a plastic's real index, as the sampler's layout names it)."""
     p = PARAMETERS[name]
+    if fresnel == "plastic":
+        fresnel, family = "n", "plastic"
     if name == "n":
-        return n_lower(fresnel), p.upper
+        return (n_lower(fresnel, family), PLASTIC_INDEX_RANGE[1] if family == "plastic" else p.upper)
     return p.lower, p.upper
 
 
-def value_range(name: str, fresnel: str = "f0") -> tuple[float, float]:
+def value_range(name: str, fresnel: str = "f0", family: str = "metal") -> tuple[float, float]:
     """The physical range of a parameter's *value* (not its box coordinate): m in [M_MIN, M_MAX],
-    n from :func:`n_lower`, the others their box bounds. The support of the sampler's priors."""
-    return (M_MIN, M_MAX) if name == "m" else box_bounds(name, fresnel)
+    n from :func:`n_lower` (a plastic's inside :data:`PLASTIC_INDEX_RANGE`), the others their box
+    bounds. The support of the sampler's priors."""
+    return (M_MIN, M_MAX) if name == "m" else box_bounds(name, fresnel, family)
 
 
 def clip_box(x, lower, upper):

@@ -46,6 +46,7 @@ class Layout:
     conductor: bool
     order_lobes: bool
     relative: bool = False  # σ_i = σ_noise · R_i(θ): noise proportional to the model
+    plastic: bool = False  # one real index n in PLASTIC_INDEX_RANGE
 
     @property
     def n_u(self) -> int:
@@ -57,7 +58,8 @@ class Layout:
 
     @property
     def fresnel(self) -> str:
-        return "conductor" if self.conductor else "f0"
+        """The key of the priors' support of n: "conductor", "plastic" or "f0" (n ≥ 1)."""
+        return "conductor" if self.conductor else ("plastic" if self.plastic else "f0")
 
     def unravel(self, x):
         template = {k: jnp.zeros(s, x.dtype) for k, s in zip(self.names, self.shapes)}

@@ -171,7 +171,7 @@ def plot_spectra(result, path, *, truth: dict | None = None, title: str | None =
     plt = _pyplot()
     mat = result.material
     keys = [k for k in ("F0", "n", "k") if k in result.chain and result.chain[k].ndim == 2]
-    if "Rd" in result.chain and result.chain["Rd"].ndim == 2 and mat.structure.diffuse == "spectrum":
+    if "Rd" in result.chain and result.chain["Rd"].ndim == 2 and mat.structure.diffuse in ("spectrum", "transmitted"):
         keys.append("Rd")
     if not keys:
         raise ValueError("nothing to plot: no per-band quantity was sampled")

@@ -61,7 +61,7 @@ def set_up_posterior(target, data: Measurement, *, loss=None, fixed=None, priors
         raise ValueError("nothing to sample: every parameter of the material is fixed")
     names = tuple(sorted(u0))
     layout = Layout(names, tuple(tuple(np.shape(u0[k])) for k in names), noise=loss != "sigma", conductor=st.fresnel == "conductor",
-                    order_lobes=st.lobes > 1 and "m" in u0, relative=loss == "relative")
+                    order_lobes=st.lobes > 1 and "m" in u0, relative=loss == "relative", plastic=st.shared_index)
     prior = normalise_priors(priors, names, layout.noise)
     nwalkers = default_walkers(layout.ndim) if walkers is None else int(walkers)
     if nwalkers < 2 * layout.ndim or nwalkers % 2:
