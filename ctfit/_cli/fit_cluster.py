@@ -49,7 +49,7 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[t
             outcomes[path] = ("failed", line)
 
     if pending:
-        st = structure_from_options(base.structure if base else None, int(o.lobes) if o.lobes != "auto" else 1, o.geometry, o.fresnel, o.diffuse)
+        st = structure_from_options(base.structure if base else None, o)
         kw = fit_kwargs(o)
         with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
             fit_many([str(p) for p in pending], st, client, material=base, param_out=o.param_out, return_errors=True, on_result=done,
@@ -72,11 +72,13 @@ def fit_texel_command(o) -> int:
 
     if o.output is None or o.output.suffix.lower() != ".zarr":
         raise UserError("texel data: give -o MAPS.zarr (the parameter maps are written there as a Zarr store)")
-    if o.sample_ or o.material is not None or o.lobes == "auto" or o.as_json or o.backend is not None:
-        raise UserError("texel data: fits with --lobes N only; leave out --sample, --material, --lobes auto, --json and --backend")
+    if o.sample_ or o.material is not None or o.as_json or o.backend is not None:
+        raise UserError("texel data: leave out --sample, --material, --json and --backend")
+    st = structure_from_options(None, o)
+    if st is None:
+        raise UserError("texel data: every texel is fitted with one structure; give --family, --diffuse and --lobes N (not auto)")
     setup_jax(o.float32)
     check_fit_choices(o)
-    st = structure_from_options(None, int(o.lobes), o.geometry, o.fresnel, o.diffuse)
     kw = fit_kwargs(o)
     with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
         maps = fit_texel_maps(o.data[0], o.output, st, client, loss=kw["loss"], solver=kw["solver"], dtype=kw["dtype"], starts=kw["starts"],
@@ -102,7 +104,7 @@ def _fit_options_record(o) -> dict:
     """The options a stored result was fitted with (a re-run keeps it only if they are equal)."""
     from .._fitting import input_sha256
 
-    return dict(lobes=o.lobes, geometry=o.geometry, fresnel=o.fresnel, diffuse=o.diffuse, loss=o.loss, solver=o.solver, float32=o.float32,
+    return dict(family=o.family, lobes=o.lobes, geometry=o.geometry, fresnel=o.fresnel, diffuse="none" if o.no_diffuse else o.diffuse, loss=o.loss, solver=o.solver, float32=o.float32,
                 starts=o.starts, max_steps=o.max_steps, param_out=o.param_out, material=input_sha256(o.material) if o.material else None)
 
 

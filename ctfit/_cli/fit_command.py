@@ -13,19 +13,37 @@ from .messages import UserError, failure_line
 __all__ = ["UNUSABLE", "check_fit_choices", "echo_wrote", "fit_command", "fit_exit_status", "fit_kwargs", "report_file", "structure_from_options"]
 
 
-def structure_from_options(base, lobes: int, geometry, fresnel, diffuse):
+DIFFUSE_CHOICES = ("auto", "none", "F0/pi", "spectrum", "constant", "transmitted")
+FAMILY_CHOICES = ("auto", "metal", "plastic")
+
+
+def structure_from_options(base, o):
+    """The one structure the options (or --material) name, or None when the data is to choose
+    (--family, --diffuse or --lobes auto; :func:`~ctfit.choose_structure`)."""
     from .._model import Structure
 
-    fres = {"effective-n": "f0", "conductor": "conductor", None: None}[fresnel]
+    fres = {"effective-n": "f0", "conductor": "conductor", None: None}[o.fresnel]
     if base is not None:
-        st = base
         kw = {}
-        if geometry:
-            kw["geometry"] = geometry
+        if o.geometry:
+            kw["geometry"] = o.geometry
         if fres:
             kw["fresnel"] = fres
-        return Structure(**{**st.__dict__, **kw})
-    return Structure(lobes=lobes, geometry=geometry or "v-cavity", fresnel=fres or "f0", diffuse=("F0/pi" if diffuse else None))
+        return Structure(**{**base.__dict__, **kw})
+    family, diffuse = _family(o), _diffuse(o)
+    if "auto" in (family, diffuse, o.lobes):
+        return None
+    fresnel = "n" if family == "plastic" else (fres or "f0")
+    return Structure(lobes=int(o.lobes), geometry=o.geometry or "v-cavity", fresnel=fresnel, diffuse=None if diffuse == "none" else diffuse, family=family)
+
+
+def _family(o) -> str:
+    """--family, a metal where --fresnel conductor says so."""
+    return "metal" if o.family == "auto" and o.fresnel == "conductor" else o.family
+
+
+def _diffuse(o) -> str:
+    return "none" if o.no_diffuse else o.diffuse
 
 
 def fit_command(o) -> int:
@@ -58,6 +76,16 @@ def _check_fit_options(o) -> None:
 
     if o.lobes != "auto" and not (o.lobes.isdigit() and 1 <= int(o.lobes) <= MAX_LOBES):
         raise UserError(f"--lobes must be 1..{MAX_LOBES} or 'auto', got {o.lobes!r}")
+    if o.family not in FAMILY_CHOICES:
+        raise UserError(f"--family must be one of {', '.join(FAMILY_CHOICES)}, got {o.family!r}")
+    if o.diffuse not in DIFFUSE_CHOICES:
+        raise UserError(f"--diffuse must be one of {', '.join(DIFFUSE_CHOICES)}, got {o.diffuse!r}")
+    if o.no_diffuse and o.diffuse not in ("auto", "none"):
+        raise UserError(f"--no-diffuse and --diffuse {o.diffuse} contradict each other")
+    if _family(o) == "plastic" and (o.fresnel == "conductor" or _diffuse(o) == "F0/pi"):
+        raise UserError("a plastic has one real index and its own diffuse part: leave out --fresnel conductor and --diffuse F0/pi")
+    if _family(o) == "metal" and _diffuse(o) == "transmitted":
+        raise UserError("--diffuse transmitted (through a dielectric interface) is for --family plastic")
     if (o.resume or o.overwrite) and o.backend is None:
         raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
     if o.walkers is not None and o.walkers % 2:
@@ -77,8 +105,8 @@ def _check_cluster_options(o) -> None:
         raise UserError(f"{which} needs -o (the results are written per file as they complete, and a re-run skips the files done)")
     if o.sample_:
         raise UserError(f"{which} fits only; leave out --sample (or sample the files afterwards)")
-    if o.lobes == "auto" and o.material is None:
-        raise UserError(f"{which} fits one structure to every file; give --lobes N (not auto) or --material")
+    if o.material is None and "auto" in (_family(o), _diffuse(o), o.lobes):
+        raise UserError(f"{which} fits one structure to every file; give --family, --diffuse and --lobes N (not auto), or --material")
     if o.as_json:
         raise UserError(f"{which} writes each result to -o; leave out --json")
 
@@ -126,7 +154,7 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
     reported file by file, as they would be one at a time."""
     from .._runtime import bar, echo
 
-    together = len(files) > 1 and not o.sample_ and not (o.lobes == "auto" and base is None)
+    together = len(files) > 1 and not o.sample_ and structure_from_options(base.structure if base else None, o) is not None
     outcomes, fitted = [], {}
     for k, path in enumerate(bar(files, desc="files", enabled=show and len(files) > 1)):
         try:
@@ -184,7 +212,7 @@ def _fit_together(files: list[Path], o, base) -> dict:
     start, or its fit)."""
     from .._fitting import SAMPLE_BUDGET, fit_batch, start_from_material
 
-    st = structure_from_options(base.structure if base else None, int(o.lobes) if o.lobes != "auto" else 1, o.geometry, o.fresnel, o.diffuse)
+    st = structure_from_options(base.structure if base else None, o)
     done: dict = {}
     ready, fixed, held = [], (), 0
     for path in files:
@@ -227,19 +255,21 @@ def report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool) -> str
 
 
 def _fit_measurement(meas, o, base, show: bool):
-    """One fit: the structure of the options (or --material), or with --lobes auto the lowest BIC."""
-    from .._fitting import fit as run_fit, start_from_material
-    from .._runtime import echo
+    """One fit: the structure of the options (or --material), or the one the data chooses."""
+    from .._fitting import choose_structure, fit as run_fit, start_from_material
+    from .._runtime import bar, echo
 
     kw = fit_kwargs(o)
-    if o.lobes == "auto" and base is None:
-        cands = [structure_from_options(None, j, o.geometry, o.fresnel, d) for j in (1, 2, 3) for d in (False, True)]
-        res, table = _select_structure(meas, cands, kw, show)
+    st = structure_from_options(base.structure if base else None, o)
+    if st is None:
+        family, diffuse = _family(o), _diffuse(o)
+        res, tried = choose_structure(
+            meas, families=("metal", "plastic") if family == "auto" else (family,), lobes=(1, 2, 3) if o.lobes == "auto" else (int(o.lobes),),
+            diffuse=None if diffuse == "auto" else diffuse, geometry=o.geometry or "v-cavity", fresnel={"conductor": "conductor"}.get(o.fresnel),
+            progress=lambda it: bar(it, desc="structures", enabled=show), **kw)
         if not o.as_json:
-            echo(_bic_table(table, res))
+            echo(_choice_table(tried, res))
         return res
-    lobes = int(o.lobes) if o.lobes != "auto" else 1
-    st = structure_from_options(base.structure if base else None, lobes, o.geometry, o.fresnel, o.diffuse)
     start, fixed = start_from_material(base, st, meas) if base else (None, ())
     return run_fit(meas, st, start=start, fixed=fixed, **kw)
 
@@ -249,15 +279,6 @@ def fit_kwargs(o) -> dict:
     import jax.numpy as jnp
 
     return dict(loss=o.loss, solver=o.solver, dtype=jnp.float32 if o.float32 else jnp.float64, starts=o.starts, max_steps=o.max_steps)
-
-
-def _select_structure(meas, cands, kw: dict, show: bool):
-    """The library's ``select_structure`` (nested starts, lowest BIC), candidate by candidate
-    under a progress bar."""
-    from .._fitting import select_structure
-    from .._runtime import bar
-
-    return select_structure(meas, cands, progress=lambda it: bar(it, desc="structures", enabled=show), **kw)
 
 
 def _report_fit(res, path: Path, o, target) -> None:
@@ -322,13 +343,16 @@ def _expand(paths) -> list[Path]:
     return list(files)
 
 
-def _bic_table(table, best) -> str:
-    lines = [
-        "model selection (lowest BIC wins):",
-        f"  {'lobes':>5} {'diffuse':>8} {'params':>6} {'rel_rmse':>10} {'BIC':>14} {'converged':>10}",
-    ]
-    for st, r in table:
-        mark = "  <- kept" if r is best else ""
+def _choice_table(tried, best) -> str:
+    """The structures the data chose among: each one's parameters, median relative error, BIC."""
+    from .._fitting import structure_label
+
+    lines = ["structure chosen by the data (lowest BIC):",
+             f"  {'structure':<42} {'params':>6} {'median |f−y|/y':>15} {'BIC':>14} {'converged':>10}"]
+    for st, r in tried:
         s = r.stats
-        lines.append(f"  {st.lobes:>5} {str(st.has_diffuse):>8} {s['n_params']:>6} {s['rel_rmse']:>10.4g} {s['bic']:>14.6g} {str(bool(r.converged)):>10}{mark}")
+        median = s.get("quality", {}).get("median_relative_error")
+        med = "–" if median is None else f"{median:.1%}"
+        mark = "  <- chosen" if r is best else ""
+        lines.append(f"  {structure_label(st):<42} {s['n_params']:>6} {med:>15} {s['bic']:>14.6g} {str(bool(r.converged)):>10}{mark}")
     return "\n".join(lines)

@@ -10,6 +10,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     submod_attrs={
         "batch": ['SAMPLE_BUDGET', 'fit_batch'],
         "diagnostics": ['residual_structure'],
+        "quality": ['fit_quality'],
         "fit_report": ['constrained_quantities', 'standard_errors', 'undetermined'],
         "least_squares": ['FitResult', 'fit', 'prepare_fit', 'seed_params'],
         "many": ['fit_many', 'input_sha256', 'read_input'],
@@ -18,7 +19,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "results": ['fit_result_to_dict', 'format_fit_table'],
         "seeded_solve": ['SOLVERS'],
         "starts": ['start_from_material'],
-        "structure_selection": ['select_structure'],
+        "structure_selection": ['choose_structure', 'select_structure', 'structure_label'],
         "texel_maps": ['fit_texel_maps', 'read_texel_geometry', 'save_map_pngs'],
         "texels": ['TexelFits', 'fit_texels'],
     },

@@ -36,7 +36,8 @@ from jax.flatten_util import ravel_pytree
 
 from .._model import Material, Measurement, Params, Structure
 from .._runtime import cached_call
-from .diagnostics import relative_residual_structure
+from .diagnostics import half_angle_deg, relative_residual_structure
+from .quality import peak_width_deg, quality_from_relative, quality_warning
 from .fit_report import (
     coordinate_names,
     constrained_quantities,
@@ -168,9 +169,9 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
     samples)), free start ``u0`` and m grid of a fit."""
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
-    structure = structure or Structure(lobes=1, diffuse="F0/pi")
+    structure = structure or Structure()
     if loss == "auto":
-        loss = "sigma" if data.sigma is not None else "relative"
+        loss = "sigma" if data.sigma is not None else "log-ratio"
     if loss not in LOSSES:
         raise ValueError(f"loss must be 'auto' or one of {LOSSES}, got {loss!r}")
     default = default_start(structure, data)
@@ -199,10 +200,13 @@ def fit(
     starts: int = 3,
     max_steps: int = 256,
 ) -> FitResult:
-    """Fit ``structure`` (default: one Beckmann lobe, V-cavity G, effective index, R_d = F0/π).
+    """Fit ``structure`` to ``data``; without one, the data chooses it (:func:`~ctfit.choose_structure`:
+    metal or plastic, its diffuse part and 1–3 lobes, by BIC; the candidates are in
+    ``stats["structure_choice"]``).
 
     ``start`` gives starting values (and the values of the ``fixed`` parameters); ``loss`` is
-    one of ``LOSSES`` or "auto" (sigma-weighted when the data has sigma, else relative).
+    one of ``LOSSES`` or "auto" (sigma-weighted when the data has sigma, else "log-ratio":
+    ln((f + ε)/(y + ε)), docs/fitting.md).
     Per-band parameters of ``start`` must already be on the data's bands.
 
     >>> import numpy as np, ctfit
@@ -213,6 +217,12 @@ def fit(
     >>> res.converged, np.round(res.material.params.m, 4), np.round(res.material.params.f0, 4)
     (True, array([0.2]), array([0.4, 0.9]))
     """
+    if structure is None:
+        from .structure_selection import choose_structure
+
+        if start is not None or fixed:
+            raise ValueError("structure=None lets the data choose the structure; give a structure with start or fixed")
+        return choose_structure(data, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)[0]
     t0 = time.perf_counter()
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
     out = jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
@@ -245,6 +255,15 @@ def seed_params(data: Measurement, structure: Structure | None = None, *, starts
     return out
 
 
+def _quality(data: Measurement, rel, floor: float, structure: Structure, params: Params) -> dict:
+    """The ``quality`` section (:mod:`~ctfit._fitting.quality`) from the fit's relative residuals
+    (f − y)/max(|y|, floor) per sample."""
+    y = np.asarray(data.brdf, dtype=float)
+    err = np.where(y > 0, np.abs(np.asarray(rel, dtype=float)) * np.maximum(np.abs(y), floor) / np.where(y > 0, y, 1.0), np.nan)
+    material = Material(structure, params, wavelength_nm=data.wavelength_nm, channels=data.channels, band_unknown=data.band_unknown)
+    return quality_from_relative(err, half_angle_deg(data), np.maximum(data.theta_i, data.theta_o), peak_width_deg(material))
+
+
 def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResult:
     """The :class:`FitResult` of a prepared fit from ``fit_core``'s output (host arrays); ``t0``: when it began."""
     data, structure, loss, dtype, problem = prep.data, prep.structure, prep.loss, prep.dtype, prep.problem
@@ -267,6 +286,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResul
         structure_notes = relative_residual_structure(pairs, rel[: len(pairs)], mask=mask[: len(pairs)])
     else:
         structure_notes = relative_residual_structure(pairs, rel[: len(data)], index=index)
+    per_sample = rel[index, data.band] if problem.spec.grid else rel[: len(data)]
+    quality = _quality(data, per_sample, floor, structure, params)
     gn_decrease = float(out["gn_decrease"])
     stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
     rmse = float(out["rmse"])
@@ -293,6 +314,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResul
         "gauss_newton_decrease": gn_decrease,
         "on_bound": labelled(u, on_bound),
         "no_stderr": [f"{k}[{i}]" for k, v in (stderr or {}).items() for i in np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))],
+        "quality": quality,
     }
     full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     material = Material(
@@ -306,6 +328,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResul
     names = coordinate_names(u)
     not_determined = [names[i] for i in np.flatnonzero(loose)]
     notes = ([not_finite] if not_finite else []) + fit_warnings(params, stderr, not_determined)
+    if quality_warning(quality):
+        notes.append(quality_warning(quality))
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more --max-steps, or another start)"
         notes.append(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}")

@@ -45,9 +45,11 @@ from .._model import (
     parameter,
 )
 
-__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket"]
+__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "loss_floor", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket"]
 
-LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
+LOSSES = ("absolute", "relative", "sigma", "cosine", "log", "log-ratio")
+LOG_RATIO_FLOOR = 0.01
+"""The "log-ratio" loss's ε as a fraction of the median positive measured value (docs/fitting.md)."""
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
 
 
@@ -243,8 +245,7 @@ def make_problem(
     if pad and n_pairs:
         pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
     geom = _geometry_deg(jnp.asarray(pairs, dtype=dtype))
-    y_pos = data.brdf[data.brdf > 0]
-    floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
+    floor = loss_floor(data.brdf, loss)
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
     if grid:
         shape = (len(pairs), n_bands)
@@ -279,6 +280,16 @@ def make_problem(
         fixed=jax.tree.map(to, fixed_params),
         fixed_bands=n_bands,
     )
+
+
+def loss_floor(y, loss: str) -> float:
+    """The floor of the relative losses: ε of "log-ratio" (:data:`LOG_RATIO_FLOOR` × the median
+    positive value: every sample within two decades of the typical one is weighed by its
+    relative error, however high the peak), 10⁻³ × the largest value for "relative"."""
+    y_pos = np.asarray(y)[np.asarray(y) > 0]
+    if not len(y_pos):
+        return 1.0
+    return LOG_RATIO_FLOOR * float(np.median(y_pos)) if loss == "log-ratio" else 1e-3 * float(np.max(y_pos))
 
 
 BUCKET_MIN = 256
@@ -432,8 +443,11 @@ def loss_residuals(problem: Problem, values, y, flat: bool = True):
         r = (values - y) / problem.sigma
     elif loss == "cosine":
         r = (values - y) * problem.cos_i
-    else:  # log: Low et al. 2012
+    elif loss == "log":  # Löw et al. 2012
         r = jnp.log1p(values * problem.cos_i) - jnp.log1p(y * problem.cos_i)
+    else:  # log-ratio: ln((f + ε)/(y + ε)), the relative error where y ≫ ε (ε: loss_floor)
+        eps = problem.floor
+        r = jnp.log(jnp.maximum(values, 0) + eps) - jnp.log(jnp.maximum(y, 0) + eps)
     r = r * problem.mask
     return r.reshape(-1) if flat else r
 

@@ -86,30 +86,55 @@ def format_fit_table(res, label: str = "") -> str:
             sm = _at(se.get("m"), j)
             sw = _at(se.get("weight"), j) if st.lobes > 1 else None
             lines.append(f"  lobe {j}: m = {_pm(m, sm)}   weight = {_pm(w, sw)}")
-    if st.needs_fresnel_params:
-        f0 = np.asarray(_f0(mat))
-        labels = mat.band_labels
-        cols = ["band", "F0", "n"] + (["k"] if st.fresnel == "conductor" else [])
-        lines.append("  " + "  ".join(f"{c:>18}" for c in cols))
-        for i, lab in enumerate(labels):
-            row = [lab, _pm(f0[i], _at(se.get("F0"), i)), _pm(np.asarray(p.n)[i], _at(se.get("n"), i))]
-            if st.fresnel == "conductor":
-                row.append(_pm(np.asarray(p.k)[i], _at(se.get("k"), i)))
-            lines.append("  " + "  ".join(f"{c:>18}" for c in row))
+    lines += _band_rows(mat, se)
     s = res.stats
     lines.append("-" * 60)
     lines.append(
         f"  converged: {s['converged']}   steps: {s['steps']}   loss: {s['loss']}   solver: {s['solver']} ({s['dtype']})"
     )
     lines.append(
-        f"  cost: {s['cost']:.6g}   rmse: {s['rmse']:.4g} sr⁻¹   rel_rmse: {s['rel_rmse']:.4g}   "
+        f"  cost: {s['cost']:.6g}   rmse: {s['rmse']:.4g} sr⁻¹   rel_rmse (rms of (f − y)/max(y, floor)): {s['rel_rmse']:.4g}   "
         f"samples: {s['n_samples']}   params: {s['n_params']}   time: {s['time_s']:.2f} s"
     )
+    if s.get("quality"):
+        lines.append("  " + quality_line(s["quality"]))
     if s.get("on_bound"):
         lines.append(f"  on a bound (a result, no standard error): {', '.join(s['on_bound'])}")
     for w in res.warnings:
         lines.append(f"  warning: {w}")
     return "\n".join(lines)
+
+
+def quality_line(quality: dict) -> str:
+    """One line of the ``quality`` section: median and 90th-percentile |f − y|/y, per region."""
+    def pct(x):
+        return "–" if x is None else f"{x:.1%}"
+
+    regions = ", ".join(f"{name.replace('_', '-')} {pct(r['median_relative_error'])}" for name, r in quality["regions"].items() if r["samples"])
+    return (f"relative error |f − y|/y: median {pct(quality['median_relative_error'])}, 90th percentile "
+            f"{pct(quality['p90_relative_error'])} (medians: {regions})")
+
+
+def _band_rows(mat: Material, se: dict) -> list[str]:
+    """The per-band rows (F0, n, k, R_d); a plastic's one index on a line of its own."""
+    st, p = mat.structure, mat.params
+    lines, cols, values = [], ["band"], []
+    if st.needs_fresnel_params:
+        f0 = np.asarray(_f0(mat))
+        if st.shared_index:
+            lines.append(f"  plastic: n = {_pm(float(np.asarray(p.n)[0]), _at(se.get('n'), 0))} in every band   F0 = {_pm(float(f0[0]), _at(se.get('F0'), 0))}")
+        else:
+            cols += ["F0", "n"] + (["k"] if st.fresnel == "conductor" else [])
+            values += [(f0, "F0"), (np.asarray(p.n), "n")] + ([(np.asarray(p.k), "k")] if st.fresnel == "conductor" else [])
+    if st.has_rd:
+        cols.append("Rd (sr⁻¹)" + (", transmitted" if st.diffuse == "transmitted" else ""))
+        values.append((np.broadcast_to(np.asarray(p.rd, dtype=float), (len(mat.band_labels),)), "Rd"))
+    if len(cols) > 1:
+        lines.append("  " + "  ".join(f"{c:>18}" for c in cols))
+        for i, lab in enumerate(mat.band_labels):
+            err = lambda name: _at(se.get(name), 0 if (name == "Rd" and st.diffuse == "constant") else i)  # noqa: E731
+            lines.append("  " + "  ".join(f"{c:>18}" for c in [lab] + [_pm(v[i], err(name)) for v, name in values]))
+    return lines
 
 
 def _f0(mat: Material):

@@ -8,7 +8,7 @@ from .._model import Measurement, Params, Structure
 from .least_squares import FitResult, fit
 from .validate import n_free_parameters
 
-__all__ = ["select_structure"]
+__all__ = ["select_structure", "choose_structure", "structure_label", "DIFFUSE_FORMS"]
 
 
 def select_structure(
@@ -65,3 +65,79 @@ def _embedded_start(inner: FitResult, big: Structure) -> Params:
         m, w = np.append(m, new), np.append(w, 0.0)
     s = np.asarray(p.s) if small.has_s else (np.asarray(1.0) if big.has_s else None)
     return Params(s=s, m=m, w=w, f0=p.f0 if big.fresnel == "f0" else None, n=p.n if big.fresnel != "f0" else None, k=p.k, rd=p.rd)
+
+
+DEFAULT_FAMILIES = ("metal", "plastic")
+"""The families the data-chosen default tries (:data:`~ctfit.FAMILIES`)."""
+DEFAULT_LOBES = (1, 2, 3)
+"""The lobe counts the data-chosen default tries."""
+DIFFUSE_FORMS = {"metal": (None, "F0/pi"), "plastic": ("spectrum", "transmitted")}
+"""The diffuse parts each family tries: a metal without one or with the paper's R_d = F0/π; a
+plastic with its own R_d(λ), Lambertian or seen through its interface."""
+
+
+def structure_label(st: Structure) -> str:
+    """A short name of a structure: "plastic, 2 lobes, diffuse transmitted"."""
+    parts = [st.family, f"{st.lobes} lobe{'s' if st.lobes != 1 else ''}"]
+    if st.fresnel == "conductor":
+        parts.append("conductor")
+    parts.append(f"diffuse {st.diffuse}" if st.diffuse else "no diffuse")
+    return ", ".join(parts)
+
+
+def choose_structure(
+    data: Measurement, *, families=DEFAULT_FAMILIES, lobes=DEFAULT_LOBES, diffuse=None, geometry: str = "v-cavity",
+    fresnel: str | None = None, progress=None, **kwargs,
+) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
+    """The data-chosen default structure: family × diffuse part × lobe count, lowest BIC.
+
+    Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse``
+    given) is fitted with the fewest ``lobes``; the one with the lowest BIC then gets more lobes in
+    turn (nested starts, :func:`select_structure`) while the BIC falls. Fits of one measurement in
+    one loss, so their BICs compare. ``fresnel``: "f0" (default) or "conductor" for a metal.
+    Returns the best fit and every (structure, fit) tried, in order.
+
+    >>> import numpy as np, ctfit
+    >>> rubber = ctfit.load_material("configs/rubber.toml")  # the paper's plastic
+    >>> data = ctfit.simulate(rubber, n_pairs=600, noise=0.01, seed=1)
+    >>> best, tried = ctfit.choose_structure(data, lobes=(1, 2))
+    >>> best.material.structure.family, best.material.structure.lobes
+    ('plastic', 1)
+    """
+    combos = []
+    for family in families:
+        for form in DIFFUSE_FORMS[family] if diffuse in (None, "auto") else (diffuse,):
+            try:
+                combos.append(Structure(lobes=lobes[0], geometry=geometry, fresnel=(fresnel or "f0") if family == "metal" else "n",
+                                        diffuse=None if form == "none" else form, family=family))
+            except ValueError:
+                continue  # a diffuse part this family has not (e.g. "F0/pi" for a plastic)
+    if not combos:
+        raise ValueError(f"no structure of families {tuple(families)} has diffuse part {diffuse!r}")
+    tried = []
+    wrap = progress or (lambda it: it)
+    for st in wrap(combos):
+        tried.append((st, fit(data, st, **kwargs)))
+    best_st, best = min(tried, key=lambda sr: _bic(sr[1]))
+    for j in lobes[1:]:
+        bigger = Structure(**{**best_st.__dict__, "lobes": j})
+        res = fit(data, bigger, start=None if "start" in kwargs else _embedded_start(best, bigger), **kwargs)
+        tried.append((bigger, res))
+        if _bic(res) >= _bic(best):
+            break
+        best_st, best = bigger, res
+    best.stats["structure_choice"] = choice_table(tried, best)
+    return best, tried
+
+
+def choice_table(tried: list[tuple[Structure, FitResult]], best: FitResult) -> list[dict]:
+    """Every candidate's structure, cost, BIC and median relative error, and which was chosen
+    (the fit JSON's ``fit.structure_choice``)."""
+    return [{"structure": structure_label(st), "cost": r.stats["cost"], "bic": r.stats["bic"],
+             "median_relative_error": r.stats.get("quality", {}).get("median_relative_error"), "chosen": r is best}
+            for st, r in tried]
+
+
+def _bic(res: FitResult) -> float:
+    bic = res.stats["bic"]
+    return bic if np.isfinite(bic) else np.inf
