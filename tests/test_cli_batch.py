@@ -58,7 +58,7 @@ def test_batch_goes_on_after_a_bad_file_and_summarises(tmp_path):
     (data / "b.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,95,180,450,0.5\n")
     write(data, "c.csv", seed=2)
     out = tmp_path / "fits"
-    r = run("fit", data, "--no-diffuse", "-o", out)
+    r = run("fit", data, "--no-diffuse", "--lobes", "1", "-o", out)
     assert r.exit_code == 2, r.output
     errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
     assert len(errors) == 1 and errors[0].startswith(f"error: {data / 'b.csv'}:2") and "theta_o" in errors[0]
@@ -74,7 +74,7 @@ def test_exit_1_when_a_fit_does_not_converge_and_none_failed(tmp_path):
     data = tmp_path / "data"
     write(data, "a.csv", seed=1)
     write(data, "b.csv", seed=2)
-    r = run("fit", data, "--no-diffuse", "--max-steps", 1)
+    r = run("fit", data, "--no-diffuse", "--lobes", "1", "--max-steps", 1)
     assert r.exit_code == 1, r.output
     assert "0 converged, 2 did not converge, 0 failed" in r.stderr
     assert [line.split()[:2] for line in summary(r.stderr)] == [["not", "converged"]] * 2
@@ -84,7 +84,7 @@ def test_same_file_names_in_two_folders_get_distinct_results(tmp_path):
     a = write(tmp_path / "a", "x.csv", m=0.2, seed=1)
     b = write(tmp_path / "b", "x.csv", m=0.4, seed=2)
     out, plots = tmp_path / "fits", tmp_path / "plots"
-    r = run("fit", a, b, "--no-diffuse", "-o", out, "--plot", plots)
+    r = run("fit", a, b, "--no-diffuse", "--lobes", "1", "-o", out, "--plot", plots)
     assert r.exit_code == 0, r.output
     docs = {p.name: json.loads(p.read_text()) for p in out.iterdir()}
     assert sorted(docs) == ["a-x.fit.json", "b-x.fit.json"]
@@ -96,9 +96,9 @@ def test_same_file_names_in_two_folders_get_distinct_results(tmp_path):
 def test_a_fit_that_does_not_converge_keeps_a_converged_result(tmp_path):
     csv = write(tmp_path, "d.csv")
     target = tmp_path / "d.fit.json"
-    assert run("fit", csv, "--no-diffuse", "-o", target).exit_code == 0
+    assert run("fit", csv, "--no-diffuse", "--lobes", "1", "-o", target).exit_code == 0
     good = target.read_bytes()
-    r = run("fit", csv, "--no-diffuse", "-o", target, "--max-steps", 1)
+    r = run("fit", csv, "--no-diffuse", "--lobes", "1", "-o", target, "--max-steps", 1)
     assert r.exit_code == 1, r.output
     assert target.read_bytes() == good
     beside = tmp_path / "d.fit.not-converged.json"
@@ -117,7 +117,7 @@ def test_param_out_applies_only_to_files_without_the_line(tmp_path):
     m = _read_data(bare, "INV_STERADIAN_COSINE_FACTOR")
     assert m.meta["alta_param_out"] == "INV_STERADIAN_COSINE_FACTOR"
     np.testing.assert_allclose(m.brdf, one_lobe(n_pairs=80, wavelengths=np.array([550.0])).brdf, rtol=1e-12)
-    r = run("fit", own, bare, "--no-diffuse", "--param-out", "INV_STERADIAN_COSINE_FACTOR")
+    r = run("fit", own, bare, "--no-diffuse", "--lobes", "1", "--param-out", "INV_STERADIAN_COSINE_FACTOR")
     assert r.exit_code == 0, r.output
     assert "2 converged" in r.stderr
 
@@ -189,25 +189,25 @@ def test_progress_bars_off_without_a_terminal_and_on_when_forced(tmp_path, monke
     write(data, "a.csv", seed=1)
     write(data, "b.csv", seed=2)
     monkeypatch.delenv("CTFIT_PROGRESS", raising=False)
-    r = run("fit", data, "--no-diffuse")
+    r = run("fit", data, "--no-diffuse", "--lobes", "1")
     assert r.exit_code == 0, r.output
     assert "\r" not in r.stderr and not BAR.search(r.stderr)
     monkeypatch.setenv("CTFIT_PROGRESS", "1")
     out = tmp_path / "fits"
-    r = run("fit", data, "--no-diffuse", "-o", out)
+    r = run("fit", data, "--no-diffuse", "--lobes", "1", "-o", out)
     assert r.exit_code == 0, r.output
     assert BAR.search(r.stderr) and "0/2" in r.stderr
     # A 'wrote' line clears the bar first: what a terminal shows on that line is the message alone.
     wrote = [line.split("\r")[-1] for line in r.stderr.split("\n") if "wrote" in line]
     assert wrote == [f"wrote {out / 'a.fit.json'}", f"wrote {out / 'b.fit.json'}"]
-    r = run("fit", data, "--no-diffuse", "--quiet")
+    r = run("fit", data, "--no-diffuse", "--lobes", "1", "--quiet")
     assert r.exit_code == 0 and not BAR.search(r.stderr)
 
 
 def test_sampling_progress_obeys_quiet(tmp_path, monkeypatch):
     csv = write(tmp_path, "d.csv", n_pairs=60)
     monkeypatch.setenv("CTFIT_PROGRESS", "1")
-    args = ("fit", csv, "--no-diffuse", "--sample", "--steps", 40, "--walkers", 8)
+    args = ("fit", csv, "--no-diffuse", "--lobes", "1", "--sample", "--steps", 40, "--walkers", 8)
     r = run(*args)
     assert r.exit_code == 0, r.output
     assert "40/40" in r.stderr
@@ -219,7 +219,7 @@ def test_sampling_progress_obeys_quiet(tmp_path, monkeypatch):
 def test_table_on_stdout_wrote_on_stderr_after_it(tmp_path):
     csv = write(tmp_path, "d.csv")
     target = tmp_path / "d.fit.json"
-    r = run("fit", csv, "--no-diffuse", "-o", target)
+    r = run("fit", csv, "--no-diffuse", "--lobes", "1", "-o", target)
     assert r.exit_code == 0, r.output
     assert "fit of" in r.stdout and "wrote " not in r.stdout
     assert r.stderr.splitlines() == [f"wrote {target}"]
@@ -231,7 +231,7 @@ def test_warnings_print_as_one_clean_line(tmp_path):
     path, _ = write_alta(tmp_path / "tape.alta", "INV_STERADIAN_COSINE_FACTOR", cosine=True, horizon_row=True)
     with warnings.catch_warnings():
         warnings.simplefilter("default")  # as outside pytest, whose filters turn warnings into errors
-        r = run("fit", path, "--no-diffuse")
+        r = run("fit", path, "--no-diffuse", "--lobes", "1")
     assert r.exit_code == 0, r.output
     lines = [line for line in r.stderr.splitlines() if line.strip()]
     assert lines == [f"warning: {path}: 1 samples with theta_o ≥ 90° dropped (a cosine-weighted value cannot be divided by cos θ_o = 0)"]
@@ -251,7 +251,7 @@ def test_outputs_are_checked_before_any_work(tmp_path):
 def test_a_stored_chain_needs_resume_or_overwrite(tmp_path):
     csv = write(tmp_path, "d.csv", n_pairs=60)
     chain = tmp_path / "run.h5"
-    args = ("fit", csv, "--no-diffuse", "--sample", "--steps", 30, "--walkers", 8, "--backend", chain)
+    args = ("fit", csv, "--no-diffuse", "--lobes", "1", "--sample", "--steps", 30, "--walkers", 8, "--backend", chain)
     assert run(*args).exit_code == 0
     r = run(*args)
     assert r.exit_code == 2 and "--resume" in r.stderr and "--overwrite" in r.stderr and "fit of" not in r.stdout

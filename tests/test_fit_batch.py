@@ -133,20 +133,20 @@ def test_fit_dir_uses_one_batch_and_matches_fitting_each_file(tmp_path, monkeypa
     patch_module(monkeypatch, _fit_batch, "fit_batch", lambda ms, *a, **kw: calls.append(len(ms)) or real(ms, *a, **kw))
     runner = CliRunner()
     out = tmp_path / "fits"
-    r = runner.invoke(app, ["fit", str(folder), "--no-diffuse", "-o", str(out)])
+    r = runner.invoke(app, ["fit", str(folder), "--no-diffuse", "--lobes", "1", "-o", str(out)])
     assert r.exit_code == 2, r.output
     assert calls == [5]
     assert "summary: 5 files: 4 converged, 0 did not converge, 1 failed" in r.stderr
     assert f"error: {folder / 'zeros.csv'}" in r.stderr and "every brdf is 0" in r.stderr
     for i in range(4):
         alone = tmp_path / f"m{i}.json"
-        assert runner.invoke(app, ["fit", str(folder / f"m{i}.csv"), "--no-diffuse", "-o", str(alone)]).exit_code == 0
+        assert runner.invoke(app, ["fit", str(folder / f"m{i}.csv"), "--no-diffuse", "--lobes", "1", "-o", str(alone)]).exit_code == 0
         assert_same_numbers(json.loads((out / f"m{i}.fit.json").read_text()), json.loads(alone.read_text()))
     # Files are read and fitted a window at a time: the next file is read while fewer samples are held.
     calls.clear()
     patch_module(monkeypatch, _fit_batch, "SAMPLE_BUDGET", 300)  # files of 200, 200, 200, 400 and 4 samples
     windows = tmp_path / "windows"
-    r = runner.invoke(app, ["fit", str(folder), "--no-diffuse", "-o", str(windows)])
+    r = runner.invoke(app, ["fit", str(folder), "--no-diffuse", "--lobes", "1", "-o", str(windows)])
     assert r.exit_code == 2 and calls == [2, 2, 1]
     assert "summary: 5 files: 4 converged, 0 did not converge, 1 failed" in r.stderr
     for i in range(4):

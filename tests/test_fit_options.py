@@ -91,7 +91,7 @@ def test_folder_of_files_and_plots(tmp_path):
         _, data = one_lobe(n_pairs=120, seed=seed)
         ctfit.write_csv(data, folder / f"s{seed}.csv")
     out, plots = tmp_path / "fits", tmp_path / "plots"
-    r = CliRunner().invoke(app, ["fit", str(folder), "--no-diffuse", "-o", str(out), "--plot", str(plots)])
+    r = CliRunner().invoke(app, ["fit", str(folder), "--no-diffuse", "--lobes", "1", "-o", str(out), "--plot", str(plots)])
     assert r.exit_code == 0, r.output
     for seed in (1, 2):
         doc = json.loads((out / f"s{seed}.fit.json").read_text())

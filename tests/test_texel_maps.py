@@ -82,7 +82,7 @@ def test_texel_list_in_hdf5_and_another_input_refused(client, texels, tmp_path):
 def test_cli_writes_maps_and_pngs(texels, tmp_path):
     geometry, values = texels
     dataset(geometry, values, ("y", "x")).to_zarr(tmp_path / "in.zarr", consolidated=False)
-    got = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "maps.zarr"), "--workers", "2", "--no-diffuse",
+    got = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "maps.zarr"), "--workers", "2", "--no-diffuse", "--lobes", "1",
                                    "--plot", str(tmp_path / "png")])
     assert got.exit_code == 0, got.output
     assert f"{H * W} texels, {H * W} converged" in got.output

@@ -38,8 +38,13 @@ def structure_from_options(base, o):
 
 
 def _family(o) -> str:
-    """--family, a metal where --fresnel conductor says so."""
-    return "metal" if o.family == "auto" and o.fresnel == "conductor" else o.family
+    """--family; with auto, what the other options imply: a metal for --fresnel conductor and for
+    a diffuse part none or F0/pi, a plastic for a transmitted one."""
+    if o.family != "auto":
+        return o.family
+    if o.fresnel == "conductor" or _diffuse(o) in ("none", "F0/pi"):
+        return "metal"
+    return "plastic" if _diffuse(o) == "transmitted" else "auto"
 
 
 def _diffuse(o) -> str:

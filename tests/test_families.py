@@ -1,0 +1,234 @@
+"""The paper's two families (metal, plastic), the transmitted diffuse part, the data-chosen default
+structure, the log-ratio loss, the quality section and honest warnings."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import ctfit
+from ctfit.cli import app
+
+from conftest import ROOT
+
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def plastic(diffuse="transmitted", n=1.5, s=0.3, m=0.2, bands=3):
+    st = ctfit.Structure(family="plastic", lobes=1, diffuse=diffuse)
+    rd = np.array([0.1, 0.2, 0.05])[:bands]
+    return ctfit.Material(st, ctfit.Params(s=np.asarray(s), m=np.array([m]), w=np.ones(1), n=np.full(bands, n), rd=rd),
+                          channels=("R", "G", "B")[:bands])
+
+
+# --- the structure ---------------------------------------------------------------------------
+
+
+def test_a_plastic_has_one_real_index_and_a_diffuse_part_of_its_own():
+    st = ctfit.Structure(family="plastic", diffuse="spectrum")
+    assert (st.fresnel, st.shared_index, st.has_rd) == ("n", True, True)
+    for bad in (dict(family="plastic", fresnel="conductor"), dict(family="plastic", diffuse="F0/pi"), dict(diffuse="transmitted"), dict(family="wood")):
+        with pytest.raises(ValueError):
+            ctfit.Structure(**bad)
+
+
+def test_diffuse_fresnel_reflectance_is_the_hemispherical_integral():
+    from scipy.integrate import quad
+
+    for eta in (1.2, 1.5, 2.0, 1 / 1.5):
+        exact = 2 * quad(lambda mu: float(ctfit.fresnel_dielectric(np.array(mu), eta)) * mu, 0, 1, limit=200)[0]
+        assert abs(float(ctfit.fresnel_diffuse_reflectance(np.array(eta))) / exact - 1) < 6e-3
+
+
+@pytest.mark.mitsuba
+def test_transmitted_diffuse_is_mitsubas_plastic():
+    """Off the mirror direction Mitsuba 3's smooth ``plastic`` is its diffuse term alone: ctfit's
+    transmitted R_d equals it (Mitsuba's eval is the BRDF × cos θ_o)."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    eta, rho = 1.6, 0.45
+    bsdf = mi.load_dict({"type": "plastic", "int_ior": eta, "diffuse_reflectance": {"type": "rgb", "value": [rho] * 3}, "nonlinear": False})
+    st = ctfit.Structure(family="plastic", lobes=0, diffuse="transmitted")
+    mat = ctfit.Material(st, ctfit.Params(n=np.array([eta]), rd=np.array([rho / np.pi])), channels=("G",))
+    for ti, to, po in [(10, 40, 30), (45, 70, 100), (60, 20, 250), (80, 85, 10)]:
+        si = mi.SurfaceInteraction3f()
+        t, t2, p2 = np.radians(ti), np.radians(to), np.radians(po)
+        si.wi = mi.Vector3f(np.sin(t), 0, np.cos(t))
+        theirs = bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(np.sin(t2) * np.cos(p2), np.sin(t2) * np.sin(p2), np.cos(t2)))[1] / np.cos(t2)
+        ours = float(np.asarray(ctfit.evaluate_at(mat, theta_i=ti, phi_i=0.0, theta_o=to, phi_o=po)).reshape(-1)[0])
+        assert ours == pytest.approx(theirs, rel=2e-4)  # Mitsuba evaluates in float32
+
+
+def test_ambient_reflectance_of_a_transmitted_diffuse_part_is_its_albedo():
+    """π R_d (1 − F_dr(n))² / (n² (1 − F_dr(1/n))): the factor averaged over both hemispheres."""
+    mat = plastic(s=0.0)
+    st = dataclasses.replace(mat.structure, lobes=0)
+    p = dataclasses.replace(mat.params, s=None, m=None, w=None)
+    mu = np.linspace(1e-4, 1, 4001)
+    t = 1 - np.asarray(ctfit.fresnel_dielectric(mu, 1.5))
+    f_int = float(ctfit.fresnel_diffuse_reflectance(np.array(1 / 1.5)))
+    albedo = np.trapezoid(2 * t * mu, mu) ** 2 / (1.5**2 * (1 - f_int))  # (1 − F_dr,ext)² by quadrature
+    got = np.asarray(ctfit.ambient_reflectance(st, p), float)
+    np.testing.assert_allclose(got, np.pi * p.rd * albedo, rtol=3e-3)
+
+
+def test_plastic_material_files_round_trip_and_refuse_what_is_not_a_plastic():
+    mat = plastic()
+    doc = ctfit.material_to_dict(mat)
+    assert (doc["family"], doc["diffuse"], doc["n"]) == ("plastic", "transmitted", 1.5)
+    back = ctfit.material_from_dict(doc)
+    assert back.structure == mat.structure
+    np.testing.assert_allclose(back.params.rd, mat.params.rd)
+    base = {"s": 0.5, "lobes": [{"m": 0.2}], "channels": ["R", "G"], "Rd": [0.1, 0.2], "family": "plastic"}
+    with pytest.raises(ctfit.MaterialError, match="one real index"):
+        ctfit.material_from_dict({**base, "n": [1.4, 1.6]})
+    with pytest.raises(ctfit.MaterialError, match="needs family"):
+        ctfit.material_from_dict({**base, "family": "metal", "F0": 0.04, "diffuse": "transmitted"})
+    assert ctfit.load_material(ROOT / "configs" / "rubber.toml").structure.family == "plastic"
+
+
+# --- fits ------------------------------------------------------------------------------------
+
+
+def test_a_plastic_fit_recovers_its_index_and_keeps_it_in_range():
+    truth = plastic()
+    data = ctfit.simulate(truth, n_pairs=600, noise=0.01, seed=3)
+    res = ctfit.fit(data, truth.structure)
+    assert res.converged
+    assert float(res.material.params.n[0]) == pytest.approx(1.5, rel=0.02)
+    assert np.ptp(res.material.params.n) == 0  # one index for every band
+    high = ctfit.simulate(plastic(n=3.5), n_pairs=600, noise=0.01, seed=3)  # beyond a plastic's range
+    res = ctfit.fit(high, truth.structure)
+    assert ctfit.PLASTIC_INDEX_RANGE[0] <= float(res.material.params.n[0]) <= ctfit.PLASTIC_INDEX_RANGE[1]
+    assert "n" in res.stats["on_bound"]
+
+
+def test_the_default_fit_of_the_papers_rubber_is_a_plastic_and_recovers_s(tmp_path):
+    """Acceptance (issue 25): `ctfit fit FILE` on `ctfit simulate configs/rubber.toml` recovers s
+    within 3 standard errors, as a plastic with 1.2 ≤ n ≤ 2.5; the choice is printed."""
+    csv, out = tmp_path / "rubber.csv", tmp_path / "rubber.fit.json"
+    assert run("simulate", ROOT / "configs" / "rubber.toml", "-o", csv, "--samples", 500, "--seed", 1, "--noise", 0.02).exit_code == 0
+    r = run("fit", csv, "-o", out)
+    assert r.exit_code == 0, r.output
+    assert "structure chosen by the data" in r.output and "<- chosen" in r.output
+    doc = json.loads(out.read_text())
+    assert doc["family"] == "plastic" and 1.2 <= doc["n"] <= 2.5
+    assert abs(doc["s"] - 0.4) <= 3 * doc["fit"]["stderr"]["s"]
+    assert sum(c["chosen"] for c in doc["fit"]["structure_choice"]) == 1
+    assert len(doc["fit"]["structure_choice"]) >= 4  # every family × diffuse part, then more lobes
+
+
+def test_the_library_the_command_line_and_structure_share_one_default(tmp_path):
+    data = ctfit.simulate(plastic("spectrum"), n_pairs=300, noise=0.01, seed=5)
+    lib = ctfit.fit(data)
+    chosen = [c for c in lib.stats["structure_choice"] if c["chosen"]][0]
+    assert chosen["structure"] == ctfit.structure_label(lib.material.structure)
+    csv = tmp_path / "p.csv"
+    ctfit.write_csv(data, csv)
+    r = run("fit", csv, "--json")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    assert [c["structure"] for c in doc["fit"]["structure_choice"]] == [c["structure"] for c in lib.stats["structure_choice"]]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("--family", "plastic", "--diffuse", "F0/pi"), "plastic"),
+        (("--family", "metal", "--diffuse", "transmitted"), "transmitted"),
+        (("--family", "wood"), "--family"),
+        (("--diffuse", "lambert"), "--diffuse"),
+        (("--no-diffuse", "--diffuse", "spectrum"), "contradict"),
+    ],
+)
+def test_contradictory_structure_options_are_one_error_line(tmp_path, args, message):
+    csv = tmp_path / "p.csv"
+    csv.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,550,1.0\n")
+    r = run("fit", csv, *args)
+    assert r.exit_code == 2 and message in r.output and "Traceback" not in r.output
+
+
+def test_family_and_diffuse_options_fix_the_structure(tmp_path):
+    data = ctfit.simulate(plastic(), n_pairs=300, noise=0.01, seed=2)
+    csv = tmp_path / "p.csv"
+    ctfit.write_csv(data, csv)
+    r = run("fit", csv, "--family", "plastic", "--diffuse", "transmitted", "--lobes", 1, "--json")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.stdout)
+    assert (doc["family"], doc["diffuse"], len(doc["lobes"])) == ("plastic", "transmitted", 1)
+    assert "structure_choice" not in doc["fit"]
+
+
+# --- loss, quality, warnings -----------------------------------------------------------------
+
+
+def test_log_ratio_is_the_default_loss_without_sigma_and_its_floor_is_the_typical_value():
+    from ctfit._fitting.problem import loss_floor
+
+    y = np.array([0.01, 0.1, 0.2, 0.3, 1e4])
+    assert loss_floor(y, "log-ratio") == pytest.approx(0.01 * 0.2)
+    assert loss_floor(y, "relative") == pytest.approx(10.0)  # 10⁻³ of the peak: above every off-peak sample
+    truth = plastic("spectrum")
+    data = dataclasses.replace(ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=4), sigma=None)
+    res = ctfit.fit(data, truth.structure)
+    assert res.stats["loss"] == "log-ratio"
+    f, yy = np.asarray(ctfit.evaluate(res.material, data)), data.brdf
+    eps = res.stats["relative_floor"]
+    assert res.stats["cost"] == pytest.approx(0.5 * np.sum((np.log(f + eps) - np.log(yy + eps)) ** 2), rel=1e-6)
+
+
+def test_the_quality_section_is_the_median_relative_error_per_region():
+    truth = plastic("spectrum")
+    data = ctfit.simulate(truth, n_pairs=400, noise=0.03, seed=6)
+    res = ctfit.fit(data, truth.structure)
+    q = res.stats["quality"]
+    f, y = np.asarray(ctfit.evaluate(res.material, data)), data.brdf
+    direct = np.abs(f - y)[y > 0] / y[y > 0]
+    assert q["median_relative_error"] == pytest.approx(np.median(direct), rel=1e-4)
+    assert q["p90_relative_error"] == pytest.approx(np.quantile(direct, 0.9), rel=1e-4)
+    assert sum(r["samples"] for r in q["regions"].values()) == q["samples"] == len(direct)
+    assert ctfit.fit_quality(res.material, data)["median_relative_error"] == pytest.approx(q["median_relative_error"], rel=1e-4)
+    doc = ctfit.fit_result_to_dict(res)
+    assert set(doc["fit"]["quality"]) >= {"median_relative_error", "p90_relative_error", "regions"}
+    assert "median" in ctfit.format_fit_table(res) and not any("does not represent" in w for w in res.warnings)
+
+
+def test_a_material_the_model_cannot_represent_says_so(tmp_path):
+    """A retro-reflector (data far above the model where L = V) is not a Cook–Torrance material:
+    one plain warning, beside "converged"."""
+    data = ctfit.read_measurement(ROOT / "measurements" / "brdf" / "retro-gray-tape.dat")
+    res = ctfit.fit(data, ctfit.Structure(lobes=1, diffuse="F0/pi"))
+    q = res.stats["quality"]
+    lines = [w for w in res.warnings if "does not represent this material" in w]
+    assert (q["median_relative_error"] > 0.3) == bool(lines)
+    assert lines, (q["median_relative_error"], res.warnings)
+
+
+def test_a_one_lobe_fit_of_two_lobe_data_is_not_called_retro_reflection():
+    """Near normal incidence L ≈ V is the mirror direction: the narrow lobe that one lobe misses
+    there is no retro-reflection lobe (issue 25)."""
+    truth = ctfit.Material(ctfit.Structure(lobes=2), ctfit.Params(m=np.array([0.04, 0.3]), w=np.array([0.5, 0.5]), f0=np.array([0.9])),
+                           wavelength_nm=np.array([550.0]))
+    ti, to, po = np.meshgrid([0.0, 2.0, 4.0, 6.0, 20.0, 40.0], np.arange(0.0, 80.0, 1.0), [0.0, 180.0], indexing="ij")
+    ti, to, po = ti.ravel(), to.ravel(), po.ravel()
+    geom = ctfit.Measurement(theta_i=ti, phi_i=np.zeros_like(ti), theta_o=to, phi_o=po, band=np.zeros(ti.size, int),
+                             wavelength_nm=np.array([550.0]), brdf=np.ones(ti.size))
+    data = dataclasses.replace(geom, brdf=np.asarray(ctfit.evaluate(truth, geom)))
+    res = ctfit.fit(data, ctfit.Structure(lobes=1))
+    assert not any("retro-reflection lobe" in w for w in res.warnings), res.warnings
+
+
+def test_a_plastic_posterior_samples_its_index_and_diffuse_spectrum():
+    truth = plastic("spectrum")
+    data = ctfit.simulate(truth, n_pairs=200, noise=0.02, seed=7)
+    res = ctfit.fit(data, truth.structure)
+    post = ctfit.sample(res, data, steps=120, walkers=24, seed=1, progress=False)
+    assert {"n", "Rd"} <= set(post.chain)
+    n = np.asarray(post.chain["n"])
+    assert np.all((n >= ctfit.PLASTIC_INDEX_RANGE[0]) & (n <= ctfit.PLASTIC_INDEX_RANGE[1]))
