@@ -7,6 +7,7 @@ database's parameterisation: ``ndf`` and ``sigma`` tables, a ``vndf`` per incide
 and values on the sample-space grid whose nodes the VNDF warp sends to the measured points.
 """
 
+import json
 import pathlib
 import struct
 import tempfile
@@ -234,3 +235,21 @@ def _rewritten(fields, **changes):
     with tempfile.TemporaryDirectory() as d:
         write_tensor(pathlib.Path(d) / "x.bsdf", **new)
         return (pathlib.Path(d) / "x.bsdf").read_bytes()
+
+
+@pytest.mark.slow
+def test_fit_recovers_the_material_and_its_colour(files, tmp_path):
+    """``ctfit fit`` on a spectral file (360–1000 nm) recovers m, s and F0(λ) across the whole band;
+    its colour (from the visible part, 360–830 nm) is the material's."""
+    out = tmp_path / "fit.json"
+    r = CliRunner().invoke(app, ["fit", str(files["spec"]), "--geometry", "smith-rational", "-o", str(out)])
+    assert r.exit_code == 0, r.output
+    fitted, truth = ctfit.load_material(out), material(spectral=True)
+    np.testing.assert_array_equal(fitted.wavelength_nm, SPECTRAL_NM)
+    np.testing.assert_allclose(fitted.params.m, [ALPHA], rtol=1e-3)
+    np.testing.assert_allclose(fitted.params.s, S, rtol=1e-3)
+    np.testing.assert_allclose(fitted.params.f0, truth.params.f0, rtol=1e-3)
+    r = CliRunner().invoke(app, ["color", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    colour = json.loads(r.output)
+    np.testing.assert_allclose(colour["xy"], ctfit.colour_report(truth)["xy"], atol=1e-5)
