@@ -129,9 +129,9 @@ def _structure(fields: dict, path) -> dict:
         if not ok:
             want = f"{dtype or 'any'} with {ndim} axes" + (f" of shape {tuple('*' if s is None else s for s in shape)}" if shape else "")
             raise DataError(f"field {name!r} is {a.dtype.name} of shape {a.shape}; an RGL BRDF has {want}", path=path)
-    for name in ("ndf", "sigma", "vndf"):
-        if min(f[name].shape[-2:]) < 2 or n < 2:
-            raise DataError(f"field {name if n >= 2 else values!r}: tables need at least 2 × 2 nodes, got shape {f[name].shape}", path=path)
+    for name in ("ndf", "sigma", "vndf", values):
+        if min(f[name].shape[-2:]) < 2 or min(p, t) < 1:
+            raise DataError(f"field {name!r} of shape {f[name].shape}: a table needs at least 2 × 2 nodes, and one incident direction", path=path)
     for name in ("theta_i", "phi_i", "ndf", "sigma", "vndf", values, "wavelengths"):
         if name in f and not np.all(np.isfinite(f[name])):
             bad = tuple(int(i[0]) for i in np.nonzero(~np.isfinite(f[name])))
@@ -261,10 +261,10 @@ def _points(f: dict, isotropic: bool):
     counts = dict(invalid=int(np.count_nonzero(~valid)), horizon=0, normal=0)
     for p in range(n_phi):
         for t in range(n_theta):
-            theta_i, phi_i, wo, factor = _slice_points(f, p, t, nodes, isotropic)
-            if theta_i == 0 and n_phi > 1 and abs(_azimuth_seen(1.0, float(f["phi_i"][p]))) > 1e-6:
+            if f["theta_i"][t] == 0 and n_phi > 1 and abs(_azimuth_seen(1.0, float(f["phi_i"][p]))) > 1e-6:
                 counts["normal"] += 1  # the same light as the φ_i = 0 slice, where Mitsuba reads it
                 continue
+            theta_i, phi_i, wo, factor = _slice_points(f, p, t, nodes, isotropic)
             seen = valid[p, t].reshape(-1) & (wo[:, 2] >= MIN_COS) & (np.cos(theta_i) >= MIN_COS)
             counts["horizon"] += int(np.count_nonzero(valid[p, t].reshape(-1) & ~seen))
             wo = wo[seen]
