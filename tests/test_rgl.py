@@ -259,9 +259,11 @@ def _rewritten(fields, **changes):
 @pytest.mark.slow
 def test_fit_recovers_the_material_and_its_colour(files, tmp_path):
     """``ctfit fit`` on a spectral file (360–1000 nm) recovers m, s and F0(λ) across the whole band;
-    its colour (from the visible part, 360–830 nm) is the material's."""
-    out = tmp_path / "fit.json"
-    r = CliRunner().invoke(app, ["fit", str(files["spec"]), "--geometry", "smith-rational", "-o", str(out)])
+    its colour (from the visible part, 360–830 nm) is the material's. A folder's .bsdf files are fitted."""
+    out, folder = tmp_path / "fit.json", tmp_path / "materials"
+    folder.mkdir()
+    (folder / "material_spec.bsdf").write_bytes(files["spec"].read_bytes())
+    r = CliRunner().invoke(app, ["fit", str(folder), "--geometry", "smith-rational", "-o", str(out)])
     assert r.exit_code == 0, r.output
     fitted, truth = ctfit.load_material(out), material(spectral=True)
     np.testing.assert_array_equal(fitted.wavelength_nm, SPECTRAL_NM)
