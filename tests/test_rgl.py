@@ -4,7 +4,9 @@
 The database has no redistribution licence, so the tests write their own tensor files (a small
 writer after Mitsuba's ``tensor_io.py``) from a known Cook–Torrance material through the
 database's parameterisation: ``ndf`` and ``sigma`` tables, a ``vndf`` per incident direction,
-and values on the sample-space grid whose nodes the VNDF warp sends to the measured points.
+and values on the sample-space grid whose nodes the VNDF warp sends to the measured points. The
+builder places the material's values at the nodes with the reader's own warp
+(``marginal_sample``); the comparisons with Mitsuba's ``eval`` and ``sample`` are what check it.
 """
 
 import json
