@@ -101,7 +101,7 @@ def simulate(
 
 @app.command()
 def fit(
-    data: List[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary) or folders of them."),
+    data: List[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary, RGL .bsdf) or folders of them."),
     output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several: a folder)."),
     as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
     material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),

@@ -337,9 +337,9 @@ def _expand(paths) -> list[Path]:
     files: dict[Path, None] = {}
     for p in paths:
         if p.is_dir():
-            found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".csv", ".binary", ".alta", ".dat"))
+            found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".csv", ".binary", ".alta", ".dat", ".bsdf"))
             if not found:
-                raise UserError(f"{p}: folder has no measurement files (.csv, .binary, .alta, .dat)")
+                raise UserError(f"{p}: folder has no measurement files (.csv, .binary, .alta, .dat, .bsdf)")
             files.update(dict.fromkeys(found))
         elif not p.exists():
             raise UserError(f"{p}: no such file")

@@ -55,7 +55,7 @@ def fit_many(
 ) -> list:
     """Fit ``structure`` to every item on a Dask cluster; one :class:`~ctfit.FitResult` per item, in input order.
 
-    ``items``: paths of measurement files (CSV, ALTA, MERL .binary; read on the workers, with
+    ``items``: paths of measurement files (CSV, ALTA, MERL .binary, RGL .bsdf; read on the workers, with
     ``param_out`` as for :func:`~ctfit.read_alta`) or :class:`~ctfit.Measurement` objects.
     ``client``: a :class:`distributed.Client`; None: a :class:`~distributed.LocalCluster` of
     ``workers`` processes (default one per core) made for this call and closed after it.

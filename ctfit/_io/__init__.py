@@ -1,4 +1,4 @@
-"""Data in and out: measurement files (CSV, ALTA, MERL), material files, optical constants, safe writes.
+"""Data in and out: measurement files (CSV, ALTA, MERL, RGL), material files, optical constants, safe writes.
 
 The names the rest of the package uses, loaded on first use (``lazy_loader``).
 """
@@ -18,5 +18,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "optical_constants": ['read_optical_constants'],
         "output_paths": ['check_backend', 'check_output', 'check_output_folder', 'result_targets', 'unconverged_target'],
         "readers": ['read_measurement', 'reader_for'],
+        "rgl": ['bilinear', 'marginal_sample', 'read_rgl', 'read_tensor_file'],
     },
 )

@@ -1,10 +1,11 @@
 """One entry point for every measurement format: :func:`read_measurement` picks the reader.
 
 ``.csv`` → measurement CSV (:func:`~ctfit.read_csv`), ``.binary`` → MERL (:func:`~ctfit.read_merl`),
-``.alta`` → ALTA text (:func:`~ctfit.read_alta`). ``.dat`` files and files with another
-extension are recognised by their content (a ``#DIM`` line: ALTA; a header naming ``theta_i``:
-CSV; a MERL-sized file with MERL dimensions: MERL); an unrecognised ``.dat`` is read as ALTA,
-whose reader then says what is missing.
+``.alta`` → ALTA text (:func:`~ctfit.read_alta`), ``.bsdf`` → RGL material database
+(:func:`~ctfit.read_rgl`). ``.dat`` files and files with another extension are recognised by
+their content (a ``#DIM`` line: ALTA; a header naming ``theta_i``: CSV; a MERL-sized file with
+MERL dimensions: MERL; the ``tensor_file`` header: RGL); an unrecognised ``.dat`` is read as
+ALTA, whose reader then says what is missing.
 """
 
 from __future__ import annotations
@@ -17,17 +18,19 @@ from .csv_files import read_csv
 from .errors import DataError
 from .._model import Measurement
 from .merl import MERL_FILE_BYTES, MERL_SHAPE, read_merl
+from .rgl import TENSOR_MAGIC, read_rgl
 
 __all__ = ["READERS", "read_measurement", "reader_for"]
 
-READERS = {".csv": read_csv, ".binary": read_merl, ".alta": read_alta}
+READERS = {".csv": read_csv, ".binary": read_merl, ".alta": read_alta, ".bsdf": read_rgl}
 _SNIFF_BYTES = 64 * 1024
 
 
 def read_measurement(path, **options) -> Measurement:
-    r"""Read BRDF samples from a measurement CSV, a MERL ``.binary`` or an ALTA text file.
+    r"""Read BRDF samples from a measurement CSV, a MERL ``.binary``, an ALTA text or an RGL ``.bsdf`` file.
 
-    ``options`` go to the reader (e.g. ``param_out=`` for an ALTA file without ``#PARAM_OUT``).
+    ``options`` go to the reader (e.g. ``param_out=`` for an ALTA file without ``#PARAM_OUT``,
+    ``anisotropic=True`` for an anisotropic RGL file).
     A file in no supported format raises :class:`~ctfit.DataError` listing the formats.
 
     Examples
@@ -57,7 +60,7 @@ def reader_for(path):
     if reader is None:
         raise DataError(
             f"unknown measurement format{f' {suffix!r}' if suffix else ''}: supported are .csv (measurement CSV), "
-            ".binary (MERL BRDF database) and .alta or .dat (ALTA text); see docs/measurement-formats.md",
+            ".binary (MERL BRDF database), .alta or .dat (ALTA text) and .bsdf (RGL material database); see docs/measurement-formats.md",
             path=path,
         )
     return reader
@@ -67,6 +70,8 @@ def _sniff(path):
     """The reader for a file recognised by its content, or None."""
     with open(path, "rb") as f:
         head = f.read(_SNIFF_BYTES)
+    if head.startswith(TENSOR_MAGIC):
+        return read_rgl
     if os.path.getsize(path) == MERL_FILE_BYTES and head[:12] == b"".join(d.to_bytes(4, "little") for d in MERL_SHAPE):
         return read_merl
     for line in head.decode("utf-8", errors="replace").splitlines():
