@@ -168,19 +168,26 @@ def test_family_and_diffuse_options_fix_the_structure(tmp_path):
 # --- loss, quality, warnings -----------------------------------------------------------------
 
 
-def test_log_ratio_is_the_default_loss_without_sigma_and_its_floor_is_the_typical_value():
+def test_the_relative_floor_comes_from_the_typical_sample_not_the_peak():
+    """A peak 5 decades above the diffuse part no longer lifts the floor above every off-peak
+    sample (which made the default fit absolute there, issue 25)."""
     from ctfit._fitting.problem import loss_floor
 
     y = np.array([0.01, 0.1, 0.2, 0.3, 1e4])
-    assert loss_floor(y, "log-ratio") == pytest.approx(0.01 * 0.2)
-    assert loss_floor(y, "relative") == pytest.approx(10.0)  # 10⁻³ of the peak: above every off-peak sample
+    assert loss_floor(y, "relative") == pytest.approx(0.01 * 0.2)  # was 10⁻³ × 1e4 = 10
+    assert loss_floor(np.array([1.0, 2.0, 3.0]), "relative") == pytest.approx(1e-3 * 3.0)  # modest range: as before
     truth = plastic("spectrum")
     data = dataclasses.replace(ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=4), sigma=None)
     res = ctfit.fit(data, truth.structure)
-    assert res.stats["loss"] == "log-ratio"
+    assert res.stats["loss"] == "relative"
     f, yy = np.asarray(ctfit.evaluate(res.material, data)), data.brdf
-    eps = res.stats["relative_floor"]
-    assert res.stats["cost"] == pytest.approx(0.5 * np.sum((np.log(f + eps) - np.log(yy + eps)) ** 2), rel=1e-6)
+    floor = res.stats["relative_floor"]
+    assert floor == pytest.approx(loss_floor(yy, "relative"))
+    assert res.stats["cost"] == pytest.approx(0.5 * np.sum(((f - yy) / np.maximum(yy, floor)) ** 2), rel=1e-6)
+    lr = ctfit.fit(data, truth.structure, loss="log-ratio")
+    f = np.asarray(ctfit.evaluate(lr.material, data))
+    eps = lr.stats["relative_floor"]
+    assert lr.stats["cost"] == pytest.approx(0.5 * np.sum((np.log(f + eps) - np.log(yy + eps)) ** 2), rel=1e-6)
 
 
 def test_the_quality_section_is_the_median_relative_error_per_region():

@@ -171,7 +171,7 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
     structure = structure or Structure()
     if loss == "auto":
-        loss = "sigma" if data.sigma is not None else "log-ratio"
+        loss = "sigma" if data.sigma is not None else "relative"
     if loss not in LOSSES:
         raise ValueError(f"loss must be 'auto' or one of {LOSSES}, got {loss!r}")
     default = default_start(structure, data)
@@ -205,8 +205,8 @@ def fit(
     ``stats["structure_choice"]``).
 
     ``start`` gives starting values (and the values of the ``fixed`` parameters); ``loss`` is
-    one of ``LOSSES`` or "auto" (sigma-weighted when the data has sigma, else "log-ratio":
-    ln((f + ε)/(y + ε)), docs/fitting.md).
+    one of ``LOSSES`` or "auto" (sigma-weighted when the data has sigma, else "relative":
+    (f − y)/max(y, floor), the floor from the typical sample, docs/fitting.md).
     Per-band parameters of ``start`` must already be on the data's bands.
 
     >>> import numpy as np, ctfit
