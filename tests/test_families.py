@@ -206,15 +206,18 @@ def test_the_quality_section_is_the_median_relative_error_per_region():
     assert "median" in ctfit.format_fit_table(res) and not any("does not represent" in w for w in res.warnings)
 
 
+@pytest.mark.filterwarnings("ignore::ctfit.DataWarning")  # samples at θ_o = 90° dropped by the reader
 def test_a_material_the_model_cannot_represent_says_so(tmp_path):
     """A retro-reflector (data far above the model where L = V) is not a Cook–Torrance material:
     one plain warning, beside "converged"."""
-    data = ctfit.read_measurement(ROOT / "measurements" / "brdf" / "retro-gray-tape.dat")
+    data = ctfit.read_measurement(ROOT / "measurements" / "brdf" / "retro-gray-tape.dat", param_out="INV_STERADIAN_COSINE_FACTOR")
     res = ctfit.fit(data, ctfit.Structure(lobes=1, diffuse="F0/pi"))
     q = res.stats["quality"]
     lines = [w for w in res.warnings if "does not represent this material" in w]
-    assert (q["median_relative_error"] > 0.3) == bool(lines)
-    assert lines, (q["median_relative_error"], res.warnings)
+    assert lines, (q, res.warnings)
+    assert q["p90_relative_error"] > 0.9  # the retro lobe: a tenth of the samples missed almost entirely
+    good = ctfit.fit(ctfit.simulate(plastic("spectrum"), n_pairs=300, noise=0.02, seed=1), plastic("spectrum").structure)
+    assert not [w for w in good.warnings if "does not represent" in w]
 
 
 def test_a_one_lobe_fit_of_two_lobe_data_is_not_called_retro_reflection():
@@ -231,6 +234,7 @@ def test_a_one_lobe_fit_of_two_lobe_data_is_not_called_retro_reflection():
     assert not any("retro-reflection lobe" in w for w in res.warnings), res.warnings
 
 
+@pytest.mark.filterwarnings("ignore::ctfit.ChainTooShortWarning")  # a short chain: only its support is checked
 def test_a_plastic_posterior_samples_its_index_and_diffuse_spectrum():
     truth = plastic("spectrum")
     data = ctfit.simulate(truth, n_pairs=200, noise=0.02, seed=7)

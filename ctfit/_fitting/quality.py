@@ -13,8 +13,9 @@ Regions, from each sample's half-vector angle α (N·H) and its larger polar ang
   weighted rms slope (no peak region for a material without a specular part);
 - ``off_peak``: the rest.
 
-When even the fitted model is far from the data (median above :data:`MODEL_LIMIT`), one plain
-warning says that the Cook–Torrance model does not represent the material, and where it fails worst.
+When even the fitted model is far from the data (median above :data:`MODEL_LIMIT`, or a tenth of
+the samples off by more than :data:`TAIL_LIMIT`), one plain warning says that the Cook–Torrance
+model does not represent the material, and where it fails worst.
 """
 
 from __future__ import annotations
@@ -26,11 +27,14 @@ import numpy as np
 from .._model import Material, Measurement
 from .diagnostics import half_angle_deg
 
-__all__ = ["MODEL_LIMIT", "GRAZING_DEG", "fit_quality", "quality_from_relative", "quality_warning"]
+__all__ = ["MODEL_LIMIT", "TAIL_LIMIT", "GRAZING_DEG", "fit_quality", "quality_from_relative", "quality_warning"]
 
 MODEL_LIMIT = 0.3
 """A median relative error above this: the model does not represent the material (iridescent
 paints, retro-reflectors, strongly anisotropic or layered materials)."""
+TAIL_LIMIT = 0.9
+"""A 90th-percentile relative error above this — a tenth of the samples off by 90 % or more —
+says the same of a material that the model misses in one region only (a retro-reflection lobe)."""
 GRAZING_DEG = 75.0
 """Samples with max(θ_i, θ_o) at or above this are the ``grazing`` region."""
 _PEAK_MIN_DEG = 5.0
@@ -90,13 +94,17 @@ def fit_quality(material: Material, data: Measurement, model=None) -> dict:
 
 
 def quality_warning(quality: dict) -> str | None:
-    """One line when the median relative error is above :data:`MODEL_LIMIT`, naming the worst region."""
-    median = quality.get("median_relative_error")
-    if median is None or median <= MODEL_LIMIT:
+    """One line when the median relative error is above :data:`MODEL_LIMIT` or its 90th percentile
+    above :data:`TAIL_LIMIT`, naming the worst region."""
+    median, tail = quality.get("median_relative_error"), quality.get("p90_relative_error")
+    if median is None or (median <= MODEL_LIMIT and tail <= TAIL_LIMIT):
         return None
     names = {"peak": "near the specular peak", "off_peak": "off the peak", "grazing": "at grazing angles"}
     regions = [(r["median_relative_error"], k) for k, r in quality["regions"].items() if r["median_relative_error"] is not None]
     worst = max(regions)[1] if regions else None
     where = f"; it fails most {names[worst]} (median {max(regions)[0]:.0%})" if worst else ""
-    return (f"the Cook–Torrance model does not represent this material: the typical sample is off by {median:.0%} "
-            f"even at the best fit{where}")
+    if median > MODEL_LIMIT:
+        return (f"the Cook–Torrance model does not represent this material: the typical sample is off by {median:.0%} "
+                f"even at the best fit{where}")
+    return (f"the Cook–Torrance model does not represent this material: a tenth of the samples are off by {tail:.0%} or more "
+            f"even at the best fit (the typical one by {median:.0%}){where}")

@@ -98,7 +98,9 @@ def choose_structure(
     Returns the best fit and every (structure, fit) tried, in order.
 
     >>> import numpy as np, ctfit
-    >>> rubber = ctfit.load_material("configs/rubber.toml")  # the paper's plastic
+    >>> rubber = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"),  # the paper's plastic
+    ...                         ctfit.Params(s=np.asarray(0.4), m=np.array([0.3]), w=np.ones(1), n=np.full(2, 1.52),
+    ...                                      rd=np.array([0.019, 0.022])), wavelength_nm=np.array([450.0, 650.0]))
     >>> data = ctfit.simulate(rubber, n_pairs=600, noise=0.01, seed=1)
     >>> best, tried = ctfit.choose_structure(data, lobes=(1, 2))
     >>> best.material.structure.family, best.material.structure.lobes
