@@ -71,6 +71,8 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "fit_texels": "._fitting",
     "FitResult": "._fitting",
     "format_fit_table": "._fitting",
+    "plot_polar": "._fitting",
+    "plot_residual_map": "._fitting",
     "residual_structure": "._fitting",
     "select_structure": "._fitting",
     "TexelFits": "._fitting",
@@ -113,6 +115,7 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "XYZ_to_xy": "._colour",
     "XYZ_to_display_RGB": "._colour",
     "render_compare": "._render",
+    "render_comparison": "._render",
     "render_linear": "._render",
     "render_material": "._render",
     "render_materials": "._render",
@@ -210,6 +213,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         fit_texels as fit_texels,
         FitResult as FitResult,
         format_fit_table as format_fit_table,
+        plot_polar as plot_polar,
+        plot_residual_map as plot_residual_map,
         residual_structure as residual_structure,
         select_structure as select_structure,
         TexelFits as TexelFits,
@@ -258,6 +263,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
     )
     from ._render import (
         render_compare as render_compare,
+        render_comparison as render_comparison,
         render_linear as render_linear,
         render_material as render_material,
         render_materials as render_materials,
