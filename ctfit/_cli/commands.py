@@ -240,6 +240,7 @@ def render(
     supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
     ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
     exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),
+    delta_e: bool = typer.Option(False, "--delta-e", help="With --compare: a figure measured (interpolated) | fitted | ΔE2000, its median and 95th percentile in the title."),
 ):
     """Render materials on spheres or vases under the paper's two lights (Figures 6–7) to a PNG."""
 
@@ -252,10 +253,14 @@ def render(
 
         info = render_command_body(
             materials, output, size, shape, compare, labels,
-            columns=columns, wavelength_step=step, supersample=supersample, ambient=ambient, exposure=exposure,
+            columns=columns, wavelength_step=step, supersample=supersample, ambient=ambient, exposure=exposure, delta_e=delta_e,
         )
         h, w = info["image_shape"][:2]
         typer.echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
+        if info["delta_e"] is not None:
+            d = info["delta_e"]
+            typer.echo(f"ΔE2000 over the sphere: median {d['median']:.2f}, 95th percentile {d['p95']:.2f} "
+                       f"({d['coverage']:.0%} of the lit sphere inside the measured domain)", err=True)
 
     run_body(body)
 

@@ -4,10 +4,14 @@ Both spheres are lit by the renderer's two lights (:data:`ctfit.LIGHT_DIRECTIONS
 ambient term (the data gives no hemispherical reflectance), seen from :data:`ctfit.VIEW_DIRECTION`.
 For every pixel and light the local (θ_i, θ_o, Δφ) is computed once; the fitted sphere takes
 the model there (:func:`ctfit.evaluate_at`), the measured sphere the measurement *interpolated*
-there (:class:`MeasuredBRDF`): linearly in log BRDF over the Rusinkiewicz angles (θ_h, θ_d, φ_d),
-φ_d folded to [0°, 90°] (isotropy and reciprocity), with SciPy's ``LinearNDInterpolator``.
-So the measured sphere is as smooth as the data allows, never faceted by nearest samples.
-Pixels outside the convex hull of the measured directions are not interpolated: they are shown
+there (:class:`MeasuredBRDF`): in log BRDF over the Rusinkiewicz angles (θ_h, θ_d, φ_d), φ_d
+folded to [0°, 90°] (isotropy and reciprocity), by a local linear regression on the 16 nearest
+samples (a SciPy k-d tree) with modified Shepard weights, which reach 0 before a sample leaves
+the neighbourhood: the result is continuous, exact at the samples and for linear functions.
+So the measured sphere is smooth, never faceted by nearest samples. (SciPy's
+``LinearNDInterpolator`` was the first choice; its simplex search on the triangulation of
+goniometer grids takes tens of milliseconds per pixel.) Pixels outside the convex hull of the
+measured directions (in those coordinates) are outside the measured domain: they are shown
 grey and left out of the ΔE statistics.
 
 The colour difference is CIEDE2000 (:func:`ctfit.delta_E_CIE2000`) between the two linear
@@ -34,6 +38,7 @@ MAX_POINTS = 100_000  # direction pairs interpolated from at most (a fixed rando
 OUTSIDE_GREY = 140  # uint8 grey of sphere pixels outside the measured domain
 _LOG_FLOOR = 1e-6  # values below this fraction of the maximum are interpolated as this fraction
 _AXES = ("θ_h", "θ_d", "φ_d")
+NEIGHBOURS = 16  # samples that shape each interpolated value (in 2 or 3 dimensions)
 
 
 def half_diff_folded_deg(theta_i, phi_i, theta_o, phi_o) -> np.ndarray:
@@ -77,11 +82,12 @@ def _mean_of_repeats(points, values):
 
 
 class MeasuredBRDF:
-    """A measurement as a function of direction: linear interpolation of log BRDF over (θ_h, θ_d, φ_d).
+    """A measurement as a function of direction: log BRDF interpolated over (θ_h, θ_d, φ_d) (module docstring).
 
     ``MeasuredBRDF(data)(theta_i, theta_o, dphi)`` (degrees, arrays of one shape) gives the
-    BRDF in every band, shape ``(..., n_bands)``, NaN outside the convex hull of the measured
-    directions. Coordinates that do not vary in the data are dropped (in-plane data: φ_d; 1-D
+    BRDF in every band, shape ``(..., n_bands)``, NaN outside the measured domain (the convex
+    hull of the measured directions; the range of 1-D data, which is interpolated linearly).
+    Coordinates that do not vary in the data are dropped (in-plane data: φ_d; 1-D
     ``COS_TH`` data: θ_d and φ_d), so the BRDF is taken not to depend on them; :attr:`note`
     says so. Repeated direction pairs are averaged; beyond :data:`MAX_POINTS` pairs a fixed
     random subset is used. Values below 10⁻⁶ of the maximum are interpolated as that floor.
@@ -107,7 +113,8 @@ class MeasuredBRDF:
             kept.update(dims)
             self.parts.append((bands, dims, _interpolant(points, logs, dims)))
         dropped = [_AXES[j] for j in range(3) if j not in kept]
-        self.note = "linear in log BRDF over (" + ", ".join(_AXES[j] for j in sorted(kept)) + ")"
+        self.note = "in log BRDF over (" + ", ".join(_AXES[j] for j in sorted(kept)) + ")"
+        self.note += f" by Shepard-weighted local linear regression on {NEIGHBOURS} neighbours" if len(kept) > 1 else " linearly"
         if dropped:
             self.note += f"; {', '.join(dropped)} constant in the data, taken not to matter"
 
@@ -123,7 +130,7 @@ def _interpolant(points, logs, dims):
     """A function of (..., len(dims)) coordinates giving (..., bands) log values, NaN outside."""
     if not dims:
         return lambda q: np.broadcast_to(logs[0], q.shape[:-1] + logs.shape[1:])
-    p = points[:, dims]
+    p, logs = _mirrored(points[:, dims], logs, dims)
     if len(dims) == 1:
         order = np.argsort(p[:, 0])
         x, y = p[order, 0], logs[order]
@@ -134,10 +141,43 @@ def _interpolant(points, logs, dims):
             return np.where(inside[..., None], np.stack([np.interp(q, x, c) for c in y.T], axis=-1), np.nan)
 
         return along
-    from scipy.interpolate import LinearNDInterpolator  # noqa: PLC0415
+    return _shepard(p, logs)
 
-    p, logs = _mirrored(p, logs, dims)
-    return LinearNDInterpolator(p, logs, fill_value=np.nan)
+
+def _shepard(points, logs):
+    """Local linear regression on the :data:`NEIGHBOURS` nearest points (a k-d tree), weighted
+    by modified Shepard weights ((R − d)₊ / (R d))², R the distance to the next nearest point
+    (Franke & Nielson 1980): a weight falls to 0 before its point leaves the neighbourhood, so the
+    result is continuous, exact at the samples and exact for linear functions. NaN outside the
+    convex hull of the points (the measured domain)."""
+    from scipy.spatial import ConvexHull, cKDTree  # noqa: PLC0415
+
+    tree = cKDTree(points)
+    k = min(NEIGHBOURS + 1, len(points))
+    hull = ConvexHull(points).equations if len(points) > points.shape[1] else None
+
+    def regression(q):
+        d, j = tree.query(q, k=k)
+        far, d, j = d[:, -1:], d[:, :-1], j[:, :-1]
+        w = (np.maximum(far - d, 0.0) / (far * np.maximum(d, 1e-9))) ** 2
+        w = np.where(w.sum(axis=1, keepdims=True) > 0, w, 1.0)
+        w = w / w.max(axis=1, keepdims=True)
+        x = (points[j] - q[:, None, :]) / np.maximum(far, 1e-9)[:, :, None]
+        x = np.concatenate([np.ones(x.shape[:2] + (1,)), x], axis=-1)
+        a = np.einsum("nk,nki,nkj->nij", w, x, x)
+        a[:, 1:, 1:] += 1e-3 * w.sum(axis=1)[:, None, None] * np.eye(x.shape[-1] - 1)  # a little ridge: no wild slopes
+        b = np.einsum("nk,nki,nkc->nic", w, x, logs[j])
+        out = np.linalg.solve(a, b)[:, 0, :]
+        if hull is not None:
+            out[np.any(q @ hull[:, :-1].T + hull[:, -1] > 1e-6, axis=1)] = np.nan
+        return out
+
+    def local_linear(q):
+        flat = q.reshape(-1, q.shape[-1])
+        out = np.concatenate([regression(flat[i : i + 4096]) for i in range(0, len(flat), 4096)] or [np.zeros((0, logs.shape[1]))])
+        return out.reshape(q.shape[:-1] + (logs.shape[1],))
+
+    return local_linear
 
 
 def _mirrored(p, logs, dims):
@@ -146,7 +186,7 @@ def _mirrored(p, logs, dims):
     and the interpolation, reach the edges of the domain (the mirror direction, retro-reflection)."""
     for k, j in enumerate(dims):
         for edge in (0.0, 90.0) if j == 2 else (0.0,):
-            near = np.abs(p[:, k] - edge) < 20.0
+            near = (np.abs(p[:, k] - edge) < 20.0) & (np.abs(p[:, k] - edge) > 1e-6)  # not those on the edge: no duplicates
             image = p[near].copy()
             image[:, k] = 2 * edge - image[:, k]
             p, logs = np.concatenate([p, image]), np.concatenate([logs, logs[near]])
