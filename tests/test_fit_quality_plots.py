@@ -174,7 +174,7 @@ def test_residual_map_on_every_kind_of_data(kind, tmp_path):
 
 
 def test_delta_e_is_zero_when_the_fit_is_the_data_generating_material():
-    matte = ctfit.material_from_dict({"s": 0, "d": 1, "channels": ["R", "G", "B"], "Rd": [0.2, 0.1, 0.05]})
+    matte = _gloss_rgb(s=0.0, d=1.0)  # Lambertian (no specular term), in the structure the other tests compile
     c = ctfit.render_comparison(matte, ctfit.simulate(matte, 500, seed=1), size=32, supersample=1)
     assert np.nanmax(c.delta_e) < 1e-6 and c.median < 1e-6 and c.p95 < 1e-6
     assert f"median {c.median:.2f}, 95th percentile {c.p95:.2f}" in c.figure.get_suptitle()

@@ -95,7 +95,7 @@ class MeasuredBRDF:
     >>> import numpy as np, ctfit
     >>> matte = ctfit.material_from_dict({"s": 0, "d": 1, "channels": ["R", "G", "B"], "Rd": [0.2, 0.1, 0.05]})
     >>> f = MeasuredBRDF(ctfit.simulate(matte, 400, seed=1))
-    >>> (f(np.array([30.0]), np.array([40.0]), np.array([120.0])) * np.pi).round(6).tolist()
+    >>> f(np.array([30.0]), np.array([40.0]), np.array([120.0])).round(6).tolist()  # a constant BRDF, in R, G, B
     [[0.2, 0.1, 0.05]]
     """
 
