@@ -1,6 +1,7 @@
 """Pictures of fit quality: polar plots per incidence angle, the residual map over (θ_h, θ_d), and
 measured | fitted | ΔE2000 renders, on grid, scattered, single-band (ALTA) and RGB data."""
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -174,7 +175,8 @@ def test_residual_map_on_every_kind_of_data(kind, tmp_path):
 
 
 def test_delta_e_is_zero_when_the_fit_is_the_data_generating_material():
-    matte = _gloss_rgb(s=0.0, d=1.0)  # Lambertian (no specular term), in the structure the other tests compile
+    gloss = _gloss_rgb()  # with s = 0: Lambertian, in the structure the other tests compile
+    matte = dataclasses.replace(gloss, params=dataclasses.replace(gloss.params, s=np.asarray(0.0)))
     c = ctfit.render_comparison(matte, ctfit.simulate(matte, 500, seed=1), size=32, supersample=1)
     assert np.nanmax(c.delta_e) < 1e-6 and c.median < 1e-6 and c.p95 < 1e-6
     assert f"median {c.median:.2f}, 95th percentile {c.p95:.2f}" in c.figure.get_suptitle()
