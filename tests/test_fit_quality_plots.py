@@ -58,6 +58,17 @@ def _felt_1d():
                                      "F0": [0.32, 0.23, 0.2], "Rd": [0.1, 0.076, 0.06]}), data
 
 
+def _material_and_data(kind, n_scattered):
+    """(material, data it is shown with): RGB grid, scattered spectral, single-band ALTA, 1-D RGB ALTA."""
+    if kind == "grid":
+        mat = _gloss_rgb()
+        return mat, _grid_data(mat)
+    if kind == "scattered":
+        mat = _gloss_spectral()
+        return mat, _scattered_data(mat, n=n_scattered)
+    return _alta_retro() if kind == "alta" else _felt_1d()
+
+
 def _off_plane_deg(data):
     dphi = np.radians(data.phi_o - data.phi_i)
     return np.degrees(np.arcsin(np.sin(np.radians(data.theta_o)) * np.abs(np.sin(dphi))))
@@ -156,14 +167,7 @@ def test_residual_map_cells_are_mean_log_ratios():
 
 @pytest.mark.parametrize("kind", ["grid", "scattered", "alta", "felt"])
 def test_residual_map_on_every_kind_of_data(kind, tmp_path):
-    if kind == "grid":
-        mat = _gloss_rgb()
-        data = _grid_data(mat)
-    elif kind == "scattered":
-        mat = _gloss_spectral()
-        data = _scattered_data(mat, n=400)
-    else:
-        mat, data = _alta_retro() if kind == "alta" else _felt_1d()
+    mat, data = _material_and_data(kind, n_scattered=400)
     fig = ctfit.plot_residual_map(mat, data, tmp_path / "r.png")
     ax = fig.axes[0]
     assert len(fig.axes) == 2 and (tmp_path / "r.png").exists()
@@ -213,14 +217,7 @@ def test_measured_sphere_is_smooth_and_close_to_the_exact_render(monkeypatch):
 
 @pytest.mark.parametrize("kind", ["grid", "scattered", "alta", "felt"])
 def test_comparison_on_every_kind_of_data(kind, tmp_path):
-    if kind == "grid":
-        mat = _gloss_rgb()
-        data = _grid_data(mat)
-    elif kind == "scattered":
-        mat = _gloss_spectral()
-        data = _scattered_data(mat, n=3000)
-    else:
-        mat, data = _alta_retro() if kind == "alta" else _felt_1d()
+    mat, data = _material_and_data(kind, n_scattered=3000)
     c = ctfit.render_comparison(mat, data, tmp_path / "c.png", size=24)
     assert (tmp_path / "c.png").stat().st_size > 5_000
     assert len(c.figure.axes) == 4  # measured, fitted, ΔE and its colourbar

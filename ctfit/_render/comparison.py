@@ -150,11 +150,14 @@ def _shepard(points, logs):
     (Franke & Nielson 1980): a weight falls to 0 before its point leaves the neighbourhood, so the
     result is continuous, exact at the samples and exact for linear functions. NaN outside the
     convex hull of the points (the measured domain)."""
-    from scipy.spatial import ConvexHull, cKDTree  # noqa: PLC0415
+    from scipy.spatial import ConvexHull, QhullError, cKDTree  # noqa: PLC0415
 
     tree = cKDTree(points)
     k = min(NEIGHBOURS + 1, len(points))
-    hull = ConvexHull(points).equations if len(points) > points.shape[1] else None
+    try:
+        hull = ConvexHull(points).equations
+    except QhullError:  # too few points, or all in a lower-dimensional set: no domain test
+        hull = None
 
     def regression(q):
         d, j = tree.query(q, k=k)
