@@ -115,7 +115,7 @@ def fit(
     starts: int = typer.Option(3, "--starts", min=1, help="Seeds from the grid over m, solved at once."),
     max_steps: int = typer.Option(256, "--max-steps", min=1, help="Solver steps per start (more for a fit that stops short of a minimum)."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP + " A file's own line wins."),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit (one file: this path; several: a folder)."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit, polar plots per incidence angle and the residual map over (θ_h, θ_d) (one file: this path; several: a folder)."),
     sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
     steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
