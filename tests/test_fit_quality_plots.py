@@ -266,3 +266,25 @@ def test_cli_render_delta_e(tmp_path):
     assert out.stat().st_size > 5_000 and "ΔE2000 over the sphere: median" in res.output
     res = CliRunner().invoke(app, ["render", str(tmp_path / "fit.json"), "--delta-e", "-o", str(out)])
     assert res.exit_code == 2 and res.output.strip().splitlines()[-1].startswith("error: --delta-e")
+
+
+def test_fit_plot_without_in_plane_samples_still_has_the_other_panels(tmp_path):
+    from ctfit._fitting.plots import plot_fit
+
+    mat = _gloss_rgb()
+    data = _grid_data(mat)
+    off = data.replace(phi_o=np.full(len(data), 90.0), theta_o=np.full(len(data), 40.0))
+    result = FitResult(material=mat, stats={"rel_rmse": 0.1, "loss": "relative", "converged": True}, stderr=None, warnings=[],
+                       loss="relative", solver="lm")
+    plot_fit(result, off, tmp_path / "fit.png")
+    assert (tmp_path / "fit.png").stat().st_size > 10_000
+    fig = make_fit_quality_figure(result, off)
+    texts = [t.get_text() for sub in fig.subfigs for s in [sub, *sub.subfigs] for t in s.texts]
+    assert any("no polar plot" in t and "plane of incidence" in t for t in texts)
+    assert any(ax.get_xlabel().startswith("θ_h") for ax in _all_axes(fig))
+
+
+def test_polar_rejects_bands_the_material_lacks():
+    data = _grid_data(_gloss_rgb())
+    with pytest.raises(ValueError, match="cannot be shown with material"):
+        ctfit.plot_polar(_gloss_spectral(), data)

@@ -83,7 +83,10 @@ def make_fit_quality_figure(result, data: Measurement):
     top, bottom = fig.subfigures(2, 1, height_ratios=[top_height, 7.4])
     draw_fit_panels(top, result, data, title)
     polar, residuals = bottom.subfigures(1, 2, width_ratios=[1.6, 1.0])
-    draw_polar(polar, result.material, data, columns=2)
+    try:
+        draw_polar(polar, result.material, data, columns=2)
+    except ValueError as e:  # e.g. no sample near the plane of incidence: the rest of the figure still helps
+        polar.text(0.5, 0.5, textwrap.fill(f"no polar plot: {e}", 80), ha="center", va="center", fontsize=9)
     polar.suptitle(
         "BRDF in the plane of incidence (log radius; back side φ_o = φ_i, forward side φ_o = φ_i + 180°):\n"
         f"points, samples within ±{PLANE_TOL_DEG:g}° of the plane; lines, the model", fontsize=9,

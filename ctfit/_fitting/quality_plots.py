@@ -83,6 +83,8 @@ def _band_colour(data, b, k) -> str:
 
 def _model_in_bands(material, data, theta_i, theta_o, phi_o, bands) -> np.ndarray:
     """The model at the directions (φ_i = 0) in the data's ``bands``, shape (n, len(bands))."""
+    if (data.channels is None) != (material.channels is None) or (data.channels is not None and not set(data.channels) <= set(material.channels)):
+        raise ValueError(f"{data.source}: bands {data.band_labels} cannot be shown with material {material.name!r} (bands {material.band_labels})")
     if data.channels is not None:
         values = evaluate_at(material, theta_i=theta_i, theta_o=theta_o, phi_o=phi_o)
         return values[..., [list(material.channels).index(data.channels[b]) for b in bands]]
