@@ -76,6 +76,8 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "fit_texels": "._fitting",
     "FitResult": "._fitting",
     "format_fit_table": "._fitting",
+    "plot_polar": "._fitting",
+    "plot_residual_map": "._fitting",
     "residual_structure": "._fitting",
     "fit_quality": "._fitting",
     "select_structure": "._fitting",
@@ -121,6 +123,7 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "XYZ_to_xy": "._colour",
     "XYZ_to_display_RGB": "._colour",
     "render_compare": "._render",
+    "render_comparison": "._render",
     "render_linear": "._render",
     "render_material": "._render",
     "render_materials": "._render",
@@ -223,6 +226,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         fit_texels as fit_texels,
         FitResult as FitResult,
         format_fit_table as format_fit_table,
+        plot_polar as plot_polar,
+        plot_residual_map as plot_residual_map,
         residual_structure as residual_structure,
         fit_quality as fit_quality,
         select_structure as select_structure,
@@ -274,6 +279,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
     )
     from ._render import (
         render_compare as render_compare,
+        render_comparison as render_comparison,
         render_linear as render_linear,
         render_material as render_material,
         render_materials as render_materials,

@@ -117,7 +117,7 @@ def fit(
     starts: int = typer.Option(3, "--starts", min=1, help="Seeds from the grid over m, solved at once."),
     max_steps: int = typer.Option(256, "--max-steps", min=1, help="Solver steps per start (more for a fit that stops short of a minimum)."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP + " A file's own line wins."),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit (one file: this path; several: a folder)."),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit, polar plots per incidence angle and the residual map over (θ_h, θ_d) (one file: this path; several: a folder)."),
     sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
     steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
@@ -242,6 +242,7 @@ def render(
     supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
     ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
     exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),
+    delta_e: bool = typer.Option(False, "--delta-e", help="With --compare: a figure measured (interpolated) | fitted | ΔE2000, its median and 95th percentile in the title."),
 ):
     """Render materials on spheres or vases under the paper's two lights (Figures 6–7) to a PNG."""
 
@@ -254,10 +255,14 @@ def render(
 
         info = render_command_body(
             materials, output, size, shape, compare, labels,
-            columns=columns, wavelength_step=step, supersample=supersample, ambient=ambient, exposure=exposure,
+            columns=columns, wavelength_step=step, supersample=supersample, ambient=ambient, exposure=exposure, delta_e=delta_e,
         )
         h, w = info["image_shape"][:2]
         typer.echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
+        if info["delta_e"] is not None:
+            d = info["delta_e"]
+            typer.echo(f"ΔE2000 over the sphere: median {d['median']:.2f}, 95th percentile {d['p95']:.2f} "
+                       f"({d['coverage']:.0%} of the lit sphere inside the measured domain)", err=True)
 
     run_body(body)
 

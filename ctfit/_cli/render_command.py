@@ -26,17 +26,22 @@ def render_command_body(
     supersample: int = 2,
     ambient: float = 0.01,
     exposure: str = "reference",
+    delta_e: bool = False,
 ) -> dict:
     """Render ``materials`` (TOML or fit-result JSON) to the PNG ``output``; return a summary.
 
     Without ``compare``: one tile per material (:func:`ctfit.render_materials`). With
     ``compare`` (a measurement file): exactly one material, shown beside the nearest-measured
-    rendering of the data (:func:`ctfit.render_compare`). ``output`` is checked before the
+    rendering of the data (:func:`ctfit.render_compare`); with ``delta_e`` as well, the figure
+    measured (interpolated) | fitted | ΔE2000 instead (:func:`ctfit.render_comparison`; no ambient
+    light, ``size`` pixels per sphere). ``output`` is checked before the
     rendering (:func:`ctfit._io.output_paths.check_output`). Bad input raises ``ValueError``
     (or :class:`ctfit.MaterialError`, :class:`ctfit.DataError`, both ``ValueError``s) with a
     message naming the file or option.
 
-    The summary: ``{"output", "materials", "shape", "size", "image_shape", "compare"}``.
+    The summary: ``{"output", "materials", "shape", "size", "image_shape", "compare", "delta_e"}``;
+    ``delta_e`` is None, or ``{"median", "p95", "coverage"}`` (ΔE2000 over the sphere, the
+    fraction of the lit sphere inside the measured domain).
     """
     from .._io import check_output, load_material  # noqa: PLC0415
     from .._render import EXPOSURES, SHAPES, render_compare, render_materials, save_png  # noqa: PLC0415
@@ -57,6 +62,8 @@ def render_command_body(
         raise ValueError(f"--step must be > 0 nm, got {wavelength_step}")
     if columns is not None and columns < 1:
         raise ValueError(f"--columns must be ≥ 1, got {columns}")
+    if delta_e and compare is None:
+        raise ValueError("--delta-e shows a material beside its measurement: give the measurement with --compare DATA")
     if Path(output).suffix.lower() != ".png":
         raise ValueError(f"{output}: the output is a PNG file; give a name ending in .png")
     check_output(output, [*materials, compare])
@@ -68,6 +75,8 @@ def render_command_body(
         from .._io import read_measurement  # noqa: PLC0415
 
         data = read_measurement(compare)
+        if delta_e:
+            return _delta_e_figure(mats[0], data, output, size, shape, supersample, exposure, [materials, compare])
         image = render_compare(mats[0], data, size, shape, None if labels else False, exposure=exposure, **options)
     else:
         image = render_materials(
@@ -82,4 +91,23 @@ def render_command_body(
         "size": size,
         "image_shape": list(image.shape),
         "compare": None if compare is None else str(compare),
+        "delta_e": None,
+    }
+
+
+def _delta_e_figure(material, data, output, size, shape, supersample, exposure, inputs) -> dict:
+    """``--compare DATA --delta-e``: the measured | fitted | ΔE2000 figure, and its summary."""
+    from .._render import render_comparison  # noqa: PLC0415
+
+    result = render_comparison(material, data, output, size=size, shape=shape, supersample=supersample, exposure=exposure)
+    width, height = (int(round(v * 110)) for v in result.figure.get_size_inches())
+    materials, compare = inputs
+    return {
+        "output": str(output),
+        "materials": [str(p) for p in materials],
+        "shape": shape,
+        "size": size,
+        "image_shape": [height, width, 4],
+        "compare": str(compare),
+        "delta_e": {"median": result.median, "p95": result.p95, "coverage": result.coverage},
     }

@@ -15,6 +15,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "least_squares": ['FitResult', 'fit', 'prepare_fit', 'seed_params'],
         "many": ['fit_many', 'input_sha256', 'read_input'],
         "plots": ['plot_fit'],
+        "quality_plots": ['draw_polar', 'draw_residual_map', 'plot_polar', 'plot_residual_map', 'residual_cells'],
         "problem": ['LOSSES', 'Problem', 'from_params', 'make_problem', 'model_values', 'normal_equations', 'residual', 'to_params'],
         "results": ['fit_result_to_dict', 'format_fit_table'],
         "seeded_solve": ['SOLVERS'],

@@ -1,7 +1,8 @@
 """Plots of a fit against its data: in-plane slices (or BRDF against θ_h), spectra, fitted F0(λ).
 
-``make_fit_figure(result, data)`` builds one figure with three panels, ``plot_fit(result, data,
-path)`` writes it as a PNG:
+``make_fit_figure(result, data)`` builds one figure with three panels; ``plot_fit(result, data,
+path)`` writes them as a PNG above the polar plots and the residual map of ``quality_plots``
+(:func:`make_fit_quality_figure`). The three panels:
 
 1. In-plane slices: for up to four incidence angles, the data within ±2.5° of the plane of
    incidence against the model evaluated densely along that plane, in one band (the middle
@@ -32,7 +33,7 @@ from .._model import normal_reflectance
 from .diagnostics import angle_lv_deg, half_angle_deg
 from .._model import Measurement, band_labels, evaluate
 
-__all__ = ["make_fit_figure", "plot_fit", "signed_in_plane_angle"]
+__all__ = ["make_fit_figure", "make_fit_quality_figure", "plot_fit", "signed_in_plane_angle"]
 
 TITLE_WIDTH = 150  # characters per title line (the figure is 15 inches wide, 9 pt text)
 _PLANE_TOL_DEG = 2.5
@@ -55,13 +56,43 @@ def signed_in_plane_angle(theta_o, phi_o, phi_i, tol_deg: float = _PLANE_TOL_DEG
 
 
 def plot_fit(result, data: Measurement, path) -> None:
-    """Write the data-vs-fit figure of ``result`` (a :class:`~ctfit.FitResult`) to ``path`` (PNG), atomically."""
+    """Write the fit-quality figure of ``result`` (a :class:`~ctfit.FitResult`) to ``path`` (PNG), atomically.
+
+    Top: the data-vs-fit panels (:func:`make_fit_figure`); below: polar plots per incidence angle
+    and the residual map over (θ_h, θ_d) (:func:`ctfit.plot_polar`, :func:`ctfit.plot_residual_map`).
+    """
     from pathlib import Path
 
     from .._io import atomic_save
 
-    fig = make_fit_figure(result, data)
+    fig = make_fit_quality_figure(result, data)
     atomic_save(path, lambda buffer: fig.savefig(buffer, format=Path(path).suffix[1:].lower() or "png", dpi=110))
+
+
+def make_fit_quality_figure(result, data: Measurement):
+    """The figure ``plot_fit`` writes: the data-vs-fit panels above the polar plots and the residual map."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from .quality_plots import PLANE_TOL_DEG, draw_polar, draw_residual_map
+
+    title = _title(result, data)
+    top_height = 5.4 + 0.16 * title.count("\n")
+    fig = Figure(figsize=(16, top_height + 7.4), layout="constrained")
+    FigureCanvasAgg(fig)
+    top, bottom = fig.subfigures(2, 1, height_ratios=[top_height, 7.4])
+    draw_fit_panels(top, result, data, title)
+    polar, residuals = bottom.subfigures(1, 2, width_ratios=[1.6, 1.0])
+    try:
+        draw_polar(polar, result.material, data, columns=2)
+    except ValueError as e:  # e.g. no sample near the plane of incidence: the rest of the figure still helps
+        polar.text(0.5, 0.5, textwrap.fill(f"no polar plot: {e}", 80), ha="center", va="center", fontsize=9)
+    polar.suptitle(
+        "BRDF in the plane of incidence (log radius; back side φ_o = φ_i, forward side φ_o = φ_i + 180°):\n"
+        f"points, samples within ±{PLANE_TOL_DEG:g}° of the plane; lines, the model", fontsize=9,
+    )
+    draw_residual_map(residuals, result.material, data)
+    return fig
 
 
 def make_fit_figure(result, data: Measurement):
@@ -72,6 +103,12 @@ def make_fit_figure(result, data: Measurement):
     title = _title(result, data)
     fig = Figure(figsize=(15, 5.4 + 0.16 * title.count("\n")), layout="constrained")
     FigureCanvasAgg(fig)
+    draw_fit_panels(fig, result, data, title)
+    return fig
+
+
+def draw_fit_panels(fig, result, data: Measurement, title: str) -> None:
+    """The three data-vs-fit panels (module docstring) and ``title``, in a Figure or SubFigure."""
     grid = fig.add_gridspec(2, 3, height_ratios=[4, 1])
     axes = [fig.add_subplot(grid[0, j]) for j in range(3)]
     strips = [fig.add_subplot(grid[1, j]) for j in range(3)]
@@ -94,7 +131,6 @@ def make_fit_figure(result, data: Measurement):
         if handles:
             strip.legend(handles, names, loc="upper center", ncols=2, fontsize=7, frameon=False)
     fig.suptitle(title, fontsize=9)
-    return fig
 
 
 def _title(result, data) -> str:
