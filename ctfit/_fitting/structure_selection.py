@@ -77,7 +77,12 @@ plastic with its own R_d(λ), Lambertian or seen through its interface."""
 
 
 def structure_label(st: Structure) -> str:
-    """A short name of a structure: "plastic, 2 lobes, diffuse transmitted"."""
+    """A short name of a structure, as the structure-choice table prints it.
+
+    >>> import ctfit
+    >>> ctfit.structure_label(ctfit.Structure(family="plastic", lobes=2, diffuse="transmitted"))
+    'plastic, 2 lobes, diffuse transmitted'
+    """
     parts = [st.family, f"{st.lobes} lobe{'s' if st.lobes != 1 else ''}"]
     if st.fresnel == "conductor":
         parts.append("conductor")
