@@ -111,7 +111,7 @@ def gltf_material(material: Material) -> dict:
 
     A metal: metallic = s (1 without a diffuse part), baseColor = F0 in linear sRGB, and no
     dielectric specular layer (specularFactor 0), so its diffuse part is (1 − s) F0/π — the
-    paper's R_d = F0/π exactly. A plastic: metallic 0, ior = n, specularFactor = s (at most 1),
+    paper's R_d = F0/π exactly; without a specular part, metallic 0 and baseColor = π R_d. A plastic: metallic 0, ior = n, specularFactor = s (at most 1),
     baseColor the diffuse part's albedo (1 − s) π R_d × its transmission, over 1 − s F0.
 
     Examples
@@ -129,9 +129,12 @@ def gltf_material(material: Material) -> dict:
     to_rgb = band_to_rgb(material)
     s = float(p.s) if st.has_s else float(st.has_specular)
     rough = fit_ggx_roughness(material) if st.has_specular else 1.0
-    if st.family == "metal":
+    if st.family == "metal" and st.has_specular:
         base = np.asarray(normal_reflectance(st, p), float).reshape(-1) @ to_rgb
         metallic, ext = s, {"KHR_materials_specular": {"specularFactor": 0.0}}
+    elif st.family == "metal":  # a Lambertian surface alone
+        base = np.broadcast_to(np.asarray(ambient_reflectance(st, p), float), (to_rgb.shape[0],)) @ to_rgb
+        metallic, ext = 0.0, {"KHR_materials_specular": {"specularFactor": 0.0}}
     else:
         n = float(np.asarray(p.n).reshape(-1)[0])
         f0 = ((n - 1) / (n + 1)) ** 2
