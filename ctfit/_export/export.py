@@ -62,9 +62,9 @@ def _grid_values(material: Material) -> np.ndarray:
 
 def _mitsuba_approximations(material: Material) -> list[str]:
     st, notes = material.structure, []
-    if st.geometry != "smith-rational":
+    if st.has_specular and st.geometry != "smith-rational":
         notes.append(f"Mitsuba's G is Smith's rational G1, not the {st.geometry} G")
-    if st.distribution != "beckmann":
+    if st.has_specular and st.distribution != "beckmann":
         notes.append("Mitsuba has no Gaussian D: Beckmann with alpha = m")
     target = mitsuba_target(material)
     for name in ("f0", "rd"):
@@ -122,7 +122,8 @@ def export_material(material: Material, to: str = "mitsuba", path=None) -> Expor
     >>> result = ctfit.export_material(gold, to="mitsuba", path="gold.xml")
     >>> result.error["exact"], result.error["approximations"]
     (False, ["Mitsuba's G is Smith's rational G1, not the v-cavity G"])
-    >>> '<bsdf type="roughconductor" version="3.0.0">' in open("gold.xml").read()
+    >>> import pathlib
+    >>> '<bsdf type="roughconductor" version="3.0.0">' in pathlib.Path("gold.xml").read_text()
     True
     """
     if to not in EXPORT_FORMATS:
