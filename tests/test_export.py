@@ -276,3 +276,22 @@ def test_bad_input_is_one_error_line(tmp_path):
         r = runner.invoke(app, argv)
         assert r.exit_code == 2 and r.output.startswith("error: ") and len(r.output.strip().splitlines()) == 1 and message in r.output
     assert json.loads(mat.read_text())["name"] == "plastic"  # the input is untouched
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("diffuse", ["transmitted", "spectrum"])
+def test_roughplastic_on_request_prints_the_error_mitsuba_measures(diffuse, tmp_path):
+    """``--mitsuba-plastic roughplastic``: Mitsuba's own plastic plugin, and the line's figures are
+    Mitsuba's evaluation of the written XML against ctfit, recomputed here."""
+    mi = pytest.importorskip("mitsuba")
+    mat = plastic(diffuse)
+    r = runner.invoke(app, ["export", str(_save(mat, tmp_path)), "--to", "mitsuba", "--mitsuba-plastic", "roughplastic", "-o", str(tmp_path / "p.xml")])
+    assert r.exit_code == 0, r.output
+    assert "approximate (Mitsuba's roughplastic: rough transmittance tables in its diffuse term)" in r.stdout
+    mi.set_variant("scalar_rgb")
+    xml = (tmp_path / "p.xml").read_text()
+    assert '<bsdf type="roughplastic" version="3.0.0">' in xml
+    median, worst = relative(mitsuba_values(mi.load_string(xml), grid()), ctfit_values(mat, grid()))
+    assert _printed(r.stdout) == pytest.approx((median, worst), rel=2e-3) and median > 1e-3
+    r = runner.invoke(app, ["export", str(_save(metal(), tmp_path)), "--to", "mitsuba", "--mitsuba-plastic", "roughplastic", "-o", str(tmp_path / "m.xml")])
+    assert r.exit_code == 2 and r.output.startswith("error: ") and "roughplastic needs a plastic" in r.output

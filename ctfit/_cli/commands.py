@@ -298,6 +298,7 @@ def export_cmd(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
     to: str = typer.Option(..., "--to", help="mitsuba (Mitsuba 3 XML), mitsuba-dict (the same as JSON: mi.load_dict(doc['bsdf'])), merl (.binary table) or gltf (glTF 2.0 material)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output file."),
+    mitsuba_plastic: str = typer.Option("exact", "--mitsuba-plastic", help="exact: a plastic as a blendbsdf of roughconductor and plastic (exact with smith-rational G); roughplastic: Mitsuba's roughplastic, its error measured with Mitsuba."),
 ):
     """Write the material for a renderer, and print how far the export is from the fit in one line.
 
@@ -310,11 +311,13 @@ def export_cmd(
         formats = ("mitsuba", "mitsuba-dict", "merl", "gltf")
         if to not in formats:
             raise UserError(f"--to {to}: not a format ctfit exports; one of {', '.join(formats)}")
+        if mitsuba_plastic not in ("exact", "roughplastic"):
+            raise UserError(f"--mitsuba-plastic {mitsuba_plastic}: one of exact, roughplastic")
         check_output(output, [material])
         setup_jax()
         from .._export import export_material
 
-        typer.echo(export_material(load_material_file(material), to=to, path=output).line())
+        typer.echo(export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic).line())
 
     run_body(body)
 

@@ -12,7 +12,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "export": ['EXPORT_FORMATS', 'ExportResult', 'export_material'],
         "gltf": ['fit_ggx_roughness', 'gltf_brdf', 'gltf_material'],
         "merl_export": ['merl_lookup', 'merl_model_table'],
-        "mitsuba": ['mitsuba_bsdf', 'mitsuba_target', 'mitsuba_xml'],
+        "mitsuba": ['mitsuba_bsdf', 'mitsuba_target', 'mitsuba_values', 'mitsuba_xml', 'roughplastic_bsdf'],
         "rgb_bands": ['band_to_rgb'],
     },
 )

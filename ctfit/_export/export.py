@@ -12,7 +12,7 @@ from .._model import Material, evaluate_at
 from .error_grid import ERROR_GRID, error_grid_angles, relative_difference
 from .gltf import gltf_brdf, gltf_material
 from .merl_export import merl_lookup, merl_model_table
-from .mitsuba import mitsuba_bsdf, mitsuba_target, mitsuba_xml
+from .mitsuba import mitsuba_bsdf, mitsuba_target, mitsuba_values, mitsuba_xml, roughplastic_bsdf
 from .rgb_bands import band_to_rgb
 
 __all__ = ["EXPORT_FORMATS", "ExportResult", "export_material"]
@@ -78,9 +78,16 @@ def _error(fit, target, approximations) -> dict:
     return {**relative_difference(target, fit), "exact": not approximations, "approximations": approximations, "grid": ERROR_GRID}
 
 
-def _export_mitsuba(material: Material, to: str) -> ExportResult:
-    tree = mitsuba_bsdf(material)
-    error = _error(_grid_values(material), _grid_values(mitsuba_target(material)), _mitsuba_approximations(material))
+def _export_mitsuba(material: Material, to: str, plastic: str) -> ExportResult:
+    fit = _grid_values(material)
+    if plastic == "roughplastic":
+        tree = roughplastic_bsdf(material)
+        notes = ["Mitsuba's roughplastic: rough transmittance tables in its diffuse term"]
+        notes += [n for n in _mitsuba_approximations(material) if "G1" in n or "Gaussian" in n]
+        error = _error(fit, mitsuba_values(tree, material, *error_grid_angles()), notes)
+    else:
+        tree = mitsuba_bsdf(material)
+        error = _error(fit, _grid_values(mitsuba_target(material)), _mitsuba_approximations(material))
     if to == "mitsuba-dict":
         return ExportResult(to, json.dumps({"bsdf": tree, "ctfit_export": error}, indent=2, ensure_ascii=False) + "\n", error)
     spectral = "" if material.is_rgb or len(material.wavelength_nm) == 1 else "; spectra: exact in Mitsuba's *_spectral variants"
@@ -104,8 +111,12 @@ def _export_rgb(material: Material, to: str) -> ExportResult:
     return ExportResult(to, json.dumps(doc, indent=2, ensure_ascii=False) + "\n", error)
 
 
-def export_material(material: Material, to: str = "mitsuba", path=None) -> ExportResult:
+def export_material(material: Material, to: str = "mitsuba", path=None, *, mitsuba_plastic: str = "exact") -> ExportResult:
     """The material in a renderer's format (:data:`EXPORT_FORMATS`), written to ``path`` if given.
+
+    ``mitsuba_plastic="roughplastic"`` writes a plastic as Mitsuba's ``roughplastic`` (one per
+    lobe) instead of the exact ``blendbsdf`` of ``roughconductor`` and ``plastic``; its error is
+    measured with Mitsuba 3 itself (needs the ``mitsuba`` package).
 
     ``docs/export.md`` has the mapping of each structure to its target, and the grid of the
     approximation error (:data:`~ctfit._export.error_grid.ERROR_GRID`) that the result carries
@@ -128,7 +139,9 @@ def export_material(material: Material, to: str = "mitsuba", path=None) -> Expor
     """
     if to not in EXPORT_FORMATS:
         raise ValueError(f"unknown export format {to!r}: one of {', '.join(EXPORT_FORMATS)}")
-    result = _export_mitsuba(material, to) if to.startswith("mitsuba") else _export_rgb(material, to)
+    if mitsuba_plastic not in ("exact", "roughplastic"):
+        raise ValueError(f"mitsuba_plastic must be 'exact' or 'roughplastic', got {mitsuba_plastic!r}")
+    result = _export_mitsuba(material, to, mitsuba_plastic) if to.startswith("mitsuba") else _export_rgb(material, to)
     if path is not None:
         result.write(path)
     return result

@@ -28,9 +28,9 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
-from .._model import Material, normal_reflectance
+from .._model import Material, fresnel_diffuse_reflectance, normal_reflectance
 
-__all__ = ["mitsuba_bsdf", "mitsuba_target", "mitsuba_xml"]
+__all__ = ["mitsuba_bsdf", "mitsuba_target", "mitsuba_values", "mitsuba_xml", "roughplastic_bsdf"]
 
 _F0_MAX = 1 - 1e-6  # F0 = 1 has an infinite effective index
 _PAD_NM = (300.0, 900.0)  # beyond Mitsuba's spectral range (360–830 nm): ctfit holds the end values
@@ -185,3 +185,85 @@ def mitsuba_xml(tree: dict, comments=()) -> str:
     """
     notes = [f"<!-- {str(c).replace('--', '- -')} -->" for c in comments]
     return "\n".join(notes + _xml_lines(tree, 0, True)) + "\n"
+
+
+def roughplastic_bsdf(material: Material) -> dict:
+    """A plastic as Mitsuba's own ``roughplastic`` (a ``blendbsdf`` of one per lobe, weights w_j):
+    approximate — its diffuse term uses rough transmittance tables (``docs/export.md``).
+
+    ``alpha = m_j``, ``int_ior = n``, ``ext_ior = 1``, ``nonlinear = false``,
+    ``specular_reflectance = s`` (4 s for "cook-torrance-1982"), ``diffuse_reflectance`` ρ =
+    π R_d (1 − s) for a transmitted diffuse part, and for a Lambertian one the ρ whose smooth
+    transmitted albedo is π R_d (1 − s): ρ = π R_d (1 − s) n² (1 − F_dr(1/n))/(1 − F_dr(n))².
+
+    Examples
+    --------
+    >>> import numpy as np, ctfit
+    >>> from ctfit._export.mitsuba import roughplastic_bsdf
+    >>> red = ctfit.Material(ctfit.Structure(family="plastic", diffuse="transmitted"),
+    ...                      ctfit.Params(s=np.array(0.5), m=np.array([0.2]), w=np.ones(1), n=np.array(1.5), rd=np.array([0.2, 0.02, 0.02])),
+    ...                      channels=("R", "G", "B"))
+    >>> tree = roughplastic_bsdf(red)
+    >>> tree["type"], tree["specular_reflectance"], [round(v, 4) for v in tree["diffuse_reflectance"]["value"]]
+    ('roughplastic', 0.5, [0.3142, 0.0314, 0.0314])
+    """
+    st, p = material.structure, material.params
+    if st.family != "plastic" or not st.has_specular:
+        raise ValueError(f"material {material.name!r}: roughplastic needs a plastic with a specular part")
+    n = float(np.asarray(p.n).reshape(-1)[0])
+    s = float(p.s) if st.has_s else 1.0
+    rho = np.zeros(1) if not st.has_diffuse else np.pi * (1 - s) * np.asarray(p.rd, float)
+    if st.diffuse in ("spectrum", "constant"):
+        rho = rho * n * n * (1 - float(fresnel_diffuse_reflectance(1 / n))) / (1 - float(fresnel_diffuse_reflectance(n))) ** 2
+    if material.is_rgb:
+        rho = np.minimum(rho, 1.0)
+    scale = 4.0 if st.normalization == "cook-torrance-1982" else 1.0
+    pieces = [(float(w), {"type": "roughplastic", "distribution": "beckmann", "alpha": float(m), "int_ior": n, "ext_ior": 1.0,
+                          "nonlinear": False, "specular_reflectance": s * scale, "diffuse_reflectance": _value(material, rho)})
+              for m, w in zip(np.asarray(p.m, float).reshape(-1), np.asarray(p.w, float).reshape(-1))]
+    return _blend([piece for piece in pieces if piece[0] > 0] or pieces[:1])
+
+
+def mitsuba_values(tree: dict, material: Material, theta_i, phi_i, theta_o, phi_o) -> np.ndarray:
+    """Mitsuba 3's own BRDF of ``tree`` (its ``eval`` over cos θ_o) at directions in degrees, in the
+    material's bands: ``scalar_rgb`` for RGB and one-band materials, ``scalar_spectral`` at the
+    material's wavelengths otherwise. Needs the ``mitsuba`` package; the variant is restored.
+
+    Examples
+    --------
+    >>> import numpy as np, ctfit
+    >>> from ctfit._export.mitsuba import mitsuba_values
+    >>> matte = ctfit.Material(ctfit.Structure(lobes=0, diffuse="constant"), ctfit.Params(rd=np.array(0.1)), channels=("G",))
+    >>> mitsuba_values({"type": "diffuse", "reflectance": 0.5}, matte, [30.0], [0.0], [60.0], [90.0]).round(6).tolist()  # ρ/π
+    [[0.159155]]
+    """
+    try:
+        import mitsuba as mi
+    except ImportError as e:
+        raise ValueError("measuring the error of a Mitsuba plugin ctfit cannot evaluate itself needs Mitsuba 3 (pip install mitsuba)") from e
+    spectral = not material.is_rgb and len(material.wavelength_nm) > 1
+    previous = mi.variant()
+    mi.set_variant("scalar_spectral" if spectral else "scalar_rgb")
+    try:
+        bsdf, ctx, frame = mi.load_dict(tree), mi.BSDFContext(), mi.Frame3f(mi.Vector3f(0, 0, 1))
+        wl = np.asarray(material.wavelength_nm, float) if spectral else np.zeros(1)
+        groups = [np.resize(wl[i:i + 4], 4) for i in range(0, wl.size, 4)]
+        out = []
+        for l, v in zip(_unit(theta_i, phi_i), _unit(theta_o, phi_o)):
+            si = mi.SurfaceInteraction3f()
+            si.sh_frame, si.wi = frame, mi.Vector3f(*l)
+            values = []
+            for g in groups:
+                if spectral:
+                    si.wavelengths = [float(x) for x in g]
+                values.append(np.asarray(bsdf.eval(ctx, si, mi.Vector3f(*v)), float) / v[2])
+            out.append(np.concatenate(values)[:wl.size] if spectral else values[0][: 1 if len(material.band_labels) == 1 else 3])
+        return np.array(out)
+    finally:
+        if previous:
+            mi.set_variant(previous)
+
+
+def _unit(theta_deg, phi_deg):
+    t, p = np.radians(np.asarray(theta_deg, float)), np.radians(np.asarray(phi_deg, float))
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
