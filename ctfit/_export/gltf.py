@@ -111,8 +111,9 @@ def gltf_material(material: Material) -> dict:
 
     A metal: metallic = s (1 without a diffuse part), baseColor = F0 in linear sRGB, and no
     dielectric specular layer (specularFactor 0), so its diffuse part is (1 − s) F0/π — the
-    paper's R_d = F0/π exactly; without a specular part, metallic 0 and baseColor = π R_d. A plastic: metallic 0, ior = n, specularFactor = s (at most 1),
-    baseColor the diffuse part's albedo (1 − s) π R_d × its transmission, over 1 − s F0.
+    paper's R_d = F0/π exactly; without a specular part, metallic 0 and baseColor = π R_d.
+    A plastic: metallic 0, ior = n, specularFactor = s (at most 1), baseColor the diffuse
+    part's albedo (1 − s) π R_d × its transmission, over 1 − s F0.
 
     Examples
     --------
