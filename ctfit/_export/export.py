@@ -83,6 +83,8 @@ def _export_mitsuba(material: Material, to: str, plastic: str) -> ExportResult:
     if plastic == "roughplastic":
         tree = roughplastic_bsdf(material)
         notes = ["Mitsuba's roughplastic: rough transmittance tables in its diffuse term"]
+        if material.structure.diffuse in ("spectrum", "constant"):
+            notes.append("the Lambertian R_d as roughplastic's transmitted diffuse term of the same albedo")
         notes += [n for n in _mitsuba_approximations(material) if "G1" in n or "Gaussian" in n]
         error = _error(fit, mitsuba_values(tree, material, *error_grid_angles()), notes)
     else:
