@@ -295,3 +295,22 @@ def test_roughplastic_on_request_prints_the_error_mitsuba_measures(diffuse, tmp_
     assert _printed(r.stdout) == pytest.approx((median, worst), rel=2e-3) and median > 1e-3
     r = runner.invoke(app, ["export", str(_save(metal(), tmp_path)), "--to", "mitsuba", "--mitsuba-plastic", "roughplastic", "-o", str(tmp_path / "m.xml")])
     assert r.exit_code == 2 and r.output.startswith("error: ") and "roughplastic needs a plastic" in r.output
+
+
+def test_gltf_brdf_is_the_specifications_ggx():
+    """glTF's lobe with F = 1 (metallic 1, white): at normal incidence and view V D = 1/(4 π α²);
+    the directional albedo at 30° is just below 1 for a smooth surface and falls with roughness
+    (single scattering; ≈ 0.8 at roughness 0.6, as the split-sum tables of real-time renderers)."""
+    from scipy.integrate import dblquad
+    from ctfit._export.gltf import gltf_brdf
+
+    def white(rough):
+        return {"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 1.0, "roughnessFactor": rough}}
+
+    peak = gltf_brdf(white(0.5), 0.0, 0.0, 0.0, 0.0)[0]
+    assert peak == pytest.approx(1 / (4 * np.pi * 0.25**2), rel=1e-12)
+    albedo = []
+    for rough in (0.3, 0.6):
+        f = lambda phi, theta: gltf_brdf(white(rough), 30.0, 0.0, np.degrees(theta), np.degrees(phi))[0] * np.cos(theta) * np.sin(theta)  # noqa: E731
+        albedo.append(dblquad(f, 0, np.pi / 2, 0, 2 * np.pi, epsabs=1e-5)[0])
+    assert 0.7 < albedo[1] < 0.9 and 0.97 < albedo[0] < 1.0

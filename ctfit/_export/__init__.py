@@ -8,7 +8,7 @@ import lazy_loader
 __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
-        "error_grid": ['ERROR_GRID', 'error_grid_angles', 'relative_difference'],
+        "error_grid": ['ERROR_GRID', 'error_grid_angles', 'relative_difference', 'unit_directions'],
         "export": ['EXPORT_FORMATS', 'ExportResult', 'export_material'],
         "gltf": ['fit_ggx_roughness', 'gltf_brdf', 'gltf_material'],
         "merl_export": ['merl_lookup', 'merl_model_table'],

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ERROR_GRID", "error_grid_angles", "relative_difference"]
+__all__ = ["ERROR_GRID", "error_grid_angles", "relative_difference", "unit_directions"]
 
 ERROR_GRID = "θ_i, θ_o ∈ {5°, 15°, …, 85°}, φ_i = 0, φ_o ∈ {0°, 20°, …, 340°} (1458 pairs; fit values < 1e-6 × max left out)"
 """The hemisphere grid of every approximation error, in words (printed and written with it)."""
@@ -46,3 +46,16 @@ def relative_difference(target, fit) -> dict:
     keep = fit >= _FLOOR * np.max(fit)
     rel = np.abs(target[keep] - fit[keep]) / fit[keep]
     return {"median": round(float(np.median(rel)), 12), "max": round(float(np.max(rel)), 12)}
+
+
+def unit_directions(theta_deg, phi_deg) -> np.ndarray:
+    """Unit vectors (…, 3) of directions in degrees (normal +z), in NumPy float64.
+
+    Examples
+    --------
+    >>> from ctfit._export.error_grid import unit_directions
+    >>> unit_directions(90.0, 90.0).round(12).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    t, p = np.radians(np.asarray(theta_deg, float)), np.radians(np.asarray(phi_deg, float))
+    return np.stack(np.broadcast_arrays(np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)), axis=-1)

@@ -22,15 +22,16 @@ import dataclasses
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .._model import Material, Params, ambient_reflectance, direction_from_angles_deg, evaluate_at, normal_reflectance
+from .._model import Material, Params, ambient_reflectance, evaluate_at, normal_reflectance
 from .rgb_bands import band_to_rgb
+from .error_grid import unit_directions
 
 __all__ = ["fit_ggx_roughness", "gltf_brdf", "gltf_material"]
 
 
+
 def _cosines(theta_i, phi_i, theta_o, phi_o):
-    l = np.asarray(direction_from_angles_deg(theta_i, phi_i), float)
-    v = np.asarray(direction_from_angles_deg(theta_o, phi_o), float)
+    l, v = unit_directions(theta_i, phi_i), unit_directions(theta_o, phi_o)
     h = l + v
     h = h / np.linalg.norm(h, axis=-1, keepdims=True)
     return l[..., 2], v[..., 2], h[..., 2], np.sum(v * h, axis=-1)

@@ -29,6 +29,7 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 
 from .._model import Material, fresnel_diffuse_reflectance, normal_reflectance
+from .error_grid import unit_directions
 
 __all__ = ["mitsuba_bsdf", "mitsuba_target", "mitsuba_values", "mitsuba_xml", "roughplastic_bsdf"]
 
@@ -249,7 +250,7 @@ def mitsuba_values(tree: dict, material: Material, theta_i, phi_i, theta_o, phi_
         wl = np.asarray(material.wavelength_nm, float) if spectral else np.zeros(1)
         groups = [np.resize(wl[i:i + 4], 4) for i in range(0, wl.size, 4)]
         out = []
-        for l, v in zip(_unit(theta_i, phi_i), _unit(theta_o, phi_o)):
+        for l, v in zip(unit_directions(theta_i, phi_i), unit_directions(theta_o, phi_o)):
             si = mi.SurfaceInteraction3f()
             si.sh_frame, si.wi = frame, mi.Vector3f(*l)
             values = []
@@ -263,7 +264,3 @@ def mitsuba_values(tree: dict, material: Material, theta_i, phi_i, theta_o, phi_
         if previous:
             mi.set_variant(previous)
 
-
-def _unit(theta_deg, phi_deg):
-    t, p = np.radians(np.asarray(theta_deg, float)), np.radians(np.asarray(phi_deg, float))
-    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
