@@ -191,7 +191,7 @@ def test_a_sphere_rendered_by_mitsuba_matches_ctfits_render():
 
 def read_merl_independently(path):
     """A MERL reader from the format description (Matusik et al. 2003, MERL's BRDFRead.cpp), not
-    ctfit's code: three int32 dimensions, then R, G, B tables of doubles, θ_h fastest-varying last;
+X
     look-ups at the lower cell edges, θ_h with its square-root spacing."""
     with open(path, "rb") as f:
         dims = struct.unpack("<3i", f.read(12))
