@@ -51,6 +51,11 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "fresnel_diffuse_reflectance": "._model",
     "transmitted_diffuse_factor": "._model",
     "angles_deg_to_half_diff": "._io",
+    "angles_deg_to_half_diff_deg": "._io",
+    "half_diff_deg_to_angles_deg": "._io",
+    "export_material": "._export",
+    "EXPORT_FORMATS": "._export",
+    "ExportResult": "._export",
     "DataError": "._io",
     "DataWarning": "._io",
     "half_diff_to_angles_deg": "._io",
@@ -197,8 +202,15 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         Structure as Structure,
         v_cavity_reduced as v_cavity_reduced,
     )
+    from ._export import (
+        export_material as export_material,
+        EXPORT_FORMATS as EXPORT_FORMATS,
+        ExportResult as ExportResult,
+    )
     from ._io import (
         angles_deg_to_half_diff as angles_deg_to_half_diff,
+        angles_deg_to_half_diff_deg as angles_deg_to_half_diff_deg,
+        half_diff_deg_to_angles_deg as half_diff_deg_to_angles_deg,
         DataError as DataError,
         DataWarning as DataWarning,
         half_diff_to_angles_deg as half_diff_to_angles_deg,

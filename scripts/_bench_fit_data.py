@@ -89,7 +89,7 @@ def default_start_x0(lobes: int, n_bands: int, diffuse: bool) -> list[float]:
 def write_merl_file(path: Path, pairs: int | None, seed: int) -> int:
     """A MERL table of the one-lobe RGB metal; ``pairs`` cells above the horizon measured (all
     when None), the rest marked unmeasured. Returns the number of samples a reader gets."""
-    angles = lambda th, td, pd: ctfit.half_diff_to_angles_deg(th, td, pd)  # noqa: E731 — every cell's directions, in file order
+    angles = lambda th, td, pd: ctfit.half_diff_deg_to_angles_deg(*(np.degrees(a) for a in (th, td, pd)))  # noqa: E731 — every cell's directions, in file order
     ti, pi, to = (a.reshape(-1) for a in ctfit.merl_table(lambda *c: angles(*c)[:3]))
     po = ctfit.merl_table(lambda *c: angles(*c)[3])[0].reshape(-1)
     above = (ti < 90) & (to < 90)

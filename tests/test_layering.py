@@ -29,7 +29,7 @@ def _table(package: str) -> dict[str, str]:
 
 
 def test_the_concerns_have_their_folders():
-    assert SUBPACKAGES == ["_cli", "_colour", "_fitting", "_io", "_model", "_render", "_runtime", "_sampling"]
+    assert SUBPACKAGES == ["_cli", "_colour", "_export", "_fitting", "_io", "_model", "_render", "_runtime", "_sampling"]
     assert sorted(p.name for p in PACKAGE.glob("*.py")) == ["__init__.py", "cli.py", "internal.py"]
 
 
@@ -123,7 +123,7 @@ def test_scripts_and_notebooks_use_the_public_api():
     assert not found, found
 
 
-LAYERS = ["_model", "_io", "_runtime", "_colour", "_fitting", "_render", "_sampling", "_cli"]
+LAYERS = ["_model", "_io", "_runtime", "_colour", "_fitting", "_render", "_export", "_sampling", "_cli"]
 """Lowest first: a folder imports only folders before it (docs/architecture.md)."""
 
 

@@ -7,8 +7,8 @@ import pytest
 
 from ctfit import (
     DataError,
-    angles_deg_to_half_diff,
-    half_diff_to_angles_deg,
+    angles_deg_to_half_diff_deg,
+    half_diff_deg_to_angles_deg,
     merl_table,
     read_merl,
     write_merl,
@@ -51,23 +51,36 @@ def test_cell_centres_are_the_inverse_of_the_index_mapping():
 
 def test_half_diff_special_configurations():
     # θ_d = 0: light and viewer both along the half vector.
-    ti, pi, to, po = half_diff_to_angles_deg(math.radians(30), 0.0, 1.0)
+    ti, pi, to, po = half_diff_deg_to_angles_deg(30.0, 0.0, math.degrees(1.0))
     assert (ti, pi, to, po) == pytest.approx((30, 0, 30, 0))
     # θ_h = 0: the mirror configuration, θ_i = θ_o = θ_d, φ_o = φ_i + 180.
-    ti, pi, to, po = half_diff_to_angles_deg(0.0, math.radians(40), math.radians(90))
+    ti, pi, to, po = half_diff_deg_to_angles_deg(0.0, 40.0, 90.0)
     assert (ti, pi, to, po) == pytest.approx((40, 90, 40, 270))
     # In the plane of incidence: θ_i = θ_h + θ_d, θ_o = θ_h − θ_d (light on the +x side).
-    ti, pi, to, po = half_diff_to_angles_deg(math.radians(50), math.radians(20), 0.0)
+    ti, pi, to, po = half_diff_deg_to_angles_deg(50.0, 20.0, 0.0)
     assert (ti, pi, to) == pytest.approx((70, 0, 30)) and po == pytest.approx(0, abs=1e-12)
 
 
 def test_half_diff_round_trip():
     rng = np.random.default_rng(0)
-    th, td, pd = rng.uniform(0.01, 0.7, 500), rng.uniform(0.01, 0.7, 500), rng.uniform(-3.1, 3.1, 500)
-    angles = half_diff_to_angles_deg(th, td, pd)
+    th, td, pd = rng.uniform(0.5, 40, 500), rng.uniform(0.5, 40, 500), rng.uniform(-179, 179, 500)
+    angles = half_diff_deg_to_angles_deg(th, td, pd)
     assert max(angles[0].max(), angles[2].max()) < 90
-    back = angles_deg_to_half_diff(*angles)
-    np.testing.assert_allclose(back, (th, td, pd), atol=1e-12)
+    back = angles_deg_to_half_diff_deg(*angles)
+    np.testing.assert_allclose(back, (th, td, pd), atol=1e-10)
+
+
+def test_the_old_radian_names_warn_and_keep_their_meaning():
+    """``half_diff_to_angles_deg`` took radians and ``angles_deg_to_half_diff`` returned them:
+    both still do, with a DeprecationWarning naming the degree functions that replace them."""
+    import ctfit
+
+    with pytest.warns(DeprecationWarning, match="half_diff_deg_to_angles_deg"):
+        old = ctfit.half_diff_to_angles_deg(math.radians(50), math.radians(20), math.radians(30))
+    np.testing.assert_allclose(old, half_diff_deg_to_angles_deg(50.0, 20.0, 30.0), rtol=1e-14)
+    with pytest.warns(DeprecationWarning, match="angles_deg_to_half_diff_deg"):
+        back = ctfit.angles_deg_to_half_diff(*old)
+    np.testing.assert_allclose(np.degrees(back), (50.0, 20.0, 30.0), rtol=1e-12)
 
 
 def test_read_back_a_written_table_end_to_end(merl_file):
@@ -80,7 +93,7 @@ def test_read_back_a_written_table_end_to_end(merl_file):
     assert max(m.theta_i.max(), m.theta_o.max()) < 90 and m.phi_i.min() >= 0 and m.phi_o.max() < 360
     np.testing.assert_array_equal(m.band[:3], [0, 1, 2])  # ordered by cell, then channel
     k = np.random.default_rng(0).choice(len(m), 50_000, replace=False)  # a sample keeps the test fast
-    th, td, pd = angles_deg_to_half_diff(m.theta_i[k], m.phi_i[k], m.theta_o[k], m.phi_o[k])
+    th, td, pd = np.radians(angles_deg_to_half_diff_deg(m.theta_i[k], m.phi_i[k], m.theta_o[k], m.phi_o[k]))
     cell = (merl_theta_h_index(th), merl_theta_d_index(td), merl_phi_d_index(pd))
     np.testing.assert_allclose(m.brdf[k], table[(m.band[k], *cell)], rtol=1e-15)
     # ... and equal the model at the recovered angles (ill-conditioned only where θ_h → 0 and θ_d → 90°).

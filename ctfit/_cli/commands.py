@@ -298,6 +298,35 @@ def color(
 app.command("colour", hidden=True, help="The same as ctfit color.")(color)
 
 
+@app.command("export")
+def export_cmd(
+    material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
+    to: str = typer.Option(..., "--to", help="mitsuba (Mitsuba 3 XML), mitsuba-dict (the same as JSON: mi.load_dict(doc['bsdf'])), merl (.binary table) or gltf (glTF 2.0 material)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Output file."),
+    mitsuba_plastic: str = typer.Option("exact", "--mitsuba-plastic", help="exact: a plastic as a blendbsdf of roughconductor and plastic (exact with smith-rational G); roughplastic: Mitsuba's roughplastic, its error measured with Mitsuba."),
+):
+    """Write the material for a renderer, and print how far the export is from the fit in one line.
+
+    The line (also kept in the output: an XML comment, a JSON field) gives the median and maximum
+    relative difference of the BRDF over a hemisphere grid; docs/export.md has the mapping."""
+
+    def body():
+        from .._io import check_output
+
+        formats = ("mitsuba", "mitsuba-dict", "merl", "gltf")
+        if to not in formats:
+            raise UserError(f"--to {to}: not a format ctfit exports; one of {', '.join(formats)}")
+        if mitsuba_plastic not in ("exact", "roughplastic"):
+            raise UserError(f"--mitsuba-plastic {mitsuba_plastic}: one of exact, roughplastic")
+        check_output(output, [material])
+        setup_jax()
+        from .._export import export_material
+
+        typer.echo(export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic).line())
+
+    run_body(body)
+
+
 def _interrupted_message() -> str:
     """``interrupted``; after a chain was started in an HDF5 backend, the command that resumes it."""
     import shlex

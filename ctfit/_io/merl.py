@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 
 import numpy as np
 
@@ -39,6 +40,8 @@ __all__ = [
     "MERL_SCALE",
     "MERL_SHAPE",
     "angles_deg_to_half_diff",
+    "angles_deg_to_half_diff_deg",
+    "half_diff_deg_to_angles_deg",
     "half_diff_to_angles_deg",
     "merl_cell_centres",
     "merl_phi_d_index",
@@ -114,8 +117,8 @@ def merl_table(fn):
 # --- half/difference angles ---------------------------------------------------------------------
 
 
-def half_diff_to_angles_deg(theta_h, theta_d, phi_d):
-    """(θ_i, φ_i, θ_o, φ_o) in degrees for half/difference angles in radians, with φ_h = 0.
+def half_diff_deg_to_angles_deg(theta_h, theta_d, phi_d):
+    """(θ_i, φ_i, θ_o, φ_o) in degrees for half/difference angles (θ_h, θ_d, φ_d) in degrees, φ_h = 0.
 
     L is the difference vector rotated by θ_h about the y axis, V its mirror about the half
     vector H (Rusinkiewicz 1998). Directions below the horizon come out with θ > 90.
@@ -124,10 +127,67 @@ def half_diff_to_angles_deg(theta_h, theta_d, phi_d):
     --------
     θ_h = 0 puts H on the normal: light and viewer are mirror images at θ_d:
 
-    >>> import numpy as np, ctfit
-    >>> [round(float(a), 6) for a in ctfit.half_diff_to_angles_deg(0.0, np.radians(30.0), 0.0)]
+    >>> import ctfit
+    >>> [round(float(a), 6) for a in ctfit.half_diff_deg_to_angles_deg(0.0, 30.0, 0.0)]
     [30.0, 0.0, 30.0, 180.0]
     """
+    return _half_diff_rad_to_angles_deg(*(np.deg2rad(np.asarray(a, dtype=np.float64)) for a in (theta_h, theta_d, phi_d)))
+
+
+def angles_deg_to_half_diff_deg(theta_i, phi_i, theta_o, phi_o):
+    """(θ_h, θ_d, φ_d) in degrees, φ_d in (−180, 180], for directions in degrees (the inverse of
+    :func:`half_diff_deg_to_angles_deg`).
+
+    Examples
+    --------
+    Light at 40° and viewer at 20° on the same side, in one plane: H bisects them at 30°, 10° from each:
+
+    >>> import ctfit
+    >>> [round(float(a), 6) for a in ctfit.angles_deg_to_half_diff_deg(40.0, 0.0, 20.0, 0.0)]
+    [30.0, 10.0, 0.0]
+    >>> angles = ctfit.half_diff_deg_to_angles_deg(20.0, 30.0, 90.0)
+    >>> [round(float(a), 6) for a in ctfit.angles_deg_to_half_diff_deg(*angles)]  # the round trip
+    [20.0, 30.0, 90.0]
+    """
+    return tuple(np.rad2deg(a) for a in _angles_deg_to_half_diff_rad(theta_i, phi_i, theta_o, phi_o))
+
+
+def half_diff_to_angles_deg(theta_h, theta_d, phi_d):
+    """Deprecated: takes θ_h, θ_d, φ_d in *radians*; use :func:`half_diff_deg_to_angles_deg` (degrees).
+
+    Examples
+    --------
+    >>> import warnings, numpy as np, ctfit
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     angles = ctfit.half_diff_to_angles_deg(0.0, np.radians(30.0), 0.0)
+    >>> caught[0].category.__name__, [round(float(a), 6) for a in angles]
+    ('DeprecationWarning', [30.0, 0.0, 30.0, 180.0])
+    """
+    warnings.warn("half_diff_to_angles_deg takes radians despite its name and is deprecated: "
+                  "use half_diff_deg_to_angles_deg, which takes degrees", DeprecationWarning, stacklevel=2)
+    return _half_diff_rad_to_angles_deg(theta_h, theta_d, phi_d)
+
+
+def angles_deg_to_half_diff(theta_i, phi_i, theta_o, phi_o):
+    """Deprecated: returns θ_h, θ_d, φ_d in *radians*; use :func:`angles_deg_to_half_diff_deg` (degrees).
+
+    Examples
+    --------
+    >>> import warnings, numpy as np, ctfit
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     half = ctfit.angles_deg_to_half_diff(40.0, 0.0, 20.0, 0.0)
+    >>> caught[0].category.__name__, [round(float(np.degrees(a)), 6) for a in half]
+    ('DeprecationWarning', [30.0, 10.0, 0.0])
+    """
+    warnings.warn("angles_deg_to_half_diff returns radians and is deprecated: "
+                  "use angles_deg_to_half_diff_deg, which returns degrees", DeprecationWarning, stacklevel=2)
+    return _angles_deg_to_half_diff_rad(theta_i, phi_i, theta_o, phi_o)
+
+
+def _half_diff_rad_to_angles_deg(theta_h, theta_d, phi_d):
+    """(θ_i, φ_i, θ_o, φ_o) in degrees for half/difference angles in radians, with φ_h = 0."""
     theta_h, theta_d, phi_d = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d)))
     sd, cd = np.sin(theta_d), np.cos(theta_d)
     sh, ch = np.sin(theta_h), np.cos(theta_h)
@@ -137,20 +197,8 @@ def half_diff_to_angles_deg(theta_h, theta_d, phi_d):
     return (*_angles_deg(lx, ly, lz), *_angles_deg(vx, vy, vz))
 
 
-def angles_deg_to_half_diff(theta_i, phi_i, theta_o, phi_o):
-    """(θ_h, θ_d, φ_d) in radians, φ_d in (−π, π], for directions in degrees (inverse of the above).
-
-    Examples
-    --------
-    Light at 40° and viewer at 20° on the same side, in one plane: H bisects them at 30°, 10° from each:
-
-    >>> import numpy as np, ctfit
-    >>> [round(float(np.degrees(a)), 6) for a in ctfit.angles_deg_to_half_diff(40.0, 0.0, 20.0, 0.0)]
-    [30.0, 10.0, 0.0]
-    >>> angles = ctfit.half_diff_to_angles_deg(*np.radians([20.0, 30.0, 90.0]))
-    >>> [round(float(np.degrees(a)), 6) for a in ctfit.angles_deg_to_half_diff(*angles)]  # the round trip
-    [20.0, 30.0, 90.0]
-    """
+def _angles_deg_to_half_diff_rad(theta_i, phi_i, theta_o, phi_o):
+    """(θ_h, θ_d, φ_d) in radians, φ_d in (−π, π], for directions in degrees."""
     l = _unit(theta_i, phi_i)
     v = _unit(theta_o, phi_o)
     h = l + v
@@ -183,7 +231,7 @@ def _cell_directions():
     flat = [np.empty(_CELLS) for _ in range(4)]
     row = MERL_SHAPE[1] * MERL_SHAPE[2]
     for i, t in enumerate(th):
-        for out, a in zip(flat, half_diff_to_angles_deg(t, td[:, None], pd[None, :])):
+        for out, a in zip(flat, _half_diff_rad_to_angles_deg(t, td[:, None], pd[None, :])):
             out[i * row:(i + 1) * row] = a.reshape(-1)
     return flat, (flat[0] < 90) & (flat[2] < 90)
 

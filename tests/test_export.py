@@ -1,0 +1,316 @@
+"""``ctfit export``: Mitsuba 3 (evaluated by Mitsuba itself), MERL (read by a second reader), glTF.
+
+Mitsuba's ``eval`` returns the BRDF × cos θ_o (the cosine is divided out here); it evaluates in
+float32. The hemisphere grid of the approximation error is rebuilt here from ``docs/export.md``.
+"""
+
+import json
+import re
+import struct
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import ctfit
+from ctfit.cli import app
+
+from conftest import ROOT
+
+runner = CliRunner()
+RGB = ("R", "G", "B")
+
+
+def grid():
+    """docs/export.md: θ_i, θ_o ∈ {5°, 15°, …, 85°}, φ_i = 0, φ_o ∈ {0°, 20°, …, 340°}."""
+    theta = np.arange(5.0, 86.0, 10.0)
+    ti, to, po = (a.reshape(-1) for a in np.meshgrid(theta, theta, np.arange(0.0, 341.0, 20.0), indexing="ij"))
+    return ti, np.zeros_like(ti), to, po
+
+
+def relative(target, fit):
+    keep = fit >= 1e-6 * fit.max()
+    rel = np.abs(target[keep] - fit[keep]) / fit[keep]
+    return float(np.median(rel)), float(rel.max())
+
+
+def ctfit_values(mat, angles, **kw):
+    ti, pi, to, po = angles
+    return np.asarray(ctfit.evaluate_at(mat, theta_i=ti, phi_i=pi, theta_o=to, phi_o=po, **kw), float)
+
+
+def unit(theta_deg, phi_deg):
+    t, p = np.radians(theta_deg), np.radians(phi_deg)
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+def mitsuba_values(bsdf, angles, wavelengths=None):
+    """Mitsuba's BRDF at each direction pair (its eval over cos θ_o), one scalar call each."""
+    import mitsuba as mi
+
+    out = []
+    ctx, frame = mi.BSDFContext(), mi.Frame3f(mi.Vector3f(0, 0, 1))
+    for l, v in zip(unit(angles[0], angles[1]), unit(angles[2], angles[3])):
+        si = mi.SurfaceInteraction3f()
+        si.sh_frame, si.wi = frame, mi.Vector3f(*l)
+        if wavelengths is not None:
+            si.wavelengths = wavelengths
+        out.append(np.asarray(bsdf.eval(ctx, si, mi.Vector3f(*v)), float) / v[2])
+    return np.array(out)
+
+
+def metal(geometry="smith-rational", **structure):
+    st = ctfit.Structure(lobes=2, geometry=geometry, diffuse="F0/pi", **structure)
+    return ctfit.Material(st, ctfit.Params(s=np.array(0.8), m=np.array([0.15, 0.4]), w=np.array([0.7, 0.3]), f0=np.array([0.9, 0.6, 0.3])),
+                          channels=RGB, name="metal")
+
+
+def conductor():
+    st = ctfit.Structure(geometry="smith-rational", fresnel="conductor", normalization="cook-torrance-1982")
+    return ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.ones(1), n=np.array([0.2, 0.5, 1.3]), k=np.array([3.5, 2.5, 2.0])), channels=RGB)
+
+
+def plastic(diffuse="transmitted", geometry="smith-rational", s=0.3):
+    st = ctfit.Structure(family="plastic", geometry=geometry, diffuse=diffuse)
+    return ctfit.Material(st, ctfit.Params(s=np.array(s), m=np.array([0.2]), w=np.ones(1), n=np.array(1.5), rd=np.array([0.2, 0.1, 0.05])),
+                          channels=RGB, name="plastic")
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("make", [metal, conductor, plastic, lambda: plastic("spectrum")], ids=["metal", "conductor", "plastic", "lambertian-plastic"])
+def test_smith_rational_materials_are_mitsubas_exactly(make, tmp_path):
+    """The XML (``mi.load_file``) and the dict (``mi.load_dict``) evaluate to ctfit's BRDF to 1e-4
+    relative over the hemisphere grid, and the export says it is exact."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    mat = make()
+    result = ctfit.export_material(mat, to="mitsuba", path=tmp_path / "m.xml")
+    as_dict = json.loads(ctfit.export_material(mat, to="mitsuba-dict").content)
+    assert result.error["exact"] and as_dict["ctfit_export"]["exact"]
+    ours = ctfit_values(mat, grid())
+    for bsdf in (mi.load_file(str(tmp_path / "m.xml")), mi.load_dict(as_dict["bsdf"])):
+        assert relative(mitsuba_values(bsdf, grid()), ours)[1] < 1e-4
+
+
+@pytest.mark.mitsuba
+def test_a_spectral_material_is_exact_in_mitsubas_spectral_variant():
+    """Spectra become ``spectrum`` λ:value lists (held at the end values beyond them, as ctfit does)."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_spectral")
+    wl = np.arange(400.0, 701.0, 20.0)
+    st = ctfit.Structure(geometry="smith-rational", fresnel="conductor", diffuse="spectrum")
+    mat = ctfit.Material(st, ctfit.Params(s=np.array(0.9), m=np.array([0.3]), w=np.ones(1), n=np.linspace(0.2, 1.2, wl.size),
+                                          k=np.linspace(2.0, 4.0, wl.size), rd=np.linspace(0.01, 0.2, wl.size)), wavelength_nm=wl)
+    bsdf = mi.load_string(ctfit.export_material(mat, to="mitsuba").content)
+    at = [380.0, 455.0, 610.0, 760.0]  # between and beyond the listed wavelengths
+    angles = [a[::7] for a in grid()]
+    assert relative(mitsuba_values(bsdf, angles, at), ctfit_values(mat, angles, wavelength_nm=at))[1] < 1e-4
+
+
+@pytest.mark.mitsuba
+def test_roughplastic_is_not_the_transmitted_plastic_but_its_specular_part_is():
+    """Mitsuba's ``roughplastic`` with ``specular_reflectance = s`` is ctfit's s R_s exactly, but its
+    diffuse part uses rough transmittance tables: the difference from ctfit's transmitted diffuse
+    term (the smooth interface's, Mitsuba's ``plastic``) is why the export uses ``plastic`` for it."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    mat = plastic()
+    s, rho = 0.3, np.pi * 0.7 * np.array([0.2, 0.1, 0.05])
+
+    def rough(diffuse):
+        return mi.load_dict({"type": "roughplastic", "distribution": "beckmann", "alpha": 0.2, "int_ior": 1.5, "ext_ior": 1.0,
+                             "nonlinear": False, "specular_reflectance": s, "diffuse_reflectance": {"type": "rgb", "value": list(diffuse)}})
+
+    specular = ctfit.Material(ctfit.Structure(family="plastic", geometry="smith-rational"), ctfit.Params(m=np.array([0.2]), w=np.ones(1), n=np.array(1.5)), channels=RGB)
+    assert relative(mitsuba_values(rough([0.0, 0.0, 0.0]), grid()), s * ctfit_values(specular, grid()) * np.ones(3))[1] < 1e-4
+    median, worst = relative(mitsuba_values(rough(rho), grid()), ctfit_values(mat, grid()))
+    assert median > 1e-3 and worst > 0.1  # docs/export.md gives the figures
+
+
+def _printed(line):
+    found = re.search(r"median (\S+) %, max (\S+) %", line)
+    return float(found[1]) / 100, float(found[2]) / 100
+
+
+@pytest.mark.mitsuba
+def test_the_printed_error_of_the_default_v_cavity_structure_is_right(tmp_path):
+    """``ctfit export`` of a default-structure material (V-cavity G): the printed median and maximum
+    equal those of Mitsuba's evaluation of the written XML against ctfit, recomputed here."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    (tmp_path / "gold.toml").write_text('name = "gold"\ns = 1\nlobes = [{ m = 0.3 }]\nchannels = ["R", "G", "B"]\nF0 = [0.9, 0.7, 0.3]\n')
+    r = runner.invoke(app, ["export", str(tmp_path / "gold.toml"), "--to", "mitsuba", "-o", str(tmp_path / "gold.xml")])
+    assert r.exit_code == 0, r.output
+    assert len(r.stdout.strip().splitlines()) == 1 and "approximate (Mitsuba's G is Smith's rational G1, not the v-cavity G)" in r.stdout
+    xml = (tmp_path / "gold.xml").read_text()
+    assert r.stdout.strip() in xml  # the XML keeps the line in a comment
+    mat = ctfit.load_material(tmp_path / "gold.toml")
+    assert mat.structure == ctfit.Structure()
+    median, worst = relative(mitsuba_values(mi.load_string(xml), grid()), ctfit_values(mat, grid()))
+    printed = _printed(r.stdout)
+    assert printed[1] == pytest.approx(worst, rel=2e-3) and worst > 0.05
+    assert printed[0] == pytest.approx(median, rel=2e-3, abs=1e-5)
+
+
+def _mitsuba_sphere(tree, light, seed, size=32, spp=64):
+    import mitsuba as mi
+
+    return np.asarray(mi.render(mi.load_dict({
+        "type": "scene", "integrator": {"type": "direct"},
+        "sensor": {"type": "orthographic", "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 3], target=[0, 0, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": size, "height": size, "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+                   "sampler": {"type": "independent", "sample_count": spp}},
+        "sphere": {"type": "sphere", "radius": 0.92, "bsdf": tree},  # ctfit's sphere (RADIUS) in the [−1, 1] view
+        "light": {"type": "directional", "direction": [-c for c in light], "irradiance": {"type": "rgb", "value": [1, 1, 1]}},
+    }), seed=seed), float)
+
+
+def _ctfit_sphere(mat, light, size=32, supersample=8):
+    scene = ctfit.render_scene(mat, directions=[tuple(light)], solid_angles=[1.0], ambient=0.0)
+    surf = ctfit.surface_normals("sphere", size, supersample)
+    rgb = np.asarray(ctfit.shade_linear(mat.structure, scene, surf.normal), float) * surf.mask[..., None]
+    return rgb.reshape(size, supersample, size, supersample, 3).mean(axis=(1, 3))
+
+
+@pytest.mark.mitsuba
+def test_a_sphere_rendered_by_mitsuba_matches_ctfits_render():
+    """32 × 32 sphere, orthographic camera, one directional light of irradiance 1 (ctfit: one light
+    of unit solid angle, no ambient), ctfit averaging 8 × 8 samples per pixel, Mitsuba 64 random
+    ones. Mitsuba's noise is measured by a second render with another seed: ctfit differs from the
+    mean of the two by less than their difference, and a material 10 % less specular does not."""
+    pytest.importorskip("mitsuba").set_variant("scalar_rgb")
+    light = np.array([0.75, 0.25, 0.61]) / np.linalg.norm([0.75, 0.25, 0.61])
+    mat = plastic(s=0.4)
+    tree = json.loads(ctfit.export_material(mat, to="mitsuba-dict").content)["bsdf"]
+    a, b = _mitsuba_sphere(tree, light, 0), _mitsuba_sphere(tree, light, 1)
+    noise = np.abs(a - b).mean()
+    assert 0 < noise < 1e-2 * a.max()
+    assert np.abs(_ctfit_sphere(mat, light) - (a + b) / 2).mean() < noise
+    assert np.abs(_ctfit_sphere(plastic(s=0.36), light) - (a + b) / 2).mean() > 3 * noise
+
+
+def read_merl_independently(path):
+    """A MERL reader from the format description (Matusik et al. 2003, MERL's BRDFRead.cpp), not
+X
+    look-ups at the lower cell edges, θ_h with its square-root spacing."""
+    with open(path, "rb") as f:
+        dims = struct.unpack("<3i", f.read(12))
+        data = np.frombuffer(f.read(), "<f8")
+    n = dims[0] * dims[1] * dims[2]
+    assert dims == (90, 90, 180) and data.size == 3 * n
+    scale = (1.0 / 1500, 1.15 / 1500, 1.66 / 1500)
+
+    def lookup(theta_h, theta_d, phi_d):  # radians, φ_d in [0, π)
+        ih = min(int(np.sqrt(theta_h / (np.pi / 2)) * 90), 89) if theta_h > 0 else 0
+        id_ = min(int(theta_d / (np.pi / 2) * 90), 89)
+        ip = min(int(phi_d / np.pi * 180), 179)
+        i = ip + id_ * 180 + ih * 180 * 90
+        return np.array([data[i] * scale[0], data[i + n] * scale[1], data[i + 2 * n] * scale[2]])
+
+    return lookup
+
+
+@pytest.mark.slow
+def test_merl_export_reads_back_with_ctfit_and_an_independent_reader(tmp_path):
+    """Every cell holds the model at its centre: ctfit's reader gives evaluate_at at each sample's
+    directions, and a reader written here from the format finds the same values."""
+    mat = plastic("spectrum", geometry="v-cavity")
+    r = runner.invoke(app, ["export", str(_save(mat, tmp_path)), "--to", "merl", "-o", str(tmp_path / "p.binary")])
+    assert r.exit_code == 0, r.output
+    assert "merl: approximate (tabulated in 90 × 90 × 180 cells of linear sRGB)" in r.stdout
+    m = ctfit.read_merl(tmp_path / "p.binary")
+    k = np.random.default_rng(1).choice(len(m), 3000, replace=False)
+    expected = ctfit_values(mat, (m.theta_i[k], m.phi_i[k], m.theta_o[k], m.phi_o[k]))[np.arange(k.size), m.band[k]]
+    np.testing.assert_allclose(m.brdf[k], expected, rtol=1e-9)
+    lookup = read_merl_independently(tmp_path / "p.binary")
+    rng = np.random.default_rng(2)
+    for i, j, kk in zip(rng.integers(0, 60, 40), rng.integers(0, 45, 40), rng.integers(0, 180, 40)):  # θ_h < 40°, θ_d < 45°
+        th, td, pd = np.pi / 2 * ((i + 0.5) / 90) ** 2, np.pi / 2 * (j + 0.5) / 90, np.pi * (kk + 0.5) / 180  # the cell's centre
+        angles = ctfit.half_diff_deg_to_angles_deg(*np.degrees([th, td, pd]))
+        assert angles[0] < 90 and angles[2] < 90
+        np.testing.assert_allclose(lookup(th, td, pd), ctfit_values(mat, angles), rtol=1e-9)
+
+
+def _save(mat, folder):
+    return ctfit.save_material_json(mat, folder / "material.json")
+
+
+def test_gltf_is_a_minimal_gltf_2_material_with_the_error_it_prints(tmp_path):
+    r = runner.invoke(app, ["export", str(_save(plastic(), tmp_path)), "--to", "gltf", "-o", str(tmp_path / "p.gltf")])
+    assert r.exit_code == 0, r.output
+    doc = json.loads((tmp_path / "p.gltf").read_text())
+    assert doc["asset"]["version"] == "2.0" and set(doc["extensionsUsed"]) == {"KHR_materials_ior", "KHR_materials_specular"}
+    (entry,) = doc["materials"]
+    pbr = entry["pbrMetallicRoughness"]
+    assert len(pbr["baseColorFactor"]) == 4 and all(0 <= c <= 1 for c in pbr["baseColorFactor"])
+    assert pbr["metallicFactor"] == 0 and 0 < pbr["roughnessFactor"] <= 1 and entry["extensions"]["KHR_materials_ior"]["ior"] == 1.5
+    assert entry["extensions"]["KHR_materials_specular"]["specularFactor"] == pytest.approx(0.3)
+    error = entry["extras"]["ctfit_export"]
+    assert not error["exact"] and _printed(r.stdout) == pytest.approx((error["median"], error["max"]), rel=2e-3)
+
+
+def test_gltf_roughness_is_the_least_squares_ggx_fit_and_a_lambertian_surface_is_exact():
+    from ctfit._export.gltf import fit_ggx_roughness
+
+    rough = [fit_ggx_roughness(_one_lobe(m)) for m in (0.05, 0.2, 0.5)]
+    assert rough == sorted(rough) and abs(rough[1] - np.sqrt(0.2)) < 0.1  # α_GGX ≈ m for narrow lobes
+    matte = ctfit.Material(ctfit.Structure(lobes=0, diffuse="constant"), ctfit.Params(rd=np.array(0.2)), channels=("G",))
+    result = ctfit.export_material(matte, to="gltf")
+    assert result.error["max"] < 1e-12
+
+
+def _one_lobe(m):
+    return ctfit.Material(ctfit.Structure(geometry="smith"), ctfit.Params(m=np.array([m]), w=np.ones(1), f0=np.array([0.9])), channels=("G",))
+
+
+def test_a_gaussian_lobe_and_the_papers_normalisation_say_what_is_approximate():
+    result = ctfit.export_material(metal("smith-rational", distribution="gaussian"), to="mitsuba")
+    assert result.error["approximations"] == ["Mitsuba has no Gaussian D: Beckmann with alpha = m"] and result.error["max"] > 0
+    assert ctfit.export_material(conductor(), to="mitsuba").error["exact"]  # cook-torrance-1982: specular_reflectance 4
+
+
+def test_bad_input_is_one_error_line(tmp_path):
+    mat = _save(plastic(), tmp_path)
+    for args, message in [(["--to", "obj"], "--to obj: not a format ctfit exports"), (["--to", "mitsuba", "-o", str(mat)], "")]:
+        argv = ["export", str(mat), *args] + ([] if "-o" in args else ["-o", str(tmp_path / "x")])
+        r = runner.invoke(app, argv)
+        assert r.exit_code == 2 and r.output.startswith("error: ") and len(r.output.strip().splitlines()) == 1 and message in r.output
+    assert json.loads(mat.read_text())["name"] == "plastic"  # the input is untouched
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("diffuse", ["transmitted", "spectrum"])
+def test_roughplastic_on_request_prints_the_error_mitsuba_measures(diffuse, tmp_path):
+    """``--mitsuba-plastic roughplastic``: Mitsuba's own plastic plugin, and the line's figures are
+    Mitsuba's evaluation of the written XML against ctfit, recomputed here."""
+    mi = pytest.importorskip("mitsuba")
+    mat = plastic(diffuse)
+    r = runner.invoke(app, ["export", str(_save(mat, tmp_path)), "--to", "mitsuba", "--mitsuba-plastic", "roughplastic", "-o", str(tmp_path / "p.xml")])
+    assert r.exit_code == 0, r.output
+    assert "approximate (Mitsuba's roughplastic: rough transmittance tables in its diffuse term" in r.stdout
+    mi.set_variant("scalar_rgb")
+    xml = (tmp_path / "p.xml").read_text()
+    assert '<bsdf type="roughplastic" version="3.0.0">' in xml
+    median, worst = relative(mitsuba_values(mi.load_string(xml), grid()), ctfit_values(mat, grid()))
+    assert _printed(r.stdout) == pytest.approx((median, worst), rel=2e-3) and median > 1e-3
+    r = runner.invoke(app, ["export", str(_save(metal(), tmp_path)), "--to", "mitsuba", "--mitsuba-plastic", "roughplastic", "-o", str(tmp_path / "m.xml")])
+    assert r.exit_code == 2 and r.output.startswith("error: ") and "roughplastic needs a plastic" in r.output
+
+
+def test_gltf_brdf_is_the_specifications_ggx():
+    """glTF's lobe with F = 1 (metallic 1, white): at normal incidence and view V D = 1/(4 π α²);
+    the directional albedo at 30° is just below 1 for a smooth surface and falls with roughness
+    (single scattering; ≈ 0.8 at roughness 0.6, as the split-sum tables of real-time renderers)."""
+    from scipy.integrate import dblquad
+    from ctfit._export.gltf import gltf_brdf
+
+    def white(rough):
+        return {"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 1.0, "roughnessFactor": rough}}
+
+    peak = gltf_brdf(white(0.5), 0.0, 0.0, 0.0, 0.0)[0]
+    assert peak == pytest.approx(1 / (4 * np.pi * 0.25**2), rel=1e-12)
+    albedo = []
+    for rough in (0.3, 0.6):
+        f = lambda phi, theta: gltf_brdf(white(rough), 30.0, 0.0, np.degrees(theta), np.degrees(phi))[0] * np.cos(theta) * np.sin(theta)  # noqa: E731
+        albedo.append(dblquad(f, 0, np.pi / 2, 0, 2 * np.pi, epsabs=1e-5)[0])
+    assert 0.7 < albedo[1] < 0.9 and 0.97 < albedo[0] < 1.0
