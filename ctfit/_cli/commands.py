@@ -20,7 +20,7 @@ from typing import List, Optional
 import typer
 
 from .inputs import PARAM_OUT_HELP, load_material_file, parse_wavelengths, read_data, setup_jax
-from .messages import UserError, run_body
+from .messages import UserError, echo, run_body
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
 
@@ -65,7 +65,7 @@ def eval_cmd(
         meta = dict(meas.meta)
         meta.update({"evaluated_by": "ctfit eval", "material": str(material)})
         write_csv(meas.replace(brdf=values, sigma=None, meta=meta), output)
-        typer.echo(f"wrote {len(values)} samples to {output}", err=True)
+        echo(f"wrote {len(values)} samples to {output}", err=True)
 
     run_body(body)
 
@@ -94,7 +94,7 @@ def simulate(
         meas = sim(mat, samples, wavelength_nm=parse_wavelengths(wavelengths), noise=noise, seed=seed, max_theta=max_theta)
         meta = dict(meas.meta, material=str(material))
         write_csv(meas.replace(meta=meta), output)
-        typer.echo(f"wrote {len(meas)} samples ({samples} direction pairs × {meas.n_bands} bands) to {output}", err=True)
+        echo(f"wrote {len(meas)} samples ({samples} direction pairs × {meas.n_bands} bands) to {output}", err=True)
 
     run_body(body)
 
@@ -102,7 +102,7 @@ def simulate(
 @app.command()
 def fit(
     data: List[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary) or folders of them."),
-    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several: a folder)."),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several, a folder of them, a name ending in / or an existing folder: a folder, with summary.json)."),
     as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
     material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),
     lobes: str = typer.Option("1", "--lobes", help="Number of lobes, or 'auto' (1–3, with/without diffuse, by BIC)."),
@@ -115,14 +115,14 @@ def fit(
     starts: int = typer.Option(3, "--starts", min=1, help="Seeds from the grid over m, solved at once."),
     max_steps: int = typer.Option(256, "--max-steps", min=1, help="Solver steps per start (more for a fit that stops short of a minimum)."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP + " A file's own line wins."),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit (one file: this path; several: a folder)."),
+    plot: Optional[str] = typer.Option(None, "--plot", help="Write a PNG (or PDF, SVG, …: the suffix) of data vs fit (one file: this path; several or a folder: a folder, as -o)."),
     sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
     steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="With --sample: steps discarded (fewer than --steps)."),
     thin: int = typer.Option(1, "--thin", min=1, help="With --sample: keep every THIN-th step."),
     seed: int = typer.Option(0, "--seed", help="With --sample: random seed."),
-    backend: Optional[Path] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder)."),
+    backend: Optional[str] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder, as -o)."),
     resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
     overwrite: bool = typer.Option(False, "--overwrite", help="With --sample: start the chain in --backend again (a stored chain is kept otherwise)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars (they show only on a terminal)."),
@@ -222,8 +222,8 @@ def _sample_command(o) -> int:
             o.fit_json, meas, o.walkers, o.steps, o.burn, o.thin, o.seed, o.backend, o.resume, o.plot, o.output,
             progress=progress_enabled(o.quiet), overwrite=o.overwrite, loss=o.loss, idata=o.idata,
         )  # fmt: skip
-    typer.echo(json.dumps(doc, indent=2) if o.as_json else format_uncertainty_table(doc, str(o.data)))
-    typer.echo(f"wrote {o.output or o.fit_json}", err=True)
+    echo(json.dumps(doc, indent=2) if o.as_json else format_uncertainty_table(doc, str(o.data)))
+    echo(f"wrote {o.output or o.fit_json}", err=True)
     return 0 if doc["uncertainty"]["usable"] else SAMPLE_NOT_USABLE
 
 
@@ -255,7 +255,7 @@ def render(
             columns=columns, wavelength_step=step, supersample=supersample, ambient=ambient, exposure=exposure,
         )
         h, w = info["image_shape"][:2]
-        typer.echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
+        echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
 
     run_body(body)
 
@@ -280,10 +280,9 @@ def color(
         mat = load_material_file(material)
         rep = colour_report(mat, angle_deg=angle, illuminant=illuminant, colourspace=colourspace)
         if as_json:
-            typer.echo(json.dumps(rep, indent=2, default=float))
+            echo(json.dumps(rep, indent=2, default=float))
         else:
-            for k, v in rep.items():
-                typer.echo(f"{k:>24}: {v}")
+            echo("\n".join(f"{k:>24}: {v}" for k, v in rep.items()))
 
     run_body(body)
 

@@ -6,17 +6,18 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .fit_command import check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options
+from .fit_command import KEPT, check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options
 from .inputs import read_data, setup_jax
 from .messages import UserError, failure_line
 
 __all__ = ["TEXEL_SUFFIXES", "fit_on_cluster", "fit_texel_command"]
 
 
-def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[str, str]]:
+def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> tuple[list[tuple[str, str]], dict]:
     """--workers / --scheduler: files whose stored result was fitted from the same bytes with the
     same options are skipped; the others are fitted by ``fit_many`` on the cluster and each is
-    reported and written as its task completes. ``summary.json`` goes beside the results."""
+    reported and written as its task completes. Returns the outcomes and the inputs' hashes
+    (for ``summary.json``, which the command writes beside the results)."""
     from .._runtime import dask_client
     from .._fitting import fit_many, input_sha256
     from .._runtime import echo
@@ -33,7 +34,7 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[t
         if kept is None:
             pending.append(path)
         else:
-            outcomes[path] = (kept, f"{path}{_KEPT}")
+            outcomes[path] = (kept, f"{path}{KEPT}")
 
     def done(i: int, got) -> None:
         path = pending[i]
@@ -54,10 +55,7 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[t
         with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
             fit_many([str(p) for p in pending], st, client, material=base, param_out=o.param_out, return_errors=True, on_result=done,
                      progress=show, **kw)
-    ordered = [outcomes[p] for p in files]
-    if len(files) > 1:
-        _write_summary(Path(o.output) / "summary.json", files, ordered, plan, hashes)
-    return ordered
+    return [outcomes[p] for p in files], hashes
 
 
 TEXEL_SUFFIXES = (".zarr", ".nc", ".h5", ".hdf5")
@@ -95,9 +93,6 @@ def fit_texel_command(o) -> int:
     return 0 if converged == total else 1
 
 
-_KEPT = " (kept: fitted earlier from the same input)"
-
-
 def _fit_options_record(o) -> dict:
     """The options a stored result was fitted with (a re-run keeps it only if they are equal)."""
     from .._fitting import input_sha256
@@ -118,17 +113,3 @@ def _kept_result(target, sha: str, options: dict) -> str | None:
     if not isinstance(fit, dict) or doc.get("input_sha256") != sha or doc.get("fit_options") != options:
         return None
     return "converged" if fit.get("converged") is True else "not converged"
-
-
-def _write_summary(target: Path, files: list[Path], outcomes: list[tuple[str, str]], plan: dict, hashes: dict) -> None:
-    """``summary.json``: per file its outcome, result file, input hash and (failed) the reason."""
-    from .._io import atomic_write
-
-    rows = []
-    for path, (outcome, what) in zip(files, outcomes):
-        rows.append(dict(data=str(path), outcome=outcome, kept=what.endswith(_KEPT),
-                         result=None if outcome == "failed" else str(plan[path].json), input_sha256=hashes.get(path),
-                         reason=what if outcome == "failed" else None))
-    count = {k: sum(r["outcome"] == k for r in rows) for k in ("converged", "not converged", "failed")}
-    atomic_write(target, [json.dumps(dict(files=len(rows), **count, results=rows), indent=2) + "\n"])
-    echo_wrote(target)
