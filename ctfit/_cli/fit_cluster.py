@@ -72,6 +72,7 @@ def fit_texel_command(o) -> int:
         raise UserError("texel data: give -o MAPS.zarr (the parameter maps are written there as a Zarr store)")
     if o.sample_ or o.material is not None or o.lobes == "auto" or o.as_json or o.backend is not None:
         raise UserError("texel data: fits with --lobes N only; leave out --sample, --material, --lobes auto, --json and --backend")
+    _check_texel_outputs(o)
     setup_jax(o.float32)
     check_fit_choices(o)
     st = structure_from_options(None, int(o.lobes), o.geometry, o.fresnel, o.diffuse)
@@ -91,6 +92,22 @@ def fit_texel_command(o) -> int:
             for png in save_map_pngs(maps, o.plot):
                 echo_wrote(png)
     return 0 if converged == total else 1
+
+
+def _check_texel_outputs(o) -> None:
+    """The maps store -o is not the input nor inside it, and the folder --plot can hold the PNGs."""
+    import os
+
+    from .._io import check_output_folder, same_file
+
+    data, out = o.data[0], o.output
+    if same_file(out, data):
+        raise UserError(f"-o {out}: is the input {data}; write the maps to another store")
+    inside = os.path.realpath(out).startswith(os.path.realpath(data).rstrip(os.sep) + os.sep)
+    if inside or os.path.normpath(os.path.abspath(out)).startswith(os.path.normpath(os.path.abspath(data)) + os.sep):
+        raise UserError(f"-o {out}: is inside the input {data}; write the maps to another store")
+    if o.plot is not None:
+        check_output_folder(o.plot, "--plot")
 
 
 def _fit_options_record(o) -> dict:

@@ -134,6 +134,18 @@ def _destination(path: str) -> str:
     return os.path.realpath(path)
 
 
+def _write_in_place(path: str, chunks) -> None:
+    """Write into a device or pipe; a pipe whose reader has gone (``-o /dev/stdout | head``) ends the write quietly."""
+    try:
+        with open(path, "wb") as f:
+            for chunk in chunks:
+                f.write(chunk.encode("utf-8") if isinstance(chunk, str) else chunk)
+    except BrokenPipeError:
+        return
+    except OSError as e:
+        raise _named(e, path, None) from None
+
+
 def atomic_write(path, chunks) -> None:
     """Write ``chunks`` (all ``str`` or all ``bytes``) to a new file beside ``path``, then rename it
     over ``path``: readers see the old file or the whole new one, never a part.
@@ -151,9 +163,7 @@ def atomic_write(path, chunks) -> None:
     if os.path.isdir(path):
         raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", path)
     if writes_in_place(path):
-        with open(path, "wb") as f:
-            for chunk in chunks:
-                f.write(chunk.encode("utf-8") if isinstance(chunk, str) else chunk)
+        _write_in_place(path, chunks)
         return
     target = _destination(path)
     try:

@@ -115,9 +115,12 @@ def check_output(path, inputs=(), *, option: str = "-o", chosen: bool = False) -
     path = Path(path)
     if writes_in_place(path):  # nothing there to lose (a terminal may be both input and output)
         return path
+    limit = _name_max(path.parent)
+    if len(os.fsencode(path.name)) > limit:
+        raise OutputError(f"{_at(option, path)}: the file name is {len(os.fsencode(path.name))} bytes long; the file system takes at most {limit}")
     mine = _identity(path)  # once, compared with every input's (each looked up once per run)
     for inp in inputs:
-        if inp is not None and mine & _input_identity(os.fspath(inp)):
+        if inp is not None and mine & _input_identity(os.path.abspath(inp)):
             raise OutputError(f"{_at(option, path)}: is the input {inp}; write the result to another file")
     if path.is_dir():
         raise OutputError(f"{_at(option, path)}: is a folder; give a file name")
@@ -126,9 +129,6 @@ def check_output(path, inputs=(), *, option: str = "-o", chosen: bool = False) -
             f"{_at(option, path.parent)}: {path} is a symbolic link (to {os.readlink(path)}); results are not written "
             "through links in an output folder: remove the link or choose another folder"
         )
-    limit = _name_max(path.parent)
-    if len(os.fsencode(path.name)) > limit:
-        raise OutputError(f"{_at(option, path)}: the file name is {len(os.fsencode(path.name))} bytes long; the file system takes at most {limit}")
     target = Path(os.path.realpath(path)) if path.is_symlink() else path  # written through: check where it leads
     if target.exists():
         _writable_file(target, path, option)
