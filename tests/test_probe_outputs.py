@@ -308,3 +308,27 @@ with dask_client(workers=1) as client:
 def test_ctrl_c_with_a_local_cluster_leaves_no_semaphore_behind(tmp_path):
     r = subprocess.run([sys.executable, "-c", _CLUSTER], capture_output=True, text=True, timeout=180, env=_env(tmp_path), cwd=tmp_path)
     assert (r.returncode, r.stderr) == (130, "interrupted\n")
+
+
+# --- beyond the list ---------------------------------------------------------------------------
+
+
+def test_a_read_only_folder_is_refused_even_for_root(tmp_path, no_work):
+    folder = tmp_path / "kept"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        r = run("simulate", MATERIAL, "-o", folder / "x.csv")
+        assert r.exit_code == 2 and f"the folder {folder} is not writable (mode dr-xr-xr-x)" in r.output, r.output
+    finally:
+        folder.chmod(0o755)
+    assert list(folder.iterdir()) == []
+
+
+def test_a_link_that_leads_to_itself_is_refused(tmp_path, no_work):
+    loop = tmp_path / "loop"
+    loop.symlink_to("loop")
+    r = run("simulate", MATERIAL, "-o", loop)
+    assert r.exit_code == 2 and "is a symbolic link that leads to itself" in r.output, r.output
+    assert loop.is_symlink()
+

@@ -8,6 +8,7 @@ The writing itself is :func:`ctfit._io.files.atomic_write`.
 
 from __future__ import annotations
 
+import errno
 import functools
 import json
 import os
@@ -58,6 +59,14 @@ def same_file(a, b) -> bool:
     return bool(_identity(a) & _identity(b))
 
 
+def _loops(path: Path) -> bool:
+    try:
+        os.stat(path)
+    except OSError as e:
+        return e.errno == errno.ELOOP
+    return False
+
+
 def _name_max(folder: Path) -> int:
     """The longest file name, in bytes, that the file system of ``folder`` (or its nearest existing parent) takes."""
     for p in (folder, *folder.parents):
@@ -81,8 +90,9 @@ def _folder_ok(folder: Path, shown: Path, option: str) -> None:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OutputError(f"{_at(option, shown)}: cannot create the folder {folder} ({e.strerror})") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise OutputError(f"{_at(option, shown)}: the folder {folder} is not writable")
+    mode = folder.stat().st_mode
+    if not os.access(folder, os.W_OK | os.X_OK) or not mode & 0o222:  # no write bit: refused even for root
+        raise OutputError(f"{_at(option, shown)}: the folder {folder} is not writable (mode {stat.filemode(mode)})")
 
 
 def _writable_file(path: Path, shown: Path, option: str) -> None:
@@ -122,6 +132,8 @@ def check_output(path, inputs=(), *, option: str = "-o", chosen: bool = False) -
     for inp in inputs:
         if inp is not None and mine & _input_identity(os.path.abspath(inp)):
             raise OutputError(f"{_at(option, path)}: is the input {inp}; write the result to another file")
+    if path.is_symlink() and not os.path.exists(path) and _loops(path):
+        raise OutputError(f"{_at(option, path)}: is a symbolic link that leads to itself; remove it or choose another name")
     if path.is_dir():
         raise OutputError(f"{_at(option, path)}: is a folder; give a file name")
     if chosen and path.is_symlink():
