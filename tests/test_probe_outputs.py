@@ -21,6 +21,7 @@ from ctfit._io.output_paths import OutputError, check_output
 from ctfit.cli import app
 
 from conftest import ROOT
+from test_outputs import no_work  # noqa: F401 — the fixture: a command that starts work before checking its outputs fails
 
 MATERIAL = ROOT / "configs" / "copper-vase.toml"
 SMALL = ("--samples", 30, "--wavelengths", "450:650:100")
@@ -38,18 +39,6 @@ def _ctfit(*args):
 def _env(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "HOME"}
     return dict(env, HOME=str(tmp_path / "home"), MPLBACKEND="Agg", JAX_PLATFORMS="cpu", CTFIT_PROGRESS="0")
-
-
-@pytest.fixture
-def no_work(monkeypatch):
-    """Fail the test if a command gets as far as setting up JAX."""
-    from ctfit._cli import commands, fit_cluster, fit_command
-
-    def setup(*a, **k):
-        raise AssertionError("the command started its work before checking its outputs")
-
-    for module in (commands, fit_command, fit_cluster):
-        monkeypatch.setattr(module, "setup_jax", setup)
 
 
 @pytest.fixture
@@ -332,3 +321,17 @@ def test_a_link_that_leads_to_itself_is_refused(tmp_path, no_work):
     assert r.exit_code == 2 and "is a symbolic link that leads to itself" in r.output, r.output
     assert loop.is_symlink()
 
+
+
+def test_a_trailing_slash_names_a_folder_where_a_file_is_wanted(tmp_path, no_work):
+    (tmp_path / "d.csv").write_text("x\n")
+    (tmp_path / "f.json").write_text("{}")
+    for args, option in [
+        (("simulate", MATERIAL, "-o", f"{tmp_path / 'new'}/"), "-o"),
+        (("eval", MATERIAL, tmp_path / "d.csv", "-o", f"{tmp_path / 'new'}/"), "-o"),
+        (("render", MATERIAL, "-o", f"{tmp_path / 'new'}/"), "-o"),
+        (("sample", tmp_path / "f.json", tmp_path / "d.csv", "--idata", f"{tmp_path / 'new'}/"), "--idata"),
+    ]:
+        r = run(*args)
+        assert (r.exit_code, r.output) == (2, f"error: {option} {tmp_path / 'new'}/: ends with '/', so it names a folder; give a file name\n")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.csv", "f.json"]

@@ -19,7 +19,7 @@ from typing import List, Optional
 
 import typer
 
-from .inputs import PARAM_OUT_HELP, load_material_file, parse_wavelengths, read_data, setup_jax
+from .inputs import PARAM_OUT_HELP, load_material_file, output_file, parse_wavelengths, read_data, setup_jax
 from .messages import UserError, echo, run_body
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
@@ -45,7 +45,7 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version, is
 def eval_cmd(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
     data: Path = typer.Argument(..., help="Measurement CSV (a 'brdf' column is optional and replaced)."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output CSV."),
+    output_text: str = typer.Option(..., "-o", "--output", help="Output CSV."),
     float32: bool = typer.Option(False, "--float32", help="Evaluate in float32 (default float64)."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP),
 ):
@@ -54,6 +54,7 @@ def eval_cmd(
     def body():
         from .._io import check_output
 
+        output = output_file(output_text)
         check_output(output, [material, data])
         setup_jax(float32)
         from .._io import write_csv
@@ -73,7 +74,7 @@ def eval_cmd(
 @app.command()
 def simulate(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output CSV."),
+    output_text: str = typer.Option(..., "-o", "--output", help="Output CSV."),
     samples: int = typer.Option(2000, "--samples", min=1, help="Direction pairs (each measured in every band)."),
     seed: int = typer.Option(0, "--seed"),
     noise: float = typer.Option(0.0, "--noise", min=0.0, help="Relative Gaussian noise (0.02 = 2 %); adds a sigma column."),
@@ -85,6 +86,7 @@ def simulate(
     def body():
         from .._io import check_output
 
+        output = output_file(output_text)
         check_output(output, [material])
         setup_jax()
         from .._io import write_csv
@@ -158,7 +160,7 @@ fit, runs to a prior bound, or the data do not constrain a parameter): the table
 def sample_cmd(
     fit_json: Path = typer.Argument(..., help="Fit-result JSON (a material TOML needs -o)."),
     data: Path = typer.Argument(..., help="The measurement the material was fitted to."),
-    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
     as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
     loss: Optional[str] = typer.Option(None, "--loss", help="absolute, relative, sigma, cosine or log (default: the fit's); another than the fit's fits again first."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
@@ -166,11 +168,11 @@ def sample_cmd(
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
     thin: int = typer.Option(1, "--thin", min=1, help="Keep every THIN-th step."),
     seed: int = typer.Option(0, "--seed"),
-    backend: Optional[Path] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
+    backend: Optional[str] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file (its chain is lost)."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Folder for the corner and spectral-band PNGs."),
-    idata: Optional[Path] = typer.Option(None, "--idata", help="Also write the chain as ArviZ netCDF (az.from_netcdf) to this file."),
+    idata: Optional[str] = typer.Option(None, "--idata", help="Also write the chain as ArviZ netCDF (az.from_netcdf) to this file."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar (shown only on a terminal)."),
 ):
@@ -195,6 +197,7 @@ def _check_sample_options(o) -> Path:
         raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
     if o.loss is not None and o.loss not in LOSSES:
         raise UserError(f"--loss must be one of {', '.join(LOSSES)}, got {o.loss!r}")
+    o.output, o.backend, o.idata = output_file(o.output), output_file(o.backend, "--backend"), output_file(o.idata, "--idata")
     target = check_output(o.output or o.fit_json, [o.data], option="-o" if o.output else "")
     if o.backend is not None:
         check_backend(o.backend, [o.fit_json, o.data, target], resume=o.resume, overwrite=o.overwrite)
@@ -230,7 +233,7 @@ def _sample_command(o) -> int:
 @app.command()
 def render(
     materials: List[Path] = typer.Argument(..., help="Material TOML or fit-result JSON files, one tile each."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output PNG."),
+    output_text: str = typer.Option(..., "-o", "--output", help="Output PNG."),
     size: int = typer.Option(256, "--size", min=8, help="Tile side in pixels."),
     shape: str = typer.Option("sphere", "--shape", help="sphere or vase."),
     compare: Optional[Path] = typer.Option(None, "--compare", help="Measurement file: show the one MATERIAL beside a rendering that uses the nearest measured BRDF."),
@@ -246,6 +249,7 @@ def render(
     def body():
         from .._io import check_output
 
+        output = output_file(output_text)
         check_output(output, [*materials, compare])
         setup_jax(float32=True)  # float32 is plenty for images
         from .render_command import render_command_body
