@@ -66,7 +66,9 @@ def test_batch_goes_on_after_a_bad_file_and_summarises(tmp_path):
     lines = summary(r.stderr)
     assert [line.split()[0] for line in lines] == ["converged", "failed", "converged"]
     assert "theta_o" in lines[1]
-    assert sorted(p.name for p in out.iterdir()) == ["a.fit.json", "c.fit.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["a.fit.json", "c.fit.json", "summary.json"]
+    rows = json.loads((out / "summary.json").read_text())["results"]
+    assert [(row["outcome"], row["result"]) for row in rows] == [("converged", str(out / "a.fit.json")), ("failed", None), ("converged", str(out / "c.fit.json"))]
     assert r.stdout.count("fit of ") == 2
 
 
@@ -87,7 +89,7 @@ def test_same_file_names_in_two_folders_get_distinct_results(tmp_path):
     r = run("fit", a, b, "--no-diffuse", "--lobes", "1", "-o", out, "--plot", plots)
     assert r.exit_code == 0, r.output
     docs = {p.name: json.loads(p.read_text()) for p in out.iterdir()}
-    assert sorted(docs) == ["a-x.fit.json", "b-x.fit.json"]
+    assert sorted(docs) == ["a-x.fit.json", "b-x.fit.json", "summary.json"]
     assert docs["a-x.fit.json"]["lobes"][0]["m"] == pytest.approx(0.2, rel=0.02)
     assert docs["b-x.fit.json"]["lobes"][0]["m"] == pytest.approx(0.4, rel=0.02)
     assert sorted(p.name for p in plots.iterdir()) == ["a-x.fit.png", "b-x.fit.png"]
@@ -199,7 +201,7 @@ def test_progress_bars_off_without_a_terminal_and_on_when_forced(tmp_path, monke
     assert BAR.search(r.stderr) and "0/2" in r.stderr
     # A 'wrote' line clears the bar first: what a terminal shows on that line is the message alone.
     wrote = [line.split("\r")[-1] for line in r.stderr.split("\n") if "wrote" in line]
-    assert wrote == [f"wrote {out / 'a.fit.json'}", f"wrote {out / 'b.fit.json'}"]
+    assert wrote == [f"wrote {out / 'a.fit.json'}", f"wrote {out / 'b.fit.json'}", f"wrote {out / 'summary.json'}"]
     r = run("fit", data, "--no-diffuse", "--lobes", "1", "--quiet")
     assert r.exit_code == 0 and not BAR.search(r.stderr)
 

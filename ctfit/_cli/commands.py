@@ -19,8 +19,8 @@ from typing import List, Optional
 
 import typer
 
-from .inputs import PARAM_OUT_HELP, load_material_file, parse_wavelengths, read_data, setup_jax
-from .messages import UserError, run_body
+from .inputs import PARAM_OUT_HELP, load_material_file, output_file, parse_wavelengths, read_data, setup_jax
+from .messages import UserError, echo, run_body
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
 
@@ -45,7 +45,7 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version, is
 def eval_cmd(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
     data: Path = typer.Argument(..., help="Measurement CSV (a 'brdf' column is optional and replaced)."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output CSV."),
+    output_text: str = typer.Option(..., "-o", "--output", help="Output CSV."),
     float32: bool = typer.Option(False, "--float32", help="Evaluate in float32 (default float64)."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP),
 ):
@@ -54,6 +54,7 @@ def eval_cmd(
     def body():
         from .._io import check_output
 
+        output = output_file(output_text)
         check_output(output, [material, data])
         setup_jax(float32)
         from .._io import write_csv
@@ -65,7 +66,7 @@ def eval_cmd(
         meta = dict(meas.meta)
         meta.update({"evaluated_by": "ctfit eval", "material": str(material)})
         write_csv(meas.replace(brdf=values, sigma=None, meta=meta), output)
-        typer.echo(f"wrote {len(values)} samples to {output}", err=True)
+        echo(f"wrote {len(values)} samples to {output}", err=True)
 
     run_body(body)
 
@@ -73,7 +74,7 @@ def eval_cmd(
 @app.command()
 def simulate(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output CSV."),
+    output_text: str = typer.Option(..., "-o", "--output", help="Output CSV."),
     samples: int = typer.Option(2000, "--samples", min=1, help="Direction pairs (each measured in every band)."),
     seed: int = typer.Option(0, "--seed"),
     noise: float = typer.Option(0.0, "--noise", min=0.0, help="Relative Gaussian noise (0.02 = 2 %); adds a sigma column."),
@@ -85,6 +86,7 @@ def simulate(
     def body():
         from .._io import check_output
 
+        output = output_file(output_text)
         check_output(output, [material])
         setup_jax()
         from .._io import write_csv
@@ -94,7 +96,7 @@ def simulate(
         meas = sim(mat, samples, wavelength_nm=parse_wavelengths(wavelengths), noise=noise, seed=seed, max_theta=max_theta)
         meta = dict(meas.meta, material=str(material))
         write_csv(meas.replace(meta=meta), output)
-        typer.echo(f"wrote {len(meas)} samples ({samples} direction pairs × {meas.n_bands} bands) to {output}", err=True)
+        echo(f"wrote {len(meas)} samples ({samples} direction pairs × {meas.n_bands} bands) to {output}", err=True)
 
     run_body(body)
 
@@ -102,7 +104,7 @@ def simulate(
 @app.command()
 def fit(
     data: List[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary, RGL .bsdf) or folders of them."),
-    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several: a folder)."),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several, a folder of them, a name ending in / or an existing folder: a folder, with summary.json)."),
     as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
     material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),
     family: str = typer.Option("auto", "--family", help="metal (F0(λ), or n, k), plastic (one real index n, its own R_d(λ)) or auto (chosen by the data, BIC)."),
@@ -117,14 +119,14 @@ def fit(
     starts: int = typer.Option(3, "--starts", min=1, help="Seeds from the grid over m, solved at once."),
     max_steps: int = typer.Option(256, "--max-steps", min=1, help="Solver steps per start (more for a fit that stops short of a minimum)."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP + " A file's own line wins."),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="Write a PNG of data vs fit, polar plots per incidence angle and the residual map over (θ_h, θ_d) (one file: this path; several: a folder)."),
+    plot: Optional[str] = typer.Option(None, "--plot", help="Write a PNG (or PDF, SVG, …: the suffix) of data vs fit, polar plots per incidence angle and the residual map over (θ_h, θ_d) (one file: this path; several or a folder: a folder, as -o)."),
     sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
     steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="With --sample: steps discarded (fewer than --steps)."),
     thin: int = typer.Option(1, "--thin", min=1, help="With --sample: keep every THIN-th step."),
     seed: int = typer.Option(0, "--seed", help="With --sample: random seed."),
-    backend: Optional[Path] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder)."),
+    backend: Optional[str] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder, as -o)."),
     resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
     overwrite: bool = typer.Option(False, "--overwrite", help="With --sample: start the chain in --backend again (a stored chain is kept otherwise)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars (they show only on a terminal)."),
@@ -160,7 +162,7 @@ fit, runs to a prior bound, or the data do not constrain a parameter): the table
 def sample_cmd(
     fit_json: Path = typer.Argument(..., help="Fit-result JSON (a material TOML needs -o)."),
     data: Path = typer.Argument(..., help="The measurement the material was fitted to."),
-    output: Optional[Path] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
     as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
     loss: Optional[str] = typer.Option(None, "--loss", help="absolute, relative, sigma, cosine or log (default: the fit's); another than the fit's fits again first."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
@@ -168,11 +170,11 @@ def sample_cmd(
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
     thin: int = typer.Option(1, "--thin", min=1, help="Keep every THIN-th step."),
     seed: int = typer.Option(0, "--seed"),
-    backend: Optional[Path] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
+    backend: Optional[str] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file (its chain is lost)."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Folder for the corner and spectral-band PNGs."),
-    idata: Optional[Path] = typer.Option(None, "--idata", help="Also write the chain as ArviZ netCDF (az.from_netcdf) to this file."),
+    idata: Optional[str] = typer.Option(None, "--idata", help="Also write the chain as ArviZ netCDF (az.from_netcdf) to this file."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar (shown only on a terminal)."),
 ):
@@ -197,6 +199,7 @@ def _check_sample_options(o) -> Path:
         raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
     if o.loss is not None and o.loss not in LOSSES:
         raise UserError(f"--loss must be one of {', '.join(LOSSES)}, got {o.loss!r}")
+    o.output, o.backend, o.idata = output_file(o.output), output_file(o.backend, "--backend"), output_file(o.idata, "--idata")
     target = check_output(o.output or o.fit_json, [o.data], option="-o" if o.output else "")
     if o.backend is not None:
         check_backend(o.backend, [o.fit_json, o.data, target], resume=o.resume, overwrite=o.overwrite)
@@ -224,15 +227,15 @@ def _sample_command(o) -> int:
             o.fit_json, meas, o.walkers, o.steps, o.burn, o.thin, o.seed, o.backend, o.resume, o.plot, o.output,
             progress=progress_enabled(o.quiet), overwrite=o.overwrite, loss=o.loss, idata=o.idata,
         )  # fmt: skip
-    typer.echo(json.dumps(doc, indent=2) if o.as_json else format_uncertainty_table(doc, str(o.data)))
-    typer.echo(f"wrote {o.output or o.fit_json}", err=True)
+    echo(json.dumps(doc, indent=2) if o.as_json else format_uncertainty_table(doc, str(o.data)))
+    echo(f"wrote {o.output or o.fit_json}", err=True)
     return 0 if doc["uncertainty"]["usable"] else SAMPLE_NOT_USABLE
 
 
 @app.command()
 def render(
     materials: List[Path] = typer.Argument(..., help="Material TOML or fit-result JSON files, one tile each."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output PNG."),
+    output_text: str = typer.Option(..., "-o", "--output", help="Output PNG."),
     size: int = typer.Option(256, "--size", min=8, help="Tile side in pixels."),
     shape: str = typer.Option("sphere", "--shape", help="sphere or vase."),
     compare: Optional[Path] = typer.Option(None, "--compare", help="Measurement file: show the one MATERIAL beside a rendering that uses the nearest measured BRDF."),
@@ -249,6 +252,7 @@ def render(
     def body():
         from .._io import check_output
 
+        output = output_file(output_text)
         check_output(output, [*materials, compare])
         setup_jax(float32=True)  # float32 is plenty for images
         from .render_command import render_command_body
@@ -258,10 +262,10 @@ def render(
             columns=columns, wavelength_step=step, supersample=supersample, ambient=ambient, exposure=exposure, delta_e=delta_e,
         )
         h, w = info["image_shape"][:2]
-        typer.echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
+        echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
         if info["delta_e"] is not None:
             d = info["delta_e"]
-            typer.echo(f"ΔE2000 over the sphere: median {d['median']:.2f}, 95th percentile {d['p95']:.2f} "
+            echo(f"ΔE2000 over the sphere: median {d['median']:.2f}, 95th percentile {d['p95']:.2f} "
                        f"({d['coverage']:.0%} of the lit sphere inside the measured domain)", err=True)
 
     run_body(body)
@@ -287,10 +291,9 @@ def color(
         mat = load_material_file(material)
         rep = colour_report(mat, angle_deg=angle, illuminant=illuminant, colourspace=colourspace)
         if as_json:
-            typer.echo(json.dumps(rep, indent=2, default=float))
+            echo(json.dumps(rep, indent=2, default=float))
         else:
-            for k, v in rep.items():
-                typer.echo(f"{k:>24}: {v}")
+            echo("\n".join(f"{k:>24}: {v}" for k, v in rep.items()))
 
     run_body(body)
 
@@ -322,7 +325,7 @@ def export_cmd(
         setup_jax()
         from .._export import export_material
 
-        typer.echo(export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic).line())
+        echo(export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic).line())
 
     run_body(body)
 

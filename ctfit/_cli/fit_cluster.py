@@ -6,17 +6,18 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .fit_command import check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options
+from .fit_command import KEPT, check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options
 from .inputs import read_data, setup_jax
 from .messages import UserError, failure_line
 
 __all__ = ["TEXEL_SUFFIXES", "fit_on_cluster", "fit_texel_command"]
 
 
-def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[str, str]]:
+def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> tuple[list[tuple[str, str]], dict]:
     """--workers / --scheduler: files whose stored result was fitted from the same bytes with the
     same options are skipped; the others are fitted by ``fit_many`` on the cluster and each is
-    reported and written as its task completes. ``summary.json`` goes beside the results."""
+    reported and written as its task completes. Returns the outcomes and the inputs' hashes
+    (for ``summary.json``, which the command writes beside the results)."""
     from .._runtime import dask_client
     from .._fitting import fit_many, input_sha256
     from .._runtime import echo
@@ -33,7 +34,7 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[t
         if kept is None:
             pending.append(path)
         else:
-            outcomes[path] = (kept, f"{path}{_KEPT}")
+            outcomes[path] = (kept, f"{path}{KEPT}")
 
     def done(i: int, got) -> None:
         path = pending[i]
@@ -54,10 +55,7 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> list[t
         with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
             fit_many([str(p) for p in pending], st, client, material=base, param_out=o.param_out, return_errors=True, on_result=done,
                      progress=show, **kw)
-    ordered = [outcomes[p] for p in files]
-    if len(files) > 1:
-        _write_summary(Path(o.output) / "summary.json", files, ordered, plan, hashes)
-    return ordered
+    return [outcomes[p] for p in files], hashes
 
 
 TEXEL_SUFFIXES = (".zarr", ".nc", ".h5", ".hdf5")
@@ -74,6 +72,7 @@ def fit_texel_command(o) -> int:
         raise UserError("texel data: give -o MAPS.zarr (the parameter maps are written there as a Zarr store)")
     if o.sample_ or o.material is not None or o.as_json or o.backend is not None:
         raise UserError("texel data: leave out --sample, --material, --json and --backend")
+    _check_texel_outputs(o)
     st = structure_from_options(None, o)
     if st is None:
         raise UserError("texel data: every texel is fitted with one structure; give --family, --diffuse and --lobes N (not auto)")
@@ -97,7 +96,20 @@ def fit_texel_command(o) -> int:
     return 0 if converged == total else 1
 
 
-_KEPT = " (kept: fitted earlier from the same input)"
+def _check_texel_outputs(o) -> None:
+    """The maps store -o is not the input nor inside it, and the folder --plot can hold the PNGs."""
+    import os
+
+    from .._io import check_output_folder, same_file
+
+    data, out = o.data[0], o.output
+    if same_file(out, data):
+        raise UserError(f"-o {out}: is the input {data}; write the maps to another store")
+    inside = os.path.realpath(out).startswith(os.path.realpath(data).rstrip(os.sep) + os.sep)
+    if inside or os.path.normpath(os.path.abspath(out)).startswith(os.path.normpath(os.path.abspath(data)) + os.sep):
+        raise UserError(f"-o {out}: is inside the input {data}; write the maps to another store")
+    if o.plot is not None:
+        check_output_folder(o.plot, "--plot")
 
 
 def _fit_options_record(o) -> dict:
@@ -120,17 +132,3 @@ def _kept_result(target, sha: str, options: dict) -> str | None:
     if not isinstance(fit, dict) or doc.get("input_sha256") != sha or doc.get("fit_options") != options:
         return None
     return "converged" if fit.get("converged") is True else "not converged"
-
-
-def _write_summary(target: Path, files: list[Path], outcomes: list[tuple[str, str]], plan: dict, hashes: dict) -> None:
-    """``summary.json``: per file its outcome, result file, input hash and (failed) the reason."""
-    from .._io import atomic_write
-
-    rows = []
-    for path, (outcome, what) in zip(files, outcomes):
-        rows.append(dict(data=str(path), outcome=outcome, kept=what.endswith(_KEPT),
-                         result=None if outcome == "failed" else str(plan[path].json), input_sha256=hashes.get(path),
-                         reason=what if outcome == "failed" else None))
-    count = {k: sum(r["outcome"] == k for r in rows) for k in ("converged", "not converged", "failed")}
-    atomic_write(target, [json.dumps(dict(files=len(rows), **count, results=rows), indent=2) + "\n"])
-    echo_wrote(target)

@@ -10,7 +10,19 @@ from types import SimpleNamespace
 from .inputs import load_material_file, read_data, setup_jax
 from .messages import UserError, failure_line
 
-__all__ = ["UNUSABLE", "check_fit_choices", "echo_wrote", "fit_command", "fit_exit_status", "fit_kwargs", "report_file", "structure_from_options"]
+__all__ = [
+    "KEPT",
+    "SUMMARY",
+    "UNUSABLE",
+    "check_fit_choices",
+    "echo_wrote",
+    "fit_command",
+    "fit_exit_status",
+    "fit_kwargs",
+    "report_file",
+    "structure_from_options",
+    "write_summary",
+]
 
 
 DIFFUSE_CHOICES = ("auto", "none", "F0/pi", "spectrum", "constant", "transmitted")
@@ -58,17 +70,64 @@ def fit_command(o) -> int:
 
     _check_fit_options(o)
     if len(o.data) == 1 and o.data[0].suffix.lower() in TEXEL_SUFFIXES:
-        return fit_texel_command(o)
-    files = _expand(o.data)
+        return fit_texel_command(_paths(o))
+    o.folders = {k: _names_folder(getattr(o, k)) for k in ("output", "plot", "backend")}
+    files = _expand(_paths(o).data)
+    if len(files) > 1 or any(p.is_dir() for p in o.data):
+        o.folders = dict.fromkeys(o.folders, True)  # several files, or a folder of them: results in folders
+    plan = _fit_plan(files, o)
     setup_jax(o.float32)
     check_fit_choices(o)
-    plan = _fit_plan(files, o)
     base = load_material_file(o.material) if o.material else None
     if o.workers is not None or o.scheduler is not None:
-        outcomes = fit_on_cluster(files, o, base, plan, progress_enabled(o.quiet))
+        outcomes, hashes = fit_on_cluster(files, o, base, plan, progress_enabled(o.quiet))
     else:
-        outcomes = _fit_each(files, o, base, plan, progress_enabled(o.quiet))
+        outcomes, hashes = _fit_each(files, o, base, plan, progress_enabled(o.quiet)), {}
+    if o.output is not None and o.folders["output"]:
+        write_summary(o.output / SUMMARY, files, outcomes, plan, hashes)
     return fit_exit_status(outcomes)
+
+
+SUMMARY = "summary.json"
+"""The name of the summary that a run writing its results into a folder (``-o OUTDIR``) puts there."""
+
+KEPT = " (kept: fitted earlier from the same input)"
+
+
+def _names_folder(value) -> bool:
+    """Whether an output option names a folder: it ends with a slash or is an existing folder."""
+    import os
+
+    return value is not None and (str(value).endswith(("/", os.sep)) or os.path.isdir(value))
+
+
+def _paths(o):
+    """``o`` with its output options (given as text, to see a trailing slash) as paths."""
+    for k in ("output", "plot", "backend"):
+        if isinstance(getattr(o, k), str):
+            setattr(o, k, Path(getattr(o, k)))
+    return o
+
+
+def write_summary(target: Path, files: list[Path], outcomes: list[tuple[str, str]], plan: dict, hashes: dict) -> None:
+    """``summary.json``: per file its outcome, result file, input hash and (failed) the reason."""
+    from .._fitting import input_sha256
+    from .._io import atomic_write
+
+    def sha(path):
+        try:
+            return hashes[path] if path in hashes else input_sha256(path)
+        except OSError:
+            return None
+
+    rows = []
+    for path, (outcome, what) in zip(files, outcomes):
+        rows.append(dict(data=str(path), outcome=outcome, kept=what.endswith(KEPT),
+                         result=None if outcome == "failed" else str(plan[path].json), input_sha256=sha(path),
+                         reason=what if outcome == "failed" else None))
+    count = {k: sum(r["outcome"] == k for r in rows) for k in ("converged", "not converged", "failed")}
+    atomic_write(target, [json.dumps(dict(files=len(rows), **count, results=rows), indent=2) + "\n"])
+    echo_wrote(target)
 
 
 def _check_fit_options(o) -> None:
@@ -129,26 +188,44 @@ def check_fit_choices(o) -> None:
 def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     """Every file's targets (json, plot, backend; None: not written) and name, checked before any work.
 
-    One file: the paths given; several: distinct files in the folders given (``result_targets``).
+    An option that names a file (one input file): that path; one that names a folder (``o.folders``:
+    several files, a folder of them, a trailing slash, an existing folder): distinct files in it
+    (``result_targets``), none a symbolic link, and ``summary.json`` beside the results.
     """
     from .._io import check_backend, check_output, check_output_folder, result_targets
 
     many = len(files) > 1
 
-    def targets(value, option, suffix, check):
+    def targets(key, value, option, suffix, check):
         if value is None:
             return dict.fromkeys(files)
-        found = result_targets(files, check_output_folder(value, option=option), suffix) if many else {files[0]: Path(value)}
-        return {p: check(target) for p, target in found.items()}
+        if not o.folders[key]:
+            return {files[0]: check(Path(value), False)}
+        found = result_targets(files, check_output_folder(value, option=option), suffix)
+        return {p: check(target, True) for p, target in found.items()}
 
-    def chain(target):
-        return check_backend(target, files, resume=o.resume, overwrite=o.overwrite)
+    def chain(target, chosen):
+        return check_backend(target, files, resume=o.resume, overwrite=o.overwrite, chosen=chosen)
 
-    json_ = targets(o.output, "-o", ".fit.json", lambda t: check_output(t, files, option="-o"))
-    plot = targets(o.plot, "--plot", ".fit.png", lambda t: check_output(t, files, option="--plot"))
-    backend = targets(o.backend if o.sample_ else None, "--backend", ".h5", chain)
+    json_ = targets("output", o.output, "-o", ".fit.json", lambda t, c: check_output(t, files, option="-o", chosen=c))
+    plot = targets("plot", o.plot, "--plot", ".fit.png", lambda t, c: _plot_format(check_output(t, files, option="--plot", chosen=c)))
+    backend = targets("backend", o.backend if o.sample_ else None, "--backend", ".h5", chain)
+    if o.output is not None and o.folders["output"]:
+        check_output(o.output / SUMMARY, files, option="-o", chosen=True)
     names = result_targets(files, Path(), "") if many else {files[0]: Path(files[0].stem)}
     return {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
+
+
+def _plot_format(path: Path) -> Path:
+    """Refuse, before any work, a plot file whose suffix names no format matplotlib writes."""
+    if not path.suffix:
+        return path  # PNG
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if path.suffix[1:].lower() not in formats:
+        raise UserError(f"--plot {path}: matplotlib writes no {path.suffix} files; give a name ending in {', '.join('.' + f for f in sorted(formats))}")
+    return path
 
 
 def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[str, str]]:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from .messages import UserError
 
-__all__ = ["PARAM_OUT_HELP", "load_material_file", "parse_wavelengths", "read_data", "setup_jax"]
+__all__ = ["PARAM_OUT_HELP", "load_material_file", "output_file", "parse_wavelengths", "read_data", "setup_jax"]
 
 
 def setup_jax(float32: bool = False):
@@ -17,6 +17,17 @@ def setup_jax(float32: bool = False):
     from .._runtime import enable_compilation_cache
 
     enable_compilation_cache()
+
+
+def output_file(value: str | None, option: str = "-o") -> Path | None:
+    """An output option that names one file, as a path; one that ends with a slash (a folder) is refused."""
+    import os
+
+    if value is None:
+        return None
+    if value.endswith(("/", os.sep)):
+        raise UserError(f"{option} {value}: ends with '/', so it names a folder; give a file name")
+    return Path(value)
 
 
 def load_material_file(path: Path):

@@ -6,11 +6,12 @@ Input errors print one ``error:`` line and exit with status 2; warnings print as
 
 from __future__ import annotations
 
+import errno
 import re
 
 import typer
 
-__all__ = ["UserError", "cli_message", "failure_line", "run_body", "show_warning"]
+__all__ = ["UserError", "cli_message", "echo", "failure_line", "os_error_text", "run_body", "show_warning"]
 
 
 class UserError(Exception):
@@ -59,14 +60,40 @@ def run_body(fn):
         try:
             return fn()
         except UserError as e:
-            typer.echo(f"error: {e}", err=True)
+            echo(f"error: {e}", err=True)
             raise typer.Exit(2)
-        except (ValueError, OSError, KeyError) as e:
-            typer.echo(f"error: {cli_message(str(e))}", err=True)
+        except OSError as e:
+            echo(f"error: {os_error_text(e)}", err=True)
             raise typer.Exit(2)
+        except (ValueError, KeyError) as e:
+            echo(f"error: {cli_message(str(e))}", err=True)
+            raise typer.Exit(2)
+
+
+def echo(text: str, *, err: bool = False) -> None:
+    """One line on stdout (stderr with ``err``), as ``ctfit._runtime.echo``: a closed pipe is not an error."""
+    from .._runtime import echo as write
+
+    write(text, err=err)
+
+
+_PLAIN = {errno.ENOENT: "no such file", errno.EISDIR: "is a folder, not a file", errno.ENOTDIR: "a part of the path is a file, not a folder",
+          errno.EACCES: "permission denied", errno.EPERM: "not permitted", errno.ENAMETOOLONG: "the name is too long",
+          errno.ENOSPC: "no space left on the device", errno.EROFS: "the file system is read-only"}
+
+
+def os_error_text(e: OSError) -> str:
+    """``PATH: reason`` in plain words for an error of the system (``[Errno 2] …`` → ``x.csv: no such file``)."""
+    if e.errno is None or e.strerror is None:
+        return cli_message(str(e))
+    import os
+
+    own = e.strerror != os.strerror(e.errno)  # ctfit's own words (``the file is read-only …``)
+    reason = e.strerror if own else _PLAIN.get(e.errno, e.strerror[:1].lower() + e.strerror[1:])
+    return f"{e.filename}: {reason}" if e.filename is not None else reason
 
 
 def failure_line(path, err: Exception) -> str:
     """``PATH: reason`` for a file that failed among several (the reason in the CLI's words)."""
-    message = cli_message(str(err))
+    message = os_error_text(err) if isinstance(err, OSError) else cli_message(str(err))
     return message if message.startswith(f"{path}:") else f"{path}: {message}"

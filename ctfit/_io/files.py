@@ -5,14 +5,25 @@ from __future__ import annotations
 import errno
 import io
 import os
+import re
 import stat
 
 from .errors import DataError
 from .interrupt import deferred
 
-__all__ = ["atomic_save", "atomic_write", "read_text", "read_utf8", "remove_temporaries", "writes_in_place"]
+__all__ = [
+    "TEMPORARY",
+    "atomic_save",
+    "atomic_write",
+    "read_text",
+    "read_utf8",
+    "remove_stale_temporaries",
+    "remove_temporaries",
+    "replace_links_in",
+    "writes_in_place",
+]
 
-_temporaries: set[str] = set()  # writes under way
+_temporaries: dict[str, tuple[str, bool]] = {}  # writes under way: temporary → (the user's path, whether a file is there)
 
 
 def read_utf8(path) -> bytes:
@@ -66,52 +77,128 @@ def _named(err: OSError, path: str, tmp: str) -> OSError:
     return err
 
 
+TEMPORARY = re.compile(r"^\.ctfit-(\d+)-[0-9a-f]{8}\.tmp$")
+"""The name of a write's temporary file: ``.ctfit-PID-RANDOM.tmp`` beside its target (fixed
+length, whatever the target's name; the PID says which process writes it)."""
+
+_swept: set[str] = set()  # folders already cleared of stale temporaries by this process
+_replacing: set[str] = set()  # folders whose links are replaced, not written through
+
+
+def replace_links_in(folder) -> None:
+    """Atomic writes into ``folder`` replace a symbolic link found at the target's name
+    instead of writing through it: for output folders whose file names ``ctfit`` chooses."""
+    _replacing.add(os.path.abspath(os.fspath(folder)))
+
+
+def _alive(pid: int, since: float) -> bool:
+    """Whether process ``pid`` runs and started no later than ``since`` (not a reused PID)."""
+    import psutil
+
+    try:
+        return psutil.Process(pid).create_time() <= since + 1.0
+    except (psutil.NoSuchProcess, psutil.ZombieProcess):
+        return False
+    except psutil.Error:  # another user's process: not ours to judge
+        return True
+
+
+def remove_stale_temporaries(folder) -> list[str]:
+    """Remove the temporaries (:data:`TEMPORARY`) that a killed ``ctfit`` left in ``folder``:
+    this user's, whose process has ended (or whose PID now belongs to a later process).
+    Returns the names removed. Done once per folder by the first write into it."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = TEMPORARY.match(entry.name)
+        if m is None or entry.path in _temporaries:
+            continue
+        try:
+            st = entry.stat(follow_symlinks=False)
+            if st.st_uid != os.getuid() or not stat.S_ISREG(st.st_mode) or _alive(int(m[1]), st.st_mtime):
+                continue
+            os.unlink(entry.path)
+            removed.append(entry.name)
+        except OSError:
+            pass
+    return removed
+
+
+def _destination(path: str) -> str:
+    """Where the write goes: a link's target, or (in a folder of :func:`replace_links_in`) the link itself."""
+    if os.path.islink(path) and os.path.dirname(os.path.abspath(path)) in _replacing:
+        return os.path.abspath(path)
+    return os.path.realpath(path)
+
+
+def _write_in_place(path: str, chunks) -> None:
+    """Write into a device or pipe; a pipe whose reader has gone (``-o /dev/stdout | head``) ends the write quietly."""
+    try:
+        with open(path, "wb") as f:
+            for chunk in chunks:
+                f.write(chunk.encode("utf-8") if isinstance(chunk, str) else chunk)
+    except BrokenPipeError:
+        return
+    except OSError as e:
+        raise _named(e, path, None) from None
+
+
 def atomic_write(path, chunks) -> None:
     """Write ``chunks`` (all ``str`` or all ``bytes``) to a new file beside ``path``, then rename it
     over ``path``: readers see the old file or the whole new one, never a part.
 
-    A symbolic link stays a link: the file it leads to is replaced. A device, a FIFO or
-    ``/dev/stdout`` is written straight into (:func:`writes_in_place`). A file whose mode has no
-    write bit is not replaced (``PermissionError``, even for root); the new file keeps the old
-    one's permissions. Errors name ``path``, never the temporary file, which is removed on any
-    error. In the ``ctfit`` command a Ctrl-C waits for the write to end (``_io/interrupt.py``).
+    A symbolic link stays a link: the file it leads to is replaced (in a folder of
+    :func:`replace_links_in`, the link itself is replaced). A device, a FIFO or ``/dev/stdout``
+    is written straight into (:func:`writes_in_place`). A file whose mode has no write bit is
+    not replaced (``PermissionError``, even for root); the new file keeps the old one's
+    permissions. Errors name ``path``, never the temporary file (:data:`TEMPORARY`), which is
+    removed on any error; the first write into a folder removes stale ones
+    (:func:`remove_stale_temporaries`). In the ``ctfit`` command a Ctrl-C during the write
+    removes the temporary file and keeps the old one, and says so (``_io/interrupt.py``).
     """
     path = os.fspath(path)
     if os.path.isdir(path):
         raise IsADirectoryError(errno.EISDIR, "is a folder, not a file", path)
     if writes_in_place(path):
-        with open(path, "wb") as f:
-            for chunk in chunks:
-                f.write(chunk.encode("utf-8") if isinstance(chunk, str) else chunk)
+        _write_in_place(path, chunks)
         return
-    target = os.path.realpath(path)
+    target = _destination(path)
     try:
-        mode = stat.S_IMODE(os.stat(target).st_mode)
+        mode = stat.S_IMODE(os.stat(target, follow_symlinks=False).st_mode)
     except FileNotFoundError:
         mode = None
+    if mode is not None and os.path.islink(target):
+        mode = None  # a link replaced by a new file: the umask's mode
     if mode is not None and not mode & 0o222:
         raise PermissionError(errno.EACCES, "the file is read-only (no write permission); not replaced", path)
-    folder, name = os.path.split(target)
-    tmp = os.path.join(folder, f".{name}.{os.getpid()}.{os.urandom(4).hex()}.tmp")
-    with deferred():
-        _temporaries.add(tmp)
-        try:
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
-            with os.fdopen(fd, "wb") as f:
-                if mode is not None:
-                    os.fchmod(f.fileno(), mode)
-                for chunk in chunks:
-                    f.write(chunk.encode("utf-8") if isinstance(chunk, str) else chunk)
-                f.flush()
-                os.fsync(f.fileno())
+    folder = os.path.dirname(target)
+    if folder not in _swept:
+        _swept.add(folder)
+        remove_stale_temporaries(folder)
+    tmp = os.path.join(folder, f".ctfit-{os.getpid()}-{os.urandom(4).hex()}.tmp")
+    _temporaries[tmp] = (path, mode is not None or os.path.lexists(target))
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
+        with os.fdopen(fd, "wb") as f:
+            if mode is not None:
+                os.fchmod(f.fileno(), mode)
+            for chunk in chunks:
+                f.write(chunk.encode("utf-8") if isinstance(chunk, str) else chunk)
+            f.flush()
+            os.fsync(f.fileno())
+        with deferred(done=f"{path} was written in full"):
             os.replace(tmp, target)
-        except BaseException as e:
-            remove_temporaries([tmp])
-            if isinstance(e, OSError):
-                raise _named(e, path, tmp) from None
-            raise
-        finally:
-            _temporaries.discard(tmp)
+            _temporaries.pop(tmp, None)
+    except BaseException as e:
+        remove_temporaries([tmp])
+        if isinstance(e, OSError):
+            raise _named(e, path, tmp) from None
+        raise
+    finally:
+        _temporaries.pop(tmp, None)
 
 
 def atomic_save(path, save) -> None:
@@ -122,11 +209,17 @@ def atomic_save(path, save) -> None:
     atomic_write(path, [buffer.getvalue()])
 
 
-def remove_temporaries(paths=None) -> None:
+def remove_temporaries(paths=None) -> list[str]:
     """Remove the temporary files of writes under way (all of them by default): for an exit that
-    cannot wait for them to finish (Ctrl-C, see ``_io/interrupt.py``)."""
+    cannot wait for them to finish (Ctrl-C, see ``_io/interrupt.py``). Returns what that means
+    for each file: ``"PATH was not written (its old content is kept)"`` (or ``"… not created"``)."""
+    said = []
     for tmp in list(_temporaries if paths is None else paths):
+        path, existed = _temporaries.get(tmp, (None, False))
         try:
             os.unlink(tmp)
         except OSError:
-            pass
+            continue
+        if path is not None:
+            said.append(f"{path} was not written (its old content is kept)" if existed else f"{path} was not created")
+    return said

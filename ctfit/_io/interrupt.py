@@ -2,8 +2,10 @@
 
 :func:`install` (called by ``cli.main``) replaces Python's KeyboardInterrupt with an immediate
 exit: the line is printed and the process leaves with ``os._exit(130)``. Nothing needs to
-unwind: atomic writes run in :func:`deferred` (their temporary file is also removed), and so do
-the HDF5 chain's writes, so a SIGINT during one takes effect when it ends. An exception would
+unwind: an atomic write under way is abandoned (its temporary file removed, the old file kept,
+and the line says so), its final rename runs in :func:`deferred`, and so do the HDF5 chain's
+writes, so a SIGINT during one takes effect when it ends. A Dask cluster made by the command is
+shut down first (:func:`on_interrupt`), so that its processes leave nothing behind. An exception would
 not do: one raised inside a callback (JAX's garbage-collection hook) or an import inside a C
 extension is swallowed or printed as a traceback, and a normal interpreter exit while XLA's
 threads still compile can crash (exit 139). Python runs signal handlers only between
@@ -21,11 +23,12 @@ import sys
 import threading
 from typing import Callable
 
-__all__ = ["deferred", "exit_interrupted", "install", "note_resumable", "resumable"]
+__all__ = ["deferred", "exit_interrupted", "install", "note_resumable", "on_interrupt", "resumable"]
 
 _WAIT_WRITES_S = 30.0  # the longest the watcher waits for a deferred write
 _guard = threading.RLock()  # held by deferred writes; the watcher takes it before exiting
 _exiting = threading.Lock()  # taken once, by whichever thread exits
+_cleanups: list[Callable[[], None]] = []  # run before an interrupted exit (on_interrupt)
 _state = {"depth": 0, "pending": False, "installed": False, "message": lambda: "interrupted", "resumable": None}
 
 
@@ -47,25 +50,49 @@ def _handler(signum, frame):
 
 
 @contextlib.contextmanager
-def deferred():
-    """Hold a SIGINT back until the block ends, for a write that must be whole. Without
-    :func:`install` (a library user), Ctrl-C behaves as usual."""
+def deferred(done: str | None = None):
+    """Hold a SIGINT back until the block ends, for a write that must be whole; ``done``: what
+    the interrupted line adds when the block ended normally (``"X was written in full"``).
+    Without :func:`install` (a library user), Ctrl-C behaves as usual."""
     with _guard:
         _state["depth"] += 1
+        ended = False
         try:
             yield
+            ended = True
         finally:
             _state["depth"] -= 1
             if not _state["depth"] and _state["pending"] and threading.current_thread() is threading.main_thread():
-                exit_interrupted(_state["message"]())
+                exit_interrupted(_state["message"](), [done] if ended and done else [])
 
 
-def exit_interrupted(message: str) -> None:
-    """Print ``message`` on stderr as one line and end the process with status 130, at once."""
+def on_interrupt(cleanup: Callable[[], None]) -> Callable[[], None]:
+    """Run ``cleanup()`` before an interrupted exit (a Dask cluster shut down cleanly); returns
+    the function that withdraws it (call it once the resource is closed)."""
+    _cleanups.append(cleanup)
+    return lambda: _cleanups.remove(cleanup) if cleanup in _cleanups else None
+
+
+def _run_cleanups() -> None:
+    for cleanup in reversed(list(_cleanups)):
+        try:
+            cleanup()
+        except BaseException:  # noqa: BLE001 — leaving anyway: a cleanup that fails is skipped
+            pass
+
+
+def exit_interrupted(message: str, notes=()) -> None:
+    """Print ``message`` on stderr as one line and end the process with status 130, at once.
+
+    Writes under way are abandoned (their temporary files removed): the line says which files
+    were not written and kept their old content; ``notes`` adds what else to say. Cleanups
+    (:func:`on_interrupt`) run first."""
     _exiting.acquire()  # a second caller waits here until the first has ended the process
     from .files import remove_temporaries
 
-    remove_temporaries()
+    notes = [*notes, *remove_temporaries()]
+    _run_cleanups()
+    message = "; ".join([message, *notes])
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

@@ -8,19 +8,21 @@ The writing itself is :func:`ctfit._io.files.atomic_write`.
 
 from __future__ import annotations
 
+import errno
 import functools
 import json
 import os
 import stat
 from pathlib import Path
 
-from .files import writes_in_place
+from .files import replace_links_in, writes_in_place
 
 __all__ = [
     "OutputError",
     "check_output",
     "check_output_folder",
     "check_backend",
+    "same_file",
     "result_targets",
     "unconverged_target",
 ]
@@ -30,21 +32,49 @@ class OutputError(ValueError):
     """An output path that would lose or damage a file, or cannot be written; the message names it."""
 
 
-def _identity(p: Path):
-    """What makes two paths the same file: device and inode where it exists, else the resolved path."""
-    try:
-        st = p.stat()
-        return ("inode", st.st_dev, st.st_ino)
-    except OSError:
-        return ("path", str(p.resolve()))
+def _identity(p) -> frozenset:
+    """What makes two paths the same file: the physical path (links followed; ``..`` after a
+    folder that does not exist yet, as the system will take it once the folder is made), the
+    lexical one (``os.path.normpath``), and the device and inode of whichever exists. Two paths
+    are the same file when they share any of these."""
+    found = set()
+    for q in {os.path.realpath(p), os.path.normpath(os.path.abspath(p))}:
+        found.add(("path", q))
+        try:
+            st = os.stat(q)
+            found.add(("inode", st.st_dev, st.st_ino))
+        except OSError:
+            pass
+    return frozenset(found)
 
 
 @functools.lru_cache(maxsize=4096)
-def _input_identity(p: str):
+def _input_identity(p: str) -> frozenset:
     """:func:`_identity` of an input, looked up once per run (inputs are read, never written)."""
-    return _identity(Path(p))
+    return _identity(p)
 
 
+def same_file(a, b) -> bool:
+    """Whether the paths ``a`` and ``b`` name one file (:func:`_identity`: links, hard links, ``..``)."""
+    return bool(_identity(a) & _identity(b))
+
+
+def _loops(path: Path) -> bool:
+    try:
+        os.stat(path)
+    except OSError as e:
+        return e.errno == errno.ELOOP
+    return False
+
+
+def _name_max(folder: Path) -> int:
+    """The longest file name, in bytes, that the file system of ``folder`` (or its nearest existing parent) takes."""
+    for p in (folder, *folder.parents):
+        try:
+            return os.pathconf(p, "PC_NAME_MAX")
+        except (OSError, ValueError):
+            continue
+    return 255
 
 
 def _at(option: str, path) -> str:
@@ -60,8 +90,9 @@ def _folder_ok(folder: Path, shown: Path, option: str) -> None:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OutputError(f"{_at(option, shown)}: cannot create the folder {folder} ({e.strerror})") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise OutputError(f"{_at(option, shown)}: the folder {folder} is not writable")
+    mode = folder.stat().st_mode
+    if not os.access(folder, os.W_OK | os.X_OK) or not mode & 0o222:  # no write bit: refused even for root
+        raise OutputError(f"{_at(option, shown)}: the folder {folder} is not writable (mode {stat.filemode(mode)})")
 
 
 def _writable_file(path: Path, shown: Path, option: str) -> None:
@@ -78,25 +109,38 @@ def _writable_file(path: Path, shown: Path, option: str) -> None:
         )
 
 
-def check_output(path, inputs=(), *, option: str = "-o") -> Path:
+def check_output(path, inputs=(), *, option: str = "-o", chosen: bool = False) -> Path:
     """Check, before any work, that a result may be written to the file ``path``; return it.
 
     Refused (:class:`OutputError`): ``path`` is the same file as one of ``inputs``; it is a
     folder; it exists and is read-only (no write bit in its mode, even for root, or not writable
     by this user); its folder cannot be created or written. Missing parent folders are created.
     Messages start with ``option`` and the path (``option=""``: the path alone).
-    A symbolic link is checked at its target (the write goes through it); a device or FIFO
-    (``/dev/null``, ``/dev/stdout``) is accepted as it is.
+    The same file means the same physical file, whatever the spelling: links, hard links, and
+    ``..`` after folders that do not exist yet. A name longer than the file system takes is
+    refused. A symbolic link is checked at its target (the write goes through it); ``chosen``
+    (a name ``ctfit`` chose in an output folder): a symbolic link there is refused. A device or
+    FIFO (``/dev/null``, ``/dev/stdout``) is accepted as it is.
     """
     path = Path(path)
     if writes_in_place(path):  # nothing there to lose (a terminal may be both input and output)
         return path
+    limit = _name_max(path.parent)
+    if len(os.fsencode(path.name)) > limit:
+        raise OutputError(f"{_at(option, path)}: the file name is {len(os.fsencode(path.name))} bytes long; the file system takes at most {limit}")
     mine = _identity(path)  # once, compared with every input's (each looked up once per run)
     for inp in inputs:
-        if inp is not None and mine == _input_identity(str(Path(inp))):
+        if inp is not None and mine & _input_identity(os.path.abspath(inp)):
             raise OutputError(f"{_at(option, path)}: is the input {inp}; write the result to another file")
+    if path.is_symlink() and not os.path.exists(path) and _loops(path):
+        raise OutputError(f"{_at(option, path)}: is a symbolic link that leads to itself; remove it or choose another name")
     if path.is_dir():
         raise OutputError(f"{_at(option, path)}: is a folder; give a file name")
+    if chosen and path.is_symlink():
+        raise OutputError(
+            f"{_at(option, path.parent)}: {path} is a symbolic link (to {os.readlink(path)}); results are not written "
+            "through links in an output folder: remove the link or choose another folder"
+        )
     target = Path(os.path.realpath(path)) if path.is_symlink() else path  # written through: check where it leads
     if target.exists():
         _writable_file(target, path, option)
@@ -105,15 +149,18 @@ def check_output(path, inputs=(), *, option: str = "-o") -> Path:
 
 
 def check_output_folder(path, option: str = "-o") -> Path:
-    """Check, before any work, that results may be written into the folder ``path`` (created if missing)."""
+    """Check, before any work, that results may be written into the folder ``path`` (created if
+    missing). Atomic writes into it replace a symbolic link rather than write through it
+    (:func:`ctfit._io.files.replace_links_in`): the names there are ``ctfit``'s."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise OutputError(f"{_at(option, path)}: is a file, not a folder")
     _folder_ok(path, path, option)
+    replace_links_in(path)
     return path
 
 
-def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--resume", "--overwrite"), option: str = "--backend") -> Path:
+def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--resume", "--overwrite"), option: str = "--backend", chosen: bool = False) -> Path:
     """Check an HDF5 chain file before sampling: a stored chain is never wiped unasked.
 
     An existing, non-empty ``path`` needs ``resume`` (continue the chain there; refused when
@@ -124,7 +171,7 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
     path = Path(path)
     if resume and overwrite:
         raise OutputError(f"{flags[0]} and {flags[1]} exclude each other: continue the stored chain, or start again")
-    check_output(path, inputs, option=option)
+    check_output(path, inputs, option=option, chosen=chosen)
     if overwrite or not path.is_file() or path.stat().st_size == 0:
         return path
     if not resume:

@@ -4,7 +4,8 @@
 texels) to `Dask distributed <https://distributed.dask.org>`_. :func:`dask_client` is the one
 place that makes a client — connected to a running scheduler (``ctfit fit --scheduler ADDRESS``)
 or to a :class:`distributed.LocalCluster` of worker processes (``--workers N``, one thread each:
-JAX already uses the cores of a worker's machine inside one fit) — and closes what it made.
+JAX already uses the cores of a worker's machine inside one fit) — and closes what it made,
+also when Ctrl-C ends the command (``ctfit._io.on_interrupt``).
 The cluster's own log lines (ports, workers starting and stopping) are kept below ERROR.
 
 Workers are separate processes: :func:`prepare_worker` runs at the start of every task and
@@ -48,9 +49,21 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
         return
     if workers is not None and workers < 1:
         raise ValueError(f"workers must be ≥ 1, got {workers}")
+    from .._io import on_interrupt
+
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as made:
-        yield made
+        withdraw = on_interrupt(lambda: _shut_down(made, cluster))  # Ctrl-C: no process or semaphore left behind
+        try:
+            yield made
+        finally:
+            withdraw()
+
+
+def _shut_down(client, cluster) -> None:
+    """Close ``client`` and its local ``cluster`` (an interrupted command, before it exits)."""
+    client.close(timeout=10)
+    cluster.close(timeout=10)
 
 
 def worker_count(client) -> int:
