@@ -528,5 +528,5 @@ def test_missing_and_unreadable_files_are_named(tmp_path, read, name):
         read(tmp_path / name)
     folder = tmp_path / ("folder" + pathlib.Path(name).suffix)
     folder.mkdir()
-    with pytest.raises(MaterialError, match=rf"{folder.name.replace('.', '[.]')}: cannot read: "):
+    with pytest.raises(MaterialError, match=rf"{folder.name.replace('.', '[.]')}: not a regular file but a folder"):
         read(folder)
