@@ -18,6 +18,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "optical_constants": ['read_optical_constants'],
         "output_paths": ['check_backend', 'check_output', 'check_output_folder', 'result_targets', 'unconverged_target'],
         "readers": ['read_measurement', 'reader_for'],
-        "untrusted": ['check_input_file', 'parse_json', 'quote', 'shorten'],
+        "untrusted": ['check_input_file', 'parse_json', 'quote', 'read_json_or_none', 'shorten'],
     },
 )

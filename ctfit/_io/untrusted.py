@@ -20,7 +20,7 @@ import sys
 
 from .errors import DataError
 
-__all__ = ["QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "parse_json", "quote", "shorten", "too_deep", "too_many_digits"]
+__all__ = ["QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep", "too_many_digits"]
 
 QUOTE_CHARS = 80
 """The most characters of a file's content that an error message quotes."""
@@ -160,3 +160,21 @@ def too_many_digits(source) -> str:
     'm.json: a number of more than 4300 digits; not a value ctfit can read'
     """
     return f"{source}: a number of more than {sys.get_int_max_str_digits()} digits; not a value ctfit can read"
+
+
+def read_json_or_none(path):
+    """The JSON document in ``path``, or None when it is not a regular file, cannot be read or does
+    not parse for any reason (nesting and huge numbers included): for files a command looks at
+    only to decide what to do (an earlier result), never reading a FIFO or a device.
+
+    >>> with open("deep.json", "w") as f:
+    ...     _ = f.write("[" * 100_000 + "]" * 100_000)
+    >>> read_json_or_none("deep.json") is None, read_json_or_none("/dev/zero") is None
+    (True, True)
+    """
+    try:
+        check_input_file(path, max_bytes=1 << 30)
+        with open(path, encoding="utf-8") as f:
+            return parse_json(f.read(), path)
+    except (OSError, ValueError, MemoryError):
+        return None

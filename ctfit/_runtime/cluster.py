@@ -42,7 +42,7 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        kw = {"scheduler_file": scheduler} if str(scheduler).endswith(".json") else {"address": scheduler}
+        kw = _scheduler_file(scheduler) if str(scheduler).endswith(".json") else {"address": scheduler}
         with Client(**kw, timeout="30s") as made:
             yield made
         return
@@ -51,6 +51,24 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as made:
         yield made
+
+
+def _scheduler_file(path) -> dict:
+    """``Client`` keywords for a scheduler file: its ``address`` once it exists (read here, as any
+    input: one error for a device, a file nested too deeply, one without an address), else the
+    file, for which Dask waits (a scheduler that is starting writes it)."""
+    import os
+
+    from .._io import check_input_file, parse_json, quote
+
+    if not os.path.exists(path):
+        return {"scheduler_file": path}
+    check_input_file(path, max_bytes=1 << 20)
+    with open(path, encoding="utf-8") as f:
+        doc = parse_json(f.read(), path)
+    if not isinstance(doc, dict) or not isinstance(doc.get("address"), str):
+        raise ValueError(f"{path}: not a Dask scheduler file (a JSON object with an \"address\"), got {quote(doc)}")
+    return {"address": doc["address"]}
 
 
 def worker_count(client) -> int:
