@@ -601,3 +601,18 @@ def test_a_material_file_larger_than_64_mib_is_not_read(tmp_path):
         f.truncate((64 << 20) + 1)
     with pytest.raises(MaterialError, match=r"huge\.toml: 67108865 bytes: larger than the 64 MiB"):
         load_material(path)
+
+
+@pytest.mark.parametrize("name", ["m.toml", "m.json"])
+def test_a_note_nested_deeper_than_64_levels_is_refused_when_read(tmp_path, name):
+    """Nesting the parser reads (900 levels of JSON) but that writing the material back could not
+    walk (Python's recursion limit) is refused on reading; 60 levels read and write back."""
+    def text(depth):
+        doc = {"s": 1, "lobes": [{"m": 0.3}], "wavelength_nm": [550], "F0": 0.5}
+        note = "[" * depth + "]" * depth
+        return json.dumps(doc)[:-1] + f', "note": {note}}}' if name.endswith(".json") else tomli_w.dumps(doc) + f"note = {note}\n"
+
+    with pytest.raises(MaterialError, match=r"m\.(toml|json): nested too deeply to read"):
+        load_text(tmp_path, text(900 if name.endswith(".json") else 300), name)
+    material = load_text(tmp_path, text(60), name)
+    assert load_material(save_material_json(material, tmp_path / "back.json")).meta == material.meta

@@ -33,7 +33,7 @@ import numpy as np
 
 from .files import atomic_write
 from .errors import MaterialError
-from .untrusted import parse_json, quote, shorten, too_deep, too_many_digits
+from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits
 from .optical_constants import TABLE_FOLDERS, is_table_name, read_material_text, read_optical_constants, table_folders, table_names
 from .._model import (
     DISTRIBUTIONS,
@@ -84,7 +84,7 @@ def _read_document(path: pathlib.Path) -> dict:
             raise MaterialError(str(err)) from None
     else:
         try:
-            return tomllib.loads(text)
+            data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as err:
             line, col, msg = _toml_position(err, text)
             raise MaterialError(f"{path}:{line}:{col}: TOML syntax error: {msg}") from None
@@ -94,6 +94,10 @@ def _read_document(path: pathlib.Path) -> dict:
             raise MaterialError(too_many_digits(path)) from None
         except MemoryError:
             raise MaterialError(f"{path}: too large to read into memory") from None
+        try:
+            check_nesting(data, path)  # a deep note would fail where the material is written back
+        except ValueError as err:
+            raise MaterialError(str(err)) from None
     if not isinstance(data, dict):
         raise MaterialError(f"{path}: the top level must be a JSON object, got {type(data).__name__}")
     return data

@@ -20,12 +20,15 @@ import sys
 
 from .errors import DataError
 
-__all__ = ["QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep", "too_many_digits"]
+__all__ = ["MAX_NESTING", "QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "check_nesting", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep", "too_many_digits"]
 
 QUOTE_CHARS = 80
 """The most characters of a file's content that an error message quotes."""
 SNIFF_BYTES = 64 * 1024
 """The first block of a text file that is checked for being text before the file is read."""
+MAX_NESTING = 64
+"""The deepest nesting of lists and tables a material, result or scheduler file may have (a
+material has 3 levels): a deeper one is refused when read, not when it is written back."""
 _KINDS = (
     (stat.S_ISDIR, "a folder"),
     (stat.S_ISCHR, "a character device (such as /dev/zero)"),
@@ -117,32 +120,52 @@ def _check_text(head: bytes, path) -> None:
 
 
 def too_deep(source) -> str:
-    """The message for a document nested beyond what its parser's recursion allows.
+    """The message for a document nested deeper than ctfit reads (:data:`MAX_NESTING`, or its
+    parser's recursion limit).
 
     >>> too_deep("m.toml")
-    'm.toml: nested too deeply to read (lists or tables inside each other hundreds of levels deep)'
+    'm.toml: nested too deeply to read (lists or tables inside each other more than 64 levels deep)'
     """
-    return f"{source}: nested too deeply to read (lists or tables inside each other hundreds of levels deep)"
+    return f"{source}: nested too deeply to read (lists or tables inside each other more than 64 levels deep)"
+
+
+def check_nesting(doc, source, limit: int = MAX_NESTING) -> None:
+    """Raise ``ValueError`` (:func:`too_deep`) when lists and dicts in ``doc`` nest deeper than
+    ``limit``: what a parser read may still be too deep for the functions that walk it
+    (Python's recursion limit); looked at without recursion.
+
+    >>> check_nesting({"a": [[1]]}, "m.json", limit=3)
+    >>> check_nesting({"a": [[[1]]]}, "m.json", limit=3)
+    Traceback (most recent call last):
+    ...
+    ValueError: m.json: nested too deeply to read (lists or tables inside each other more than 64 levels deep)
+    """
+    level = [doc]
+    for _ in range(limit):
+        level = [v for x in level for v in (x.values() if isinstance(x, dict) else x) if isinstance(v, (dict, list))]
+        if not level:
+            return
+    raise ValueError(too_deep(source))
 
 
 def parse_json(text: str, source):
     """``json.loads(text)``, its every failure a ``ValueError`` whose message names ``source``:
-    syntax (with line and column), nesting past the recursion limit, an integer of more digits
-    than Python converts, a document too large for memory.
+    syntax (with line and column), nesting deeper than :data:`MAX_NESTING`, an integer of more
+    digits than Python converts, a document too large for memory.
 
     >>> parse_json('{"a": [1, 2]}', "x.json")
     {'a': [1, 2]}
     >>> parse_json("[" * 100_000 + "]" * 100_000, "deep.json")
     Traceback (most recent call last):
     ...
-    ValueError: deep.json: nested too deeply to read (lists or tables inside each other hundreds of levels deep)
+    ValueError: deep.json: nested too deeply to read (lists or tables inside each other more than 64 levels deep)
     >>> parse_json("1" * 5000, "big.json")
     Traceback (most recent call last):
     ...
     ValueError: big.json: a number of more than 4300 digits; not a value ctfit can read
     """
     try:
-        return json.loads(text)
+        doc = json.loads(text)
     except json.JSONDecodeError as err:
         raise ValueError(f"{source}:{err.lineno}:{err.colno}: JSON syntax error: {err.msg}") from None
     except RecursionError:
@@ -151,6 +174,8 @@ def parse_json(text: str, source):
         raise ValueError(f"{source}: too large to read into memory") from None
     except ValueError:  # int() past sys.get_int_max_str_digits()
         raise ValueError(too_many_digits(source)) from None
+    check_nesting(doc, source)
+    return doc
 
 
 def too_many_digits(source) -> str:
