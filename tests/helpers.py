@@ -272,3 +272,15 @@ def patch_module(monkeypatch, module, name, value):
     monkeypatch.setattr(module, name, value)
     package = sys.modules[module.__name__.rpartition(".")[0]]
     monkeypatch.delitem(package.__dict__, name, raising=False)
+
+
+def peak_traced_bytes(call) -> int:
+    """The most memory Python's allocators held while ``call()`` ran (``tracemalloc``)."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        call()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()

@@ -140,3 +140,30 @@ BAD = [
 def test_bad_input_raises_located_error(tmp_path, text, pattern):
     with pytest.raises(DataError, match=pattern):
         read_alta(write(tmp_path, text))
+
+
+def test_old_mac_line_endings_read_as_lines(tmp_path):
+    text = HEAD_3D + OUT + GOOD_ROW + "0.2 0.1 0.1 0.4\n"
+    lf = read_alta(write(tmp_path, text, "lf.alta"))
+    cr = read_alta(write(tmp_path, text.replace("\n", "\r"), "cr.alta"))
+    np.testing.assert_array_equal(cr.brdf, lf.brdf)
+    np.testing.assert_array_equal(cr.theta_o, lf.theta_o)
+
+
+@pytest.mark.parametrize(
+    "text, pattern",
+    [
+        (HEAD_3D + OUT + "0.3 0.1 " + "x" * 1_000_000 + " 0.5\n", r"data\.alta:4: column 'theta_v\*sin\(dphi\)' \(3\): 'x{80}'… is not a number$"),
+        ("#DIM " + "3" * 1_000_000 + " 1\n" + OUT + GOOD_ROW, r"data\.alta:1: #DIM '3{80}'…: expected two integers"),
+        ("#DIM 3 1\n#PARAM_IN " + "P" * 1_000_000 + "\n" + OUT + GOOD_ROW, r"data\.alta:2: #PARAM_IN P{80}…: not supported"),
+        (HEAD_3D + "#PARAM_OUT " + "Q" * 1_000_000 + "\n" + GOOD_ROW, r"data\.alta:3: output Q{80}…: not supported"),
+        ("#FORMAT " + "b" * 1_000_000 + "\n" + HEAD_3D + OUT, r"data\.alta:1: #FORMAT b{80}…: only"),
+        (HEAD_3D + OUT + "#VS " + "9" * 1_000_000 + "\n" + GOOD_ROW, r"data\.alta:4: #VS 9{80}…: expected 0, 1 or 2"),
+        (HEAD_3D + "\x00" + OUT + GOOD_ROW, r"data\.alta:3: a NUL byte at byte offset 45: a binary file"),
+    ],
+    ids=["number", "DIM", "PARAM_IN", "PARAM_OUT", "FORMAT", "VS", "binary"],
+)
+def test_an_error_quotes_at_most_80_characters_of_the_file(tmp_path, text, pattern):
+    with pytest.raises(DataError, match=pattern) as err:
+        read_alta(write(tmp_path, text))
+    assert len(str(err.value)) < len(str(tmp_path)) + 200

@@ -220,3 +220,49 @@ def test_kept_programs_are_built_once_per_key_and_the_least_recently_used_droppe
     kept("a", (1,), jnp.arange(3.0))  # built again; "c" is dropped
     assert built == ["a", "b", "c", "a"]
     assert sorted(k.partition("-")[0] for k in _aot._memory) == ["toy", "toy_kept", "toy_kept"]
+
+
+def test_an_entry_copied_over_another_programs_name_is_not_run(store, monkeypatch):
+    """An entry holds a digest of its key: the file of one program under another's name (or one
+    built by another ctfit) is discarded with a warning, and the right program compiled."""
+    box, x, _ = _args()
+    _aot.cached_call("toy", _fn, box, x, 2)
+    _aot.cached_call("toy", _fn, box, x, 3)
+    name = lambda power: store / f"toy-{_aot._key('toy', (box, x, power))[:32]}.xla"  # noqa: E731
+    name(3).write_bytes(name(2).read_bytes())  # the square's program where the cube's belongs
+    monkeypatch.setattr(_aot, "_memory", {})
+    with pytest.warns(RuntimeWarning, match="holds another program"):
+        got = _aot.cached_call("toy", _fn, box, x, 3)
+    np.testing.assert_array_equal(got["y"], box.a * 2.0 + x**3)
+    assert name(3).read_bytes() != name(2).read_bytes()  # rewritten with the cube's program
+
+
+@pytest.fixture
+def jax_cache_config(monkeypatch):
+    """JAX's cache folder as it was after the test; CacheWarnings as if none had been issued."""
+    from ctfit._runtime import compile_cache
+
+    monkeypatch.setattr(compile_cache, "_warned", set())
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    saved = jax.config.jax_compilation_cache_dir
+    yield compile_cache
+    jax.config.update("jax_compilation_cache_dir", saved)
+
+
+@pytest.mark.parametrize("mode", [0o777, 0o1777, 0o770])
+def test_a_jax_cache_folder_others_can_write_to_is_not_used(tmp_path, jax_cache_config, mode):
+    """JAX's entries are compiled programs too: its folder must be this user's alone, as the
+    program store's is (``enable_compilation_cache``, or a folder JAX was given directly)."""
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    shared.chmod(mode)
+    with pytest.warns(jax_cache_config.CacheWarning, match=r"compilation cache off: .*shared can be written by other users"):
+        assert jax_cache_config.enable_compilation_cache(shared) is None
+    assert jax.config.jax_compilation_cache_dir is None
+
+    jax_cache_config._warned.clear()
+    jax.config.update("jax_compilation_cache_dir", str(shared))  # as $JAX_COMPILATION_CACHE_DIR does
+    with pytest.warns(jax_cache_config.CacheWarning, match="can be written by other users"):
+        assert jax_cache_config.program_store_folder() is None
+    assert jax.config.jax_compilation_cache_dir is None
+    assert not list(shared.iterdir())

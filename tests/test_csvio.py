@@ -379,3 +379,80 @@ def test_given_direction_pairs_are_checked():
         m.with_directions(np.zeros((1, 4)), np.zeros(4))
     given = m.with_directions([[0.0, 0.0, 1.0, 0.0]], np.zeros(4, np.int32))
     assert given is not m and given.directions()[1].dtype == np.int32 and len(m.directions()[0]) == 1
+
+
+# --- hostile input: binary files, long lines, old line endings ------------------------------------
+
+
+def test_old_mac_line_endings_read_as_lines(tmp_path, path_kind):
+    """A file whose lines end in CR alone (classic Mac OS) reads as the same file with LF."""
+    rows = ["# sample: cr", HEADER, "10,0,30,180,550,0.1", "20,0,40,180,650,0.2"]
+    lf = read_csv(write(tmp_path, "\n".join(rows) + "\n", "lf.csv"))
+    cr = read_csv(write(tmp_path, "\r".join(rows) + "\r", "cr.csv"))
+    assert_same(cr, lf)
+    with pytest.raises(DataError, match=r"cr\.csv:4: column 'theta_i' \(1\): 'x' is not a number"):
+        read_csv(write(tmp_path, "\r".join([*rows[:3], "x,0,40,180,650,0.2"]), "cr.csv"))
+
+
+@pytest.mark.parametrize(
+    "content, pattern",
+    [
+        (HEADER.encode() + b"\n10,0,30,180,550,0.1\x00\n", r"data\.csv:2: a NUL byte at byte offset 66: a binary file"),
+        ((HEADER + "\n10,0,30,180,550,0.1\n").encode("utf-16"), r"data\.csv: UTF-16 text \(the file starts with a UTF-16 byte-order mark\); save it as UTF-8"),
+        ((HEADER + "\n").encode("utf-32"), r"data\.csv: UTF-32 text"),
+        ((HEADER + "\n").encode("utf-16-le"), r"data\.csv:1: a NUL byte at byte offset 1: a binary file, or text not saved as UTF-8 \(UTF-16\?\)"),
+    ],
+)
+def test_binary_and_wide_text_files_are_named_for_what_they_are(tmp_path, content, pattern):
+    with pytest.raises(DataError, match=pattern):
+        read_csv(write(tmp_path, content))
+
+
+def test_a_binary_file_is_refused_from_its_first_block(tmp_path):
+    """Zeros (a sparse file) after a header: only the first block is read, however large the file."""
+    from helpers import peak_traced_bytes
+
+    path = tmp_path / "zeros.csv"
+    with open(path, "wb") as f:
+        f.write((HEADER + "\n").encode())
+        f.truncate(64 << 20)
+
+    def read():
+        with pytest.raises(DataError, match=r"zeros\.csv:2: a NUL byte at byte offset 47"):
+            read_csv(path)
+
+    assert peak_traced_bytes(read) < 4 << 20
+
+
+@pytest.mark.parametrize(
+    "text, pattern",
+    [
+        ("x" * 1_000_000 + "\n", r"missing column 'theta_i' \(columns: x{80}…\)$"),
+        (HEADER + "," + "n" * 1_000_000 + "\n10,0,30,180,550,0.1,1,1\n", r":2: expected 7 fields \(theta_i,.*,brdf,n{33}…\), found 8$"),
+        (HEADER + "\n10,0,30,180,550," + "7" * 500 + "e" * 1_000_000 + "\n", r":2: column 'brdf' \(6\): '7{80}'… is not a number$"),
+        ("channel,theta_i,phi_i,theta_o,phi_o,brdf\n" + "Q" * 1_000_000 + ",10,0,30,180,0.1\n", r"column 'channel' \(1\): 'Q{80}'… is not a channel"),
+        (HEADER + "," + "c" * 1_000_000 + "," + "c" * 1_000_000 + "\n1,0,30,180,550,0.1,1,1\n", r":1: column 'c{80}'… \(8\): duplicated \(also column 7\)$"),
+    ],
+    ids=["header", "fields", "number", "channel", "column name"],
+)
+def test_an_error_quotes_at_most_80_characters_of_a_field(tmp_path, text, pattern):
+    with pytest.raises(DataError, match=pattern) as err:
+        read_csv(write(tmp_path, text))
+    assert len(str(err.value)) < len(str(tmp_path)) + 300
+
+
+def test_a_line_before_the_header_longer_than_the_limit_is_refused(tmp_path, monkeypatch):
+    """A header (or comment) line past ``MAX_HEADER_BYTES`` is not decoded, split or quoted."""
+    monkeypatch.setattr(_csvio, "MAX_HEADER_BYTES", 1000)
+    with pytest.raises(DataError, match=r"data\.csv:2: 1001 bytes without a line break before the header row ends: not a measurement CSV"):
+        read_csv(write(tmp_path, "# fine\n" + "t" * 1001 + "\n1,2\n"))
+    assert len(read_csv(write(tmp_path, "# " + "x" * 990 + "\n" + HEADER + "\n10,0,30,180,550,0.1\n"))) == 1
+
+
+def test_a_wide_file_reads_and_its_errors_stay_short(tmp_path):
+    """10⁵ ignored columns: read; a row with one field short names the count, not every column."""
+    extra = ",".join(f"c{i}" for i in range(100_000))
+    ones = ",".join(["1"] * 100_000)
+    assert len(read_csv(write(tmp_path, f"{HEADER},{extra}\n10,0,30,180,550,0.1,{ones}\n"))) == 1
+    with pytest.raises(DataError, match=r"expected 100006 fields \(theta_i,phi_i,.{60,80}…\), found 100005$"):
+        read_csv(write(tmp_path, f"{HEADER},{extra}\n10,0,30,180,550,0.1,{ones[2:]}\n"))

@@ -5,6 +5,7 @@ import json
 import math
 import os
 import pathlib
+import re
 import shutil
 
 import hypothesis.strategies as st
@@ -531,5 +532,90 @@ def test_missing_and_unreadable_files_are_named(tmp_path, read, name):
         read(tmp_path / name)
     folder = tmp_path / ("folder" + pathlib.Path(name).suffix)
     folder.mkdir()
-    with pytest.raises(MaterialError, match=rf"{folder.name.replace('.', '[.]')}: cannot read: "):
+    with pytest.raises(MaterialError, match=rf"{folder.name.replace('.', '[.]')}: not a regular file but a folder"):
         read(folder)
+
+
+# --- hostile material files ----------------------------------------------------------------------
+
+_OC = "s = 1\nd = 0\nlobes = [{{ m = 0.2 }}]\noptical_constants = \"{}\"\n"
+
+
+@pytest.mark.parametrize("name", ["/etc/passwd", "../secret.csv", "/etc/../tmp/x.csv", "link.csv"])
+def test_optical_constants_lead_nowhere_outside_the_material_files_folder(tmp_path, monkeypatch, name):
+    """Only a .csv in the material file's folder (or below it, links resolved) is read, so a
+    material file cannot make ctfit show a line of another file (/etc/shadow)."""
+    (tmp_path / "secret.csv").write_text("wavelength_nm,n,k\n500,1,1\n# TOP-SECRET-LINE\n")
+    folder = tmp_path / "materials"
+    folder.mkdir()
+    (folder / "link.csv").symlink_to(tmp_path / "secret.csv")
+    with pytest.raises(MaterialError) as err:
+        load_text(folder, _OC.format(name))
+    assert "TOP-SECRET" not in str(err.value) and str(err.value).count("key 'optical_constants'") == 1
+    assert re.search(r"is outside the material file's folder|nor the path of an optical constants CSV", str(err.value))
+
+
+def test_optical_constants_from_a_folder_named_in_the_environment(tmp_path, monkeypatch):
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    (shared / "Cu2.csv").write_text("wavelength_nm,n,k\n500,1.0,2.0\n600,1.5,3.0\n")
+    folder = tmp_path / "materials"
+    folder.mkdir()
+    for name in ("Cu2.csv", str(shared / "Cu2.csv")):
+        with pytest.raises(MaterialError, match="no file|is outside"):
+            load_text(folder, _OC.format(name))
+        monkeypatch.setenv("CTFIT_OPTICAL_CONSTANTS", str(shared))
+        assert load_text(folder, _OC.format(name)).wavelength_nm.tolist() == [500, 600]
+        monkeypatch.delenv("CTFIT_OPTICAL_CONSTANTS")
+
+
+def test_a_csv_that_is_no_optical_constants_table_is_not_quoted(tmp_path):
+    (tmp_path / "notes.csv").write_text("private,words\n1,2\n")
+    with pytest.raises(MaterialError) as err:
+        load_text(tmp_path, _OC.format("notes.csv"))
+    assert "header lacks column(s) ['wavelength_nm', 'n', 'k']: not an optical constants table" in str(err.value)
+    assert "private" not in str(err.value) and str(err.value).count("key 'optical_constants'") == 1
+
+
+def test_a_missing_table_is_named_once(tmp_path):
+    with pytest.raises(MaterialError) as err:
+        load_text(tmp_path, _OC.format("none.csv"))
+    assert str(err.value).count("key 'optical_constants'") == 1
+
+
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        (BASE + 'F0 = "' + "x" * 10_000_000 + '"\n', r"key 'F0': must be a number or a list over wavelength_nm, got 'x{80}'…$"),
+        (BASE.replace("weight = 1.0", "weight = 1.0, " + "z" * 200 + " = 1") + "F0 = 0.04\n", r"key 'lobes\[0\]\.z{71}…': unknown key"),
+        (BASE + "F0 = 0.04\nname = [" + "1, " * 100_000 + "]\n", r"key 'name': must be a string, got \[1, 1, .{60,}…$"),
+    ],
+    ids=["10 MB string", "long key", "long list"],
+)
+def test_errors_quote_at_most_80_characters_of_a_value(tmp_path, text, match):
+    with pytest.raises(MaterialError, match=match) as err:
+        load_text(tmp_path, text)
+    assert len(str(err.value)) < len(str(tmp_path)) + 200
+
+
+def test_a_material_file_larger_than_64_mib_is_not_read(tmp_path):
+    path = tmp_path / "huge.toml"
+    with open(path, "wb") as f:
+        f.truncate((64 << 20) + 1)
+    with pytest.raises(MaterialError, match=r"huge\.toml: 67108865 bytes: larger than the 64 MiB"):
+        load_material(path)
+
+
+@pytest.mark.parametrize("name", ["m.toml", "m.json"])
+def test_a_note_nested_deeper_than_64_levels_is_refused_when_read(tmp_path, name):
+    """Nesting the parser reads (900 levels of JSON) but that writing the material back could not
+    walk (Python's recursion limit) is refused on reading; 60 levels read and write back."""
+    def text(depth):
+        doc = {"s": 1, "lobes": [{"m": 0.3}], "wavelength_nm": [550], "F0": 0.5}
+        note = "[" * depth + "]" * depth
+        return json.dumps(doc)[:-1] + f', "note": {note}}}' if name.endswith(".json") else tomli_w.dumps(doc) + f"note = {note}\n"
+
+    with pytest.raises(MaterialError, match=r"m\.(toml|json): nested too deeply to read"):
+        load_text(tmp_path, text(900 if name.endswith(".json") else 300), name)
+    material = load_text(tmp_path, text(60), name)
+    assert load_material(save_material_json(material, tmp_path / "back.json")).meta == material.meta

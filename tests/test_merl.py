@@ -165,3 +165,19 @@ def test_the_reader_gives_its_direction_pairs(merl_file):
     assert len(searched) == len(pairs) == len(np.unique(pairs, axis=0))
     np.testing.assert_array_equal(np.unique(pairs, axis=0), searched)
     assert not m.repeats and m.grid() is not None
+
+
+def test_a_file_of_another_size_is_not_read_whole(tmp_path):
+    """A large file named .binary (a sparse GiB): refused from its size, at most one table read."""
+    from helpers import peak_traced_bytes
+
+    path = tmp_path / "large.binary"
+    with open(path, "wb") as f:
+        f.write(_header((90, 90, 180)))
+        f.truncate(1 << 30)
+
+    def read():
+        with pytest.raises(DataError, match=r"large\.binary: too long: 1073741824 bytes; a \(90, 90, 180\) table"):
+            read_merl(path)
+
+    assert peak_traced_bytes(read) < 64 << 20

@@ -30,6 +30,9 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> tuple[
         except OSError as e:
             outcomes[path] = ("failed", f"{path}: {e.strerror or e}")
             continue
+        except ValueError as e:  # not a regular file (/dev/zero, a FIFO): never read
+            outcomes[path] = ("failed", failure_line(path, e))
+            continue
         kept = _kept_result(plan[path].json, hashes[path], options)
         if kept is None:
             pending.append(path)
@@ -124,10 +127,9 @@ def _kept_result(target, sha: str, options: dict) -> str | None:
     """'converged' or 'not converged' when ``target`` holds a fit of the same input and options, else None."""
     if target is None or not Path(target).is_file():
         return None
-    try:
-        doc = json.loads(Path(target).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
+    from .._io import read_json_or_none
+
+    doc = read_json_or_none(target)  # nesting, huge numbers: not a result to keep
     fit = doc.get("fit") if isinstance(doc, dict) else None
     if not isinstance(fit, dict) or doc.get("input_sha256") != sha or doc.get("fit_options") != options:
         return None

@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from .._io import check_input_file
 from .._model import Measurement
 
 __all__ = ["fit_many", "input_sha256", "read_input", "geometry_key", "FILES_PER_TASK"]
@@ -175,7 +176,9 @@ def geometry_key(data: Measurement) -> str:
 
 
 def input_sha256(path) -> str:
-    """The SHA-256 of a file's bytes (read in blocks): what a stored result was fitted from."""
+    """The SHA-256 of a file's bytes (read in blocks): what a stored result was fitted from. A
+    device or FIFO, which may never end, raises :class:`~ctfit.DataError` unread."""
+    check_input_file(path, text=False)
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for block in iter(lambda: f.read(1 << 20), b""):

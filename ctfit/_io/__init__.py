@@ -19,5 +19,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "output_paths": ['check_backend', 'check_output', 'check_output_folder', 'result_targets', 'same_file', 'unconverged_target'],
         "readers": ['read_measurement', 'reader_for'],
         "rgl": ['bilinear', 'marginal_sample', 'read_rgl', 'read_tensor_file'],
+        "untrusted": ['check_input_file', 'parse_json', 'quote', 'read_json_or_none', 'shorten'],
     },
 )

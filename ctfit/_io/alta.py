@@ -42,6 +42,7 @@ import numpy as np
 
 from .errors import DataError, DataWarning
 from .files import read_text
+from .untrusted import check_input_file, quote, shorten
 from .._model import Measurement
 
 __all__ = ["PARAM_IN", "PARAM_OUT", "PLACEHOLDER_WAVELENGTH_NM", "read_alta"]
@@ -78,6 +79,7 @@ def read_alta(path, *, param_out: str | None = None, param_out_default: str | No
     >>> m.theta_i.tolist(), m.theta_o.tolist(), m.phi_o.tolist(), m.brdf.tolist(), m.band_labels
     ([15.0], [15.0], [180.0], [2.5], ['unknown band'])
     """
+    check_input_file(path)
     text = read_text(path)
     header, rows, lines = _split(text, path)
     if "PARAM_OUT" not in header and param_out is None:
@@ -127,7 +129,7 @@ def read_alta(path, *, param_out: str | None = None, param_out_default: str | No
 def _split(text: str, path):
     """Header {KEY: (value, line)}, data lines and their line numbers."""
     header, rows, lines = {}, [], []
-    for k, line in enumerate(text.split("\n"), start=1):
+    for k, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"), start=1):  # LF, CR LF or CR
         line = line.strip()
         if line.startswith("#"):
             m = _HEADER.fullmatch(line)
@@ -137,7 +139,7 @@ def _split(text: str, path):
             if key in header and key != "VS":
                 raise DataError(f"#{key} appears twice (also line {header[key][1]})", path=path, line=k)
             if key == "VS" and key in header and value != header[key][0]:
-                raise DataError(f"#VS {value} differs from #VS {header[key][0]} on line {header[key][1]}", path=path, line=k)
+                raise DataError(f"#VS {shorten(value)} differs from #VS {shorten(header[key][0])} on line {header[key][1]}", path=path, line=k)
             header.setdefault(key, (value.strip('"') if key in ("SAMPLE", "ORIGIN") else value, k))
         elif line:
             rows.append(line)
@@ -153,21 +155,21 @@ def _interpret(header: dict, param_out, path):
 
     if "FORMAT" in header and header["FORMAT"][0].lower() != "text":
         value, line = header["FORMAT"]
-        raise DataError(f"#FORMAT {value}: only ALTA's text format is supported", path=path, line=line)
+        raise DataError(f"#FORMAT {shorten(value)}: only ALTA's text format is supported", path=path, line=line)
     dim, line = need("DIM", "the numbers of input and output dimensions, e.g. '#DIM 3 1'")
     try:
         dim_in, dim_out = (int(x) for x in dim.split())
     except ValueError:
-        raise DataError(f"#DIM {dim!r}: expected two integers, e.g. '#DIM 3 1'", path=path, line=line) from None
+        raise DataError(f"#DIM {quote(dim)}: expected two integers, e.g. '#DIM 3 1'", path=path, line=line) from None
     pin, line_in = need("PARAM_IN", "the input parametrisation")
     if pin not in PARAM_IN:
-        raise DataError(f"#PARAM_IN {pin}: not supported (supported: {', '.join(PARAM_IN)})", path=path, line=line_in)
+        raise DataError(f"#PARAM_IN {shorten(pin)}: not supported (supported: {', '.join(PARAM_IN)})", path=path, line=line_in)
     if dim_in != len(PARAM_IN[pin]):
         raise DataError(f"#DIM says {dim_in} inputs, #PARAM_IN {pin} has {len(PARAM_IN[pin])}", path=path, line=line)
     if "PARAM_OUT" in header:
         pout, line_out = header["PARAM_OUT"]
         if param_out is not None and param_out != pout:
-            raise DataError(f"#PARAM_OUT {pout} contradicts param_out={param_out!r}", path=path, line=line_out)
+            raise DataError(f"#PARAM_OUT {shorten(pout)} contradicts param_out={param_out!r}", path=path, line=line_out)
     elif param_out is not None:
         pout, line_out = param_out, None
     else:
@@ -177,12 +179,12 @@ def _interpret(header: dict, param_out, path):
             path=path,
         )
     if pout not in PARAM_OUT:
-        raise DataError(f"output {pout}: not supported (supported: {', '.join(PARAM_OUT)})", path=path, line=line_out)
+        raise DataError(f"output {shorten(pout)}: not supported (supported: {', '.join(PARAM_OUT)})", path=path, line=line_out)
     if dim_out != PARAM_OUT[pout]:
         raise DataError(f"#DIM says {dim_out} outputs, {pout} has {PARAM_OUT[pout]}", path=path, line=line)
     vs, line_vs = header.get("VS", ("0", None))
     if vs not in ("0", "1", "2"):
-        raise DataError(f"#VS {vs}: expected 0, 1 or 2", path=path, line=line_vs)
+        raise DataError(f"#VS {shorten(vs)}: expected 0, 1 or 2", path=path, line=line_vs)
     return dim_in, dim_out, pin, pout, int(vs)
 
 
@@ -204,7 +206,7 @@ def _numbers(rows, lines, names, path) -> np.ndarray:
             try:
                 data[r, j] = float(field)
             except ValueError:
-                raise DataError(f"{field!r} is not a number", path=path, line=int(lines[r]), column=names[j], index=j + 1) from None
+                raise DataError(f"{quote(field)} is not a number", path=path, line=int(lines[r]), column=names[j], index=j + 1) from None
     for j in range(len(names)):
         _check(~np.isfinite(data[:, j]), lines, names, j, "{} is not allowed (values must be finite numbers)", data, path)
     return data

@@ -10,6 +10,7 @@ or reports the first bad line.
 
 from __future__ import annotations
 
+import array
 import difflib
 import math
 import os
@@ -19,6 +20,7 @@ import numpy as np
 
 from .errors import DataError
 from .files import atomic_write, read_utf8
+from .untrusted import check_input_file, quote, shorten
 from .._model import Measurement
 
 __all__ = ["read_csv", "write_csv"]
@@ -62,9 +64,10 @@ def read_csv(path) -> Measurement:
     ...
     ctfit._io.errors.DataError: bad.csv:2: column 'theta_i' (1): 95.0 is outside [0, 90] degrees
     """
+    check_input_file(path)
     raw = read_utf8(path)
-    if b"\r" in raw:
-        raw = raw.replace(b"\r\n", b"\n")
+    if b"\r" in raw:  # Windows (CR LF) and old Mac (CR) line endings
+        raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
     meta, meta_lines, header_line, header, pos = _split_header(raw, path)
     cols = _Header(header, header_line, path)
     end = len(raw)
@@ -74,7 +77,7 @@ def read_csv(path) -> Measurement:
         raise DataError("no data rows after the header", path=path, line=header_line)
     first = header_line + 1
     parsed = _parse_blocks(raw, pos, end, cols)
-    values, channel = parsed if parsed is not None else _parse_slow(raw[pos:end].decode("utf-8"), first, cols, path)
+    values, channel = parsed if parsed is not None else _parse_slow(_lines(raw, pos, end), first, cols, path)
     _check_values(values, cols, first, path)
     _check_units(values, meta, meta_lines, cols, header_line, path)
     return _measurement(values, channel, meta, path)
@@ -87,6 +90,8 @@ def _split_header(raw: bytes, path):
         end = raw.find(b"\n", pos)
         end = len(raw) if end < 0 else end
         line_no += 1
+        if end - pos > MAX_HEADER_BYTES:
+            raise DataError(f"{end - pos} bytes without a line break before the header row ends: not a measurement CSV", path=path, line=line_no)
         line = raw[pos:end].decode("utf-8").strip()
         pos = end + 1
         if line.startswith("#"):
@@ -109,7 +114,7 @@ class _Header:
         sep = next((word for c, word in _SEPARATORS.items() if c in header), None)
         if len(names) == 1 and sep is not None:
             raise err(
-                f"the header has one column, {header[:60]!r}: the file seems to be {sep}-separated; "
+                f"the header has one column, {quote(header, 60)}: the file seems to be {sep}-separated; "
                 "ctfit reads comma-separated CSV (docs/measurement-formats.md)"
             )
         if _is_number(names[0]):
@@ -132,7 +137,7 @@ class _Header:
                 raise err(f"is this {name.lower()!r}? Column names are case sensitive", name, i + 1)
         for name in ANGLES:
             if name not in seen:
-                raise err(f"missing column {name!r}{_did_you_mean(name, names)} (columns: {','.join(names)})")
+                raise err(f"missing column {name!r}{_did_you_mean(name, names)} (columns: {shorten(','.join(names[:100]))})")
         if "wavelength_nm" in seen and "channel" in seen:
             raise err(
                 f"both 'wavelength_nm' ({seen['wavelength_nm'] + 1}) and 'channel' ({seen['channel'] + 1}): "
@@ -152,8 +157,8 @@ class _Header:
 
 
 def _did_you_mean(name, names):
-    close = difflib.get_close_matches(name, [n for n in names if n not in _KNOWN], n=1, cutoff=0.75)
-    return f" (is {close[0]!r} meant to be {name!r}?)" if close else ""
+    close = difflib.get_close_matches(name, [n for n in names if n not in _KNOWN and len(n) < 3 * len(name)], n=1, cutoff=0.75)
+    return f" (is {quote(close[0])} meant to be {name!r}?)" if close else ""
 
 
 def _is_number(token: str) -> bool:
@@ -171,6 +176,9 @@ def _number(token: str) -> float:
         raise ValueError(token)
     return float(token)
 
+
+MAX_HEADER_BYTES = 1 << 26
+"""The longest line read before the data rows (comments, metadata, the header): 64 MiB."""
 
 PARSE_BLOCK = 1 << 23
 """Bytes of the body parsed at once by the fast parser (whole lines): its temporaries — a few
@@ -243,13 +251,22 @@ def _parse_fast(raw: bytes, pos: int, end: int, cols: _Header):
     return {n: table[:, cols.index[n]].copy() for n in cols.numeric}, channel
 
 
-def _parse_slow(body: str, first: int, cols: _Header, path):
+def _lines(raw: bytes, pos: int, end: int):
+    """The lines of ``raw[pos:end]``, decoded one at a time (the file is UTF-8, checked)."""
+    while pos <= end:
+        stop = raw.find(b"\n", pos, end)
+        stop = end if stop < 0 else stop
+        yield raw[pos:stop].decode("utf-8")
+        pos = stop + 1
+
+
+def _parse_slow(lines, first: int, cols: _Header, path):
     """Line by line; raises at the first bad line."""
     names, ncols = cols.names, len(cols.names)
     numeric = [(n, cols.index[n]) for n in cols.numeric]
-    out = {n: [] for n in cols.numeric}
-    channel = []
-    for k, line in enumerate(body.split("\n")):
+    out = {n: array.array("d") for n in cols.numeric}
+    channel = array.array("B")
+    for k, line in enumerate(lines):
         line_no = first + k
         if not line.strip():
             raise DataError("empty line: data rows must be contiguous (blank lines may only end the file)", path=path, line=line_no)
@@ -257,19 +274,19 @@ def _parse_slow(body: str, first: int, cols: _Header, path):
             raise DataError("a # line after the header: comments and metadata must come before the header", path=path, line=line_no)
         fields = line.split(",")
         if len(fields) != ncols:
-            raise DataError(f"expected {ncols} fields ({','.join(names)}), found {len(fields)}", path=path, line=line_no)
+            raise DataError(f"expected {ncols} fields ({shorten(','.join(names[:100]))}), found {len(fields)}", path=path, line=line_no)
         for name, j in numeric:
             try:
                 out[name].append(_number(fields[j]))
             except ValueError:
-                what = "empty value" if not fields[j].strip() else f"{fields[j].strip()!r} is not a number"
+                what = "empty value" if not fields[j].strip() else f"{quote(fields[j].strip())} is not a number"
                 raise DataError(what, path=path, line=line_no, column=name, index=j + 1) from None
         if cols.channel is not None:
             token = fields[cols.channel].strip()
             if token not in CHANNELS:
-                raise DataError(f"{token!r} is not a channel (R, G or B)", path=path, line=line_no, column="channel", index=cols.channel + 1)
+                raise DataError(f"{quote(token)} is not a channel (R, G or B)", path=path, line=line_no, column="channel", index=cols.channel + 1)
             channel.append(CHANNELS.index(token))
-    values = {n: np.array(v, dtype=np.float64) for n, v in out.items()}
+    values = {n: np.array(v, np.float64) for n, v in out.items()}
     return values, (np.array(channel, np.uint8) if cols.channel is not None else None)
 
 

@@ -33,7 +33,9 @@ class DataError(ValueError):
         if path is not None:
             where = os.fspath(path) + (f":{line}" if line is not None else "") + ": "
         if column is not None:
-            where += f"column {column!r}" + (f" ({index})" if index is not None else "") + ": "
+            from .untrusted import quote  # a column's name is the file's: quoted in part
+
+            where += f"column {quote(column)}" + (f" ({index})" if index is not None else "") + ": "
         super().__init__(where + reason)
         self.path, self.line, self.column, self.index, self.reason = path, line, column, index, reason
 

@@ -6,8 +6,9 @@ The format is documented in ``docs/formats.md`` ("Material file (TOML) and fit r
 - ``fresnel = "f0" | "n" | "conductor"``: which Fresnel quantity is the parameter (inferred
   when absent: ``k`` given → conductor, else ``F0`` → f0, else ``n``); results always say it.
 - ``optical_constants = "Cu"``: wavelengths, n, k and F0 from a table that ships with ctfit,
-  or ``"path/to/table.csv"``, an optical constants CSV relative to the file's folder (see
-  :func:`read_optical_constants`). Fresnel is then "conductor" unless ``fresnel`` says otherwise.
+  or ``"path/to/table.csv"``, an optical constants CSV in the file's folder or below it, or in
+  a folder of ``$CTFIT_OPTICAL_CONSTANTS`` (see :func:`read_optical_constants`); no other file
+  is read. Fresnel is then "conductor" unless ``fresnel`` says otherwise.
 - ``channels = ["R", "G", "B"]`` in place of ``wavelength_nm`` for RGB materials.
 - ``F0``, ``n``, ``k`` may be single numbers, meaning the same value in every band.
 - ``family = "metal" | "plastic"`` (default metal): a plastic has one real index ``n`` for every
@@ -27,6 +28,7 @@ import datetime
 import difflib
 import json
 import math
+import os
 import pathlib
 import re
 import tomllib
@@ -35,7 +37,8 @@ import numpy as np
 
 from .files import atomic_write
 from .errors import MaterialError
-from .optical_constants import is_table_name, read_material_text, read_optical_constants, table_names
+from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits
+from .optical_constants import TABLE_FOLDERS, is_table_name, read_material_text, read_optical_constants, table_folders, table_names
 from .._model import (
     DISTRIBUTIONS,
     FRESNELS,
@@ -79,16 +82,27 @@ def _read_document(path: pathlib.Path) -> dict:
     if suffix not in (".toml", ".json"):
         raise MaterialError(f"{path}: unknown material file type {suffix!r}; expected .toml or .json")
     text = read_material_text(path)
-    if suffix == ".toml":
+    if suffix == ".json":
         try:
-            return tomllib.loads(text)
+            data = parse_json(text, path)
+        except ValueError as err:
+            raise MaterialError(str(err)) from None
+    else:
+        try:
+            data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as err:
             line, col, msg = _toml_position(err, text)
             raise MaterialError(f"{path}:{line}:{col}: TOML syntax error: {msg}") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise MaterialError(f"{path}:{err.lineno}:{err.colno}: JSON syntax error: {err.msg}") from None
+        except RecursionError:
+            raise MaterialError(too_deep(path)) from None
+        except ValueError:  # int() past sys.get_int_max_str_digits()
+            raise MaterialError(too_many_digits(path)) from None
+        except MemoryError:
+            raise MaterialError(f"{path}: too large to read into memory") from None
+        try:
+            check_nesting(data, path)  # a deep note would fail where the material is written back
+        except ValueError as err:
+            raise MaterialError(str(err)) from None
     if not isinstance(data, dict):
         raise MaterialError(f"{path}: the top level must be a JSON object, got {type(data).__name__}")
     return data
@@ -129,11 +143,11 @@ class _Parser:
         self.data, self.source, self.base_dir = data, source, base_dir
 
     def error(self, key: str, msg: str) -> MaterialError:
-        return MaterialError(f"{self.source}: key '{key}': {msg}")
+        return MaterialError(f"{self.source}: key '{shorten(key)}': {msg}")
 
     def number(self, value, key, lo=-math.inf, hi=math.inf, lo_open=False) -> float:
         if not _is_number(value):
-            raise self.error(key, f"must be a number, got {value!r}")
+            raise self.error(key, f"must be a number, got {quote(value)}")
         x = float(value)
         if not math.isfinite(x) or x < lo or x > hi or (lo_open and x == lo):
             lo_txt = f"({lo:g}" if lo_open else f"[{lo:g}"
@@ -143,7 +157,7 @@ class _Parser:
     def choice(self, key, allowed, default):
         value = self.data.get(key, default)
         if value not in allowed:
-            raise self.error(key, f"must be one of {list(allowed)}, got {value!r}")
+            raise self.error(key, f"must be one of {list(allowed)}, got {quote(value)}")
         return value
 
     def meta(self) -> dict:
@@ -184,7 +198,7 @@ class _Parser:
         for j, lobe in enumerate(raw):
             key = f"lobes[{j}]"
             if not isinstance(lobe, dict):
-                raise self.error(key, f"must be a table {{m = ..., weight = ...}}, got {lobe!r}")
+                raise self.error(key, f"must be a table {{m = ..., weight = ...}}, got {quote(lobe)}")
             for extra in sorted(set(lobe) - {"m", "weight"}):
                 raise self.error(f"{key}.{extra}", "unknown key; a lobe has 'm' and 'weight'")
             if "m" not in lobe:
@@ -200,13 +214,27 @@ class _Parser:
         return [ms[j] for j in order], [ws[j] for j in order]
 
     def resolve(self, name: str):
-        """A table's name, or a CSV path relative to the file's folder (or the working directory)."""
+        """A table's name, or the real path of an optical constants CSV in the material file's
+        folder (below it, or the working directory's without one) or in a folder of
+        :data:`~ctfit._io.optical_constants.TABLE_FOLDERS` (``docs/formats.md``)."""
         if is_table_name(name):
             return name
-        path = pathlib.Path(self.base_dir if self.base_dir is not None else pathlib.Path.cwd()) / name
-        if not path.is_file():
-            raise self.error("optical_constants", f"no file {name!r} (looked for {path}); ctfit ships {', '.join(table_names())}")
-        return path
+        if not name.lower().endswith(".csv"):
+            raise self.error("optical_constants", f"{quote(name)} is neither the name of a table that ships with ctfit "
+                             f"({', '.join(table_names())}) nor the path of an optical constants CSV (.csv)")
+        folders = [pathlib.Path(self.base_dir if self.base_dir is not None else pathlib.Path.cwd()), *table_folders()]
+        inside = False
+        for folder in folders:
+            real, top = pathlib.Path(os.path.realpath(folder / name)), pathlib.Path(os.path.realpath(folder))
+            if real.is_relative_to(top):
+                inside = True
+                if real.is_file():
+                    return real
+        if not inside:
+            raise self.error("optical_constants", f"{quote(name)} is outside the material file's folder; an optical constants "
+                             f"CSV must be in that folder (or below it) or in a folder listed in ${TABLE_FOLDERS}")
+        looked = " or ".join(str(f / name) for f in folders)
+        raise self.error("optical_constants", f"no file {quote(name)} (looked for {shorten(looked, 400)}); ctfit ships {', '.join(table_names())}")
 
     def bands(self):
         """(wavelength_nm, channels, band key, optical constants table or None)."""
@@ -218,18 +246,19 @@ class _Parser:
         key, value = given[0], self.data[given[0]]
         if key == "optical_constants":
             if not isinstance(value, str):
-                raise self.error(key, f"must be a path (string), got {value!r}")
+                raise self.error(key, f"must be a path (string), got {quote(value)}")
+            where = self.resolve(value)
             try:
-                table = read_optical_constants(self.resolve(value))
+                table = read_optical_constants(where)
             except MaterialError as err:
                 raise self.error(key, str(err)) from None
             return table["wavelength_nm"], None, key, table
         if not isinstance(value, list) or not value:
-            raise self.error(key, f"must be a non-empty list, got {value!r}")
+            raise self.error(key, f"must be a non-empty list, got {quote(value)}")
         if key == "channels":
             for i, c in enumerate(value):
                 if not isinstance(c, str) or not c:
-                    raise self.error(f"{key}[{i}]", f"must be a channel name, got {c!r}")
+                    raise self.error(f"{key}[{i}]", f"must be a channel name, got {quote(c)}")
             if len(set(value)) != len(value):
                 raise self.error(key, f"channel names must be unique, got {value}")
             return None, tuple(value), key, None
@@ -244,7 +273,7 @@ class _Parser:
         if _is_number(value):
             return np.full(nbands, self.number(value, key, lo, hi, lo_open))
         if not isinstance(value, list):
-            raise self.error(key, f"must be a number or a list over {band_key}, got {value!r}")
+            raise self.error(key, f"must be a number or a list over {band_key}, got {quote(value)}")
         if len(value) != nbands:
             raise self.error(key, f"has {len(value)} values, {band_key} has {nbands}")
         return np.asarray(
@@ -275,7 +304,7 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
     meta = p.meta()
     name = data.get("name", default_name)
     if not isinstance(name, str):
-        raise p.error("name", f"must be a string, got {name!r}")
+        raise p.error("name", f"must be a string, got {quote(name)}")
     s, d = p.fractions()
     ms, ws = p.lobes(s)
     distribution = p.choice("distribution", DISTRIBUTIONS, "beckmann")
@@ -285,7 +314,7 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
     nbands = len(wl) if wl is not None else len(channels)
     band_unknown = data.get("band_unknown", False)
     if not isinstance(band_unknown, bool):
-        raise p.error("band_unknown", f"must be true or false, got {band_unknown!r}")
+        raise p.error("band_unknown", f"must be true or false, got {quote(band_unknown)}")
     if band_unknown and (wl is None or nbands != 1):
         raise p.error("band_unknown", f"true needs exactly one wavelength_nm (a placeholder), got {nbands} {band_key}")
 
@@ -297,7 +326,7 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
         value = data.get("Rd", "F0/pi")
         if isinstance(value, str):
             if value != "F0/pi":
-                raise p.error("Rd", f'must be "F0/pi", a number or a list over {band_key}, got {value!r}')
+                raise p.error("Rd", f'must be "F0/pi", a number or a list over {band_key}, got {quote(value)}')
             diffuse = "F0/pi"
         elif _is_number(value):
             diffuse, rd = "constant", np.asarray(p.number(value, "Rd", 0))
@@ -356,7 +385,7 @@ def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tup
         return "f0", {}
     explicit = data.get("fresnel")
     if explicit is not None and explicit not in FRESNELS:
-        raise p.error("fresnel", f"must be one of {list(FRESNELS)}, got {explicit!r}")
+        raise p.error("fresnel", f"must be one of {list(FRESNELS)}, got {quote(explicit)}")
     if table is not None:
         if keys:
             raise p.error(keys[0], "give either optical_constants or F0/n/k, not both")

@@ -33,6 +33,7 @@ import warnings
 import numpy as np
 
 from .errors import DataError
+from .untrusted import check_input_file
 from .files import atomic_write
 from .._model import Measurement
 
@@ -259,8 +260,10 @@ def read_merl(path) -> Measurement:
     ...
     ctfit._io.errors.DataError: header-only.binary: truncated: 12 bytes; a (90, 90, 180) table of 3 channels takes 34992012 bytes
     """
+    check_input_file(path, text=False)
     with open(path, "rb") as f:
-        raw = f.read()
+        raw = f.read(MERL_FILE_BYTES + 1)  # no more: a file of another size is refused
+        size = os.fstat(f.fileno()).st_size
     if len(raw) < _HEADER_BYTES:
         raise DataError(f"truncated: {len(raw)} bytes; a MERL file starts with three int32 dimensions (12 bytes)", path=path)
     dims = tuple(int(d) for d in np.frombuffer(raw, "<i4", 3))
@@ -268,7 +271,7 @@ def read_merl(path) -> Measurement:
         raise DataError(f"dimensions {dims} in the header (bytes 0–11): a MERL file has {MERL_SHAPE} (θ_h, θ_d, φ_d)", path=path)
     if len(raw) != MERL_FILE_BYTES:
         what = "truncated" if len(raw) < MERL_FILE_BYTES else "too long"
-        raise DataError(f"{what}: {len(raw)} bytes; a {MERL_SHAPE} table of 3 channels takes {MERL_FILE_BYTES} bytes", path=path)
+        raise DataError(f"{what}: {size} bytes; a {MERL_SHAPE} table of 3 channels takes {MERL_FILE_BYTES} bytes", path=path)
     table = np.frombuffer(raw, "<f8", 3 * _CELLS, _HEADER_BYTES).reshape(3, _CELLS)
     bad = ~np.isfinite(table)
     if bad.any():

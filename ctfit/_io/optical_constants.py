@@ -8,24 +8,46 @@ Every problem raises :class:`MaterialError` naming the file (and the line).
 from __future__ import annotations
 
 import importlib.resources
+import os
 import pathlib
 
 import numpy as np
 
 from .errors import DataError, MaterialError
 from .files import read_text
+from .untrusted import check_input_file, quote
 from .._model import f0_from_nk
 
-__all__ = ["read_material_text", "is_table_name", "table_names", "read_optical_constants"]
+__all__ = ["TABLE_FOLDERS", "read_material_text", "is_table_name", "table_folders", "table_names", "read_optical_constants"]
 
 _TABLES = importlib.resources.files("ctfit") / "data" / "optical_constants"  # package data
+TABLE_FOLDERS = "CTFIT_OPTICAL_CONSTANTS"
+"""The environment variable that lists further folders (``os.pathsep``-separated) where a
+material file's ``optical_constants`` path may lead, beside the material file's own folder."""
+MAX_TEXT_BYTES = 64 << 20
+"""The largest material or optical-constants file read."""
+
+
+def table_folders() -> list[pathlib.Path]:
+    """The folders of :data:`TABLE_FOLDERS` (absolute ones; others are ignored).
+
+    >>> import os
+    >>> os.environ[TABLE_FOLDERS] = os.pathsep.join(["/srv/tables", "relative"])
+    >>> table_folders()
+    [PosixPath('/srv/tables')]
+    >>> del os.environ[TABLE_FOLDERS]
+    """
+    return [pathlib.Path(p) for p in os.environ.get(TABLE_FOLDERS, "").split(os.pathsep) if p and os.path.isabs(p)]
 
 
 def read_material_text(path) -> str:
     """The text of a material or optical-constants file (:func:`~ctfit._io.files.read_text`:
     UTF-8, a byte-order mark dropped); a missing, unreadable or undecodable file raises
-    :class:`MaterialError` naming it."""
+    :class:`MaterialError` naming it, as does a file that is not a regular file, is not text or is
+    larger than :data:`MAX_TEXT_BYTES` (:func:`~ctfit._io.untrusted.check_input_file`)."""
     try:
+        if isinstance(path, (str, os.PathLike)):
+            check_input_file(path, max_bytes=MAX_TEXT_BYTES)
         return read_text(path)
     except FileNotFoundError:
         raise MaterialError(f"{path}: no such file") from None
@@ -69,14 +91,16 @@ def _parse(path, lines: list[str]) -> tuple[dict, list[str], list[list[float]]]:
             header = cells
             missing = [c for c in ("wavelength_nm", "n", "k") if c not in header]
             if missing:
-                raise MaterialError(f"{path}:{lineno}: header lacks column(s) {missing}; got {header}")
+                raise MaterialError(  # the content of a file that is no table is not shown
+                    f"{path}:{lineno}: header lacks column(s) {missing}: not an optical constants table (docs/formats.md)"
+                )
             continue
         if len(cells) != len(header):
             raise MaterialError(f"{path}:{lineno}: {len(cells)} values, header has {len(header)}")
         try:
             rows.append([float(c) for c in cells])
         except ValueError:
-            raise MaterialError(f"{path}:{lineno}: not a number in {line!r}") from None
+            raise MaterialError(f"{path}:{lineno}: not a number in {quote(line)}") from None
     if not rows:
         raise MaterialError(f"{path}: no data rows")
     return meta, header, rows

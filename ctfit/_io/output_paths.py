@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import errno
 import functools
-import json
 import os
 import stat
 from pathlib import Path
 
 from .files import replace_links_in, writes_in_place
+from .untrusted import read_json_or_none
 
 __all__ = [
     "OutputError",
@@ -235,10 +235,7 @@ def result_targets(inputs, folder, suffix: str) -> dict[Path, Path]:
 
 
 def _holds_converged_fit(path: Path) -> bool:
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return False
+    doc = read_json_or_none(path)  # nesting, huge numbers, a FIFO: not a converged fit
     return isinstance(doc, dict) and isinstance(doc.get("fit"), dict) and doc["fit"].get("converged") is True
 
 

@@ -16,6 +16,7 @@ import pathlib
 from .alta import read_alta
 from .csv_files import read_csv
 from .errors import DataError
+from .untrusted import check_input_file
 from .._model import Measurement
 from .merl import MERL_FILE_BYTES, MERL_SHAPE, read_merl
 from .rgl import TENSOR_MAGIC, read_rgl
@@ -68,6 +69,7 @@ def reader_for(path):
 
 def _sniff(path):
     """The reader for a file recognised by its content, or None."""
+    check_input_file(path, text=False)
     with open(path, "rb") as f:
         head = f.read(_SNIFF_BYTES)
     if head.startswith(TENSOR_MAGIC):

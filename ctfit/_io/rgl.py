@@ -36,6 +36,7 @@ import numpy as np
 
 from .errors import DataError, DataWarning
 from .._model import Measurement
+from .untrusted import check_input_file
 
 __all__ = ["MIN_COS", "TENSOR_MAGIC", "bilinear", "marginal_sample", "read_rgl", "read_tensor_file"]
 
@@ -47,6 +48,11 @@ _REQUIRED = ("description", "jacobian", "theta_i", "phi_i", "ndf", "sigma", "vnd
 
 
 # --- tensor files -------------------------------------------------------------------------------
+
+
+MAX_TENSOR_BYTES = 1 << 31
+"""The largest tensor file read (the database's files are tens of MB): a larger one is refused
+before it is read into memory."""
 
 
 def read_tensor_file(path) -> dict:
@@ -62,6 +68,7 @@ def read_tensor_file(path) -> dict:
     ...
     ctfit._io.errors.DataError: notes.bsdf: not a tensor file: it does not start with 'tensor_file\\0' (an RGL .bsdf file does)
     """
+    check_input_file(path, text=False, max_bytes=MAX_TENSOR_BYTES)  # a regular file, of a size a tensor file can have
     with open(path, "rb") as f:
         raw = f.read()
     if not raw.startswith(TENSOR_MAGIC):

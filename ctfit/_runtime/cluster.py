@@ -43,7 +43,7 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        kw = {"scheduler_file": scheduler} if str(scheduler).endswith(".json") else {"address": scheduler}
+        kw = _scheduler_file(scheduler) if str(scheduler).endswith(".json") else {"address": scheduler}
         with Client(**kw, timeout="30s") as made:
             yield made
         return
@@ -64,6 +64,33 @@ def _shut_down(client, cluster) -> None:
     """Close ``client`` and its local ``cluster`` (an interrupted command, before it exits)."""
     client.close(timeout=10)
     cluster.close(timeout=10)
+
+
+def _scheduler_file(path) -> dict:
+    """``Client`` keywords for a scheduler file: its ``address`` once it exists (read here, as any
+    input: one error for a device, a file nested too deeply, one without an address), else the
+    file, for which Dask waits (a scheduler that is starting writes it). A file that does not
+    parse is read again for a second, as Dask does: the scheduler may be writing it."""
+    import os
+    import time
+
+    from .._io import check_input_file, parse_json, quote
+
+    if not os.path.exists(path):
+        return {"scheduler_file": path}
+    for attempt in range(20):
+        check_input_file(path, max_bytes=1 << 20)
+        try:
+            with open(path, encoding="utf-8") as f:
+                doc = parse_json(f.read(), path)
+            break
+        except ValueError:
+            if attempt == 19:
+                raise
+            time.sleep(0.05)
+    if not isinstance(doc, dict) or not isinstance(doc.get("address"), str):
+        raise ValueError(f"{path}: not a Dask scheduler file (a JSON object with an \"address\"), got {quote(doc)}")
+    return {"address": doc["address"]}
 
 
 def worker_count(client) -> int:

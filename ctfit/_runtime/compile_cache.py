@@ -13,12 +13,13 @@ from __future__ import annotations
 import atexit
 import os
 import shutil
+import stat
 import sys
 import tempfile
 import warnings
 from pathlib import Path
 
-__all__ = ["CacheWarning", "enable_compilation_cache", "program_store_folder", "matplotlib_config_fallback", "warn_once"]
+__all__ = ["CacheWarning", "enable_compilation_cache", "program_store_folder", "matplotlib_config_fallback", "unsafe_folder", "warn_once"]
 
 PROGRAM_STORE = "ctfit-aot"
 """The store's folder inside JAX's cache folder."""
@@ -63,11 +64,42 @@ def _usable(where: Path) -> str | None:
     return None
 
 
+def unsafe_folder(folder: Path, *, follow: bool = True) -> str | None:
+    """Why the programs kept in ``folder`` could have been put there by someone else (the folder
+    belongs to another user, or group or others can write to it, sticky bit or not), or None when
+    only this user can write there. ``follow=False``: a link is not a folder.
+
+    >>> import os, pathlib
+    >>> folder = pathlib.Path("programs")
+    >>> folder.mkdir(mode=0o700)
+    >>> unsafe_folder(folder) is None
+    True
+    >>> os.chmod(folder, 0o1777)
+    >>> unsafe_folder(folder)
+    'can be written by other users (mode drwxrwxrwt); run chmod go-w on it'
+    """
+    st = folder.stat() if follow else folder.lstat()
+    if not stat.S_ISDIR(st.st_mode):
+        return "is not a folder"
+    if hasattr(os, "getuid") and st.st_uid != os.getuid():
+        return "belongs to another user"
+    if st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return f"can be written by other users (mode {stat.filemode(st.st_mode)}); run chmod go-w on it"
+    return None
+
+
+def _shared(where: Path) -> str | None:
+    """:func:`unsafe_folder` of JAX's cache folder, as a reason: JAX's entries are programs too."""
+    problem = unsafe_folder(where)
+    return None if problem is None else f"{where} {problem}"
+
+
 def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | None:
     """Point JAX's persistent cache at ``path``, ``$JAX_COMPILATION_CACHE_DIR`` or ~/.cache/ctfit/jax.
 
     Returns the folder, or None (with one :class:`CacheWarning`) when it cannot be created or
-    written, or there is no home folder: JAX then runs without a persistent cache.
+    written, other users can write to it (:func:`unsafe_folder`: its compiled programs are run),
+    or there is no home folder: JAX then runs without a persistent cache.
 
     >>> import jax, ctfit
     >>> before = jax.config.jax_compilation_cache_dir
@@ -80,7 +112,7 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
 
     given = path or os.environ.get("JAX_COMPILATION_CACHE_DIR")
     where = Path(given) if given else _default()
-    problem = "no home folder (HOME is empty or relative)" if where is None else _usable(where)
+    problem = "no home folder (HOME is empty or relative)" if where is None else _usable(where) or _shared(where)
     if problem:
         warn_once(
             f"compilation cache off: {problem}; every run compiles again. "
@@ -96,11 +128,23 @@ def enable_compilation_cache(path: str | os.PathLike | None = None) -> Path | No
 
 def program_store_folder() -> Path | None:
     """The folder of ctfit's compiled-program store: :data:`PROGRAM_STORE` inside JAX's cache
-    folder; None while JAX's cache is off."""
+    folder; None while JAX's cache is off, or (with one :class:`CacheWarning`, JAX's cache then
+    turned off) when JAX's folder was set without :func:`enable_compilation_cache` (say by
+    ``$JAX_COMPILATION_CACHE_DIR``) to one that others can write to (:func:`unsafe_folder`)."""
     import jax
 
     where = jax.config.jax_compilation_cache_dir
-    return Path(where) / PROGRAM_STORE if where else None
+    if not where:
+        return None
+    try:
+        problem = _shared(Path(where))
+    except OSError:  # not made yet: JAX makes it, with the umask's mode
+        problem = None
+    if problem:
+        warn_once(f"compilation cache off: {problem}; every run compiles again")
+        jax.config.update("jax_compilation_cache_dir", None)
+        return None
+    return Path(where) / PROGRAM_STORE
 
 
 def matplotlib_config_fallback() -> str | None:

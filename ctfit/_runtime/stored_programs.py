@@ -16,14 +16,16 @@ determines it:
 - the static part of the arguments (structure, spec, solver options: their ``repr``) and the
   shape and dtype of every array argument.
 
-An entry is used only when its key matches exactly; if it cannot be read, loaded or called
-(a truncated file, a jaxlib that cannot deserialise it), it is discarded and the program is
-compiled as usual. Entries are written atomically. The store lives where
+An entry is used only when its key matches exactly: its file is named by the key, and holds a
+digest of the whole key, checked when it is loaded (a file copied over another's name is not
+run). If it holds another key, or cannot be read, loaded or called (a truncated file, a jaxlib
+that cannot deserialise it), it is discarded with a warning and the program is compiled as usual. Entries are written atomically. The store lives where
 :func:`ctfit._runtime.compile_cache.program_store_folder` says (``ctfit-aot/`` inside the folder
 of JAX's persistent cache), and only when that cache is enabled (the ``ctfit`` command
 enables it; library users call :func:`ctfit.enable_compilation_cache`). Since
-its programs are run, the folder is made with mode 0700 and is not used (one warning) when it
-belongs to another user or others can write to it.
+its programs are run, the folder is made with mode 0700 and is not used (one warning) when it,
+or JAX's cache folder around it, belongs to another user or others can write to it
+(:func:`ctfit._runtime.compile_cache.unsafe_folder`).
 
 In memory, programs are kept under the same key: :func:`cached_call`'s executables for the
 process's lifetime, and programs that :func:`kept_program` builds once and hands out, to be
@@ -49,10 +51,10 @@ import jax
 import numpy as np
 from jax.experimental import serialize_executable
 
-from .compile_cache import program_store_folder, warn_once
+from .compile_cache import program_store_folder, unsafe_folder, warn_once
 from .._io import atomic_write
 
-_FORMAT = 2  # 1: jax.export programs (compiled again in every process); 2: executables
+_FORMAT = 3  # 1: jax.export programs (compiled again in every process); 2: executables; 3: with their key
 _memory: dict[str, Callable] = {}  # "name-key" → program, the least recently used first
 _jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
 
@@ -119,18 +121,11 @@ def _trusted(store: pathlib.Path) -> pathlib.Path | None:
     may plant one. Otherwise warn and go without it."""
     try:
         store.mkdir(mode=0o700, parents=True, exist_ok=True)
-        st = store.lstat()
+        problem = unsafe_folder(store, follow=False)
     except OSError as e:
         problem = f"cannot be created ({e.strerror or e})"
-    else:
-        if not stat.S_ISDIR(st.st_mode):
-            problem = "is not a folder"
-        elif hasattr(os, "getuid") and st.st_uid != os.getuid():
-            problem = "belongs to another user"
-        elif st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
-            problem = f"can be written by other users (mode {stat.filemode(st.st_mode)}); run chmod go-w on it"
-        else:
-            return store
+    if problem is None:
+        return store
     warn_once(f"compiled-program store off: {store} {problem}; fits trace their programs again in every run")
     return None
 
@@ -211,14 +206,20 @@ def _runtime_ready() -> bool:
     return True
 
 
-def _load(path: pathlib.Path):
-    """The executable stored at ``path`` (the store is this user's alone, see :func:`_trusted`)."""
-    blob, in_tree, out_tree = pickle.loads(path.read_bytes())
-    return serialize_executable.deserialize_and_load(blob, in_tree, out_tree)
+def _load(path: pathlib.Path, key: str):
+    """The executable stored at ``path`` under ``key`` (the store is this user's alone, see
+    :func:`_trusted`); ``ValueError`` when the entry was stored under another key (a file of
+    another program, or of another ctfit, under this one's name)."""
+    stored = pickle.loads(path.read_bytes())
+    if not (isinstance(stored, tuple) and len(stored) == 4 and stored[0] == hashlib.sha256(key.encode()).hexdigest()):
+        raise ValueError("it holds another program (its key is not this one's)")
+    return serialize_executable.deserialize_and_load(*stored[1:])
 
 
-def _save(path: pathlib.Path, compiled) -> None:
-    atomic_write(path, [pickle.dumps(serialize_executable.serialize(compiled), protocol=pickle.HIGHEST_PROTOCOL)])
+def _save(path: pathlib.Path, key: str, compiled) -> None:
+    """Store ``compiled`` at ``path``, with a digest of its ``key`` that :func:`_load` checks."""
+    entry = (hashlib.sha256(key.encode()).hexdigest(), *serialize_executable.serialize(compiled))
+    atomic_write(path, [pickle.dumps(entry, protocol=pickle.HIGHEST_PROTOCOL)])
 
 
 def _plain(treedef) -> bool:
@@ -266,7 +267,7 @@ def cached_call(name: str, fn: Callable, *args):
     path = store / f"{name}-{digest[:32]}.xla" if store is not None else None
     if run is None and path is not None and path.is_file():
         try:
-            run = _load(path)
+            run = _load(path, key)
             out = jax.block_until_ready(run(*leaves))  # a damaged program fails here, not later
         except Exception as err:  # noqa: BLE001 — a stale or damaged entry: trace instead
             warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
@@ -292,7 +293,7 @@ def cached_call(name: str, fn: Callable, *args):
         # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.
         if path is not None and not _jax_cache_hits:
             try:
-                _save(path, run)
+                _save(path, key, run)
             except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
                 warnings.warn(f"could not write the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
     return run(*leaves)
