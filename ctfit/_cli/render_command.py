@@ -39,7 +39,7 @@ def render_command_body(
     The summary: ``{"output", "materials", "shape", "size", "image_shape", "compare"}``.
     """
     from .._io import check_output, load_material  # noqa: PLC0415
-    from .._render import EXPOSURES, SHAPES, render_compare, render_materials, save_png  # noqa: PLC0415
+    from .._render import EXPOSURES, SHAPES, check_wavelength_step, render_compare, render_materials, save_png  # noqa: PLC0415
 
     if not materials:
         raise ValueError("give at least one material file")
@@ -53,8 +53,7 @@ def render_command_body(
         raise ValueError(f"--supersample must be in 1..8, got {supersample}")
     if not ambient >= 0:
         raise ValueError(f"--ambient must be ≥ 0, got {ambient}")
-    if not wavelength_step > 0:
-        raise ValueError(f"--step must be > 0 nm, got {wavelength_step}")
+    check_wavelength_step(wavelength_step)  # its message names --step (messages.cli_message)
     if columns is not None and columns < 1:
         raise ValueError(f"--columns must be ≥ 1, got {columns}")
     if Path(output).suffix.lower() != ".png":
