@@ -401,3 +401,17 @@ def test_a_short_chain_runs_and_says_it_is_too_short(metal, tmp_path, steps):
     assert d["steps"] == steps and d["chain_long_enough"] is False
     table = format_uncertainty_table(doc, "metal")
     assert "τ_max" in table and "lobe 0: m =" in table
+
+
+def test_resume_refuses_an_hdf5_file_without_a_chain(metal, tmp_path):
+    """--resume on another program's HDF5 file neither starts a chain inside it nor changes it."""
+    import h5py
+
+    _, data, fitted = metal
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = np.arange(3)
+    before = other.read_bytes()
+    with pytest.raises(ValueError, match="no chain of ctfit.*overwrite"):
+        sample(fitted, data, steps=5, backend=other, resume=True, colour=False)
+    assert other.read_bytes() == before
