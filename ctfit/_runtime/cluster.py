@@ -17,9 +17,11 @@ from __future__ import annotations
 import contextlib
 import logging
 
-__all__ = ["dask_client", "prepare_worker", "worker_count"]
+__all__ = ["CONNECT_TIMEOUT", "dask_client", "prepare_worker", "scheduler_address", "worker_count"]
 
 _LOGGERS = ("distributed", "tornado", "bokeh")
+CONNECT_TIMEOUT = "30s"
+"""How long ``dask_client`` tries to reach a scheduler before it gives up (an ``OSError``)."""
 _prepared: set[bool] = set()
 
 
@@ -42,8 +44,7 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        kw = {"scheduler_file": scheduler} if str(scheduler).endswith(".json") else {"address": scheduler}
-        with Client(**kw, timeout="30s") as made:
+        with Client(address=scheduler_address(scheduler), timeout=CONNECT_TIMEOUT) as made:
             yield made
         return
     if workers is not None and workers < 1:
@@ -51,6 +52,37 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                       silence_logs=logging.ERROR) as cluster, Client(cluster) as made:
         yield made
+
+
+def scheduler_address(scheduler) -> str:
+    """The address of ``scheduler``: itself, or read from a scheduler file (``.json``, as
+    ``dask scheduler --scheduler-file`` writes it) — read once, so a missing file is an error at
+    once (``distributed`` would wait for it to appear) and a file that is not one says so.
+
+    >>> scheduler_address("tcp://127.0.0.1:8786")
+    'tcp://127.0.0.1:8786'
+    >>> scheduler_address("no-such-scheduler.json")
+    Traceback (most recent call last):
+    ValueError: scheduler file no-such-scheduler.json: no such file (dask scheduler --scheduler-file FILE writes one)
+    """
+    import json
+    from pathlib import Path
+
+    if not str(scheduler).endswith(".json"):
+        return str(scheduler)
+    what = f"scheduler file {scheduler}"
+    try:
+        doc = json.loads(Path(scheduler).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ValueError(f"{what}: no such file (dask scheduler --scheduler-file FILE writes one)") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"{what}: cannot be read ({getattr(e, 'strerror', None) or e})") from None
+    except ValueError as e:
+        raise ValueError(f"{what}: is not JSON ({e}); a Dask scheduler file is a JSON object with the scheduler's 'address'") from None
+    address = doc.get("address") if isinstance(doc, dict) else None
+    if not isinstance(address, str) or not address:
+        raise ValueError(f"{what}: has no 'address': a Dask scheduler file is a JSON object such as " + '{"address": "tcp://HOST:8786", ...}')
+    return address
 
 
 def worker_count(client) -> int:
