@@ -65,3 +65,32 @@ def test_a_material_of_unknown_band_is_not_simulated_into_31_bands(tmp_path):
 def test_render_step_outside_its_range_says_what_is_allowed(tmp_path, step, why):
     r = run("render", ROOT / "configs" / "gold.toml", "-o", tmp_path / "r.png", "--size", 16, "--supersample", 1, "--step", step)
     refused(r, "--step", "[1, 400] nm", why)
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp("limits")
+    assert run("simulate", COPPER, "-o", d / "cu.csv", "--samples", 60, "--wavelengths", "400:700:150", "--noise", 0.01).exit_code == 0
+    r = run("fit", d / "cu.csv", "-o", d / "cu.json", "--starts", 1)
+    assert r.exit_code in (0, 1), r.output
+    return d
+
+
+@pytest.mark.parametrize("args, words", [
+    (("sample", "{d}/cu.json", "{d}/cu.csv", "-o", "{d}/s.json", "--steps", 5, "--thin", 10), "--thin must be at most steps (5)"),
+    (("fit", "{d}/cu.csv", "--sample", "--steps", 3, "--thin", 5), "--thin must be at most --steps (3)"),
+    (("fit", "{d}/cu.csv", "--param-out", "x"), "--param-out must be one of"),
+    (("eval", COPPER, "{d}/cu.csv", "-o", "{d}/e.csv", "--param-out", "x"), "--param-out must be one of"),
+    (("simulate", COPPER, "-o", "{d}/n.csv", "--samples", 3, "--noise", 1e308), "--noise=1e+308 is too large"),
+    (("render", COPPER, "-o", "{d}/r.png", "--size", 16, "--ambient", "inf"), "--ambient must be a finite fraction"),
+    (("color", COPPER, "--angle", 95), "--angle must be in [0, 90]"),
+])
+def test_extreme_options_are_one_error_line_naming_the_option(fitted, args, words):
+    refused(run(*(str(a).format(d=fitted) for a in args)), words)
+
+
+def test_negative_seeds_are_refused_by_name():
+    mat = ctfit.load_material(COPPER)
+    with pytest.raises(ValueError, match="seed must be ≥ 0"):
+        ctfit.simulate(mat, 3, seed=-1)
+    assert "--seed" in run("simulate", COPPER, "-o", "never.csv", "--seed", -1).output

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from types import SimpleNamespace
 
-from .inputs import load_material_file, read_data, setup_jax
+from .inputs import check_param_out, load_material_file, read_data, setup_jax
 from .messages import UserError, failure_line
 
 __all__ = ["UNUSABLE", "check_fit_choices", "echo_wrote", "fit_command", "fit_exit_status", "fit_kwargs", "report_file", "structure_from_options"]
@@ -58,6 +58,9 @@ def _check_fit_options(o) -> None:
 
     if o.lobes != "auto" and not (o.lobes.isdigit() and 1 <= int(o.lobes) <= MAX_LOBES):
         raise UserError(f"--lobes must be 1..{MAX_LOBES} or 'auto', got {o.lobes!r}")
+    check_param_out(o.param_out)
+    if o.sample_ and o.thin > o.steps:
+        raise UserError(f"--thin must be at most --steps ({o.steps}) to keep a draw, got {o.thin}")
     if (o.resume or o.overwrite) and o.backend is None:
         raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
     if o.walkers is not None and o.walkers % 2:

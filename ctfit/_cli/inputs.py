@@ -6,7 +6,7 @@ from pathlib import Path
 
 from .messages import UserError
 
-__all__ = ["PARAM_OUT_HELP", "WAVELENGTHS_HELP", "load_material_file", "parse_wavelengths", "read_data", "setup_jax"]
+__all__ = ["PARAM_OUT_HELP", "WAVELENGTHS_HELP", "check_param_out", "load_material_file", "parse_wavelengths", "read_data", "setup_jax"]
 
 
 def setup_jax(float32: bool = False):
@@ -29,7 +29,17 @@ def read_data(path: Path, param_out: str | None = None):
     """Read a measurement (once); ``--param-out`` serves only an ALTA file without its own #PARAM_OUT line."""
     from .._fitting import read_input
 
+    check_param_out(param_out)
     return read_input(path, param_out)
+
+
+def check_param_out(param_out: str | None) -> None:
+    """Refuse a ``--param-out`` that names no unit (it is checked even where no ALTA file uses it)."""
+    if param_out is not None and param_out not in PARAM_OUT_UNITS:
+        raise UserError(f"--param-out must be one of {', '.join(PARAM_OUT_UNITS)}, got {param_out!r}")
+
+
+PARAM_OUT_UNITS = ("INV_STERADIAN", "INV_STERADIAN_COSINE_FACTOR", "RGB_COLOR")  # the ALTA reader's (ctfit._io.alta.PARAM_OUT)
 
 
 PARAM_OUT_HELP = "ALTA files without a #PARAM_OUT line: the unit of their values (INV_STERADIAN or INV_STERADIAN_COSINE_FACTOR)."

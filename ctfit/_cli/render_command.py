@@ -51,8 +51,8 @@ def render_command_body(
         raise ValueError(f"--size must be in 8..{_MAX_SIZE} pixels, got {size}")
     if not 1 <= supersample <= 8:
         raise ValueError(f"--supersample must be in 1..8, got {supersample}")
-    if not ambient >= 0:
-        raise ValueError(f"--ambient must be ≥ 0, got {ambient}")
+    if not 0 <= ambient < float("inf"):
+        raise ValueError(f"--ambient must be a finite fraction ≥ 0, got {ambient}")
     check_wavelength_step(wavelength_step)  # its message names --step (messages.cli_message)
     if columns is not None and columns < 1:
         raise ValueError(f"--columns must be ≥ 1, got {columns}")

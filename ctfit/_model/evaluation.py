@@ -177,8 +177,10 @@ def simulate(
     >>> print(f"{np.std(noisy.brdf / exact.brdf - 1):.2f}")
     0.05
     """
-    if noise < 0:
-        raise ValueError(f"noise must be ≥ 0, got {noise}")
+    if not 0 <= noise < np.inf:
+        raise ValueError(f"noise must be a finite number ≥ 0, got {noise}")
+    if seed < 0:
+        raise ValueError(f"seed must be ≥ 0 (NumPy's generators take no negative seed), got seed={seed}")
     if material.is_rgb:
         channels = tuple(channels or material.channels)
         wl = None
@@ -211,6 +213,9 @@ def simulate(
     values = truth
     if noise > 0:
         rng = np.random.default_rng([seed, 1])
-        values = np.maximum(truth * (1 + noise * rng.standard_normal(truth.shape)), 0.0)
-        sigma = noise * np.maximum(truth, 1e-6 * np.max(truth))
+        with np.errstate(over="ignore"):
+            values = np.maximum(truth * (1 + noise * rng.standard_normal(truth.shape)), 0.0)
+            sigma = noise * np.maximum(truth, 1e-6 * np.max(truth))
+        if not (np.all(np.isfinite(values)) and np.all(np.isfinite(sigma))):
+            raise ValueError(f"noise={noise:g} is too large: the noisy values overflow")
     return base.replace(brdf=values, sigma=sigma)

@@ -55,15 +55,15 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
 
 
 def scheduler_address(scheduler) -> str:
-    """The address of ``scheduler``: itself, or read from a scheduler file (``.json``, as
-    ``dask scheduler --scheduler-file`` writes it) — read once, so a missing file is an error at
+    """The address of ``scheduler``: itself, or read from a scheduler file (``.json``, the one
+    a Dask scheduler writes when it is given a file) — read once, so a missing file is an error at
     once (``distributed`` would wait for it to appear) and a file that is not one says so.
 
     >>> scheduler_address("tcp://127.0.0.1:8786")
     'tcp://127.0.0.1:8786'
     >>> scheduler_address("no-such-scheduler.json")
     Traceback (most recent call last):
-    ValueError: scheduler file no-such-scheduler.json: no such file (dask scheduler --scheduler-file FILE writes one)
+    ValueError: scheduler file no-such-scheduler.json: no such file (a Dask scheduler started with a scheduler file writes it)
     """
     import json
     from pathlib import Path
@@ -74,7 +74,7 @@ def scheduler_address(scheduler) -> str:
     try:
         doc = json.loads(Path(scheduler).read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise ValueError(f"{what}: no such file (dask scheduler --scheduler-file FILE writes one)") from None
+        raise ValueError(f"{what}: no such file (a Dask scheduler started with a scheduler file writes it)") from None
     except (OSError, UnicodeDecodeError) as e:
         raise ValueError(f"{what}: cannot be read ({getattr(e, 'strerror', None) or e})") from None
     except ValueError as e:
