@@ -56,7 +56,7 @@ def parse_wavelengths(text: str | None):
     """The wavelengths of ``--wavelengths``: a START:STOP:STEP range (STOP included where the steps
     land on it, never passed) or a list; each a positive finite number of nm.
 
-    >>> parse_wavelengths("400:700:100").tolist(), parse_wavelengths("400:700:7")[-1], parse_wavelengths("450, 650").tolist()
+    >>> parse_wavelengths("400:700:100").tolist(), float(parse_wavelengths("400:700:7")[-1]), parse_wavelengths("450, 650").tolist()
     ([400.0, 500.0, 600.0, 700.0], 694.0, [450.0, 650.0])
     """
     import numpy as np
