@@ -51,3 +51,10 @@ def test_fit_names_data_that_is_not_a_measurement(data):
         ctfit.fit(data)
     with pytest.raises(TypeError, match="structure must be a ctfit.Structure"):
         ctfit.fit(measurement(), structure="lobes=2")
+
+
+def test_sample_names_data_that_is_not_a_measurement():
+    gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+                          wavelength_nm=np.array([450.0, 650.0]))
+    with pytest.raises(TypeError, match="data must be a ctfit.Measurement"):
+        ctfit.sample(gold, "data.csv", steps=2)
