@@ -19,6 +19,8 @@ import ctfit
 from ctfit._fitting.many import input_sha256
 from ctfit.cli import app
 
+from conftest import ROOT
+
 BIN = Path(sys.executable).parent
 N_FILES = 12  # 3 files per task on 2 workers: 4 tasks
 
@@ -160,3 +162,34 @@ def test_an_interrupted_run_keeps_its_results_and_the_rerun_fits_the_rest(cluste
     assert_equal_to_serial(out, serial, files)
     for name, doc in kept.items():  # kept, not written again
         assert results(out)[name] == doc
+
+
+@pytest.mark.parametrize("text, words", [("garbage\n", "JSON syntax error"), ("{}", "not a Dask scheduler file"), ("[1, 2]", "not a Dask scheduler file"), (None, "no such file")])
+def test_a_scheduler_file_that_is_not_one_is_one_error_line(tmp_path, text, words):
+    """--scheduler FILE.json: a missing file is refused at once (distributed waits for it to appear),
+    garbage or an object without 'address' in one line (distributed asserts)."""
+    target = tmp_path / "scheduler.json"
+    if text is not None:
+        target.write_text(text)
+    csv = tmp_path / "x.csv"
+    ctfit.write_csv(ctfit.simulate(ctfit.load_material(ROOT / "configs" / "gold.toml"), 20, wavelength_nm=[500.0, 600.0]), csv)
+    r = CliRunner().invoke(app, ["fit", str(csv), "-o", str(tmp_path / "out"), "--scheduler", str(target)])
+    assert r.exit_code == 2, r.output
+    errors = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and words in errors[0] and str(target) in errors[0] and "Traceback" not in r.output
+
+
+def test_a_scheduler_nobody_runs_is_given_up_after_the_timeout(tmp_path, monkeypatch):
+    """A loopback port nothing listens on: an OSError after CONNECT_TIMEOUT, not a hang."""
+    import socket
+
+    from ctfit._runtime import cluster
+
+    with socket.socket() as s:  # a free loopback port, closed again: nothing listens there
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    (tmp_path / "s.json").write_text(json.dumps({"address": f"tcp://127.0.0.1:{port}"}))
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", "1s")
+    with pytest.raises(OSError, match=f"127.0.0.1:{port}"):
+        with cluster.dask_client(scheduler=str(tmp_path / "s.json")):
+            pass

@@ -190,3 +190,21 @@ def test_a_fit_result_names_its_values_and_errors_alike():
     assert abs(values["lobes"][0]["m"] - 0.1) < 5 * errors["lobes"][0]["m"] + 1e-3
     doc = json.loads(json.dumps(fit_result_to_dict(res)))
     assert doc["fit"]["stderr"] == errors and doc["lobes"] == values["lobes"] and doc["F0"] == values["F0"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("lobes", [6, 8])  # 8: ctfit._model.MAX_LOBES
+def test_every_lobe_count_up_to_max_lobes_fits(lobes):
+    """The seed grid has points for every lobe count the structure allows (it had none past 5)."""
+    from ctfit._fitting.starts import m_grid
+    from ctfit._model import MAX_LOBES
+
+    for j in range(1, MAX_LOBES + 1):
+        grid = m_grid(j)
+        assert grid.ndim == 2 and grid.shape[0] >= 1 and grid.shape[1] == j and np.all(np.diff(grid, axis=1) > 0)
+    st = ctfit.Structure(lobes=2, diffuse=None)
+    truth = material(st, WL8[:2], m=np.array([0.1, 0.3]), w=np.array([0.5, 0.5]), f0=np.array([0.6, 0.9]))
+    data = simulate(truth, 60, noise=0.01, seed=1)
+    res = fit(data, ctfit.Structure(lobes=lobes, diffuse=None), starts=2, max_steps=3)
+    assert res.material.structure.lobes == lobes and res.material.params.m.shape == (lobes,)
+    assert np.isfinite(res.stats["cost"])

@@ -57,17 +57,29 @@ def test_fit_batch_with_values_is_the_texel_fit(texels):
     np.testing.assert_allclose(res.params.f0, truth["f0"][:8], atol=0.03)
 
 
-def test_texels_that_cannot_be_fitted_are_named(texels):
+def test_texels_that_cannot_be_fitted_are_recorded_and_the_rest_fitted(texels):
+    """A NaN, an inf, a negative value, all zeros or values out of float64's range: that texel's
+    parameters are NaN, converged False and its status says why; every other texel is fitted as
+    it would be alone."""
+    from ctfit._fitting.texels import TEXEL_STATUS
+
     geometry, values, _ = texels
     with pytest.raises(ValueError, match=r"values must have shape \(texels, 201\)"):
         ctfit.fit_texels(geometry, values[:, :-1], ST)
     bad = values[:10].copy()
     bad[7, 3] = np.nan
-    with pytest.raises(ValueError, match="texel 7, sample 3: brdf = nan is not a finite number"):
-        ctfit.fit_texels(geometry, bad, ST, chunk=4)
-    bad[7, 3] = 1.0
+    bad[1, 0] = np.inf
+    bad[2, 5] = -1.0
     bad[9] = 0.0
-    with pytest.raises(ValueError, match="texel 9: every brdf is ≤ 0"):
-        ctfit.fit_texels(geometry, bad, ST, chunk=4)
+    bad[4] = 1e300
+    fits = ctfit.fit_texels(geometry, bad, ST, chunk=4)
+    status = [TEXEL_STATUS[c] for c in fits.stats["status"]]
+    assert status == ["fitted", "non_finite_values", "negative_values", "fitted", "out_of_range", "fitted", "fitted",
+                      "non_finite_values", "fitted", "all_zero"]
+    skipped = fits.stats["status"] != 0
+    assert np.isnan(fits.params.m[skipped]).all() and np.isnan(fits.params.f0[skipped]).all() and np.isnan(fits.stats["cost"][skipped]).all()
+    assert not fits.converged[skipped].any() and fits.converged[~skipped].all()
+    alone = ctfit.fit_texels(geometry, values[:10][~skipped], ST, chunk=4)
+    np.testing.assert_allclose(fits.params.m[~skipped], alone.params.m, rtol=1e-8)
     with pytest.raises(ValueError, match="loss 'sigma'"):
         ctfit.fit_texels(geometry, values, ST, loss="sigma")

@@ -379,3 +379,39 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     res = sample(truth, data, steps=100, seed=0, colour=False)
     assert plot_corner(res, tmp_path / "c.png").stat().st_size > 1000
     assert plot_spectra(res, tmp_path / "s.png", truth={"F0": truth.params.f0}).stat().st_size > 1000
+
+
+@pytest.mark.parametrize("steps", [1, 2, 10])
+def test_a_short_chain_runs_and_says_it_is_too_short(metal, tmp_path, steps):
+    """A few steps (too few for emcee's τ, which is then NaN) give a result, a warning and a table."""
+    from ctfit._cli.sample_command import sample_command_body
+    from ctfit._fitting.results import fit_result_to_dict
+    from ctfit._io.csv_files import write_csv
+    from ctfit._io.material_files import save_material_json
+    from ctfit._sampling.table import format_uncertainty_table
+
+    _, data, fitted = metal
+    csv, fit_json = tmp_path / "metal.csv", tmp_path / "metal.fit.json"
+    write_csv(data, csv)
+    save_material_json(fitted.material, fit_json, extra=fit_result_to_dict(fitted, material_keys=False))
+    with pytest.warns(ChainTooShortWarning, match="too short"):
+        doc = sample_command_body(fit_json, csv, walkers=None, steps=steps, burn=None, thin=1, seed=0, backend=None, resume=False,
+                                  plot_dir=None, output=None)
+    d = doc["uncertainty"]["diagnostics"]
+    assert d["steps"] == steps and d["chain_long_enough"] is False
+    table = format_uncertainty_table(doc, "metal")
+    assert "τ_max" in table and "lobe 0: m =" in table
+
+
+def test_resume_refuses_an_hdf5_file_without_a_chain(metal, tmp_path):
+    """--resume on another program's HDF5 file neither starts a chain inside it nor changes it."""
+    import h5py
+
+    _, data, fitted = metal
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = np.arange(3)
+    before = other.read_bytes()
+    with pytest.raises(ValueError, match="no chain of ctfit.*overwrite"):
+        sample(fitted, data, steps=5, backend=other, resume=True, colour=False)
+    assert other.read_bytes() == before

@@ -55,12 +55,12 @@ def test_image_maps_equal_the_serial_fits_and_a_rerun_finishes_a_chunk(client, t
     np.testing.assert_allclose(maps["F0"].values.reshape(H * W, 2), serial.params.f0, rtol=1e-8)
     np.testing.assert_array_equal(maps["converged"].values.reshape(-1), serial.converged)
     assert maps.attrs["input_sha256"] and maps["cost"].chunks[0] == (2, 2, 1)
-    # rows 2–3 as a killed run leaves them: cost (written last) missing, the rest half written
-    spoilt = xr.Dataset({"cost": (("y", "x"), np.full((2, W), np.nan)), "m": (("y", "x", "lobe"), np.zeros((2, W, 1)))})
+    # rows 2–3 as a killed run leaves them: status (written last) missing, the rest half written
+    spoilt = xr.Dataset({"status": (("y", "x"), np.full((2, W), -1, np.int8)), "m": (("y", "x", "lobe"), np.zeros((2, W, 1)))})
     spoilt.to_zarr(tmp_path / "maps.zarr", region={"y": slice(2, 4)}, consolidated=False)
     again = ctfit.fit_texel_maps(tmp_path / "in.zarr", tmp_path / "maps.zarr", ST, client, chunk=2 * W)
     np.testing.assert_allclose(again["m"].values.reshape(H * W, 1), serial.params.m, rtol=1e-8)
-    assert np.isfinite(again["cost"].values).all()
+    assert np.isfinite(again["cost"].values).all() and (again["status"].values == 0).all()
 
 
 def test_texel_list_in_hdf5_and_another_input_refused(client, texels, tmp_path):
@@ -89,3 +89,78 @@ def test_cli_writes_maps_and_pngs(texels, tmp_path):
     assert {p.name for p in (tmp_path / "png").iterdir()} >= {"m_0.png", "F0_0.png", "F0_1.png", "cost.png", "converged.png"}
     refused = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "maps.json")])
     assert refused.exit_code == 2 and "-o MAPS.zarr" in refused.output
+
+
+@pytest.mark.slow
+def test_bad_texels_are_recorded_in_the_maps_and_the_rest_fitted(client, texels, tmp_path):
+    """NaN, inf, all-zero, 1e300 and negative texels: status says why, their maps are NaN, the
+    others equal the serial fits; the command prints no traceback and counts them."""
+    geometry, values = texels
+    bad = values.copy()
+    bad[0, 0, 3], bad[0, 1, 2], bad[1, 0], bad[1, 1], bad[2, 0, 0] = np.nan, np.inf, 0.0, 1e300, -1.0
+    dataset(geometry, bad, ("y", "x")).to_zarr(tmp_path / "in.zarr", consolidated=False)
+    maps = ctfit.fit_texel_maps(tmp_path / "in.zarr", tmp_path / "maps.zarr", ST, client, chunk=2 * W)
+    status = maps["status"].values
+    expected = np.zeros((H, W), int)
+    expected[0, 0], expected[0, 1], expected[1, 0], expected[1, 1], expected[2, 0] = 1, 1, 3, 4, 2
+    np.testing.assert_array_equal(status, expected)
+    assert maps["status"].attrs["flag_meanings"].split() == ["not_written", "fitted", "non_finite_values", "negative_values", "all_zero", "out_of_range"]
+    skipped = expected > 0
+    assert np.isnan(maps["m"].values[skipped]).all() and np.isnan(maps["cost"].values[skipped]).all() and not maps["converged"].values[skipped].any()
+    serial = ctfit.fit_texels(geometry, values.reshape(H * W, -1), ST)
+    np.testing.assert_allclose(maps["m"].values[~skipped], serial.params.m.reshape(H, W, 1)[~skipped], rtol=1e-8)
+    # the command: no traceback, one summary line naming what was not fitted; a re-run fits nothing again
+    got = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "cli.zarr"), "--workers", "1", "-q",
+                                   "--plot", str(tmp_path / "png")])
+    assert got.exit_code == 1 and "Traceback" not in got.output, got.output
+    assert "5 not fitted (2 non finite values, 1 negative values, 1 all zero, 1 out of range; map 'status')" in got.output
+    assert (tmp_path / "png" / "status.png").exists()
+
+
+def _store(tmp_path, geometry, values, name="in.zarr", **changes):
+    table = {k: (("sample",), changes.get(k, getattr(geometry, k))) for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band")}
+    wl = changes.get("wavelength_nm", WL)
+    xr.Dataset({"values": (("y", "x", "sample"), values), **table, "wavelength_nm": (("band",), wl)}).to_zarr(tmp_path / name, consolidated=False)
+    return tmp_path / name
+
+
+def _changed(a, i, value):
+    a = np.array(a, copy=True)
+    a[i] = value
+    return a
+
+
+@pytest.mark.parametrize("what, words", [
+    ("theta_i", "variable theta_i[3]: 120.0 is outside [0, 90] degrees"),
+    ("phi_o", "variable phi_o[3]: NaN is not allowed"),
+    ("band", "variable band[3] = 7 is not a band index: the data has 2 bands"),
+    ("wavelength_nm", "variable wavelength_nm[0]: -5.0 is not a positive wavelength"),
+    ("empty", "no texels or no samples (y = 0)"),
+    ("few", "2 samples, 3 free parameters"),
+])
+def test_texel_geometry_is_checked_as_every_reader_checks_it(texels, tmp_path, what, words):
+    """What the CSV reader refuses, a texel store refuses too, with one error line and no traceback."""
+    geometry, values = texels
+    if what == "empty":
+        path = _store(tmp_path, geometry, values[:0])
+    elif what == "few":
+        path = _store(tmp_path, geometry, values[..., :2], **{k: getattr(geometry, k)[:2] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band")})
+    elif what == "wavelength_nm":
+        path = _store(tmp_path, geometry, values, wavelength_nm=np.array([-5.0, 650.0]))
+    else:
+        path = _store(tmp_path, geometry, values, **{what: _changed(getattr(geometry, what), 3, {"theta_i": 120.0, "phi_o": np.nan, "band": 7}[what])})
+    got = CliRunner().invoke(app, ["fit", str(path), "-o", str(tmp_path / "maps.zarr"), "--workers", "1", "-q", "--no-diffuse"])
+    assert got.exit_code == 2 and "Traceback" not in got.output, got.output
+    errors = [ln for ln in got.output.splitlines() if ln.startswith("error:")]
+    assert len(errors) == 1 and words in errors[0] and str(path) in errors[0], got.output
+
+
+def test_a_corrupt_chunk_is_one_error_naming_its_rows(client, texels, tmp_path):
+    geometry, values = texels
+    path = _store(tmp_path, geometry, values)
+    chunks = [f for f in (path / "values").rglob("*") if f.is_file() and not f.name.startswith(".") and not f.name.endswith(".json")]
+    assert chunks
+    for f in chunks:
+        f.write_bytes(b"garbage" * 10)
+    with pytest.raises(TexelMapError, match=r"in.zarr, rows 0–1: .*"):
+        ctfit.fit_texel_maps(path, tmp_path / "maps.zarr", ST, client, chunk=2 * W)

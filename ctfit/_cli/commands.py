@@ -19,7 +19,7 @@ from typing import List, Optional
 
 import typer
 
-from .inputs import PARAM_OUT_HELP, load_material_file, output_file, parse_wavelengths, read_data, setup_jax
+from .inputs import PARAM_OUT_HELP, WAVELENGTHS_HELP, load_material_file, output_file, parse_wavelengths, read_data, setup_jax
 from .messages import UserError, echo, run_body
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
@@ -76,9 +76,9 @@ def simulate(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
     output_text: str = typer.Option(..., "-o", "--output", help="Output CSV."),
     samples: int = typer.Option(2000, "--samples", min=1, help="Direction pairs (each measured in every band)."),
-    seed: int = typer.Option(0, "--seed"),
+    seed: int = typer.Option(0, "--seed", min=0),
     noise: float = typer.Option(0.0, "--noise", min=0.0, help="Relative Gaussian noise (0.02 = 2 %); adds a sigma column."),
-    wavelengths: Optional[str] = typer.Option(None, "--wavelengths", help="START:STOP:STEP or a list, nm (default: the material's within 400–700)."),
+    wavelengths: Optional[str] = typer.Option(None, "--wavelengths", help=WAVELENGTHS_HELP),
     max_theta: float = typer.Option(85.0, "--max-theta", min=0.0, max=90.0, help="Largest polar angle of light and viewer, degrees."),
 ):
     """Synthetic goniometric measurements of MATERIAL (denser near the mirror direction)."""
@@ -93,6 +93,9 @@ def simulate(
         from .._model import simulate as sim
 
         mat = load_material_file(material)
+        if mat.band_unknown:
+            raise UserError(f"{material}: the material has one band of unknown wavelength (band_unknown: a fit of single-band data "
+                            "such as an ALTA file); a measurement CSV gives every sample a wavelength or a channel, so it cannot be simulated")
         meas = sim(mat, samples, wavelength_nm=parse_wavelengths(wavelengths), noise=noise, seed=seed, max_theta=max_theta)
         meta = dict(meas.meta, material=str(material))
         write_csv(meas.replace(meta=meta), output)
@@ -125,7 +128,7 @@ def fit(
     steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="With --sample: steps discarded (fewer than --steps)."),
     thin: int = typer.Option(1, "--thin", min=1, help="With --sample: keep every THIN-th step."),
-    seed: int = typer.Option(0, "--seed", help="With --sample: random seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="With --sample: random seed."),
     backend: Optional[str] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder, as -o)."),
     resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
     overwrite: bool = typer.Option(False, "--overwrite", help="With --sample: start the chain in --backend again (a stored chain is kept otherwise)."),
@@ -169,7 +172,7 @@ def sample_cmd(
     steps: int = typer.Option(2000, "--steps", min=1, help="Steps per walker in all (also with --resume)."),
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
     thin: int = typer.Option(1, "--thin", min=1, help="Keep every THIN-th step."),
-    seed: int = typer.Option(0, "--seed"),
+    seed: int = typer.Option(0, "--seed", min=0),
     backend: Optional[str] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file (its chain is lost)."),
@@ -241,7 +244,7 @@ def render(
     compare: Optional[Path] = typer.Option(None, "--compare", help="Measurement file: show the one MATERIAL beside a rendering that uses the nearest measured BRDF."),
     labels: bool = typer.Option(True, "--labels/--no-labels", help="Write each material's name under its tile."),
     columns: Optional[int] = typer.Option(None, "--columns", min=1, help="Tiles per row (default: up to 6)."),
-    step: float = typer.Option(5.0, "--step", min=0.0, help="Wavelength step of spectral rendering over 380–780 nm."),
+    step: float = typer.Option(5.0, "--step", min=0.0, help="Wavelength step of spectral rendering over 380–780 nm: 1 to 400 nm."),
     supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
     ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
     exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),

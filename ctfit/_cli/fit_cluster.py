@@ -69,7 +69,7 @@ def fit_texel_command(o) -> int:
     else one local worker per core), the maps written to the Zarr store -o as chunks complete
     (a re-run resumes), PNGs of the maps in the folder --plot. 0: every texel converged, 1: not."""
     from .._runtime import dask_client, echo, progress_enabled
-    from .._fitting import fit_texel_maps, save_map_pngs
+    from .._fitting import TEXEL_STATUS, fit_texel_maps, save_map_pngs
 
     if o.output is None or o.output.suffix.lower() != ".zarr":
         raise UserError("texel data: give -o MAPS.zarr (the parameter maps are written there as a Zarr store)")
@@ -90,8 +90,13 @@ def fit_texel_command(o) -> int:
 
         converged = int(maps["converged"].sum())
         total = int(maps["converged"].size)
-        echo(f"{o.data[0]}: {total} texels, {converged} converged, {total - converged} did not; median rel_rmse "
-             f"{float(np.nanmedian(maps['rel_rmse'].values)):.4g}")
+        status = maps["status"].values
+        skipped = int(np.count_nonzero(status > 0))
+        why = ", ".join(f"{int(np.count_nonzero(status == c))} {name.replace('_', ' ')}" for c, name in enumerate(TEXEL_STATUS) if c and (status == c).any())
+        rel = maps["rel_rmse"].values
+        echo(f"{o.data[0]}: {total} texels, {converged} converged, {total - converged - skipped} did not"
+             + (f", {skipped} not fitted ({why}; map 'status')" if skipped else "")
+             + (f"; median rel_rmse {float(np.nanmedian(rel)):.4g}" if np.isfinite(rel).any() else ""))
         echo_wrote(o.output)
         if o.plot is not None:
             for png in save_map_pngs(maps, o.plot):

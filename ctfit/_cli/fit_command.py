@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from types import SimpleNamespace
 
-from .inputs import load_material_file, read_data, setup_jax
+from .inputs import check_param_out, load_material_file, read_data, setup_jax
 from .messages import UserError, failure_line
 
 __all__ = [
@@ -150,6 +150,9 @@ def _check_fit_options(o) -> None:
         raise UserError("a plastic has one real index and its own diffuse part: leave out --fresnel conductor and --diffuse F0/pi")
     if _family(o) == "metal" and _diffuse(o) == "transmitted":
         raise UserError("--diffuse transmitted (through a dielectric interface) is for --family plastic")
+    check_param_out(o.param_out)
+    if o.sample_ and o.thin > o.steps:
+        raise UserError(f"--thin must be at most --steps ({o.steps}) to keep a draw, got {o.thin}")
     if (o.resume or o.overwrite) and o.backend is None:
         raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
     if o.walkers is not None and o.walkers % 2:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from .messages import UserError
 
-__all__ = ["PARAM_OUT_HELP", "load_material_file", "output_file", "parse_wavelengths", "read_data", "setup_jax"]
+__all__ = ["PARAM_OUT_HELP", "WAVELENGTHS_HELP", "check_param_out", "load_material_file", "output_file", "parse_wavelengths", "read_data", "setup_jax"]
 
 
 def setup_jax(float32: bool = False):
@@ -40,23 +40,55 @@ def read_data(path: Path, param_out: str | None = None):
     """Read a measurement (once); ``--param-out`` serves only an ALTA file without its own #PARAM_OUT line."""
     from .._fitting import read_input
 
+    check_param_out(param_out)
     return read_input(path, param_out)
+
+
+def check_param_out(param_out: str | None) -> None:
+    """Refuse a ``--param-out`` that names no unit (it is checked even where no ALTA file uses it)."""
+    if param_out is not None and param_out not in PARAM_OUT_UNITS:
+        raise UserError(f"--param-out must be one of {', '.join(PARAM_OUT_UNITS)}, got {param_out!r}")
+
+
+PARAM_OUT_UNITS = ("INV_STERADIAN", "INV_STERADIAN_COSINE_FACTOR", "RGB_COLOR")  # the ALTA reader's (ctfit._io.alta.PARAM_OUT)
 
 
 PARAM_OUT_HELP = "ALTA files without a #PARAM_OUT line: the unit of their values (INV_STERADIAN or INV_STERADIAN_COSINE_FACTOR)."
 
 
+WAVELENGTHS_HELP = ("START:STOP:STEP (START, START+STEP, … up to STOP, never past it: 400:700:7 ends at 694) or a "
+                    "comma-separated list, nm, every one > 0 (default: the material's within 400–700).")
+
+
+_MOST_WAVELENGTHS = 100_000
+
+
 def parse_wavelengths(text: str | None):
+    """The wavelengths of ``--wavelengths``: a START:STOP:STEP range (STOP included where the steps
+    land on it, never passed) or a list; each a positive finite number of nm.
+
+    >>> parse_wavelengths("400:700:100").tolist(), float(parse_wavelengths("400:700:7")[-1]), parse_wavelengths("450, 650").tolist()
+    ([400.0, 500.0, 600.0, 700.0], 694.0, [450.0, 650.0])
+    """
     import numpy as np
 
     if text is None:
         return None
     try:
         if ":" in text:
-            parts = [float(x) for x in text.split(":")]
-            if len(parts) != 3 or parts[2] <= 0:
-                raise ValueError
-            return np.arange(parts[0], parts[1] + 0.5 * parts[2], parts[2])
-        return np.array([float(x) for x in text.split(",") if x.strip()])
+            start, stop, step = (float(x) for x in text.split(":"))  # not three: ValueError
+            if not (np.isfinite([start, stop, step]).all() and step > 0 and stop >= start):
+                raise UserError(f"--wavelengths {text!r}: START:STOP:STEP needs STEP > 0 and STOP ≥ START (finite numbers of nm)")
+            q = (stop - start) / step
+            if q > _MOST_WAVELENGTHS:
+                raise UserError(f"--wavelengths {text!r}: {q + 1:.3g} wavelengths; at most {_MOST_WAVELENGTHS:,} (a larger STEP)")
+            values = start + step * np.arange(int(np.floor(q + 1e-9 * max(q, 1.0))) + 1)  # never past STOP (rounding aside)
+        else:
+            values = np.array([float(x) for x in text.split(",") if x.strip()])
     except ValueError:
         raise UserError(f"--wavelengths: expected START:STOP:STEP or a comma-separated list, got {text!r}") from None
+    bad = values[~(np.isfinite(values) & (values > 0))]
+    if values.size == 0 or bad.size:
+        what = "no wavelength" if values.size == 0 else f"{bad[0]:g} is not a wavelength"
+        raise UserError(f"--wavelengths {text!r}: {what}: every wavelength must be a positive number of nm")
+    return values

@@ -31,6 +31,9 @@ _CLI_NAMES = {  # library argument → the option that sets it, for library mess
     "steps": "--steps",
     "thin": "--thin",
     "burn": "--burn",
+    "wavelength_step": "--step",
+    "angle_deg": "--angle",
+    "seed": "--seed",
 }
 
 

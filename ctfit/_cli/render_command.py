@@ -44,7 +44,7 @@ def render_command_body(
     fraction of the lit sphere inside the measured domain).
     """
     from .._io import check_output, load_material  # noqa: PLC0415
-    from .._render import EXPOSURES, SHAPES, render_compare, render_materials, save_png  # noqa: PLC0415
+    from .._render import EXPOSURES, SHAPES, check_wavelength_step, render_compare, render_materials, save_png  # noqa: PLC0415
 
     if not materials:
         raise ValueError("give at least one material file")
@@ -56,10 +56,9 @@ def render_command_body(
         raise ValueError(f"--size must be in 8..{_MAX_SIZE} pixels, got {size}")
     if not 1 <= supersample <= 8:
         raise ValueError(f"--supersample must be in 1..8, got {supersample}")
-    if not ambient >= 0:
-        raise ValueError(f"--ambient must be ≥ 0, got {ambient}")
-    if not wavelength_step > 0:
-        raise ValueError(f"--step must be > 0 nm, got {wavelength_step}")
+    if not 0 <= ambient < float("inf"):
+        raise ValueError(f"--ambient must be a finite fraction ≥ 0, got {ambient}")
+    check_wavelength_step(wavelength_step)  # its message names --step (messages.cli_message)
     if columns is not None and columns < 1:
         raise ValueError(f"--columns must be ≥ 1, got {columns}")
     if delta_e and compare is None:

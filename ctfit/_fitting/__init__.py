@@ -22,6 +22,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "starts": ['start_from_material'],
         "structure_selection": ['choose_structure', 'select_structure', 'structure_label'],
         "texel_maps": ['fit_texel_maps', 'read_texel_geometry', 'save_map_pngs'],
-        "texels": ['TexelFits', 'fit_texels'],
+        "texels": ['TEXEL_STATUS', 'TexelFits', 'fit_texels', 'texel_status'],
     },
 )

@@ -167,6 +167,11 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
              pad_to: tuple[int, int] | None = None) -> PreparedFit:
     """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
     samples)), free start ``u0`` and m grid of a fit."""
+    if not isinstance(data, Measurement):
+        hint = " (read a file with ctfit.read_measurement(path))" if isinstance(data, (str, bytes)) or hasattr(data, "__fspath__") else ""
+        raise TypeError(f"data must be a ctfit.Measurement, got {type(data).__name__}{hint}")
+    if structure is not None and not isinstance(structure, Structure):
+        raise TypeError(f"structure must be a ctfit.Structure or None, got {type(structure).__name__}")
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
     structure = structure or Structure()

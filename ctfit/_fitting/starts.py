@@ -39,12 +39,14 @@ def default_start(structure: Structure, data: Measurement) -> Params:
 def m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
     """The grid of m the seeds are scored on. One lobe: 16 points 0.005–1, and without a diffuse
     part 5 more down to 10⁻⁴ for mirror-like lobes (seen in their tails or sampled closely). With
-    a diffuse part those would be traps: a lobe that reaches no sample fits like s = 0."""
+    a diffuse part those would be traps: a lobe that reaches no sample fits like s = 0. Several
+    lobes: every ascending choice of ``lobes`` values from a fixed list of points 0.01–0.8 (at
+    least ``lobes + 1`` of them, so every count up to :data:`~ctfit.MAX_LOBES` has a grid)."""
     if lobes == 1:
         grid = np.geomspace(0.005, 1.0, 16)
         return (grid if diffuse else np.concatenate([np.geomspace(1e-4, 0.005, 6)[:-1], grid]))[:, None]
-    base = {2: np.geomspace(0.01, 0.8, 9), 3: np.geomspace(0.01, 0.8, 7)}.get(lobes, np.geomspace(0.01, 0.8, 5))
-    return np.array(list(itertools.combinations(base, lobes)))
+    points = {2: 9, 3: 7}.get(lobes, max(5, lobes + 1))  # five and more lobes: lobes + 1 choose lobes
+    return np.array(list(itertools.combinations(np.geomspace(0.01, 0.8, points), lobes)))
 
 
 @eqx.filter_jit

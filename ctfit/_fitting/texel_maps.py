@@ -11,14 +11,17 @@ program (the last chunk is padded to the same size), kept per worker process. Th
 maps come back to the client, which creates the output Zarr store from their layout; every
 other chunk's maps are written into their region of the store by the worker that fitted them
 (so the store, like the input, must be reachable from every worker), and nothing but "done"
-travels back. A chunk whose ``cost`` is already written is skipped, so
+travels back. A chunk whose ``status`` is already written is skipped, so
 a run that is killed resumes where it stopped, as long as the input is the same (its hash and
 the fitting options are stored as attributes and checked).
 
 The output maps, with the input's texel dims: ``m`` and ``weight`` (..., lobe), ``s``, ``F0``,
 ``Rd`` (..., band) where the structure has them, ``cost``, ``rmse``, ``rel_rmse``, ``steps``,
-``converged`` (bool; read it where ``cost`` is finite). :func:`save_map_pngs` writes one PNG per
-map of an image (y, x).
+``converged`` (bool), ``status`` (int8, CF flags: 0 fitted; > 0 the texel's values could not be
+fitted — :data:`~ctfit._fitting.texels.TEXEL_STATUS` says why — and its maps are NaN; -1 not
+written yet). A texel that cannot be fitted does not stop the others; what would stop every
+chunk (too few samples, unreadable data) is one :class:`TexelMapError`, raised by the client.
+:func:`save_map_pngs` writes one PNG per map of an image (y, x).
 """
 
 from __future__ import annotations
@@ -79,8 +82,17 @@ def read_texel_geometry(path) -> tuple[Measurement, tuple[str, ...], tuple[int, 
         if (wavelength is None) == (channels is None):
             raise TexelMapError(f"{path}: give the bands as a variable wavelength_nm or an attribute channels (not both)")
         sizes = tuple(int(ds.sizes[d]) for d in dims[:-1])
-    data = Measurement(*(geo[k].astype(float) for k in _GEOMETRY[:4]), band=geo["band"].astype(int), wavelength_nm=wavelength,
-                       channels=None if channels is None else tuple(str(channels).split(",")), source=os.fspath(path))
+        empty = [f"{d} = 0" for d in dims if ds.sizes[d] == 0]
+    if empty:
+        raise TexelMapError(f"{path}: values has no texels or no samples ({', '.join(empty)})")
+    band = geo["band"]
+    if band.dtype.kind == "f" and np.all(np.isfinite(band)) and np.all(band == np.round(band)):
+        band = band.astype(np.int64)  # whole numbers stored as floats
+    try:  # the checks of every reader (Measurement): angles, band indices, wavelengths
+        data = Measurement(*(geo[k] for k in _GEOMETRY[:4]), band=band, wavelength_nm=wavelength,
+                           channels=None if channels is None else tuple(str(channels).split(",")), source=os.fspath(path))
+    except (TypeError, ValueError) as e:
+        raise TexelMapError(str(e).replace(f"Measurement {os.fspath(path)}: ", f"{os.fspath(path)}: variable ", 1)) from None
     return data, tuple(dims[:-1]), sizes
 
 
@@ -144,6 +156,7 @@ def fit_texel_maps(
     if chunk < 1:
         raise ValueError(f"chunk must be ≥ 1, got {chunk}")
     data, dims, sizes = read_texel_geometry(path)
+    _check_geometry(data, structure, loss, dtype)
     options = dict(loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
     record = json.dumps(dict(structure=repr(structure), **{k: (np.dtype(v).name if k == "dtype" else v) for k, v in options.items()}), sort_keys=True)
     stamp = dict(input=os.fspath(path), input_sha256=_file_sha256(path), fit_options=record)
@@ -157,7 +170,7 @@ def fit_texel_maps(
     with dask_client(client, workers=workers) as cl:
         todo = _pending(output, stamp, spans)
         if todo is None:  # a new store: its layout from the first chunk's maps
-            first = cl.submit(_fit_rows, source, spans[0], **task, pure=False).result()
+            first = _checked(cl.submit(_fit_rows, source, spans[0], **task, pure=False).result())
             _create(output, first, dims, sizes, data, stamp, rows)
             _write(output, first, dims, spans[0])
             todo = spans[1:]
@@ -165,8 +178,22 @@ def fit_texel_maps(
         from distributed import as_completed
 
         for future in bar(as_completed(futures), desc="chunks", enabled=progress, total=len(futures)):
-            future.result()  # raises a chunk's error here
+            _checked(future.result())  # a chunk's error, raised here
     return xr.open_zarr(output, consolidated=False)
+
+
+def _check_geometry(data: Measurement, structure, loss: str, dtype) -> None:
+    """What would fail every chunk, said once by the client: too few samples for the structure's
+    parameters, or the sigma loss (texels have no sigma)."""
+    from .._model import Structure
+    from .validate import check_fittable
+
+    if loss == "sigma":
+        raise TexelMapError("loss 'sigma' needs per-sample uncertainties, which texel values do not have; choose another loss")
+    try:
+        check_fittable(data.replace(brdf=np.ones(len(data))), structure or Structure(lobes=1, diffuse="F0/pi"), loss=loss, dtype=dtype)
+    except ValueError as e:
+        raise TexelMapError(str(e).replace("measure more", "every texel has that many; measure more")) from None
 
 
 def _pending(output, stamp: dict, spans: list) -> list | None:
@@ -182,16 +209,34 @@ def _pending(output, stamp: dict, spans: list) -> list | None:
     with ds:
         if any(ds.attrs.get(k) != v for k, v in stamp.items()):
             raise TexelMapError(f"{output}: holds maps of another input or other options; remove it or choose another output")
-        cost = ds["cost"]
-        lead = cost.dims[0]
-        return [(a, b) for a, b in spans if not np.isfinite(cost.isel({lead: slice(a, b)}).values).all()]
+        if "status" not in ds:
+            raise TexelMapError(f"{output}: holds maps without a 'status' map (an older ctfit's); remove it or choose another output")
+        status = ds["status"]
+        lead = status.dims[0]
+        return [(a, b) for a, b in spans if (status.isel({lead: slice(a, b)}).values < 0).any()]
 
 
-def _fit_rows(source: tuple[str, str], span: tuple[int, int], *, data: Measurement, structure, options: dict, x64: bool, rows: int,
+def _fit_rows(source: tuple[str, str], span: tuple[int, int], **task) -> dict | None:
+    """One task (:func:`_fit_span`); an error comes back as ``{"error": message}``, for the client
+    to raise (raised here, the worker would print its traceback before the client's one line)."""
+    try:
+        return _fit_span(source, span, **task)
+    except Exception as e:  # noqa: BLE001 — a corrupt chunk raises whatever its codec raises
+        return {"error": f"{source[0]}, rows {span[0]}–{span[1] - 1}: {type(e).__name__}: {e}"}
+
+
+def _checked(got):
+    """A task's result, or its error raised as a :class:`TexelMapError`."""
+    if isinstance(got, dict) and "error" in got:
+        raise TexelMapError(got["error"])
+    return got
+
+
+def _fit_span(source: tuple[str, str], span: tuple[int, int], *, data: Measurement, structure, options: dict, x64: bool, rows: int,
               dims: tuple[str, ...], output: str | None = None) -> dict | None:
-    """One task: rows ``span`` of ``values`` read from the store and fitted — padded to ``rows``
-    rows with copies of the last, so that every chunk runs one compiled program — and their maps
-    written into ``output`` from this worker (None: returned, rows first)."""
+    """Rows ``span`` of ``values`` read from the store and fitted — padded to ``rows`` rows with
+    copies of the last, so that every chunk runs one compiled program — and their maps written
+    into ``output`` from this worker (None: returned, rows first)."""
     from .._runtime import prepare_worker
     from .texels import fit_texels
 
@@ -206,7 +251,8 @@ def _fit_rows(source: tuple[str, str], span: tuple[int, int], *, data: Measureme
     padded = np.concatenate([flat, np.broadcast_to(flat[-1:], (size - n, flat.shape[1]))])
     fits = fit_texels(data.replace(source=f"{shown}, rows {span[0]}–{span[1] - 1}"), padded, structure, chunk=size, **options)
     p, s = fits.params, fits.stats
-    out = {"cost": s["cost"], "rmse": s["rmse"], "rel_rmse": s["rel_rmse"], "steps": s["steps"], "converged": s["converged"]}
+    out = {"cost": s["cost"], "rmse": s["rmse"], "rel_rmse": s["rel_rmse"], "steps": s["steps"], "converged": s["converged"],
+           "status": s["status"]}
     for key, name in PUBLIC_NAMES.items():
         value = getattr(p, key)
         if value is not None:
@@ -234,6 +280,9 @@ def _create(output, first: dict, dims, sizes, data: Measurement, stamp: dict, ro
         chunks = (rows,) + shape[1:]
         variables[name] = (vdims, da.full(shape, fill, dtype=v.dtype, chunks=chunks))
     ds = xr.Dataset(variables, attrs=stamp)
+    from .texels import TEXEL_STATUS
+
+    ds["status"].attrs.update(flag_values=list(range(-1, len(TEXEL_STATUS))), flag_meanings=" ".join(("not_written", *TEXEL_STATUS)))  # CF flags
     if "band" in ds.dims and data.wavelength_nm is not None:
         ds = ds.assign_coords(wavelength_nm=("band", np.asarray(data.wavelength_nm)))
     elif "band" in ds.dims:
@@ -242,14 +291,14 @@ def _create(output, first: dict, dims, sizes, data: Measurement, stamp: dict, ro
 
 
 def _write(output, maps: dict, dims: tuple[str, ...], span: tuple[int, int]) -> None:
-    """One chunk's maps into their region of the store (``cost`` last: it marks the chunk done)."""
+    """One chunk's maps into their region of the store (``status`` last: it marks the chunk done)."""
     import xarray as xr
 
     variables = _variables(maps, dims)
-    rest = {k: v for k, v in variables.items() if k != "cost"}
+    rest = {k: v for k, v in variables.items() if k != "status"}
     region = {dims[0]: slice(*span)}
     xr.Dataset(rest).to_zarr(output, region=region, consolidated=False)
-    xr.Dataset({"cost": variables["cost"]}).to_zarr(output, region=region, consolidated=False)
+    xr.Dataset({"status": variables["status"]}).to_zarr(output, region=region, consolidated=False)
 
 
 def save_map_pngs(maps, folder) -> list[Path]:
@@ -267,7 +316,7 @@ def save_map_pngs(maps, folder) -> list[Path]:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     written = []
-    for name in ("m", "weight", "s", "F0", "n", "k", "Rd", "cost", "rel_rmse", "converged"):
+    for name in ("m", "weight", "s", "F0", "n", "k", "Rd", "cost", "rel_rmse", "converged", "status"):
         if name not in maps.variables:
             continue
         var = maps[name]

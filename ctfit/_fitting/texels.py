@@ -32,13 +32,18 @@ from .least_squares import FitResult, fit, fit_core, prepare_fit
 from .options import takes_fit_options
 from .seeded_solve import judge_converged
 from .batch import default_width, mapped
-from .._model import Material, Measurement, Params, Structure
+from .._model import Material, Measurement, Params, Structure, value_rules
 from .validate import representable_range
 
-__all__ = ["fit_texels", "TexelFits", "CHUNK"]
+__all__ = ["fit_texels", "texel_status", "TexelFits", "CHUNK", "TEXEL_STATUS"]
 
 CHUNK = 1024
 """Texels per compiled call, by default."""
+TEXEL_STATUS = ("fitted", "non_finite_values", "negative_values", "all_zero", "out_of_range")
+"""What each texel's ``status`` code (its index here) means: 0 the texel was fitted (whether it
+converged is ``converged``); otherwise it was not, its parameters and statistics are NaN, and
+the code says why: a value not finite, a value < 0, every value 0, or its largest value
+outside the range a fit in its dtype takes (:func:`~ctfit._fitting.validate.representable_range`)."""
 _FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
 
 
@@ -49,7 +54,7 @@ class TexelFits:
     ``params``: a :class:`~ctfit.Params` whose fields have a leading texel axis — s (T,), m and
     w (T, lobes) in ascending m per texel, F0, n, k, R_d (T, bands) (n: the effective index with
     the "f0" Fresnel form). ``stats``: arrays (T,) — converged, steps, cost, rmse, rel_rmse,
-    gauss_newton_decrease — and the scalars loss, solver, dtype, starts, max_steps, time_s and
+    gauss_newton_decrease, status (:data:`TEXEL_STATUS`; NaN parameters where it is not 0) — and the scalars loss, solver, dtype, starts, max_steps, time_s and
     texels_per_s. ``converged`` means what it means for :func:`~ctfit.fit`.
 
     >>> import dataclasses, numpy as np, ctfit
@@ -107,8 +112,10 @@ def fit_texels(
 
     ``values``: (texels, samples), any array NumPy can slice (a memmap, an h5py dataset);
     ``measurement``: the geometry and bands (its own brdf and sigma are not used; "auto" loss is
-    the relative one). Every texel must be fit-able as :func:`~ctfit.fit` requires (finite values,
-    not all 0, in the dtype's range): a ``ValueError`` names the first texel that is not. Other
+    the relative one). A texel that cannot be fitted (a value not finite or negative, every value
+    0, values outside the dtype's range: :func:`texel_status`) is not fitted: its parameters and
+    statistics are NaN, ``converged`` False and ``stats["status"]`` says why (:data:`TEXEL_STATUS`),
+    while the others are fitted. Other
     arguments as for :func:`~ctfit.fit`; ``chunk`` texels are fitted per compiled call, ``width``
     of them side by side (vmapped; None: :func:`~ctfit._fitting.batch.default_width`).
 
@@ -141,8 +148,10 @@ def fit_texels(
     n_texels = shape[0]
     chunk = min(chunk, n_texels)
     width = min(width, chunk)
-    _check_values(values, chunk, dtype, measurement.source)
-    template = measurement.replace(brdf=np.asarray(values[0], dtype=float), sigma=None)
+    status = texel_status(values, chunk, dtype)
+    good = np.flatnonzero(status == 0)
+    first = np.asarray(values[good[0]], dtype=float) if good.size else np.ones(len(measurement))
+    template = measurement.replace(brdf=first, sigma=None)
     loss = "relative" if loss == "auto" else loss
     # One size for every texel: laid out at its own size, no bucket padding.
     prep = prepare_fit(template, structure, start=options["start"], fixed=options["fixed"], loss=loss, dtype=dtype, starts=options["starts"],
@@ -152,6 +161,7 @@ def fit_texels(
     pending, outs = None, []  # one chunk dispatched while the previous one's results are fetched
     for a in range(0, n_texels, chunk):
         block = np.asarray(values[a: a + chunk], dtype=float)
+        block[status[a: a + chunk] != 0] = first  # a texel that cannot be fitted: fitted as a copy of a good one, then blanked
         active = np.arange(chunk) < len(block)
         block = np.concatenate([block, np.broadcast_to(block[-1:], (chunk - len(block), block.shape[1]))])
         ys, floors = layout(block, dtype)
@@ -161,23 +171,31 @@ def fit_texels(
         pending = run
     outs.append(jax.device_get(pending))
     out = jax.tree.map(lambda *xs: np.concatenate(xs)[:n_texels], *outs)
-    return _result(measurement, prep.structure, out, values, n_texels, t0, dict(options, loss=loss))
+    return _result(measurement, prep.structure, out, values, n_texels, t0, dict(options, loss=loss), status)
 
 
-def _check_values(values, chunk: int, dtype, source: str) -> None:
-    """The checks of :func:`~ctfit._fitting.validate.check_fittable` on every texel, a chunk at a time."""
+def texel_status(values, chunk: int, dtype) -> np.ndarray:
+    """Each texel's :data:`TEXEL_STATUS` code (int8): 0 where it can be fitted, else the first
+    rule it breaks — the brdf rules of every reader (:func:`~ctfit._model.measurement.value_rules`:
+    finite, ≥ 0), then :func:`~ctfit._fitting.validate.check_fittable`'s (not all 0, the largest
+    value in the dtype's range). Read a chunk at a time.
+
+    >>> texel_status(np.array([[1.0, 2.0], [np.nan, 1.0], [-1.0, 1.0], [0.0, 0.0], [1e300, 1.0]]), 2, np.float64).tolist()
+    [0, 1, 2, 3, 4]
+    """
     lo, hi = representable_range(dtype)
+    out = np.zeros(values.shape[0], np.int8)
     for a in range(0, values.shape[0], chunk):
         block = np.asarray(values[a: a + chunk], dtype=float)
-        bad = ~np.isfinite(block)
-        if bad.any():
-            t, j = np.argwhere(bad)[0]
-            raise ValueError(f"{source}: texel {a + t}, sample {j}: brdf = {float(block[t, j])!r} is not a finite number")
-        top = block.max(axis=1, initial=-np.inf)
-        for t in np.flatnonzero((top <= 0) | (top < lo) | (top > hi)):
-            what = "every brdf is ≤ 0: there is nothing to fit" if top[t] <= 0 else (
-                f"its largest brdf, {float(top[t])!r}, is outside [{lo:.2g}, {hi:.2g}] sr⁻¹, the range a fit in {np.dtype(dtype).name} takes")
-            raise ValueError(f"{source}: texel {a + t}: {what}")
+        with np.errstate(invalid="ignore"):
+            broken = [test(block).any(axis=1) for test, _ in value_rules("brdf")]  # not finite, negative
+            top = np.where(np.isfinite(block), block, 0.0).max(axis=1, initial=0.0)
+            broken += [top == 0, (top < lo) | (top > hi)]
+        code = np.zeros(len(block), np.int8)
+        for c, hit in reversed(list(enumerate(broken, start=1))):  # the first rule broken wins
+            code[hit] = c
+        out[a: a + len(block)] = code
+    return out
 
 
 class _Layout:
@@ -215,21 +233,28 @@ def _texel_core(problem, ys, floors, active, u0, grid, width: int, *options):
     return mapped(one, (ys, floors), active, width)
 
 
-def _result(measurement, structure: Structure, out, values, n_texels: int, t0: float, options: dict) -> TexelFits:
+def _result(measurement, structure: Structure, out, values, n_texels: int, t0: float, options: dict, status: np.ndarray) -> TexelFits:
     dtype = jnp.dtype(options["dtype"]).name
-    p = {k: None if out["params"][k] is None else np.asarray(out["params"][k]) for k in _FIELDS}
+    bad = status != 0
+    p = {k: None if out["params"][k] is None else np.where(_per_texel(bad, out["params"][k]), np.nan, out["params"][k]) for k in _FIELDS}
     if p["m"] is not None:  # lobes in ascending m, per texel
         order = np.argsort(p["m"], axis=1)
         p["m"], p["w"] = np.take_along_axis(p["m"], order, 1), np.take_along_axis(p["w"], order, 1)
-    get = lambda k: np.asarray(out[k])  # noqa: E731
+    get = lambda k: np.where(bad, np.nan, np.asarray(out[k], dtype=float))  # noqa: E731  (no fit: NaN)
     cost, rmse = get("cost"), get("rmse")
     decrease = get("gauss_newton_decrease")
-    finite = np.isfinite(cost) & np.isfinite(rmse) & get("finite").astype(bool)
+    finite = np.isfinite(cost) & np.isfinite(rmse) & np.asarray(out["finite"]).astype(bool)
     elapsed = time.perf_counter() - t0
     stats = dict(
-        converged=judge_converged(get("ok"), finite, decrease, cost, get("zero_cost"), dtype),
-        steps=get("steps").astype(int), cost=cost, rmse=rmse, rel_rmse=get("rel_rmse"), gauss_newton_decrease=decrease,
+        converged=np.asarray(judge_converged(np.asarray(out["ok"]), finite, decrease, cost, np.asarray(out["zero_cost"]), dtype)) & ~bad,
+        steps=np.where(bad, 0, np.asarray(out["steps"])).astype(int), cost=cost, rmse=rmse, rel_rmse=get("rel_rmse"), gauss_newton_decrease=decrease,
+        status=status,
         loss=options["loss"], solver=options["solver"], dtype=dtype, starts=options["starts"], max_steps=options["max_steps"],
         time_s=elapsed, texels_per_s=n_texels / elapsed,
     )
     return TexelFits(measurement, structure, Params(**p), stats, values, options)
+
+
+def _per_texel(bad: np.ndarray, a) -> np.ndarray:
+    """``bad`` (T,) broadcast against a parameter array (T, ...)."""
+    return bad.reshape(bad.shape + (1,) * (np.ndim(a) - 1))

@@ -21,7 +21,7 @@ import numpy as np
 from .errors import DataError
 from .files import atomic_write, read_utf8
 from .untrusted import check_input_file, quote, shorten
-from .._model import Measurement
+from .._model import Measurement, format_value as _fmt, invalid_value
 
 __all__ = ["read_csv", "write_csv"]
 
@@ -291,32 +291,18 @@ def _parse_slow(lines, first: int, cols: _Header, path):
 
 
 def _check_values(values: dict, cols: _Header, first: int, path):
-    """Raise for the earliest (line, column) with a value out of its domain."""
-    checks = []
-    for name, v in values.items():
-        checks.append((name, ~np.isfinite(v), lambda x: f"{_fmt(x)} is not allowed (values must be finite numbers)"))
-        if name.startswith("theta"):
-            checks.append((name, (v < 0) | (v > 90), lambda x: f"{_fmt(x)} is outside [0, 90] degrees"))
-        elif name == "wavelength_nm":
-            checks.append((name, v <= 0, lambda x: f"{_fmt(x)} is not a positive wavelength in nm"))
-        elif name == "brdf":
-            checks.append((name, v < 0, lambda x: f"{_fmt(x)} is negative (a BRDF is ≥ 0 sr⁻¹)"))
-        elif name == "sigma":
-            checks.append((name, v <= 0, lambda x: f"{_fmt(x)}: sigma must be positive"))
+    """Raise for the earliest (line, column) with a value out of its domain (the rule every
+    reader shares: :func:`~ctfit._model.measurement.invalid_value`)."""
     worst = None
-    for name, bad, message in checks:
-        if bad.any():
-            row = int(np.argmax(bad))
-            key = (row, cols.index[name])
+    for name, v in values.items():
+        found = invalid_value(name, v)
+        if found is not None:
+            key = (found[0], cols.index[name])
             if worst is None or key < worst[0]:
-                worst = (key, name, message(values[name][row]))
+                worst = (key, name, found[1])
     if worst is not None:
         (row, _), name, message = worst
         raise DataError(message, path=path, line=first + row, **cols.column(name))
-
-
-def _fmt(x: float) -> str:
-    return "NaN" if math.isnan(x) else repr(float(x))
 
 
 def _check_units(values: dict, meta: dict, meta_lines: dict, cols: _Header, header_line: int, path):

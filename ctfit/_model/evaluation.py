@@ -177,17 +177,26 @@ def simulate(
     >>> print(f"{np.std(noisy.brdf / exact.brdf - 1):.2f}")
     0.05
     """
-    if noise < 0:
-        raise ValueError(f"noise must be ≥ 0, got {noise}")
+    if not 0 <= noise < np.inf:
+        raise ValueError(f"noise must be a finite number ≥ 0, got {noise}")
+    if seed < 0:
+        raise ValueError(f"seed must be ≥ 0 (NumPy's generators take no negative seed), got seed={seed}")
     if material.is_rgb:
         channels = tuple(channels or material.channels)
         wl = None
+    elif material.band_unknown:  # one band of unknown wavelength (a fit of an ALTA file): that band, as the data had it
+        if wavelength_nm is not None:
+            raise ValueError(f"material {material.name!r} has one band of unknown wavelength (band_unknown); it has no values at "
+                             "wavelength_nm: simulate it without wavelengths")
+        wl, channels = np.asarray(material.wavelength_nm, dtype=float), None
     else:
         if wavelength_nm is None:
             own = np.asarray(material.wavelength_nm, dtype=float)
             sel = own[(own >= 400) & (own <= 700)]
             wavelength_nm = sel if len(sel) >= 2 else np.arange(400.0, 701.0, 10.0)
-        wl = np.unique(np.asarray(wavelength_nm, dtype=float))
+        wl = np.unique(np.asarray(wavelength_nm, dtype=float).reshape(-1))
+        if wl.size == 0 or not np.all(np.isfinite(wl) & (wl > 0)):
+            raise ValueError(f"wavelength_nm must be positive finite numbers of nm, got {np.asarray(wavelength_nm).tolist()!r}")
         channels = None
     ti, pi, to, po = goniometer_directions(n_pairs, spread=_spread(material), max_theta=max_theta, seed=seed)
     n_bands = len(channels) if channels is not None else len(wl)
@@ -197,13 +206,16 @@ def simulate(
         theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=band,
         wavelength_nm=wl, channels=channels,
         meta={"source": "ctfit simulate", "material": material.name or "", "seed": str(seed), "noise": f"{noise:g}"},
-        source="<simulated>",
+        source="<simulated>", band_unknown=material.band_unknown,
     )
     truth = evaluate(material, base)
     sigma = None
     values = truth
     if noise > 0:
         rng = np.random.default_rng([seed, 1])
-        values = np.maximum(truth * (1 + noise * rng.standard_normal(truth.shape)), 0.0)
-        sigma = noise * np.maximum(truth, 1e-6 * np.max(truth))
+        with np.errstate(over="ignore"):
+            values = np.maximum(truth * (1 + noise * rng.standard_normal(truth.shape)), 0.0)
+            sigma = noise * np.maximum(truth, 1e-6 * np.max(truth))
+        if not (np.all(np.isfinite(values)) and np.all(np.isfinite(sigma))):
+            raise ValueError(f"noise={noise:g} is too large: the noisy values overflow")
     return base.replace(brdf=values, sigma=sigma)

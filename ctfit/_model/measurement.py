@@ -16,7 +16,85 @@ import functools
 
 import numpy as np
 
-__all__ = ["Measurement", "band_labels"]
+__all__ = ["Measurement", "band_labels", "check_samples", "format_value", "invalid_value", "value_rules"]
+
+
+def format_value(x) -> str:
+    """A value as messages show it: ``repr(float(x))``, "NaN" for a NaN."""
+    return "NaN" if np.isnan(x) else repr(float(x))
+
+
+def value_rules(name: str) -> list:
+    """The rules of a column of samples, each ``(test, why)``: ``test(values)`` marks the values
+    that break it (any shape), ``why(value)`` says why. Every value finite, and θ in [0, 90]
+    degrees, wavelengths > 0, brdf ≥ 0, sigma > 0.
+
+    >>> [why(-1.0) for test, why in value_rules("brdf")]
+    ['-1.0 is not allowed (values must be finite numbers)', '-1.0 is negative (a BRDF is ≥ 0 sr⁻¹)']
+    """
+    rules = [(lambda v: ~np.isfinite(v), lambda x: f"{format_value(x)} is not allowed (values must be finite numbers)")]
+    if name.startswith("theta"):
+        rules.append((lambda v: (v < 0) | (v > 90), lambda x: f"{format_value(x)} is outside [0, 90] degrees"))
+    elif name == "wavelength_nm":
+        rules.append((lambda v: v <= 0, lambda x: f"{format_value(x)} is not a positive wavelength in nm"))
+    elif name == "brdf":
+        rules.append((lambda v: v < 0, lambda x: f"{format_value(x)} is negative (a BRDF is ≥ 0 sr⁻¹)"))
+    elif name == "sigma":
+        rules.append((lambda v: v <= 0, lambda x: f"{format_value(x)}: sigma must be positive"))
+    return rules
+
+
+def invalid_value(name: str, values) -> tuple[int, str] | None:
+    """The first row of the column ``name`` (theta_i, phi_i, theta_o, phi_o, wavelength_nm, brdf,
+    sigma) whose value is not allowed, and why; None when every value is. The one rule of every
+    reader (the CSV reader, texel stores) and of :class:`Measurement`.
+
+    >>> invalid_value("theta_o", [10.0, 120.0]), invalid_value("brdf", [0.0, 1.5])
+    ((1, '120.0 is outside [0, 90] degrees'), None)
+    """
+    v = np.asarray(values, dtype=float)
+    found = None
+    for bad, why in value_rules(name):
+        hit = bad(v)
+        if hit.any():
+            row = int(np.argmax(hit))
+            if found is None or row < found[0]:
+                found = (row, why(v[row]))
+    return found
+
+
+def _real_column(m, name: str):
+    a = getattr(m, name)
+    kind = np.asarray(a).dtype.kind
+    if kind not in "biuf" or np.ndim(a) != 1:
+        raise TypeError(f"Measurement {m.source}: {name} must be a 1-D array of real numbers, got {np.asarray(a).dtype} of shape {np.shape(a)}")
+    return a
+
+
+def check_samples(m: "Measurement") -> None:
+    """Raise (naming the field and the row) unless ``m``'s samples are what every reader
+    returns: real numbers of the right domain (:func:`invalid_value`), band indices into its
+    bands, positive increasing wavelengths. ``TypeError`` for a wrong kind, ``ValueError`` for a value."""
+    for name in ("theta_i", "phi_i", "theta_o", "phi_o", "brdf", "sigma"):
+        if getattr(m, name) is not None:
+            found = invalid_value(name, _real_column(m, name))
+            if found is not None:
+                raise ValueError(f"Measurement {m.source}: {name}[{found[0]}]: {found[1]}")
+    band = np.asarray(m.band)
+    if band.ndim != 1 or band.dtype.kind not in "iu":
+        raise TypeError(f"Measurement {m.source}: band must be a 1-D array of integers (band indices), got {band.dtype} of shape {band.shape}")
+    out = (band < 0) | (band >= m.n_bands)
+    if out.any():
+        row = int(np.argmax(out))
+        raise ValueError(f"Measurement {m.source}: band[{row}] = {int(band[row])} is not a band index: the data has {m.n_bands} "
+                         f"band{'s' if m.n_bands != 1 else ''} (0..{m.n_bands - 1})")
+    if m.wavelength_nm is not None:
+        wl = _real_column(m, "wavelength_nm")
+        found = invalid_value("wavelength_nm", wl)
+        if found is None and np.any(np.diff(np.asarray(wl, dtype=float)) <= 0):
+            found = (int(np.argmax(np.diff(np.asarray(wl, dtype=float)) <= 0)) + 1, "the wavelengths must be strictly increasing")
+        if found is not None:
+            raise ValueError(f"Measurement {m.source}: wavelength_nm[{found[0]}]: {found[1]}")
 
 
 def band_labels(wavelength_nm, channels, band_unknown: bool = False) -> list[str]:
@@ -88,6 +166,7 @@ class Measurement:
             a = getattr(self, name)
             if a is not None and len(a) != n:
                 raise ValueError(f"{name} has {len(a)} entries, theta_i has {n}")
+        check_samples(self)
 
     def __len__(self) -> int:
         return len(self.theta_i)

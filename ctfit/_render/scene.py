@@ -37,6 +37,8 @@ from .._io import DataWarning
 from .._model import Light, Material, Params, Structure, reflected_intensity
 
 __all__ = [
+    "WAVELENGTH_STEP_NM",
+    "check_wavelength_step",
     "LIGHT_DIRECTIONS",
     "SOLID_ANGLES",
     "AMBIENT_FRACTION",
@@ -53,6 +55,8 @@ LIGHT_DIRECTIONS = ((-0.45, 0.55, 0.70), (0.75, 0.25, 0.61))
 SOLID_ANGLES = (1e-4, 2e-4)  # sr, the paper's two light sources
 AMBIENT_FRACTION = 0.01
 SPECTRAL_RANGE_NM = (380.0, 780.0)
+WAVELENGTH_STEP_NM = (1.0, SPECTRAL_RANGE_NM[1] - SPECTRAL_RANGE_NM[0])
+"""The steps of spectral rendering allowed, nm: from the CIE tables' 1 nm to the whole range (two wavelengths)."""
 
 
 @functools.cache
@@ -66,6 +70,20 @@ def _spectral_setup(wavelength_nm: tuple[float, ...]):
     white = d65 @ np.asarray(weights.weights)
     conv = rgb_conversion("sRGB", white, "CAT02")
     return d65, np.asarray(weights.weights) @ np.asarray(conv.matrix).T
+
+
+def check_wavelength_step(wavelength_step: float) -> None:
+    """Raise ``ValueError`` unless ``wavelength_step`` is in :data:`WAVELENGTH_STEP_NM`.
+
+    >>> check_wavelength_step(1000)
+    Traceback (most recent call last):
+    ValueError: wavelength_step must be in [1, 400] nm, got 1000 (larger than the 380–780 nm range, which needs at least two wavelengths)
+    """
+    (low, high), (lo, hi) = WAVELENGTH_STEP_NM, SPECTRAL_RANGE_NM
+    if not low <= wavelength_step <= high:
+        why = f"larger than the {lo:g}–{hi:g} nm range, which needs at least two wavelengths" if wavelength_step > high else (
+            "finer than the 1 nm tables of the colour-matching functions" if wavelength_step > 0 else "not a step")
+        raise ValueError(f"wavelength_step must be in [{low:g}, {high:g}] nm, got {wavelength_step:g} ({why})")
 
 
 def render_bands(material: Material, wavelength_step: float = 5.0, wavelength_nm=None):
@@ -82,8 +100,7 @@ def render_bands(material: Material, wavelength_step: float = 5.0, wavelength_nm
     if material.is_rgb:
         return material.params_at(channels=("R", "G", "B")), np.ones(3), np.eye(3)
     if wavelength_nm is None:
-        if not wavelength_step > 0:
-            raise ValueError(f"wavelength_step must be > 0 nm, got {wavelength_step!r}")
+        check_wavelength_step(wavelength_step)
         lo, hi = SPECTRAL_RANGE_NM
         wavelength_nm = np.arange(lo, hi + 1e-9, wavelength_step)
     wl = tuple(float(w) for w in np.asarray(wavelength_nm, dtype=float))

@@ -18,9 +18,11 @@ from __future__ import annotations
 import contextlib
 import logging
 
-__all__ = ["dask_client", "prepare_worker", "worker_count"]
+__all__ = ["CONNECT_TIMEOUT", "dask_client", "prepare_worker", "scheduler_address", "worker_count"]
 
 _LOGGERS = ("distributed", "tornado", "bokeh")
+CONNECT_TIMEOUT = "30s"
+"""How long ``dask_client`` tries to reach a scheduler before it gives up (an ``OSError``)."""
 _prepared: set[bool] = set()
 
 
@@ -43,8 +45,7 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
-        kw = _scheduler_file(scheduler) if str(scheduler).endswith(".json") else {"address": scheduler}
-        with Client(**kw, timeout="30s") as made:
+        with Client(address=scheduler_address(scheduler), timeout=CONNECT_TIMEOUT) as made:
             yield made
         return
     if workers is not None and workers < 1:
@@ -66,31 +67,42 @@ def _shut_down(client, cluster) -> None:
     cluster.close(timeout=10)
 
 
-def _scheduler_file(path) -> dict:
-    """``Client`` keywords for a scheduler file: its ``address`` once it exists (read here, as any
-    input: one error for a device, a file nested too deeply, one without an address), else the
-    file, for which Dask waits (a scheduler that is starting writes it). A file that does not
-    parse is read again for a second, as Dask does: the scheduler may be writing it."""
+def scheduler_address(scheduler) -> str:
+    """The address of ``scheduler``: itself, or read from a scheduler file (``.json``, the one
+    a Dask scheduler writes when it is given a file) — read as any input (a regular file, not
+    nested too deeply), so a missing file is an error at once (``distributed`` would wait for it
+    to appear) and a file that is not one says so. A file that does not parse is read again for
+    a second, as Dask does: the scheduler may be writing it.
+
+    >>> scheduler_address("tcp://127.0.0.1:8786")
+    'tcp://127.0.0.1:8786'
+    >>> scheduler_address("no-such-scheduler.json")
+    Traceback (most recent call last):
+    ValueError: scheduler file no-such-scheduler.json: no such file (a Dask scheduler started with a scheduler file writes it)
+    """
     import os
     import time
 
     from .._io import check_input_file, parse_json, quote
 
-    if not os.path.exists(path):
-        return {"scheduler_file": path}
+    if not str(scheduler).endswith(".json"):
+        return str(scheduler)
+    if not os.path.exists(scheduler):
+        raise ValueError(f"scheduler file {scheduler}: no such file (a Dask scheduler started with a scheduler file writes it)")
     for attempt in range(20):
-        check_input_file(path, max_bytes=1 << 20)
+        check_input_file(scheduler, max_bytes=1 << 20)
         try:
-            with open(path, encoding="utf-8") as f:
-                doc = parse_json(f.read(), path)
+            with open(scheduler, encoding="utf-8") as f:
+                doc = parse_json(f.read(), scheduler)
             break
         except ValueError:
             if attempt == 19:
                 raise
             time.sleep(0.05)
-    if not isinstance(doc, dict) or not isinstance(doc.get("address"), str):
-        raise ValueError(f"{path}: not a Dask scheduler file (a JSON object with an \"address\"), got {quote(doc)}")
-    return {"address": doc["address"]}
+    address = doc.get("address") if isinstance(doc, dict) else None
+    if not isinstance(address, str) or not address:
+        raise ValueError(f"{scheduler}: not a Dask scheduler file (a JSON object with an \"address\"), got {quote(doc)}")
+    return address
 
 
 def worker_count(client) -> int:

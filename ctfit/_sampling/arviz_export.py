@@ -50,6 +50,7 @@ def inference_data(chain: dict, log_prob: np.ndarray, walkers: int, bands: list,
         coords["lobe"] = list(range(lobes))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
+        warnings.filterwarnings("ignore", "More chains", UserWarning)  # a short run: fewer draws than walkers, as laid out here on purpose
         return az.from_dict(posterior=posterior, sample_stats={"lp": _by_walker(log_prob, walkers)}, dims=dims, coords=coords, attrs=attrs or {})
 
 

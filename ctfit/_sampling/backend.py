@@ -35,6 +35,11 @@ def open_run(backend, *, resume: bool, overwrite: bool, steps: int, shape: tuple
     path = pathlib.Path(backend)
     be = _open_backend(path, overwrite=overwrite)
     done = 0
+    if resume and path.is_file() and path.stat().st_size and not be.initialized:  # another program's HDF5 file: never written into unasked
+        raise ValueError(
+            f"{path}: the HDF5 file holds no chain of ctfit (no group 'ctfit') to continue; name another file, or start a "
+            "chain in this one (overwrite=True; ctfit: --overwrite)"
+        )
     if resume and path.exists() and be.initialized and be.iteration > 0:
         if be.shape != shape:
             raise ValueError(

@@ -36,7 +36,7 @@ def autocorr_time(chain_u: np.ndarray) -> np.ndarray:
     """emcee's τ per sampled coordinate of a (steps, walkers, ndim) chain (quiet when short)."""
     import emcee
 
-    with _quiet_emcee_log():
+    with _quiet_emcee_log(), np.errstate(invalid="ignore", divide="ignore"):  # a coordinate no walker moved: τ is NaN
         return np.asarray(emcee.autocorr.integrated_time(chain_u, quiet=True), dtype=float)
 
 
@@ -52,7 +52,10 @@ def run_notes(kept: int, tau: np.ndarray, labels: list[str], acceptance: np.ndar
     """Plain notes on the run: chain shorter than 50 τ, acceptance outside 0.15–0.7, one noise scale."""
     notes = []
     tau_max = float(np.max(tau))
-    if kept < 50 * tau_max:
+    if not np.all(np.isfinite(tau)):  # too few steps (or a coordinate no walker moved) for emcee's τ
+        notes.append(f"the chain is too short for reliable intervals: {kept} steps after burn-in are too few to estimate the "
+                     "autocorrelation time τ (reliable intervals need 50 τ, usually thousands of steps); run more steps")
+    elif kept < 50 * tau_max:
         notes.append(
             f"the chain is too short for reliable intervals: {kept} steps after burn-in < 50 τ_max = "
             f"{50 * tau_max:.0f} (τ_max = {tau_max:.1f} steps, for {labels[int(np.argmax(tau))]}); run more steps"

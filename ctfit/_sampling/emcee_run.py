@@ -134,6 +134,10 @@ def sample(
     t0 = time.perf_counter()
     if steps < 1 or thin < 1:
         raise ValueError(f"steps and thin must be ≥ 1, got steps={steps}, thin={thin}")
+    if thin > steps:
+        raise ValueError(f"thin must be at most steps ({steps}) to keep a draw, got thin={thin}")
+    if seed < 0:
+        raise ValueError(f"seed must be ≥ 0 (NumPy's generators take no negative seed), got seed={seed}")
     if resume and backend is None:
         raise ValueError("resume=True needs a backend (the HDF5 file of the run to continue)")
     if backend is not None:
@@ -147,6 +151,8 @@ def sample(
     burn = default_burn(chain_u) if burn is None else int(burn)
     if not 0 <= burn < chain_u.shape[0]:
         raise ValueError(f"burn must be in [0, steps), got {burn} with steps={chain_u.shape[0]}")
+    if chain_u.shape[0] - burn < thin:
+        raise ValueError(f"thin must be at most steps − burn = {chain_u.shape[0] - burn} to keep a draw, got thin={thin} (burn={burn})")
     flat = np.asarray(sampler.get_chain(discard=burn, thin=thin, flat=True))
     draw_lp = np.asarray(sampler.get_log_prob(discard=burn, thin=thin, flat=True))
     chain = s.engine.constrained(flat)

@@ -49,6 +49,8 @@ class PosteriorSetup:
 def set_up_posterior(target, data: Measurement, *, loss=None, fixed=None, priors=None, walkers=None) -> PosteriorSetup:
     """The sampling problem of ``target`` (a FitResult or a Material) on ``data``; the arguments
     are :func:`ctfit.sample`'s."""
+    if not isinstance(data, Measurement):
+        raise TypeError(f"data must be a ctfit.Measurement (the data the material was fitted to), got {type(data).__name__}")
     if loss is not None and loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     material, loss, fixed, note = resolve_fit(target, data, loss, fixed)

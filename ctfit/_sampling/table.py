@@ -15,6 +15,12 @@ def _fmt(s: dict | None) -> str:
     return f"{med:.6g} (+{hi - med:.2g} / −{med - lo:.2g})"
 
 
+def _num(x, spec: str) -> str:
+    """``x`` formatted with ``spec``; "n/a" where the JSON holds none (NaN is written as null), e.g.
+    τ, ESS or R̂ of a chain too short to estimate them."""
+    return "n/a" if x is None or x != x else format(x, spec)
+
+
 def format_uncertainty_table(doc: dict, label: str = "") -> str:
     """A plain-text table of an ``uncertainty`` section (or a whole fit JSON document holding one).
 
@@ -64,10 +70,11 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
             f"acceptance: {acc['mean']:.2f}"
         )
         lines.append(
-            f"  τ_max: {d['autocorr_time_max']:.1f} steps   ESS_min (ArviZ, bulk): {d['ess_min']:.0f}   R̂_max: {d.get('r_hat_max', float('nan')):.3f}   "
+            f"  τ_max: {_num(d['autocorr_time_max'], '.1f')} steps   ESS_min (ArviZ, bulk): {_num(d['ess_min'], '.0f')}   "
+            f"R̂_max: {_num(d.get('r_hat_max'), '.3f')}   "
             f"chain ≥ 50 τ: {d['chain_long_enough']}   time: {d['time_s']:.1f} s"
         )
-        per = [f"{k} {d['ess_bulk'][k]:.0f}/{d['r_hat'][k]:.3f}" for k in d.get("ess_bulk", {})]
+        per = [f"{k} {_num(d['ess_bulk'][k], '.0f')}/{_num(d['r_hat'][k], '.3f')}" for k in d.get("ess_bulk", {})]
         if per:
             lines.append("  ESS (bulk) / R̂ per quantity: " + ", ".join(per))
     priors = u.get("priors", {}).get("parameters", {})

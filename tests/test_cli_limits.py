@@ -1,0 +1,96 @@
+"""Hostile options and inputs of the ctfit command: one ``error:`` line and exit status 2, never a
+traceback; ranges that say what they give; extreme but valid options that run."""
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import ctfit
+from ctfit.cli import app
+
+from conftest import ROOT
+
+runner = CliRunner()
+COPPER = ROOT / "configs" / "copper-vase.toml"
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def refused(r, *words):
+    """The command failed as input errors do: status 2, one ``error:`` line naming ``words``."""
+    assert r.exit_code == 2, r.output
+    lines = [ln for ln in r.output.splitlines() if ln.startswith("error:")]
+    assert len(lines) == 1 and "Traceback" not in r.output, r.output
+    assert all(w in lines[0] for w in words), lines[0]
+    return lines[0]
+
+
+@pytest.mark.parametrize("text", ["-5", "0", "400,-3", "nan", "700:400:10", "400:700:0", "inf:700:1", ""])
+def test_simulate_refuses_wavelengths_that_are_not_wavelengths(tmp_path, text):
+    r = run("simulate", COPPER, "-o", tmp_path / "x.csv", "--samples", 3, f"--wavelengths={text}")
+    refused(r, "--wavelengths")
+    assert not (tmp_path / "x.csv").exists()
+
+
+@pytest.mark.parametrize("text, last, count", [("400:700:7", 694.0, 43), ("380:779.9:1", 779.0, 400), ("400:700:50", 700.0, 7), ("400:700:0.1", 700.0, 3001)])
+def test_a_wavelength_range_never_passes_stop(tmp_path, text, last, count):
+    from ctfit._cli.inputs import parse_wavelengths
+
+    wl = parse_wavelengths(text)
+    assert len(wl) == count and wl[-1] == pytest.approx(last) and wl[-1] <= float(text.split(":")[1])
+    out = tmp_path / "x.csv"
+    r = run("simulate", COPPER, "-o", out, "--samples", 2, "--wavelengths", text)
+    assert r.exit_code == 0, r.output
+    data = ctfit.read_csv(out)
+    assert data.n_bands == count and data.wavelength_nm.max() == pytest.approx(last)
+
+
+def test_a_material_of_unknown_band_is_not_simulated_into_31_bands(tmp_path):
+    mat = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.3]), w=np.ones(1), f0=np.array([0.5])),
+                         wavelength_nm=np.array([550.0]), band_unknown=True, name="alta fit")
+    ctfit.save_material_json(mat, tmp_path / "u.json")
+    refused(run("simulate", tmp_path / "u.json", "-o", tmp_path / "u.csv", "--samples", 3), "unknown wavelength")
+    assert not (tmp_path / "u.csv").exists()
+    data = ctfit.simulate(mat, 4)  # in memory: the one band, still unknown
+    assert data.band_unknown and data.band_labels == ["unknown band"] and len(data) == 4
+    with pytest.raises(ValueError, match="wavelength_nm"):
+        ctfit.simulate(mat, 4, wavelength_nm=[500.0])
+    with pytest.raises(ValueError, match="wavelength_nm"):
+        ctfit.simulate(ctfit.load_material(COPPER), 4, wavelength_nm=[-5.0])
+
+
+@pytest.mark.parametrize("step, why", [(1000, "larger than the 380–780 nm range"), (0.5, "finer"), (0, "not a step")])
+def test_render_step_outside_its_range_says_what_is_allowed(tmp_path, step, why):
+    r = run("render", ROOT / "configs" / "gold.toml", "-o", tmp_path / "r.png", "--size", 16, "--supersample", 1, "--step", step)
+    refused(r, "--step", "[1, 400] nm", why)
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    d = tmp_path_factory.mktemp("limits")
+    assert run("simulate", COPPER, "-o", d / "cu.csv", "--samples", 60, "--wavelengths", "400:700:150", "--noise", 0.01).exit_code == 0
+    r = run("fit", d / "cu.csv", "-o", d / "cu.json", "--starts", 1)
+    assert r.exit_code in (0, 1), r.output
+    return d
+
+
+@pytest.mark.parametrize("args, words", [
+    (("sample", "{d}/cu.json", "{d}/cu.csv", "-o", "{d}/s.json", "--steps", 5, "--thin", 10), "--thin must be at most steps (5)"),
+    (("fit", "{d}/cu.csv", "--sample", "--steps", 3, "--thin", 5), "--thin must be at most --steps (3)"),
+    (("fit", "{d}/cu.csv", "--param-out", "x"), "--param-out must be one of"),
+    (("eval", COPPER, "{d}/cu.csv", "-o", "{d}/e.csv", "--param-out", "x"), "--param-out must be one of"),
+    (("simulate", COPPER, "-o", "{d}/n.csv", "--samples", 3, "--noise", 1e308), "--noise=1e+308 is too large"),
+    (("render", COPPER, "-o", "{d}/r.png", "--size", 16, "--ambient", "inf"), "--ambient must be a finite fraction"),
+    (("color", COPPER, "--angle", 95), "--angle must be in [0, 90]"),
+])
+def test_extreme_options_are_one_error_line_naming_the_option(fitted, args, words):
+    refused(run(*(str(a).format(d=fitted) for a in args)), words)
+
+
+def test_negative_seeds_are_refused_by_name():
+    mat = ctfit.load_material(COPPER)
+    with pytest.raises(ValueError, match="seed must be ≥ 0"):
+        ctfit.simulate(mat, 3, seed=-1)
+    assert "--seed" in run("simulate", COPPER, "-o", "never.csv", "--seed", -1).output
