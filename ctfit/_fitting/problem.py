@@ -45,7 +45,7 @@ from .._model import (
     parameter,
 )
 
-__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket"]
+__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows"]
 
 LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
@@ -89,11 +89,23 @@ def _geometry_fields(pairs) -> dict:
     return {f.name: getattr(g, f.name) for f in dataclasses.fields(g)}
 
 
+GEOMETRY_BLOCK = 4096
+"""Direction pairs per call of the geometry program: any number of pairs is laid out by one
+program of this shape (no program per data size)."""
+
+
 def _geometry_deg(pairs) -> Geometry:
     """The :class:`Geometry` of direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, shape (D, 4),
     through the program store (a stored program loads in a fraction of what compiling the
-    trigonometry costs, once per size bucket)."""
-    return Geometry(**cached_call("geometry", _geometry_fields, pairs))
+    trigonometry costs), ``GEOMETRY_BLOCK`` pairs at a time, joined on the host."""
+    pairs = np.asarray(pairs)
+    n = len(pairs)
+    if n == 0:
+        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs)))
+    blocks = -(-n // GEOMETRY_BLOCK)
+    padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
+    parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK])) for b in range(blocks)]
+    return Geometry(**{k: jax.device_put(np.concatenate([p[k] for p in parts])[:n]) for k in parts[0]})
 
 
 def _weights(u_w, space: str):
@@ -208,6 +220,7 @@ def make_problem(
     space: str = "box",
     pad: bool = False,
     pad_to: tuple[int, int] | None = None,
+    chunk: int | None = None,
 ) -> Problem:
     """Lay ``data`` out for the model (grid when dense, pairs otherwise) and fix the spec.
 
@@ -216,7 +229,9 @@ def make_problem(
     samples up to a size bucket (:func:`bucket`) with masked-out entries, so that measurements
     of other sizes in the same bucket share one compiled program. ``pad_to``: pad to these sizes
     (direction pairs, samples; at least the data's) instead of the buckets, so that
-    measurements of different buckets can be stacked into one batch (``pad`` is implied)."""
+    measurements of different buckets can be stacked into one batch (``pad`` is implied).
+    ``chunk``: pad the rows to a multiple of :func:`chunk_rows` (for the fit on chunks of one
+    shape, ``chunked_fit.py``) instead."""
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     if data.brdf is None:
@@ -231,12 +246,15 @@ def make_problem(
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data) and not data.repeats  # a grid cell holds one sample
+    if chunk:
+        rows = chunk_rows(grid, n_bands, chunk)
+        pad_to = (-(-max(n_pairs, 1) // rows) * rows, len(data)) if grid else (n_pairs, -(-max(len(data), 1) // rows) * rows)
     pad = pad or pad_to is not None
     if pad_to is not None and (pad_to[0] < n_pairs or pad_to[1] < len(data)):
         raise ValueError(f"{data.source}: pad_to={pad_to} is smaller than the data ({n_pairs} direction pairs, {len(data)} samples)")
     if pad and n_pairs:
         pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
-    geom = _geometry_deg(jnp.asarray(pairs, dtype=dtype))
+    geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)))
     y_pos = data.brdf[data.brdf > 0]
     floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
@@ -304,6 +322,14 @@ def bucket(n: int) -> int:
     while k > 0 and math.ceil(BUCKET_MIN * 2 ** ((k - 1) / 2)) >= n:
         k -= 1
     return math.ceil(BUCKET_MIN * 2 ** (k / 2))
+
+
+def chunk_rows(grid: bool, n_bands: int, cells: int) -> int:
+    """Rows of a chunk of about ``cells`` cells: samples in the pairs layout; in the grid layout
+    a power of two of direction pairs (each with its ``n_bands`` bands), at least 64."""
+    if not grid:
+        return cells
+    return max(64, 1 << max(0, (cells // max(n_bands, 1)).bit_length() - 1))
 
 
 MIN_CHUNKS = 16

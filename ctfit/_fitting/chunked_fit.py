@@ -1,0 +1,262 @@
+"""The Levenberg–Marquardt fit on chunks of one fixed shape: one set of compiled programs per
+structure, whatever the number of samples.
+
+A measurement is laid out (``make_problem(chunk=ROWS)``) with its rows padded to a multiple of
+the chunk's (samples in the pairs layout, each with its own geometry; direction pairs × bands in
+the grid layout) and cut into chunks of that one shape. Everything that reads the data is a
+*chunk kernel*, compiled once per structure (spec, bands, dtype) and called over the chunks of
+any file, each adding its share to a running sum on the device (calls are queued, not awaited):
+
+- ``fit_ne``: ½‖r‖², Jᵀr and JᵀJ at a flat parameter vector
+  (:func:`~ctfit._fitting.problem.normal_equations`);
+- ``fit_grid_sums`` and ``fit_grid_costs``: the two passes of the seeds' scores
+  (:func:`~ctfit._fitting.starts.grid_sums`, :func:`~ctfit._fitting.starts.grid_costs`);
+- ``fit_summary``: residual summary and the cost of a zero model, per chunk.
+
+Programs whose shapes depend only on the parameters: ``fit_seeds`` (the seeds from their
+scores, the bounds), ``fit_report`` (:func:`~ctfit._fitting.fit_report.report_core`), and
+optimistix's solver itself (:func:`~ctfit._fitting.seeded_solve.lm_solver`): ``lm_init`` and
+``lm_step``, one step of ``StructuredLevenbergMarquardt`` given the cost, Jᵀr and JᵀJ at the
+point it evaluates, compiled per number of parameters and shared by every structure. The host
+runs optimistix's iteration (init, step until it terminates) and the race of the seeds exactly
+as the compiled ``_structured_lm`` does, so results agree with it to rounding.
+
+All programs go through the program store (:func:`~ctfit._runtime.stored_program`), so a new
+process loads them; a file of a new size compiles nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
+
+from .._runtime import stored_program
+from .fit_report import report_core, summary_of_part, combined_rms, zero_model_cost
+from .problem import Problem, normal_equations
+from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver
+from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
+
+__all__ = ["ROWS", "chunk_problems", "chunked_core"]
+
+ROWS = 4096
+"""Cells per chunk: samples of the pairs layout; the grid layout takes a power of two of
+direction pairs with about this many cells (:func:`~ctfit._fitting.problem.chunk_rows`)."""
+
+
+def chunk_problems(problem: Problem) -> list[Problem]:
+    """``problem`` (rows a multiple of the chunk's: ``make_problem(chunk=ROWS)``) cut into
+    problems of one shape, on the host. Pairs layout: each chunk's samples carry their own
+    direction pair's geometry (``pair`` = 0, 1, …)."""
+    from .problem import chunk_rows
+
+    rows = chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
+    host = lambda a: None if a is None else np.asarray(a)  # noqa: E731
+    y, sigma, cos_i, mask = (host(a) for a in (problem.y, problem.sigma, problem.cos_i, problem.mask))
+    geom = jax.tree.map(np.asarray, problem.geom)
+    count = y.shape[0] // rows
+    own = None if problem.spec.grid else jax.device_put(np.arange(rows, dtype=np.asarray(problem.pair).dtype))
+    pair, band = host(problem.pair), host(problem.band)
+    out = []
+    for c in range(count):
+        cut = slice(c * rows, (c + 1) * rows)
+        put = lambda a: None if a is None else jax.device_put(a[cut])  # noqa: E731
+        if problem.spec.grid:
+            g = jax.tree.map(lambda a: jax.device_put(a[cut]), geom)
+            out.append(dataclasses.replace(problem, geom=g, y=put(y), sigma=put(sigma), cos_i=put(cos_i), mask=put(mask)))
+        else:
+            g = jax.tree.map(lambda a: jax.device_put(a[pair[cut]]), geom)
+            out.append(dataclasses.replace(problem, geom=g, pair=own, band=put(band), y=put(y), sigma=put(sigma), cos_i=put(cos_i), mask=put(mask)))
+    return out
+
+
+def _leaves(tree) -> list:
+    return jax.tree.leaves(eqx.filter(tree, eqx.is_array))
+
+
+def _unflat(u0: dict, flat) -> dict:
+    """``ravel_pytree``'s inverse on the host: the dict of ``u0``'s shapes from a flat vector."""
+    out, at = {}, 0
+    for k in sorted(u0):
+        size = int(np.size(u0[k]))
+        out[k] = np.reshape(flat[at: at + size], np.shape(u0[k]))
+        at += size
+    return out
+
+
+def _ne_kernel(acc, part: Problem, flat, u0: dict):
+    u = ravel_pytree(u0)[1](flat)
+    return [a + b for a, b in zip(acc, normal_equations(part, u))]
+
+
+def _sums_kernel(acc, part: Problem, u0: dict, grid):
+    return [a + b for a, b in zip(acc, grid_sums(part, u0, grid))]
+
+
+def _costs_kernel(acc, part: Problem, u0: dict, grid, num, den):
+    return acc + grid_costs(part, u0, grid, grid_scales(num, den))
+
+
+def _summary_kernel(part: Problem, u: dict):
+    rel, stats, bad = summary_of_part(part, u)
+    return dict(rel=rel, stats=stats, bad=bad, zero=zero_model_cost(part))
+
+
+def _seeds_program(part: Problem, u0: dict, k: int, grid, num, den, costs, keep_start: bool):
+    if grid is None:
+        seeds = jax.tree.map(lambda a: a[None], u0)
+    else:
+        seeds = seeds_from_scores(part, u0, k, grid, costs, grid_scales(num, den), keep_start)
+    flat = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
+    lower, upper = flat_bounds(part, u0)
+    return dict(flat=flat, lower=lower, upper=upper)
+
+
+def _given(flat, data):
+    return data
+
+
+def _cost_given(flat, f):
+    return f, None
+
+
+def _lm(y, lower, upper, grad, hess):
+    solver = lm_solver(y.dtype, lower, upper, (grad, hess), _given)
+    template = solver.init(_cost_given, y, jnp.zeros((), y.dtype), {}, jax.ShapeDtypeStruct((), y.dtype), None, frozenset())
+    return solver, template
+
+
+def _lm_init(y, lower, upper):
+    """optimistix's ``init`` and first ``terminate`` (``_run_solver``'s)."""
+    p = y.shape[0]
+    solver, state = _lm(y, lower, upper, jnp.zeros((p,), y.dtype), jnp.zeros((p, p), y.dtype))
+    done, result = solver.terminate(_cost_given, y, jnp.zeros((), y.dtype), {}, state, frozenset())
+    sound = (result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(y))
+    return dict(state=_leaves(state), y_eval=state.y_eval, done=done, sound=sound)
+
+
+def _lm_step(y, leaves: list, f, grad, hess, lower, upper):
+    """One optimistix step given the cost, Jᵀr and JᵀJ at the point the state evaluates."""
+    solver, template = _lm(y, lower, upper, grad, hess)
+    dynamic, static = eqx.partition(template, eqx.is_array)
+    state = eqx.combine(jax.tree.unflatten(jax.tree.structure(dynamic), leaves), static)
+    y, state, _ = solver.step(_cost_given, y, f, {}, state, frozenset())
+    done, result = solver.terminate(_cost_given, y, f, {}, state, frozenset())
+    sound = (result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(y))
+    return dict(y=y, state=_leaves(state), y_eval=state.y_eval, done=done, sound=sound, cost=state.f_info.f)
+
+
+@dataclasses.dataclass
+class _Kernels:
+    """The compiled programs of one fit, and the chunks' array leaves they run over."""
+
+    parts: list[list]
+    template: Problem
+    u0: dict
+    ne: object
+    init: object
+    step: object
+
+    def normal_equations(self, flat):
+        """(½‖r‖², Jᵀr, JᵀJ) at ``flat``: device arrays, summed over the chunks."""
+        p = flat.shape[0]
+        acc = [jax.device_put(np.zeros(s, flat.dtype)) for s in ((), (p,), (p, p))]
+        u0 = _leaves(self.u0)
+        for leaves in self.parts:
+            acc = self.ne(*acc, *leaves, flat, *u0)
+        return acc
+
+    def run(self, y0, lower, upper, budget: int):
+        """``_run_solver`` on the host: (value, converged, steps, sound, cost)."""
+        out = self.init(y0, lower, upper)
+        y, leaves, y_eval = y0, out["state"], out["y_eval"]
+        done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
+        k, cost = 0, np.inf
+        while not done and sound and k < budget:
+            f, grad, hess = self.normal_equations(y_eval)
+            out = self.step(y, *leaves, f, grad, hess, lower, upper)
+            y, leaves, y_eval, cost = out["y"], out["state"], out["y_eval"], out["cost"]
+            done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
+            k += 1
+        return y, done and sound, k, sound, float(cost)
+
+
+def _kernels(problem: Problem, u0: dict) -> _Kernels:
+    parts = chunk_problems(problem)
+    template = parts[0]
+    u0 = {k: jnp.asarray(v) for k, v in u0.items()}
+    flat = ravel_pytree(u0)[0]
+    p, dtype = flat.shape[0], flat.dtype
+    zeros = [jnp.zeros((), dtype), jnp.zeros((p,), dtype), jnp.zeros((p, p), dtype)]
+    ne = stored_program("fit_ne", _ne_kernel, zeros, template, flat, u0)
+    init = stored_program("lm_init", _lm_init, flat, flat, flat)
+    state = init(flat, flat, flat)["state"]
+    step = stored_program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat)
+    return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step)
+
+
+def _seeds(kern: _Kernels, k: int, grid, keep_start: bool) -> dict:
+    """The flat seeds and the bounds (host arrays): the scores' two passes over the chunks, then
+    the choice (:func:`~ctfit._fitting.starts.seed_points`' steps)."""
+    template, u0 = kern.template, kern.u0
+    if "m" not in u0 or k < 1 or grid is None:
+        pick = stored_program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
+        return jax.device_get(pick(*_leaves((template, u0))))
+    u0l, g = _leaves(u0), grid.shape[0]
+    acc = [jax.device_put(np.zeros((g, template.fixed_bands), grid.dtype)) for _ in range(2)]
+    sums = stored_program("fit_grid_sums", _sums_kernel, acc, template, u0, grid)
+    for leaves in kern.parts:
+        acc = sums(*acc, *leaves, *u0l, grid)
+    total = jax.device_put(np.zeros((g,), grid.dtype))
+    costs = stored_program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc)
+    for leaves in kern.parts:
+        total = costs(total, *leaves, *u0l, grid, *acc)
+    pick = stored_program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start)
+    return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1], total))))
+
+
+def _race(kern: _Kernels, seeds: dict, max_steps: int):
+    """``_structured_lm``'s race on the host: every seed ``RACE_STEPS`` steps, then those within
+    ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs."""
+    flat, lower, upper = seeds["flat"], jax.device_put(seeds["lower"]), jax.device_put(seeds["upper"])
+    n = flat.shape[0]
+    values = [jax.device_put(v) for v in flat]
+    ok, steps, costs, sound = [False] * n, [0] * n, [math.inf] * n, [True] * n
+    race = n > 1 and max_steps > RACE_STEPS
+    for i in range(2 * n if race else n):
+        j = i % n
+        budget = max_steps
+        if race:
+            go = not ok[j] and costs[j] <= RACE_MARGIN * min(costs)
+            budget = (max_steps - RACE_STEPS if go else 0) if i >= n else RACE_STEPS
+        v, o, k, fine, c = kern.run(values[j], lower, upper, budget)
+        if k > 0:  # a seed that did not go on keeps what it had
+            values[j], ok[j], sound[j], costs[j] = v, o, fine, (c if math.isfinite(c) else math.inf)
+        steps[j] += k
+    return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype)
+
+
+def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False) -> dict:
+    """``fit_core``'s output (host arrays) for the solver "lm", on chunks: ``problem`` laid out
+    by ``make_problem(chunk=ROWS)``."""
+    kern = _kernels(problem, u0)
+    values, sound, steps, costs = _race(kern, _seeds(kern, starts, grid, keep_start), max_steps)
+    best = int(np.argmin(costs))
+    cost, jtr, jtj = kern.normal_equations(values[best])
+    u = {k: jnp.asarray(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}
+    summary, ul = stored_program("fit_summary", _summary_kernel, kern.template, u), _leaves(u)
+    parts = jax.device_get([summary(*leaves, *ul) for leaves in kern.parts])
+    zero = np.asarray(np.sum([p["zero"] for p in parts]), costs.dtype)
+    report = stored_program("fit_report", report_core, kern.template, u, cost, jtr, jtj, zero)
+    out = jax.device_get(report(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
+    n = max(int(np.sum(np.asarray(problem.mask))), 1)
+    stats = [[np.array([p["stats"][i][j] for p in parts]) for j in (0, 1)] for i in (0, 1)]
+    rmse, rel_rmse = (combined_rms(big, sq, n, xp=np) for big, sq in stats)
+    return dict(out, u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best,
+                rel=np.stack([p["rel"] for p in parts]), rmse=rmse, rel_rmse=rel_rmse, bad=int(sum(int(p["bad"]) for p in parts)))
