@@ -45,7 +45,7 @@ from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
 
 __all__ = ["ROWS", "chunk_problems", "chunked_core"]
 
-ROWS = 4096
+ROWS = 2048
 """Cells per chunk: samples of the pairs layout; the grid layout takes a power of two of
 direction pairs with about this many cells (:func:`~ctfit._fitting.problem.chunk_rows`)."""
 
@@ -66,14 +66,28 @@ def chunk_problems(problem: Problem) -> list[Problem]:
     out = []
     for c in range(count):
         cut = slice(c * rows, (c + 1) * rows)
-        put = lambda a: None if a is None else jax.device_put(a[cut])  # noqa: E731
+        at = (lambda a: a[cut]) if problem.spec.grid else (lambda a: a[pair[cut]])  # noqa: E731
+        cells = {k: None if a is None else a[cut] for k, a in dict(y=y, sigma=sigma, cos_i=cos_i, mask=mask, band=band).items()}
+        g, cells = jax.device_put((jax.tree.map(at, geom), cells))  # one transfer per chunk
         if problem.spec.grid:
-            g = jax.tree.map(lambda a: jax.device_put(a[cut]), geom)
-            out.append(dataclasses.replace(problem, geom=g, y=put(y), sigma=put(sigma), cos_i=put(cos_i), mask=put(mask)))
+            del cells["band"]
+            out.append(dataclasses.replace(problem, geom=g, **cells))
         else:
-            g = jax.tree.map(lambda a: jax.device_put(a[pair[cut]]), geom)
-            out.append(dataclasses.replace(problem, geom=g, pair=own, band=put(band), y=put(y), sigma=put(sigma), cos_i=put(cos_i), mask=put(mask)))
+            out.append(dataclasses.replace(problem, geom=g, pair=own, **cells))
     return out
+
+
+_programs: dict = {}
+
+
+def _program(name: str, fn, *args):
+    """:func:`~ctfit._runtime.stored_program`, looked up first under a key that is cheap to
+    compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file."""
+    sig = (name, jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args)))
+    run = _programs.get(sig)
+    if run is None:
+        run = _programs[sig] = stored_program(name, fn, *args)
+    return run
 
 
 def _leaves(tree) -> list:
@@ -194,10 +208,10 @@ def _kernels(problem: Problem, u0: dict) -> _Kernels:
     flat = ravel_pytree(u0)[0]
     p, dtype = flat.shape[0], flat.dtype
     zeros = [jnp.zeros((), dtype), jnp.zeros((p,), dtype), jnp.zeros((p, p), dtype)]
-    ne = stored_program("fit_ne", _ne_kernel, zeros, template, flat, u0)
-    init = stored_program("lm_init", _lm_init, flat, flat, flat)
+    ne = _program("fit_ne", _ne_kernel, zeros, template, flat, u0)
+    init = _program("lm_init", _lm_init, flat, flat, flat)
     state = init(flat, flat, flat)["state"]
-    step = stored_program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat)
+    step = _program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat)
     return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step)
 
 
@@ -206,18 +220,18 @@ def _seeds(kern: _Kernels, k: int, grid, keep_start: bool) -> dict:
     the choice (:func:`~ctfit._fitting.starts.seed_points`' steps)."""
     template, u0 = kern.template, kern.u0
     if "m" not in u0 or k < 1 or grid is None:
-        pick = stored_program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
+        pick = _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
         return jax.device_get(pick(*_leaves((template, u0))))
     u0l, g = _leaves(u0), grid.shape[0]
     acc = [jax.device_put(np.zeros((g, template.fixed_bands), grid.dtype)) for _ in range(2)]
-    sums = stored_program("fit_grid_sums", _sums_kernel, acc, template, u0, grid)
+    sums = _program("fit_grid_sums", _sums_kernel, acc, template, u0, grid)
     for leaves in kern.parts:
         acc = sums(*acc, *leaves, *u0l, grid)
     total = jax.device_put(np.zeros((g,), grid.dtype))
-    costs = stored_program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc)
+    costs = _program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc)
     for leaves in kern.parts:
         total = costs(total, *leaves, *u0l, grid, *acc)
-    pick = stored_program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start)
+    pick = _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start)
     return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1], total))))
 
 
@@ -250,10 +264,10 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     best = int(np.argmin(costs))
     cost, jtr, jtj = kern.normal_equations(values[best])
     u = {k: jnp.asarray(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}
-    summary, ul = stored_program("fit_summary", _summary_kernel, kern.template, u), _leaves(u)
+    summary, ul = _program("fit_summary", _summary_kernel, kern.template, u), _leaves(u)
     parts = jax.device_get([summary(*leaves, *ul) for leaves in kern.parts])
     zero = np.asarray(np.sum([p["zero"] for p in parts]), costs.dtype)
-    report = stored_program("fit_report", report_core, kern.template, u, cost, jtr, jtj, zero)
+    report = _program("fit_report", report_core, kern.template, u, cost, jtr, jtj, zero)
     out = jax.device_get(report(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
     n = max(int(np.sum(np.asarray(problem.mask))), 1)
     stats = [[np.array([p["stats"][i][j] for p in parts]) for j in (0, 1)] for i in (0, 1)]
