@@ -27,6 +27,7 @@ process loads them; a file of a new size compiles nothing.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import math
 
@@ -104,9 +105,22 @@ def _unflat(u0: dict, flat) -> dict:
     return out
 
 
+PARAMETER_STEP = 8
+"""The solver's programs (``lm_init``, ``lm_step``) take the flat parameter vector padded with
+zeros to a multiple of this (padded coordinates have zero gradient and JᵀJ and the bounds
+[0, 0], so every step leaves them at 0): structures with about as many parameters share them."""
+
+
+def _padded_size(p: int) -> int:
+    return -(-p // PARAMETER_STEP) * PARAMETER_STEP
+
+
 def _ne_kernel(acc, part: Problem, flat, u0: dict):
-    u = ravel_pytree(u0)[1](flat)
-    return [a + b for a, b in zip(acc, normal_equations(part, u))]
+    """``acc`` + (½‖r‖², Jᵀr, JᵀJ) of ``part`` at ``flat`` (padded: :data:`PARAMETER_STEP`)."""
+    unflat = ravel_pytree(u0)[1]
+    p, extra = ravel_pytree(u0)[0].shape[0], flat.shape[0] - ravel_pytree(u0)[0].shape[0]
+    cost, grad, hess = normal_equations(part, unflat(flat[:p]))
+    return [acc[0] + cost, acc[1] + jnp.pad(grad, (0, extra)), acc[2] + jnp.pad(hess, ((0, extra), (0, extra)))]
 
 
 def _sums_kernel(acc, part: Problem, u0: dict, grid):
@@ -201,13 +215,12 @@ class _Kernels:
         return y, done and sound, k, sound, float(cost)
 
 
-def _kernels(problem: Problem, u0: dict) -> _Kernels:
-    parts = chunk_problems(problem)
+def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
     template = parts[0]
-    u0 = {k: jnp.asarray(v) for k, v in u0.items()}
-    flat = ravel_pytree(u0)[0]
-    p, dtype = flat.shape[0], flat.dtype
-    zeros = [jnp.zeros((), dtype), jnp.zeros((p,), dtype), jnp.zeros((p, p), dtype)]
+    p = _padded_size(ravel_pytree(u0)[0].shape[0])
+    dtype = ravel_pytree(u0)[0].dtype
+    flat = jax.device_put(np.zeros(p, dtype))
+    zeros = [jax.device_put(np.zeros(s, dtype)) for s in ((), (p,), (p, p))]
     ne = _program("fit_ne", _ne_kernel, zeros, template, flat, u0)
     init = _program("lm_init", _lm_init, flat, flat, flat)
     state = init(flat, flat, flat)["state"]
@@ -215,21 +228,30 @@ def _kernels(problem: Problem, u0: dict) -> _Kernels:
     return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step)
 
 
-def _seeds(kern: _Kernels, k: int, grid, keep_start: bool) -> dict:
+def _report_programs(template: Problem, u0: dict) -> None:
+    """Make (compile or load) the programs of the report, for the shapes of ``u0``."""
+    flat = ravel_pytree(u0)[0]
+    p, dtype = flat.shape[0], flat.dtype
+    zero = np.zeros((), dtype)
+    _program("fit_summary", _summary_kernel, template, u0)
+    _program("fit_report", report_core, template, u0, zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
+
+
+def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> dict:
     """The flat seeds and the bounds (host arrays): the scores' two passes over the chunks, then
     the choice (:func:`~ctfit._fitting.starts.seed_points`' steps)."""
-    template, u0 = kern.template, kern.u0
+    template, chunks = parts[0], [_leaves(pt) for pt in parts]
     if "m" not in u0 or k < 1 or grid is None:
         pick = _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
         return jax.device_get(pick(*_leaves((template, u0))))
     u0l, g = _leaves(u0), grid.shape[0]
     acc = [jax.device_put(np.zeros((g, template.fixed_bands), grid.dtype)) for _ in range(2)]
     sums = _program("fit_grid_sums", _sums_kernel, acc, template, u0, grid)
-    for leaves in kern.parts:
+    for leaves in chunks:
         acc = sums(*acc, *leaves, *u0l, grid)
     total = jax.device_put(np.zeros((g,), grid.dtype))
     costs = _program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc)
-    for leaves in kern.parts:
+    for leaves in chunks:
         total = costs(total, *leaves, *u0l, grid, *acc)
     pick = _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start)
     return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1], total))))
@@ -238,8 +260,10 @@ def _seeds(kern: _Kernels, k: int, grid, keep_start: bool) -> dict:
 def _race(kern: _Kernels, seeds: dict, max_steps: int):
     """``_structured_lm``'s race on the host: every seed ``RACE_STEPS`` steps, then those within
     ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs."""
-    flat, lower, upper = seeds["flat"], jax.device_put(seeds["lower"]), jax.device_put(seeds["upper"])
-    n = flat.shape[0]
+    n, p = seeds["flat"].shape
+    extra = _padded_size(p) - p
+    flat = np.pad(seeds["flat"], ((0, 0), (0, extra)))
+    lower, upper = (jax.device_put(np.pad(seeds[k], (0, extra))) for k in ("lower", "upper"))
     values = [jax.device_put(v) for v in flat]
     ok, steps, costs, sound = [False] * n, [0] * n, [math.inf] * n, [True] * n
     race = n > 1 and max_steps > RACE_STEPS
@@ -259,18 +283,29 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int):
 def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False) -> dict:
     """``fit_core``'s output (host arrays) for the solver "lm", on chunks: ``problem`` laid out
     by ``make_problem(chunk=ROWS)``."""
-    kern = _kernels(problem, u0)
-    values, sound, steps, costs = _race(kern, _seeds(kern, starts, grid, keep_start), max_steps)
+    parts = chunk_problems(problem)
+    u0 = {k: jnp.asarray(v) for k, v in u0.items()}
+    # A structure's programs compile in three threads at once (XLA compiles without the GIL):
+    # the solver's, the report's, and (here) the seeds'; found in memory or on disk, they load.
+    with concurrent.futures.ThreadPoolExecutor(2) as pool:
+        kernels = pool.submit(_kernels, parts, u0)
+        pool.submit(_report_programs, parts[0], u0)
+        seeds = _seeds(parts, u0, starts, grid, keep_start)
+        kern = kernels.result()
+    values, sound, steps, costs = _race(kern, seeds, max_steps)
     best = int(np.argmin(costs))
-    cost, jtr, jtj = kern.normal_equations(values[best])
+    p = int(np.size(ravel_pytree(u0)[0]))
+    cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))
+    cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
     u = {k: jnp.asarray(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}
     summary, ul = _program("fit_summary", _summary_kernel, kern.template, u), _leaves(u)
     parts = jax.device_get([summary(*leaves, *ul) for leaves in kern.parts])
-    zero = np.asarray(np.sum([p["zero"] for p in parts]), costs.dtype)
+    zero = np.asarray(np.sum([c["zero"] for c in parts]), costs.dtype)
     report = _program("fit_report", report_core, kern.template, u, cost, jtr, jtj, zero)
     out = jax.device_get(report(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
     n = max(int(np.sum(np.asarray(problem.mask))), 1)
-    stats = [[np.array([p["stats"][i][j] for p in parts]) for j in (0, 1)] for i in (0, 1)]
-    rmse, rel_rmse = (combined_rms(big, sq, n, xp=np) for big, sq in stats)
+    stats = [[np.array([c["stats"][i][j] for c in parts]) for j in (0, 1)] for i in (0, 1)]
+    with np.errstate(invalid="ignore", over="ignore"):  # a value that is not finite gives NaN, as in a program
+        rmse, rel_rmse = (combined_rms(big, sq, n, xp=np) for big, sq in stats)
     return dict(out, u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best,
-                rel=np.stack([p["rel"] for p in parts]), rmse=rmse, rel_rmse=rel_rmse, bad=int(sum(int(p["bad"]) for p in parts)))
+                rel=np.stack([c["rel"] for c in parts]), rmse=rmse, rel_rmse=rel_rmse, bad=int(sum(int(c["bad"]) for c in parts)))

@@ -94,10 +94,11 @@ GEOMETRY_BLOCK = 4096
 program of this shape (no program per data size)."""
 
 
-def _geometry_deg(pairs) -> Geometry:
+def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     """The :class:`Geometry` of direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, shape (D, 4),
     through the program store (a stored program loads in a fraction of what compiling the
-    trigonometry costs), ``GEOMETRY_BLOCK`` pairs at a time, joined on the host."""
+    trigonometry costs), ``GEOMETRY_BLOCK`` pairs at a time, joined on the host (and left there
+    with ``on_host``)."""
     pairs = np.asarray(pairs)
     n = len(pairs)
     if n == 0:
@@ -105,7 +106,8 @@ def _geometry_deg(pairs) -> Geometry:
     blocks = -(-n // GEOMETRY_BLOCK)
     padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
     parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK])) for b in range(blocks)]
-    return Geometry(**{k: jax.device_put(np.concatenate([p[k] for p in parts])[:n]) for k in parts[0]})
+    put = (lambda a: a) if on_host else jax.device_put  # noqa: E731
+    return Geometry(**{k: put(np.concatenate([p[k] for p in parts])[:n]) for k in parts[0]})
 
 
 def _weights(u_w, space: str):
@@ -230,8 +232,9 @@ def make_problem(
     of other sizes in the same bucket share one compiled program. ``pad_to``: pad to these sizes
     (direction pairs, samples; at least the data's) instead of the buckets, so that
     measurements of different buckets can be stacked into one batch (``pad`` is implied).
-    ``chunk``: pad the rows to a multiple of :func:`chunk_rows` (for the fit on chunks of one
-    shape, ``chunked_fit.py``) instead."""
+    ``chunk``: pad the rows to a multiple of :func:`chunk_rows` instead, and keep the per-row
+    arrays on the host (NumPy): the fit on chunks of one shape (``chunked_fit.py``) sends them
+    to the device chunk by chunk."""
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     if data.brdf is None:
@@ -254,7 +257,8 @@ def make_problem(
         raise ValueError(f"{data.source}: pad_to={pad_to} is smaller than the data ({n_pairs} direction pairs, {len(data)} samples)")
     if pad and n_pairs:
         pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
-    geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)))
+    host = chunk is not None  # the data arrays stay on the host: the chunks are what goes to the device
+    geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)), on_host=host)
     y_pos = data.brdf[data.brdf > 0]
     floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
@@ -275,16 +279,18 @@ def make_problem(
         y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data), dtype=bool), False)
         sig = padded(data.sigma, 1.0) if data.sigma is not None else None
         cos_i = padded(cos_pair[index], 1.0) if loss in ("cosine", "log") else None
-        pair, band = jax.device_put(padded(index, 0)), jax.device_put(padded(data.band, 0))  # no conversion program
+        pair, band = padded(index, 0), padded(data.band, 0)
+        pair, band = (pair, band) if host else (jax.device_put(pair), jax.device_put(band))  # no conversion program
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
+    rows = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if host else to  # noqa: E731
     return Problem(
         spec=spec,
         geom=geom,
-        y=to(y),
-        sigma=to(sig) if data.sigma is not None else None,
-        cos_i=to(cos_i),
-        mask=jax.device_put(mask),
+        y=rows(y),
+        sigma=rows(sig) if data.sigma is not None else None,
+        cos_i=rows(cos_i),
+        mask=mask if host else jax.device_put(mask),
         pair=pair,
         band=band,
         floor=jax.device_put(np.asarray(floor, dtype=jnp.dtype(dtype))),

@@ -237,13 +237,13 @@ def _plain(treedef) -> bool:
 
 def _compile_fresh(lowered):
     """``lowered.compile()`` past JAX's persistent cache: an executable that JAX loaded from its
-    cache serialises without some of its functions, and the store keeps the program anyway."""
-    before = jax.config.jax_enable_compilation_cache
-    jax.config.update("jax_enable_compilation_cache", False)
-    try:
+    cache serialises without some of its functions, and the store keeps the program anyway.
+    The setting is changed for this thread only (JAX's thread-local context), so programs may
+    be compiled in several threads at once."""
+    from jax._src import config as jax_config
+
+    with jax_config.enable_compilation_cache(False):
         return lowered.compile()
-    finally:
-        jax.config.update("jax_enable_compilation_cache", before)
 
 
 def cached_call(name: str, fn: Callable, *args):
