@@ -81,10 +81,14 @@ def chunk_problems(problem: Problem) -> list[Problem]:
 _programs: dict = {}
 
 
+def _signature(args) -> tuple:
+    return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args))
+
+
 def _program(name: str, fn, *args):
     """:func:`~ctfit._runtime.stored_program`, looked up first under a key that is cheap to
     compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file."""
-    sig = (name, jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args)))
+    sig = (name, *_signature(args))
     run = _programs.get(sig)
     if run is None:
         run = _programs[sig] = stored_program(name, fn, *args)
@@ -280,18 +284,23 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int):
     return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype)
 
 
-def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False) -> dict:
+def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False, parts: list[Problem] | None = None) -> dict:
     """``fit_core``'s output (host arrays) for the solver "lm", on chunks: ``problem`` laid out
-    by ``make_problem(chunk=ROWS)``."""
-    parts = chunk_problems(problem)
+    by ``make_problem(chunk=ROWS)``, ``parts`` its :func:`chunk_problems` (made here if None)."""
+    parts = chunk_problems(problem) if parts is None else parts
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
-    # A structure's programs compile in three threads at once (XLA compiles without the GIL):
-    # the solver's, the report's, and (here) the seeds'; found in memory or on disk, they load.
-    with concurrent.futures.ThreadPoolExecutor(2) as pool:
-        kernels = pool.submit(_kernels, parts, u0)
-        pool.submit(_report_programs, parts[0], u0)
-        seeds = _seeds(parts, u0, starts, grid, keep_start)
-        kern = kernels.result()
+    # The first time, a structure's programs compile in three threads at once (XLA compiles
+    # without the GIL): the solver's, the report's, and (here) the seeds'.
+    shapes = _signature((parts[0], u0, grid, starts, keep_start))
+    if shapes in _programs:
+        seeds, kern = _seeds(parts, u0, starts, grid, keep_start), _kernels(parts, u0)
+    else:
+        with concurrent.futures.ThreadPoolExecutor(2) as pool:
+            kernels = pool.submit(_kernels, parts, u0)
+            pool.submit(_report_programs, parts[0], u0)
+            seeds = _seeds(parts, u0, starts, grid, keep_start)
+            kern = kernels.result()
+        _programs[shapes] = True
     values, sound, steps, costs = _race(kern, seeds, max_steps)
     best = int(np.argmin(costs))
     p = int(np.size(ravel_pytree(u0)[0]))

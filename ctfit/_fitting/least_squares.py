@@ -35,7 +35,7 @@ import numpy as np
 
 from .._model import Material, Measurement, Params, Structure
 from .._runtime import cached_call
-from .chunked_fit import ROWS, chunked_core
+from .chunked_fit import ROWS, chunk_problems, chunked_core
 from .diagnostics import relative_residual_structure
 from .fit_report import (
     PARAM_FIELDS,
@@ -211,7 +211,9 @@ def solve_prepared(prep: PreparedFit, solver: str, max_steps: int) -> dict:
     laid out with ``chunk``: :func:`~ctfit._fitting.chunked_fit.chunked_core`), else the one
     compiled program of its size bucket."""
     if solver == "lm" and prep.chunked:
-        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start)
+        parts = chunk_problems(prep.problem)
+        prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
+        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts)
     return jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
 
 
