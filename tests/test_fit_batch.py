@@ -128,9 +128,10 @@ def test_one_after_the_other_the_batch_shares_the_structure_s_programs(compiled,
     monkeypatch.setattr(chunked_fit, "_programs", {})
     first = same_geometry([0.1, 0.2, 0.3], n_pairs=90, seed=5)
     assert all(r.converged for r in ctfit.fit_batch(first, ST, width=1))
-    assert len(compiled) == len(set(compiled)) and "jit(ctfit_fit_ne)" in compiled, compiled  # each program once
-    compiled.clear()
+    programs = [name for name in compiled if name.startswith("jit(ctfit_")]
+    assert len(programs) == len(set(programs)) and "jit(ctfit_fit_ne)" in programs, programs  # each of the fit's programs once
     again = same_geometry([0.12, 0.18, 0.22, 0.28, 0.33, 0.5], n_pairs=150, seed=6)  # more fits, other sizes
+    compiled.clear()  # simulating compiles its own programs
     assert all(r.converged for r in ctfit.fit_batch(again, ST, width=1))
     assert compiled == []
 

@@ -45,7 +45,7 @@ from .._model import (
     parameter,
 )
 
-__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows"]
+__all__ = ["Problem", "LOSSES", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
 
 LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
@@ -232,9 +232,7 @@ def make_problem(
     of other sizes in the same bucket share one compiled program. ``pad_to``: pad to these sizes
     (direction pairs, samples; at least the data's) instead of the buckets, so that
     measurements of different buckets can be stacked into one batch (``pad`` is implied).
-    ``chunk``: pad the rows to a multiple of :func:`chunk_rows` instead, and keep the per-row
-    arrays on the host (NumPy): the fit on chunks of one shape (``chunked_fit.py``) sends them
-    to the device chunk by chunk."""
+    ``chunk``: pad to whole chunks instead, per-row arrays left on the host (:func:`chunk_padding`)."""
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     if data.brdf is None:
@@ -249,16 +247,13 @@ def make_problem(
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data) and not data.repeats  # a grid cell holds one sample
-    if chunk:
-        rows = chunk_rows(grid, n_bands, chunk)
-        pad_to = (-(-max(n_pairs, 1) // rows) * rows, len(data)) if grid else (n_pairs, -(-max(len(data), 1) // rows) * rows)
-    pad = pad or pad_to is not None
+    pad_to, pad = (chunk_padding(grid, n_pairs, len(data), n_bands, chunk) if chunk else pad_to), pad or pad_to is not None or bool(chunk)
     if pad_to is not None and (pad_to[0] < n_pairs or pad_to[1] < len(data)):
         raise ValueError(f"{data.source}: pad_to={pad_to} is smaller than the data ({n_pairs} direction pairs, {len(data)} samples)")
     if pad and n_pairs:
         pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
-    host = chunk is not None  # the data arrays stay on the host: the chunks are what goes to the device
-    geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)), on_host=host)
+    put = (lambda a: a) if chunk else jax.device_put  # noqa: E731 — chunked, the per-row arrays stay on the host
+    geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)), on_host=bool(chunk))
     y_pos = data.brdf[data.brdf > 0]
     floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
@@ -279,18 +274,17 @@ def make_problem(
         y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data), dtype=bool), False)
         sig = padded(data.sigma, 1.0) if data.sigma is not None else None
         cos_i = padded(cos_pair[index], 1.0) if loss in ("cosine", "log") else None
-        pair, band = padded(index, 0), padded(data.band, 0)
-        pair, band = (pair, band) if host else (jax.device_put(pair), jax.device_put(band))  # no conversion program
+        pair, band = put(padded(index, 0)), put(padded(data.band, 0))  # no conversion program
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
-    rows = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if host else to  # noqa: E731
+    rows = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if chunk else to  # noqa: E731
     return Problem(
         spec=spec,
         geom=geom,
         y=rows(y),
         sigma=rows(sig) if data.sigma is not None else None,
         cos_i=rows(cos_i),
-        mask=mask if host else jax.device_put(mask),
+        mask=put(mask),
         pair=pair,
         band=band,
         floor=jax.device_put(np.asarray(floor, dtype=jnp.dtype(dtype))),
@@ -328,6 +322,15 @@ def bucket(n: int) -> int:
     while k > 0 and math.ceil(BUCKET_MIN * 2 ** ((k - 1) / 2)) >= n:
         k -= 1
     return math.ceil(BUCKET_MIN * 2 ** (k / 2))
+
+
+def chunk_padding(grid: bool, n_pairs: int, n_samples: int, n_bands: int, cells: int) -> tuple[int, int]:
+    """``pad_to`` of a problem cut into chunks of about ``cells`` cells (``make_problem(chunk=…)``):
+    the rows (pairs of a grid, samples otherwise) up to a multiple of :func:`chunk_rows`. Such a
+    problem keeps its per-row arrays on the host (NumPy): the fit on chunks of one shape
+    (``chunked_fit.py``) sends them to the device chunk by chunk."""
+    rows = chunk_rows(grid, n_bands, cells)
+    return (-(-max(n_pairs, 1) // rows) * rows, n_samples) if grid else (n_pairs, -(-max(n_samples, 1) // rows) * rows)
 
 
 def chunk_rows(grid: bool, n_bands: int, cells: int) -> int:
