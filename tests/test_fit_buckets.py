@@ -3,29 +3,11 @@ tests/test_fit_programs.py) compile one fit program per structure and size bucke
 measurement of another size in the same bucket reuses it (no XLA compilation), and padding
 changes no result."""
 
-import jax
-import jax.monitoring
 import numpy as np
 import pytest
 
 import ctfit
 from ctfit._fitting.problem import bucket, make_problem
-
-BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
-
-
-@pytest.fixture
-def compilations():
-    """A list that grows by one entry per XLA (backend) compilation while the test runs."""
-    seen = []
-
-    def listener(event, duration, **kw):
-        if event == BACKEND_COMPILE:
-            seen.append(duration)
-
-    jax.monitoring.register_event_duration_secs_listener(listener)
-    yield seen
-    jax.monitoring.unregister_event_duration_listener(listener)
 
 
 def _scattered(n, seed):

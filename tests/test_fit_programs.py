@@ -8,7 +8,6 @@ import shutil
 
 import equinox as eqx
 import jax
-import jax.monitoring
 import numpy as np
 import pytest
 
@@ -16,22 +15,6 @@ import ctfit
 from ctfit._fitting import chunked_fit
 from ctfit._fitting.least_squares import fit_core, prepare_fit
 from ctfit._runtime import stored_programs
-
-BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
-
-
-@pytest.fixture
-def compilations():
-    """A list that grows by one entry per XLA (backend) compilation while the test runs."""
-    seen = []
-
-    def listener(event, duration, **kw):
-        if event == BACKEND_COMPILE:
-            seen.append(duration)
-
-    jax.monitoring.register_event_duration_secs_listener(listener)
-    yield seen
-    jax.monitoring.unregister_event_duration_listener(listener)
 
 
 def _scattered(n: int, seed: int, bands: int = 1) -> ctfit.Measurement:
