@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from ctfit._fitting import chunked_fit
 from ctfit._runtime import stored_programs as _aot
 
 
@@ -122,9 +123,11 @@ def test_fit_through_the_store_matches_fit_in_memory(store, monkeypatch):
     st = ctfit.Structure(lobes=1)
     truth = ctfit.Material(st, ctfit.Params(m=np.array([0.25]), w=np.array([1.0]), f0=np.array([0.6, 0.8])), wavelength_nm=np.array([450.0, 650.0]))
     data = simulate(truth, 120, noise=0.01, seed=3)
+    monkeypatch.setattr(chunked_fit, "_programs", {})
     first = ctfit.fit(data, st)
-    assert list(store.glob("fit-*.xla"))
+    assert list(store.glob("fit_ne-*.xla")) and list(store.glob("lm_step-*.xla"))
     monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(chunked_fit, "_programs", {})
     _forbid_tracing(monkeypatch)
     again = ctfit.fit(data, st)
     np.testing.assert_array_equal(again.material.params.m, first.material.params.m)
@@ -177,8 +180,9 @@ def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_p
     run = lambda: subprocess.run([sys.executable, "-c", _FIT_SCRIPT, str(cache)], capture_output=True, text=True, timeout=300)  # noqa: E731
     first = run()
     assert first.returncode == 0, first.stderr
-    for entry in (cache / "ctfit-aot").glob("fit-*.xla"):
-        entry.unlink()
+    for pattern in ("fit_*.xla", "lm_*.xla"):  # the fit's programs
+        for entry in (cache / "ctfit-aot").glob(pattern):
+            entry.unlink()
     second = run()  # loads the simulation's programs from JAX's cache before it compiles the fit
     assert second.returncode == 0, second.stderr
     third = run()

@@ -150,3 +150,16 @@ def test_cache_folder_is_put_back_in_place(tmp_path):
     (cache / "entry").write_text("changed")
     b.restore(saved, cache)
     assert sorted(p.name for p in cache.iterdir()) == ["entry"] and (cache / "entry").read_text() == "compiled"
+
+
+def test_issue_21_targets_judge_warm_from_another_size_and_name_the_floor():
+    fl = dict(jax=0.4)
+    small = dict(_case(20_000, 1.8, 1.0, 2.5), other=1.1)
+    big = dict(_case(200_000, 15.7, 1.5, 9.0), other=1.6)
+    rows = {r[0]: (r[1], r[2]) for r in bench.targets_21(fl, [small, big], dict(files=256, samples=2_000, scipy=38.0, ctfit=1.8))}
+    assert rows["20,000 samples, warm from another size: ≥ 1.5× the SciPy script"][1] == "yes"
+    assert rows["200,000 samples, warm from another size: ≥ 10× the SciPy script"][1] == "no: needs ≤ 1.57 s"
+    assert rows["20,000 samples, first run on a machine (cold): ≥ 0.67× the SciPy script"][1] == "yes"
+    assert rows["256 files × 2,000 samples, one process: ≥ 20× the SciPy loop"][1] == "yes"
+    capped = {r[0]: r[2] for r in bench.targets_21(dict(jax=1.0), [dict(_case(20_000, 1.2, 1.0, 2.0), other=1.0)], None)}
+    assert capped["20,000 samples, warm from another size: ≥ 1.5× the SciPy script"].endswith("the floor (1.00 s) allows at most 1.2×")

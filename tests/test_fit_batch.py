@@ -113,12 +113,26 @@ def compiled(monkeypatch):
 
 def test_one_compiled_program_solves_the_batch(compiled):
     first = same_geometry([0.1, 0.15, 0.2, 0.3, 0.45], n_pairs=90, seed=5)
-    assert all(r.converged for r in ctfit.fit_batch(first, ST))
+    assert all(r.converged for r in ctfit.fit_batch(first, ST, width=2))
     programs = [name for name in compiled if name in ("jit(ctfit_fit)", "jit(ctfit_fit_batch)")]  # the fit programs of _aot.cached_call
     assert len(programs) == 1, compiled
     compiled.clear()
     again = same_geometry([0.12, 0.18, 0.22, 0.28, 0.33, 0.5], n_pairs=90, seed=6)  # 6 fits: the batch size of 5
-    assert all(r.converged for r in ctfit.fit_batch(again, ST))
+    assert all(r.converged for r in ctfit.fit_batch(again, ST, width=2))
+    assert compiled == []
+
+
+def test_one_after_the_other_the_batch_shares_the_structure_s_programs(compiled, monkeypatch):
+    from ctfit._fitting import chunked_fit
+
+    monkeypatch.setattr(chunked_fit, "_programs", {})
+    first = same_geometry([0.1, 0.2, 0.3], n_pairs=90, seed=5)
+    assert all(r.converged for r in ctfit.fit_batch(first, ST, width=1))
+    programs = [name for name in compiled if name.startswith("jit(ctfit_")]
+    assert len(programs) == len(set(programs)) and "jit(ctfit_fit_ne)" in programs, programs  # each of the fit's programs once
+    again = same_geometry([0.12, 0.18, 0.22, 0.28, 0.33, 0.5], n_pairs=150, seed=6)  # more fits, other sizes
+    compiled.clear()  # simulating compiles its own programs
+    assert all(r.converged for r in ctfit.fit_batch(again, ST, width=1))
     assert compiled == []
 
 

@@ -1,29 +1,13 @@
-"""One compiled fit program per structure and size bucket: a measurement of another size in
-the same bucket reuses it (no XLA compilation), and padding changes no result."""
+"""The solvers other than the default Levenberg–Marquardt (which compiles nothing per size:
+tests/test_fit_programs.py) compile one fit program per structure and size bucket: a
+measurement of another size in the same bucket reuses it (no XLA compilation), and padding
+changes no result."""
 
-import jax
-import jax.monitoring
 import numpy as np
 import pytest
 
 import ctfit
 from ctfit._fitting.problem import bucket, make_problem
-
-BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
-
-
-@pytest.fixture
-def compilations():
-    """A list that grows by one entry per XLA (backend) compilation while the test runs."""
-    seen = []
-
-    def listener(event, duration, **kw):
-        if event == BACKEND_COMPILE:
-            seen.append(duration)
-
-    jax.monitoring.register_event_duration_secs_listener(listener)
-    yield seen
-    jax.monitoring.unregister_event_duration_listener(listener)
 
 
 def _scattered(n, seed):
@@ -51,10 +35,10 @@ def test_bucket_sizes():
 def test_new_sample_count_in_a_bucket_compiles_nothing(compilations):
     st = ctfit.Structure(lobes=1)
     a, b = _scattered(1900, 1), _scattered(2000, 2)  # same bucket (2048), two sample counts
-    first = ctfit.fit(a, st)
+    first = ctfit.fit(a, st, solver="gauss-newton")
     assert first.converged and len(compilations) > 0
     compilations.clear()
-    second = ctfit.fit(b, st)
+    second = ctfit.fit(b, st, solver="gauss-newton")
     assert second.converged
     assert compilations == [], f"{len(compilations)} XLA compilations for a new sample count in a compiled bucket"
     assert second.stats["n_samples"] == 2000

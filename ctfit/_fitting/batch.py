@@ -13,6 +13,10 @@ inactive copies of its first member, so that a folder of 37 files and one of 40 
 compiled program (stored on disk like a single fit's, :mod:`ctfit._runtime.stored_programs`). A group of one runs
 the single-fit program itself.
 
+With the solver "lm" and ``width`` 1 (the default on a CPU), the measurements are fitted one
+after the other, each on chunks of one shape (:mod:`~ctfit._fitting.chunked_fit`): every size
+shares the structure's compiled programs, and nothing is padded to the group's largest.
+
 Members side by side share one ``while_loop``: it ends when the slowest of them is done
 (finished members are carried unchanged) and both sides of the solver's branches are computed
 for all, which is correct and pays on an accelerator; on a CPU the members run one after the
@@ -32,7 +36,8 @@ import numpy as np
 
 from .._model import Measurement, Structure
 from .._runtime import cached_call
-from .least_squares import FitResult, PreparedFit, finish_fit, fit, fit_core, prepare_fit
+from .chunked_fit import ROWS
+from .least_squares import FitResult, PreparedFit, finish_fit, fit, fit_core, prepare_fit, solve_prepared
 from .options import takes_fit_options
 
 __all__ = ["fit_batch", "mapped", "default_width", "batch_size", "SAMPLE_BUDGET"]
@@ -90,10 +95,13 @@ def fit_batch(
         raise ValueError(f"start: {len(begins)} starting values for {len(measurements)} measurements")
     results: list = [None] * len(measurements)
     preps: dict[int, PreparedFit] = {}
+    chunked = solver == "lm" and width == 1  # one after the other: each on chunks, sharing their programs
     for i, (data, begin) in enumerate(zip(measurements, begins)):
-        got = _caught(lambda: prepare_fit(data, structure, start=begin, **options), return_errors)
+        got = _caught(lambda: prepare_fit(data, structure, start=begin, chunk=ROWS if chunked else None, **options), return_errors)
         if isinstance(got, Exception):
             results[i] = got
+        elif chunked:
+            results[i] = _caught(lambda: finish_fit(got, solve_prepared(got, solver, max_steps), solver, time.perf_counter()), return_errors)
         else:
             preps[i] = got
     for group in _groups(preps, solver, max_steps):

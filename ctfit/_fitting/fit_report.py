@@ -9,16 +9,24 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.flatten_util import ravel_pytree
 
 from .._model import PUBLIC_NAMES, Params, n_from_f0, normal_reflectance, parameter
-from .problem import Problem, map_over_chunks, model_values, to_params
+
+from .problem import Problem, loss_residuals, map_over_chunks, model_values, to_params
+from .seeded_solve import flat_bounds, gauss_newton_decrease
+from .solvers import active_set
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
-    "undetermined", "labelled", "coordinate_names", "fit_warnings",
+    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "zero_model_cost", "summary_of_part", "combined_rms", "PARAM_FIELDS",
 ]
+
+PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
+"""The fields of :class:`~ctfit.Params`, in order."""
 
 
 def effective_index(f0):
@@ -50,18 +58,22 @@ def residual_summary(problem: Problem, u: dict) -> dict:
     squares cannot overflow), and ``bad``, how many measured cells have a model value that is
     not finite."""
 
-    def one(part):
-        pred = model_values(part, u)
-        err = jnp.where(part.mask, pred - part.y, 0)
-        rel = err / jnp.maximum(jnp.abs(part.y), part.floor)
-        stats = [_scaled_squares(e) for e in (err, rel)]
-        big = jnp.asarray(jnp.finfo(jnp.float32).max, rel.dtype)
-        return jnp.clip(rel, -big, big).astype(jnp.float32), stats, jnp.sum(part.mask & ~jnp.isfinite(pred))
-
-    rel, stats, bad = map_over_chunks(problem, one)
+    rel, stats, bad = map_over_chunks(problem, lambda part: summary_of_part(part, u))
     n = jnp.maximum(jnp.sum(problem.mask), 1)
-    rmse, rel_rmse = (_combined_rms(big, sq, n) for big, sq in stats)
+    rmse, rel_rmse = (combined_rms(big, sq, n) for big, sq in stats)
     return dict(rel=rel, rmse=rmse, rel_rmse=rel_rmse, bad=jnp.sum(bad))  # rel reshaped on the host: no copy
+
+
+def summary_of_part(part: Problem, u: dict):
+    """One chunk's share of :func:`residual_summary`: its relative residuals (float32), (max|e|,
+    Σ (e / max|e|)²) of the absolute and of the relative residuals, and its count of measured
+    cells whose model value is not finite."""
+    pred = model_values(part, u)
+    err = jnp.where(part.mask, pred - part.y, 0)
+    rel = err / jnp.maximum(jnp.abs(part.y), part.floor)
+    stats = [_scaled_squares(e) for e in (err, rel)]
+    big = jnp.asarray(jnp.finfo(jnp.float32).max, rel.dtype)
+    return jnp.clip(rel, -big, big).astype(jnp.float32), stats, jnp.sum(part.mask & ~jnp.isfinite(pred))
 
 
 def _scaled_squares(e):
@@ -70,11 +82,12 @@ def _scaled_squares(e):
     return big, jnp.sum((e / jnp.where(big > 0, big, 1)) ** 2)
 
 
-def _combined_rms(big, sq, n):
-    """The rms of all chunks from their (max|e|, Σ (e / max|e|)²): rescaled to the largest max."""
-    top = jnp.max(big)
-    safe = jnp.where(top > 0, top, 1)
-    return jnp.where(top == 0, jnp.zeros((), big.dtype), top * jnp.sqrt(jnp.sum(sq * (big / safe) ** 2) / n))  # NaN stays NaN
+def combined_rms(big, sq, n, xp=jnp):
+    """The rms of all chunks from their (max|e|, Σ (e / max|e|)²): rescaled to the largest max
+    (``xp``: ``jax.numpy`` inside a program, ``numpy`` on the host)."""
+    top = xp.max(big)
+    safe = xp.where(top > 0, top, 1)
+    return xp.where(top == 0, xp.zeros((), big.dtype), top * xp.sqrt(xp.sum(sq * (big / safe) ** 2) / n))  # NaN stays NaN
 
 
 def sorted_lobes(params: Params) -> tuple[Params, np.ndarray | None]:
@@ -178,3 +191,27 @@ def fit_warnings(params: Params, stderr, not_determined=()) -> list[str]:
     if stderr is None:
         out.append("standard errors not computed: JᵀJ is singular or ill-conditioned (cond > 1e12)")
     return out
+
+
+def zero_model_cost(part: Problem):
+    """½‖r‖² of a model that is 0 everywhere, over ``part`` (summable over chunks)."""
+    return 0.5 * jnp.sum(loss_residuals(part, jnp.zeros_like(part.y), part.y) ** 2)
+
+
+def report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost) -> dict:
+    """What the report needs at the solution ``u`` (its ½‖r‖² ``cost``, Jᵀr, JᵀJ; the cost of a
+    zero model): the active set, JᵀJ on the free coordinates, the Gauss–Newton decrease, the
+    Jacobian of the reported quantities and the parameters. Uses only ``problem.spec`` and
+    ``problem.fixed``: any chunk of the problem serves."""
+    flat, unravel = ravel_pytree(u)
+    lower, upper = flat_bounds(problem, u)
+    on_bound = active_set(flat, jtr, lower, upper)  # held on a bound: a result, not a failure
+    keep = ~on_bound
+    jtr = jnp.where(keep, jtr, 0)
+    jtj = jnp.where(keep[:, None] & keep[None, :], jtj, 0)
+    jt = jax.jacfwd(lambda f: constrained_quantities(problem, unravel, f))(flat) if flat.size else None
+    params = to_params(problem.spec, u, problem.fixed)
+    params = {k: getattr(params, k) for k in PARAM_FIELDS}  # plain containers: the executable's output is stored (_runtime/stored_programs.py)
+    if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
+        params["n"] = effective_index(params["f0"])  # reported beside F0
+    return dict(jtj=jtj, on_bound=on_bound, gn_decrease=gauss_newton_decrease(jtj, jtr, cost, zero_cost), zero_cost=zero_cost, jt=jt, params=params)

@@ -32,32 +32,31 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.flatten_util import ravel_pytree
 
 from .._model import Material, Measurement, Params, Structure
 from .._runtime import cached_call
+from .chunked_fit import ROWS, chunk_problems, chunked_core
 from .diagnostics import half_angle_deg, relative_residual_structure
 from .quality import peak_width_deg, quality_from_relative, quality_warning
 from .fit_report import (
+    PARAM_FIELDS,
     coordinate_names,
-    constrained_quantities,
-    effective_index,
     fit_warnings,
     labelled,
+    report_core,
     residual_summary,
     sorted_lobes,
     standard_errors,
     undetermined,
+    zero_model_cost,
 )
-from .problem import LOSSES, Problem, from_params, loss_residuals, make_problem, normal_equations, sum_over_chunks, to_params
-from .seeded_solve import STATIONARY_TOLERANCE, explains_none, flat_bounds, gauss_newton_decrease, judge_converged, solve_seeds
-from .solvers import active_set
+from .problem import LOSSES, Problem, from_params, make_problem, normal_equations, sum_over_chunks, to_params
+from .seeded_solve import STATIONARY_TOLERANCE, explains_none, judge_converged, solve_seeds
 from .starts import default_start, m_grid, seed_points
 from .validate import check_fittable, nonfinite_reason
 
-__all__ = ["fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit"]
+__all__ = ["fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "solve_prepared"]
 
-_PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
 
 
 @dataclasses.dataclass
@@ -120,20 +119,8 @@ def fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, ma
     best = jnp.argmin(costs)
     u = jax.tree.map(lambda a: a[best], values)
     cost, jtr, jtj = normal_equations(problem, u)
-    flat, unravel = ravel_pytree(u)
-    lower, upper = flat_bounds(problem, u)
-    on_bound = active_set(flat, jtr, lower, upper)  # held on a bound: a result, not a failure
-    keep = ~on_bound
-    jtr = jnp.where(keep, jtr, 0)
-    jtj = jnp.where(keep[:, None] & keep[None, :], jtj, 0)
-    jt = jax.jacfwd(lambda f: constrained_quantities(problem, unravel, f))(flat) if flat.size else None
-    params = to_params(problem.spec, u, problem.fixed)
-    params = {k: getattr(params, k) for k in _PARAM_FIELDS}  # plain containers: the executable's output is stored (_runtime/stored_programs.py)
-    if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
-        params["n"] = effective_index(params["f0"])  # reported beside F0
-    zero_cost = sum_over_chunks(problem, lambda part: 0.5 * jnp.sum(loss_residuals(part, jnp.zeros_like(part.y), part.y) ** 2))  # the cost of a model that is 0
-    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, jtj=jtj, on_bound=on_bound, gn_decrease=gauss_newton_decrease(jtj, jtr, cost, zero_cost),
-                zero_cost=zero_cost, jt=jt, params=params, **residual_summary(problem, u))
+    zero_cost = sum_over_chunks(problem, zero_model_cost)
+    return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, **report_core(problem, u, cost, jtr, jtj, zero_cost), **residual_summary(problem, u))
 
 
 @dataclasses.dataclass
@@ -152,6 +139,7 @@ class PreparedFit:
     grid: object
     k: int
     given_start: bool
+    chunked: bool = False
 
     def options(self, solver: str, max_steps: int) -> tuple:
         """The arguments of ``fit_core`` after (problem, u0, grid)."""
@@ -160,13 +148,13 @@ class PreparedFit:
     def padded(self, pad_to: tuple[int, int]) -> PreparedFit:
         """The same fit with its problem padded to ``pad_to`` (direction pairs, samples)."""
         problem = make_problem(self.structure, self.data, fixed_params=self.start, fixed=self.fixed, loss=self.loss, dtype=self.dtype, pad=True, pad_to=pad_to)
-        return dataclasses.replace(self, problem=problem)
+        return dataclasses.replace(self, problem=problem, chunked=False)
 
 
 def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int,
-             pad_to: tuple[int, int] | None = None) -> PreparedFit:
+             pad_to: tuple[int, int] | None = None, chunk: int | None = None) -> PreparedFit:
     """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
-    samples)), free start ``u0`` and m grid of a fit."""
+    samples), or with ``chunk`` to a multiple of the chunks' rows), free start ``u0`` and m grid of a fit."""
     if not isinstance(data, Measurement):
         hint = " (read a file with ctfit.read_measurement(path))" if isinstance(data, (str, bytes)) or hasattr(data, "__fspath__") else ""
         raise TypeError(f"data must be a ctfit.Measurement, got {type(data).__name__}{hint}")
@@ -186,11 +174,11 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
     else:  # anything the structure needs but ``start`` lacks comes from the defaults
         start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     check_fittable(data, structure, fixed=fixed, loss=loss, dtype=dtype)
-    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True, pad_to=pad_to)
+    problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True, pad_to=pad_to, chunk=chunk)
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
     k = starts if "m" in u0 else 1
     grid = jnp.asarray(np.log(m_grid(structure.lobes, structure.diffuse is not None)), dtype=dtype) if ("m" in u0 and k >= 1) else None
-    return PreparedFit(data, structure, loss, dtype, start, tuple(fixed), problem, u0, grid, k, given_start)
+    return PreparedFit(data, structure, loss, dtype, start, tuple(fixed), problem, u0, grid, k, given_start, chunk is not None)
 
 
 def fit(
@@ -229,9 +217,19 @@ def fit(
             raise ValueError("structure=None lets the data choose the structure; give a structure with start or fixed")
         return choose_structure(data, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)[0]
     t0 = time.perf_counter()
-    prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
-    out = jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
-    return finish_fit(prep, out, solver, t0)
+    prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS if solver == "lm" else None)
+    return finish_fit(prep, solve_prepared(prep, solver, max_steps), solver, t0)
+
+
+def solve_prepared(prep: PreparedFit, solver: str, max_steps: int) -> dict:
+    """``fit_core``'s output (host arrays) for one prepared fit: on chunks for "lm" (a problem
+    laid out with ``chunk``: :func:`~ctfit._fitting.chunked_fit.chunked_core`), else the one
+    compiled program of its size bucket."""
+    if solver == "lm" and prep.chunked:
+        parts = chunk_problems(prep.problem)
+        prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
+        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts)
+    return jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
 
 
 def seed_params(data: Measurement, structure: Structure | None = None, *, starts: int = 3, loss: str = "auto", dtype=jnp.float64) -> list[Params]:
@@ -256,7 +254,7 @@ def seed_params(data: Measurement, structure: Structure | None = None, *, starts
     out = []
     for i in range(count):
         p = to_params(prep.problem.spec, jax.tree.map(lambda a: a[i], seeds), prep.problem.fixed)
-        out.append(Params(**{k: None if getattr(p, k) is None else np.asarray(getattr(p, k)) for k in _PARAM_FIELDS}))
+        out.append(Params(**{k: None if getattr(p, k) is None else np.asarray(getattr(p, k)) for k in PARAM_FIELDS}))
     return out
 
 

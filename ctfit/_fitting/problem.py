@@ -45,7 +45,7 @@ from .._model import (
     parameter,
 )
 
-__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "loss_floor", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket"]
+__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "loss_floor", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
 
 LOSSES = ("absolute", "relative", "sigma", "cosine", "log", "log-ratio")
 LOG_RATIO_FLOOR = 0.01
@@ -91,11 +91,25 @@ def _geometry_fields(pairs) -> dict:
     return {f.name: getattr(g, f.name) for f in dataclasses.fields(g)}
 
 
-def _geometry_deg(pairs) -> Geometry:
+GEOMETRY_BLOCK = 4096
+"""Direction pairs per call of the geometry program: any number of pairs is laid out by one
+program of this shape (no program per data size)."""
+
+
+def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     """The :class:`Geometry` of direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, shape (D, 4),
     through the program store (a stored program loads in a fraction of what compiling the
-    trigonometry costs, once per size bucket)."""
-    return Geometry(**cached_call("geometry", _geometry_fields, pairs))
+    trigonometry costs), ``GEOMETRY_BLOCK`` pairs at a time, joined on the host (and left there
+    with ``on_host``)."""
+    pairs = np.asarray(pairs)
+    n = len(pairs)
+    if n == 0:
+        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs)))
+    blocks = -(-n // GEOMETRY_BLOCK)
+    padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
+    parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK])) for b in range(blocks)]
+    put = (lambda a: a) if on_host else jax.device_put  # noqa: E731
+    return Geometry(**{k: put(np.concatenate([p[k] for p in parts])[:n]) for k in parts[0]})
 
 
 def _weights(u_w, space: str):
@@ -216,6 +230,7 @@ def make_problem(
     space: str = "box",
     pad: bool = False,
     pad_to: tuple[int, int] | None = None,
+    chunk: int | None = None,
 ) -> Problem:
     """Lay ``data`` out for the model (grid when dense, pairs otherwise) and fix the spec.
 
@@ -224,7 +239,8 @@ def make_problem(
     samples up to a size bucket (:func:`bucket`) with masked-out entries, so that measurements
     of other sizes in the same bucket share one compiled program. ``pad_to``: pad to these sizes
     (direction pairs, samples; at least the data's) instead of the buckets, so that
-    measurements of different buckets can be stacked into one batch (``pad`` is implied)."""
+    measurements of different buckets can be stacked into one batch (``pad`` is implied).
+    ``chunk``: pad to whole chunks instead, per-row arrays left on the host (:func:`chunk_padding`)."""
     if loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     if data.brdf is None:
@@ -239,12 +255,13 @@ def make_problem(
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data) and not data.repeats  # a grid cell holds one sample
-    pad = pad or pad_to is not None
+    pad_to, pad = (chunk_padding(grid, n_pairs, len(data), n_bands, chunk) if chunk else pad_to), pad or pad_to is not None or bool(chunk)
     if pad_to is not None and (pad_to[0] < n_pairs or pad_to[1] < len(data)):
         raise ValueError(f"{data.source}: pad_to={pad_to} is smaller than the data ({n_pairs} direction pairs, {len(data)} samples)")
     if pad and n_pairs:
         pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
-    geom = _geometry_deg(jnp.asarray(pairs, dtype=dtype))
+    put = (lambda a: a) if chunk else jax.device_put  # noqa: E731 — chunked, the per-row arrays stay on the host
+    geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)), on_host=bool(chunk))
     floor = loss_floor(data.brdf, loss)
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
     if grid:
@@ -264,16 +281,17 @@ def make_problem(
         y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data), dtype=bool), False)
         sig = padded(data.sigma, 1.0) if data.sigma is not None else None
         cos_i = padded(cos_pair[index], 1.0) if loss in ("cosine", "log") else None
-        pair, band = jax.device_put(padded(index, 0)), jax.device_put(padded(data.band, 0))  # no conversion program
+        pair, band = put(padded(index, 0)), put(padded(data.band, 0))  # no conversion program
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
+    rows = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if chunk else to  # noqa: E731
     return Problem(
         spec=spec,
         geom=geom,
-        y=to(y),
-        sigma=to(sig) if data.sigma is not None else None,
-        cos_i=to(cos_i),
-        mask=jax.device_put(mask),
+        y=rows(y),
+        sigma=rows(sig) if data.sigma is not None else None,
+        cos_i=rows(cos_i),
+        mask=put(mask),
         pair=pair,
         band=band,
         floor=jax.device_put(np.asarray(floor, dtype=jnp.dtype(dtype))),
@@ -324,6 +342,23 @@ def bucket(n: int) -> int:
     while k > 0 and math.ceil(BUCKET_MIN * 2 ** ((k - 1) / 2)) >= n:
         k -= 1
     return math.ceil(BUCKET_MIN * 2 ** (k / 2))
+
+
+def chunk_padding(grid: bool, n_pairs: int, n_samples: int, n_bands: int, cells: int) -> tuple[int, int]:
+    """``pad_to`` of a problem cut into chunks of about ``cells`` cells (``make_problem(chunk=…)``):
+    the rows (pairs of a grid, samples otherwise) up to a multiple of :func:`chunk_rows`. Such a
+    problem keeps its per-row arrays on the host (NumPy): the fit on chunks of one shape
+    (``chunked_fit.py``) sends them to the device chunk by chunk."""
+    rows = chunk_rows(grid, n_bands, cells)
+    return (-(-max(n_pairs, 1) // rows) * rows, n_samples) if grid else (n_pairs, -(-max(n_samples, 1) // rows) * rows)
+
+
+def chunk_rows(grid: bool, n_bands: int, cells: int) -> int:
+    """Rows of a chunk of about ``cells`` cells: samples in the pairs layout; in the grid layout
+    a power of two of direction pairs (each with its ``n_bands`` bands), at least 64."""
+    if not grid:
+        return cells
+    return max(64, 1 << max(0, (cells // max(n_bands, 1)).bit_length() - 1))
 
 
 MIN_CHUNKS = 16

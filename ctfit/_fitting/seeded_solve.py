@@ -19,7 +19,7 @@ from jax.flatten_util import ravel_pytree
 from .problem import Problem, bounds, half_squared_norm, normal_equations, residual
 from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, predicted_decrease
 
-__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "judge_converged", "flat_bounds", "solve_seeds", "gauss_newton_decrease"]
+__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "judge_converged", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "RACE_STEPS", "RACE_MARGIN"]
 
 SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
 
@@ -123,6 +123,15 @@ def _run_solver(solver, y0, data, budget):
     return y, done & sound, k, sound
 
 
+def lm_solver(dtype, lower, upper, data, gauss_newton) -> StructuredLevenbergMarquardt:
+    """The fit's projected Levenberg–Marquardt (tolerances of ``dtype``) in the box [lower, upper];
+    ``gauss_newton(flat, data)`` gives Jᵀr and JᵀJ."""
+    rtol, atol = (1e-8, 1e-12) if dtype == jnp.float64 else (1e-5, 1e-8)
+    descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
+    tol = STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
+    return StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=gauss_newton, descent=descent, gtol=tol * 1e-3, stol=tol)
+
+
 def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     """optimistix Levenberg–Marquardt on the structured normal equations, the seeds raced.
 
@@ -134,13 +143,9 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     """
     flat_seeds = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
     unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
-    rtol, atol = (1e-8, 1e-12) if flat_seeds.dtype == jnp.float64 else (1e-5, 1e-8)
     data = (problem, jax.tree_util.Partial(unravel))
     lower, upper = flat_bounds(problem, jax.tree.map(lambda a: a[0], seeds))
-    descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
-    gtol = STATIONARY_TOLERANCE[flat_seeds.dtype.name] * 1e-3
-    solver = StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=_gauss_newton, descent=descent, gtol=gtol,
-                                          stol=STATIONARY_TOLERANCE[flat_seeds.dtype.name])
+    solver = lm_solver(flat_seeds.dtype, lower, upper, data, _gauss_newton)
     n = flat_seeds.shape[0]
     race = n > 1 and max_steps > RACE_STEPS
     tasks = jnp.arange(2 * n if race else n)

@@ -19,7 +19,7 @@ from .._io import MaterialError
 from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0
 from .problem import Problem, chunk_count, free_names, model_values, sum_over_chunks
 
-__all__ = ["default_start", "m_grid", "seed_points", "start_from_material"]
+__all__ = ["default_start", "m_grid", "seed_points", "seeds_from_scores", "grid_sums", "grid_scales", "grid_costs", "start_from_material"]
 
 
 def default_start(structure: Structure, data: Measurement) -> Params:
@@ -49,41 +49,63 @@ def m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
     return np.array(list(itertools.combinations(np.geomspace(0.01, 0.8, points), lobes)))
 
 
+def _band_sum(part: Problem, t):
+    return jnp.sum(t, axis=0) if part.spec.grid else jax.ops.segment_sum(t, part.band, num_segments=part.fixed_bands)
+
+
+def _weighted(part: Problem, u0: dict, log_m):
+    v = model_values(part, dict(u0, m=log_m))
+    return v, part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
+
+
+def _scale_of(num, den):
+    return num / jnp.maximum(den, 1e-300)
+
+
+def _cost_of(part: Problem, u0: dict, log_m, scale, v=None, wgt=None):
+    if v is None:
+        v, wgt = _weighted(part, u0, log_m)
+    per_sample = scale if part.spec.grid else scale[part.band]
+    return jnp.sum(wgt * (per_sample * v - part.y) ** 2)
+
+
+def _amplitude_sums(part: Problem, u0: dict, log_m):
+    v, wgt = _weighted(part, u0, log_m)
+    return _band_sum(part, wgt * v * part.y), _band_sum(part, wgt * v * v)
+
+
+def grid_sums(part: Problem, u0: dict, grid):
+    """Per grid point of log m, the per-band sums (Σ w v y, Σ w v²) of ``part``: the first pass of
+    the seeds' scores, summable over chunks; the scale is their ratio (:func:`grid_scales`)."""
+    return jax.lax.map(lambda log_m: _amplitude_sums(part, u0, log_m), grid)
+
+
+def grid_scales(num, den):
+    """The best per-band amplitude of each grid point from :func:`grid_sums`' totals."""
+    return _scale_of(num, den)
+
+
+def grid_costs(part: Problem, u0: dict, grid, scales):
+    """Per grid point, the weighted loss of ``part`` after its amplitude ``scales`` (the second
+    pass; summable over chunks)."""
+    return jax.lax.map(lambda ms: _cost_of(part, u0, ms[0], ms[1]), (grid, scales))
+
+
 @eqx.filter_jit
 def _score_grid(problem: Problem, u0: dict, grid):
     """Loss of each grid point of log m after the best per-band amplitude (weighted linear LS):
     the per-band scale Σ w v y / Σ w v², then Σ w (scale · v − y)² — two passes, chunk by chunk,
     on a large grid (:func:`~ctfit._fitting.problem.sum_over_chunks`), one pass otherwise."""
 
-    def band_sum(part, t):
-        return jnp.sum(t, axis=0) if part.spec.grid else jax.ops.segment_sum(t, part.band, num_segments=part.fixed_bands)
-
-    def weighted(part, log_m):
-        v = model_values(part, dict(u0, m=log_m))
-        return v, part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
-
-    def scale_of(num, den):
-        return num / jnp.maximum(den, 1e-300)
-
-    def cost_of(part, log_m, scale, v=None, wgt=None):
-        if v is None:
-            v, wgt = weighted(part, log_m)
-        per_sample = scale if part.spec.grid else scale[part.band]
-        return jnp.sum(wgt * (per_sample * v - part.y) ** 2)
-
     def score(log_m):
         if chunk_count(problem) == 1:
-            v, wgt = weighted(problem, log_m)
-            scale = scale_of(band_sum(problem, wgt * v * problem.y), band_sum(problem, wgt * v * v))
-            cost = cost_of(problem, log_m, scale, v, wgt)
+            v, wgt = _weighted(problem, u0, log_m)
+            scale = _scale_of(_band_sum(problem, wgt * v * problem.y), _band_sum(problem, wgt * v * v))
+            cost = _cost_of(problem, u0, log_m, scale, v, wgt)
         else:
-            def sums(part):
-                v, wgt = weighted(part, log_m)
-                return band_sum(part, wgt * v * part.y), band_sum(part, wgt * v * v)
-
-            scale = scale_of(*sum_over_chunks(problem, sums))
-            cost = sum_over_chunks(problem, lambda part: cost_of(part, log_m, scale))
-        return jnp.where(jnp.isfinite(cost), cost, jnp.inf), scale
+            scale = _scale_of(*sum_over_chunks(problem, lambda part: _amplitude_sums(part, u0, log_m)))
+            cost = sum_over_chunks(problem, lambda part: _cost_of(part, u0, log_m, scale))
+        return cost, scale
 
     return jax.lax.map(score, grid)  # one grid point at a time: memory O(N), not O(grid × N)
 
@@ -98,6 +120,13 @@ def seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool 
     if "m" not in u0 or k < 1 or grid is None:
         return jax.tree.map(lambda a: jnp.asarray(a)[None], u0)
     costs, scales = _score_grid(problem, u0, grid)
+    return seeds_from_scores(problem, u0, k, grid, costs, scales, keep_start)
+
+
+def seeds_from_scores(problem: Problem, u0: dict, k: int, grid, costs, scales, keep_start: bool = False) -> dict:
+    """:func:`seed_points` from the grid's scores: ``costs`` (G,) and ``scales`` (G, bands)
+    (only ``problem.spec`` is used)."""
+    costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
     order = jnp.argsort(costs)
     # Grid points that score the same give the same model (lobes too narrow to reach any
     # sample all look like no lobe): one of each goes first, so the k seeds differ.

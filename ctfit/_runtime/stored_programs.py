@@ -238,13 +238,13 @@ def _plain(treedef) -> bool:
 
 def _compile_fresh(lowered):
     """``lowered.compile()`` past JAX's persistent cache: an executable that JAX loaded from its
-    cache serialises without some of its functions, and the store keeps the program anyway."""
-    before = jax.config.jax_enable_compilation_cache
-    jax.config.update("jax_enable_compilation_cache", False)
-    try:
+    cache serialises without some of its functions, and the store keeps the program anyway.
+    The setting is changed for this thread only (JAX's thread-local context), so programs may
+    be compiled in several threads at once."""
+    from jax._src import config as jax_config
+
+    with jax_config.enable_compilation_cache(False):
         return lowered.compile()
-    finally:
-        jax.config.update("jax_enable_compilation_cache", before)
 
 
 def cached_call(name: str, fn: Callable, *args):
@@ -256,44 +256,61 @@ def cached_call(name: str, fn: Callable, *args):
     ``None`` and arrays only (its structure is stored with the executable, and JAX cannot
     store the structure of an Equinox module).
     """
+    leaves = jax.tree.leaves(eqx.filter(args, eqx.is_array))
+    run, out = _program(name, fn, args, leaves)
+    return run(*leaves) if out is None else out
+
+
+def stored_program(name: str, fn: Callable, *args) -> Callable:
+    """The program :func:`cached_call` runs for ``fn(*args)``, to be called many times: it takes
+    the array leaves of arguments like ``args`` (``jax.tree.leaves(eqx.filter(args,
+    eqx.is_array))``, same shapes and dtypes) and returns ``fn``'s output. Kept in memory and on
+    disk as :func:`cached_call`'s; ``args`` give the shapes (a stored program is tried on them)."""
+    leaves = jax.tree.leaves(eqx.filter(args, eqx.is_array))
+    return _program(name, fn, args, leaves)[0]
+
+
+def _program(name: str, fn: Callable, args: tuple, leaves: list):
+    """(program, its output on ``leaves`` or None): the output when a stored program was tried."""
     digest = _key(name, args)
-    if digest is None:
-        return eqx.filter_jit(fn)(*args)
-    key = f"{name}-{digest}"
     dynamic, static = eqx.partition(args, eqx.is_array)
-    leaves, in_def = jax.tree.flatten(dynamic)
+    in_def = jax.tree.structure(dynamic)
+    if digest is None:
+        jitted = eqx.filter_jit(fn)
+        return (lambda *ls: jitted(*eqx.combine(jax.tree.unflatten(in_def, list(ls)), static))), None
+    key = f"{name}-{digest}"
     run = _recall(key)
+    if run is not None:
+        return run, None
     store = _store()
     path = store / f"{name}-{digest[:32]}.xla" if store is not None else None
-    if run is None and path is not None and path.is_file():
+    if path is not None and path.is_file():
         try:
             run = _load(path, key)
             out = jax.block_until_ready(run(*leaves))  # a damaged program fails here, not later
         except Exception as err:  # noqa: BLE001 — a stale or damaged entry: trace instead
-            warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
+            warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=3)
             path.unlink(missing_ok=True)
-            run = None
         else:
-            _remember(key, run)
-            return out
-    if run is None:
-        # The program takes a flat list of arrays and returns plain containers, which is what
-        # an executable can be stored with.
-        def flat(*ls):
-            out = fn(*eqx.combine(jax.tree.unflatten(in_def, list(ls)), static))
-            if not _plain(jax.tree.structure(out)):
-                raise TypeError(f"cached_call({name!r}): the output must be built of dicts, lists, tuples, None and arrays")
-            return out
+            return _remember(key, run), out
 
-        flat.__name__ = flat.__qualname__ = f"ctfit_{name}"  # the program's name in JAX's logs
-        lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
-        run = _remember(key, _compile_fresh(lowered) if path is not None else lowered.compile())
-        # Once this process has loaded an executable from JAX's cache, executables compiled
-        # after it serialise without some of their functions ("Function … not found" when the
-        # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.
-        if path is not None and not _jax_cache_hits:
-            try:
-                _save(path, key, run)
-            except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
-                warnings.warn(f"could not write the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=2)
-    return run(*leaves)
+    # The program takes a flat list of arrays and returns plain containers, which is what
+    # an executable can be stored with.
+    def flat(*ls):
+        out = fn(*eqx.combine(jax.tree.unflatten(in_def, list(ls)), static))
+        if not _plain(jax.tree.structure(out)):
+            raise TypeError(f"cached_call({name!r}): the output must be built of dicts, lists, tuples, None and arrays")
+        return out
+
+    flat.__name__ = flat.__qualname__ = f"ctfit_{name}"  # the program's name in JAX's logs
+    lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
+    run = _remember(key, _compile_fresh(lowered) if path is not None else lowered.compile())
+    # Once this process has loaded an executable from JAX's cache, executables compiled
+    # after it serialise without some of their functions ("Function … not found" when the
+    # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.
+    if path is not None and not _jax_cache_hits:
+        try:
+            _save(path, key, run)
+        except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
+            warnings.warn(f"could not write the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=3)
+    return run, None

@@ -1,0 +1,320 @@
+"""The Levenberg–Marquardt fit on chunks of one fixed shape: one set of compiled programs per
+structure, whatever the number of samples.
+
+A measurement is laid out (``make_problem(chunk=ROWS)``) with its rows padded to a multiple of
+the chunk's (samples in the pairs layout, each with its own geometry; direction pairs × bands in
+the grid layout) and cut into chunks of that one shape. Everything that reads the data is a
+*chunk kernel*, compiled once per structure (spec, bands, dtype) and called over the chunks of
+any file, each adding its share to a running sum on the device (calls are queued, not awaited):
+
+- ``fit_ne``: ½‖r‖², Jᵀr and JᵀJ at a flat parameter vector
+  (:func:`~ctfit._fitting.problem.normal_equations`);
+- ``fit_grid_sums`` and ``fit_grid_costs``: the two passes of the seeds' scores
+  (:func:`~ctfit._fitting.starts.grid_sums`, :func:`~ctfit._fitting.starts.grid_costs`);
+- ``fit_summary``: residual summary and the cost of a zero model, per chunk.
+
+Programs whose shapes depend only on the parameters: ``fit_seeds`` (the seeds from their
+scores, the bounds), ``fit_report`` (:func:`~ctfit._fitting.fit_report.report_core`), and
+optimistix's solver itself (:func:`~ctfit._fitting.seeded_solve.lm_solver`): ``lm_init`` and
+``lm_step``, one step of ``StructuredLevenbergMarquardt`` given the cost, Jᵀr and JᵀJ at the
+point it evaluates, compiled per number of parameters and shared by every structure. The host
+runs optimistix's iteration (init, step until it terminates) and the race of the seeds exactly
+as the compiled ``_structured_lm`` does, so results agree with it to rounding.
+
+All programs go through the program store (:func:`~ctfit._runtime.stored_program`), so a new
+process loads them; a file of a new size compiles nothing.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
+
+from .._runtime import stored_program
+from .fit_report import report_core, summary_of_part, combined_rms, zero_model_cost
+from .problem import Problem, normal_equations
+from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver
+from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
+
+__all__ = ["ROWS", "chunk_problems", "chunked_core"]
+
+ROWS = 2048
+"""Cells per chunk: samples of the pairs layout; the grid layout takes a power of two of
+direction pairs with about this many cells (:func:`~ctfit._fitting.problem.chunk_rows`)."""
+
+
+def chunk_problems(problem: Problem) -> list[Problem]:
+    """``problem`` (rows a multiple of the chunk's: ``make_problem(chunk=ROWS)``) cut into
+    problems of one shape, on the host. Pairs layout: each chunk's samples carry their own
+    direction pair's geometry (``pair`` = 0, 1, …)."""
+    from .problem import chunk_rows
+
+    rows = chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
+    host = lambda a: None if a is None else np.asarray(a)  # noqa: E731
+    y, sigma, cos_i, mask = (host(a) for a in (problem.y, problem.sigma, problem.cos_i, problem.mask))
+    geom = jax.tree.map(np.asarray, problem.geom)
+    count = y.shape[0] // rows
+    own = None if problem.spec.grid else jax.device_put(np.arange(rows, dtype=np.asarray(problem.pair).dtype))
+    pair, band = host(problem.pair), host(problem.band)
+    out = []
+    for c in range(count):
+        cut = slice(c * rows, (c + 1) * rows)
+        at = (lambda a: a[cut]) if problem.spec.grid else (lambda a: a[pair[cut]])  # noqa: E731
+        cells = {k: None if a is None else a[cut] for k, a in dict(y=y, sigma=sigma, cos_i=cos_i, mask=mask, band=band).items()}
+        g, cells = jax.device_put((jax.tree.map(at, geom), cells))  # one transfer per chunk
+        if problem.spec.grid:
+            del cells["band"]
+            out.append(dataclasses.replace(problem, geom=g, **cells))
+        else:
+            out.append(dataclasses.replace(problem, geom=g, pair=own, **cells))
+    return out
+
+
+_programs: dict = {}
+
+
+def _signature(args) -> tuple:
+    return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args))
+
+
+def _program(name: str, fn, *args):
+    """:func:`~ctfit._runtime.stored_program`, looked up first under a key that is cheap to
+    compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file."""
+    sig = (name, *_signature(args))
+    run = _programs.get(sig)
+    if run is None:
+        run = _programs[sig] = stored_program(name, fn, *args)
+    return run
+
+
+def _leaves(tree) -> list:
+    return jax.tree.leaves(eqx.filter(tree, eqx.is_array))
+
+
+def _unflat(u0: dict, flat) -> dict:
+    """``ravel_pytree``'s inverse on the host: the dict of ``u0``'s shapes from a flat vector."""
+    out, at = {}, 0
+    for k in sorted(u0):
+        size = int(np.size(u0[k]))
+        out[k] = np.reshape(flat[at: at + size], np.shape(u0[k]))
+        at += size
+    return out
+
+
+PARAMETER_STEP = 8
+"""The solver's programs (``lm_init``, ``lm_step``) take the flat parameter vector padded with
+zeros to a multiple of this (padded coordinates have zero gradient and JᵀJ and the bounds
+[0, 0], so every step leaves them at 0): structures with about as many parameters share them."""
+
+
+def _padded_size(p: int) -> int:
+    return -(-p // PARAMETER_STEP) * PARAMETER_STEP
+
+
+def _ne_kernel(acc, part: Problem, flat, u0: dict):
+    """``acc`` + (½‖r‖², Jᵀr, JᵀJ) of ``part`` at ``flat`` (padded: :data:`PARAMETER_STEP`)."""
+    unflat = ravel_pytree(u0)[1]
+    p, extra = ravel_pytree(u0)[0].shape[0], flat.shape[0] - ravel_pytree(u0)[0].shape[0]
+    cost, grad, hess = normal_equations(part, unflat(flat[:p]))
+    return [acc[0] + cost, acc[1] + jnp.pad(grad, (0, extra)), acc[2] + jnp.pad(hess, ((0, extra), (0, extra)))]
+
+
+def _sums_kernel(acc, part: Problem, u0: dict, grid):
+    return [a + b for a, b in zip(acc, grid_sums(part, u0, grid))]
+
+
+def _costs_kernel(acc, part: Problem, u0: dict, grid, num, den):
+    return acc + grid_costs(part, u0, grid, grid_scales(num, den))
+
+
+def _summary_kernel(part: Problem, u: dict):
+    rel, stats, bad = summary_of_part(part, u)
+    return dict(rel=rel, stats=stats, bad=bad, zero=zero_model_cost(part))
+
+
+def _seeds_program(part: Problem, u0: dict, k: int, grid, num, den, costs, keep_start: bool):
+    if grid is None:
+        seeds = jax.tree.map(lambda a: a[None], u0)
+    else:
+        seeds = seeds_from_scores(part, u0, k, grid, costs, grid_scales(num, den), keep_start)
+    flat = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
+    lower, upper = flat_bounds(part, u0)
+    return dict(flat=flat, lower=lower, upper=upper)
+
+
+def _given(flat, data):
+    return data
+
+
+def _cost_given(flat, f):
+    return f, None
+
+
+def _lm(y, lower, upper, grad, hess):
+    solver = lm_solver(y.dtype, lower, upper, (grad, hess), _given)
+    template = solver.init(_cost_given, y, jnp.zeros((), y.dtype), {}, jax.ShapeDtypeStruct((), y.dtype), None, frozenset())
+    return solver, template
+
+
+def _lm_init(y, lower, upper):
+    """optimistix's ``init`` and first ``terminate`` (``_run_solver``'s)."""
+    p = y.shape[0]
+    solver, state = _lm(y, lower, upper, jnp.zeros((p,), y.dtype), jnp.zeros((p, p), y.dtype))
+    done, result = solver.terminate(_cost_given, y, jnp.zeros((), y.dtype), {}, state, frozenset())
+    sound = (result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(y))
+    return dict(state=_leaves(state), y_eval=state.y_eval, done=done, sound=sound)
+
+
+def _lm_step(y, leaves: list, f, grad, hess, lower, upper):
+    """One optimistix step given the cost, Jᵀr and JᵀJ at the point the state evaluates."""
+    solver, template = _lm(y, lower, upper, grad, hess)
+    dynamic, static = eqx.partition(template, eqx.is_array)
+    state = eqx.combine(jax.tree.unflatten(jax.tree.structure(dynamic), leaves), static)
+    y, state, _ = solver.step(_cost_given, y, f, {}, state, frozenset())
+    done, result = solver.terminate(_cost_given, y, f, {}, state, frozenset())
+    sound = (result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(y))
+    return dict(y=y, state=_leaves(state), y_eval=state.y_eval, done=done, sound=sound, cost=state.f_info.f)
+
+
+@dataclasses.dataclass
+class _Kernels:
+    """The compiled programs of one fit, and the chunks' array leaves they run over."""
+
+    parts: list[list]
+    template: Problem
+    u0: dict
+    ne: object
+    init: object
+    step: object
+
+    def normal_equations(self, flat):
+        """(½‖r‖², Jᵀr, JᵀJ) at ``flat``: device arrays, summed over the chunks."""
+        p = flat.shape[0]
+        acc = [jax.device_put(np.zeros(s, flat.dtype)) for s in ((), (p,), (p, p))]
+        u0 = _leaves(self.u0)
+        for leaves in self.parts:
+            acc = self.ne(*acc, *leaves, flat, *u0)
+        return acc
+
+    def run(self, y0, lower, upper, budget: int):
+        """``_run_solver`` on the host: (value, converged, steps, sound, cost)."""
+        out = self.init(y0, lower, upper)
+        y, leaves, y_eval = y0, out["state"], out["y_eval"]
+        done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
+        k, cost = 0, np.inf
+        while not done and sound and k < budget:
+            f, grad, hess = self.normal_equations(y_eval)
+            out = self.step(y, *leaves, f, grad, hess, lower, upper)
+            y, leaves, y_eval, cost = out["y"], out["state"], out["y_eval"], out["cost"]
+            done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
+            k += 1
+        return y, done and sound, k, sound, float(cost)
+
+
+def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
+    template = parts[0]
+    p = _padded_size(ravel_pytree(u0)[0].shape[0])
+    dtype = ravel_pytree(u0)[0].dtype
+    flat = jax.device_put(np.zeros(p, dtype))
+    zeros = [jax.device_put(np.zeros(s, dtype)) for s in ((), (p,), (p, p))]
+    ne = _program("fit_ne", _ne_kernel, zeros, template, flat, u0)
+    init = _program("lm_init", _lm_init, flat, flat, flat)
+    state = init(flat, flat, flat)["state"]
+    step = _program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat)
+    return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step)
+
+
+def _report_programs(template: Problem, u0: dict) -> None:
+    """Make (compile or load) the programs of the report, for the shapes of ``u0``."""
+    flat = ravel_pytree(u0)[0]
+    p, dtype = flat.shape[0], flat.dtype
+    zero = np.zeros((), dtype)
+    _program("fit_summary", _summary_kernel, template, u0)
+    _program("fit_report", report_core, template, u0, zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
+
+
+def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> dict:
+    """The flat seeds and the bounds (host arrays): the scores' two passes over the chunks, then
+    the choice (:func:`~ctfit._fitting.starts.seed_points`' steps)."""
+    template, chunks = parts[0], [_leaves(pt) for pt in parts]
+    if "m" not in u0 or k < 1 or grid is None:
+        pick = _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
+        return jax.device_get(pick(*_leaves((template, u0))))
+    u0l, g = _leaves(u0), grid.shape[0]
+    acc = [jax.device_put(np.zeros((g, template.fixed_bands), grid.dtype)) for _ in range(2)]
+    sums = _program("fit_grid_sums", _sums_kernel, acc, template, u0, grid)
+    for leaves in chunks:
+        acc = sums(*acc, *leaves, *u0l, grid)
+    total = jax.device_put(np.zeros((g,), grid.dtype))
+    costs = _program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc)
+    for leaves in chunks:
+        total = costs(total, *leaves, *u0l, grid, *acc)
+    pick = _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start)
+    return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1], total))))
+
+
+def _race(kern: _Kernels, seeds: dict, max_steps: int):
+    """``_structured_lm``'s race on the host: every seed ``RACE_STEPS`` steps, then those within
+    ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs."""
+    n, p = seeds["flat"].shape
+    extra = _padded_size(p) - p
+    flat = np.pad(seeds["flat"], ((0, 0), (0, extra)))
+    lower, upper = (jax.device_put(np.pad(seeds[k], (0, extra))) for k in ("lower", "upper"))
+    values = [jax.device_put(v) for v in flat]
+    ok, steps, costs, sound = [False] * n, [0] * n, [math.inf] * n, [True] * n
+    race = n > 1 and max_steps > RACE_STEPS
+    for i in range(2 * n if race else n):
+        j = i % n
+        budget = max_steps
+        if race:
+            go = not ok[j] and costs[j] <= RACE_MARGIN * min(costs)
+            budget = (max_steps - RACE_STEPS if go else 0) if i >= n else RACE_STEPS
+        v, o, k, fine, c = kern.run(values[j], lower, upper, budget)
+        if k > 0:  # a seed that did not go on keeps what it had
+            values[j], ok[j], sound[j], costs[j] = v, o, fine, (c if math.isfinite(c) else math.inf)
+        steps[j] += k
+    return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype)
+
+
+def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False, parts: list[Problem] | None = None) -> dict:
+    """``fit_core``'s output (host arrays) for the solver "lm", on chunks: ``problem`` laid out
+    by ``make_problem(chunk=ROWS)``, ``parts`` its :func:`chunk_problems` (made here if None)."""
+    parts = chunk_problems(problem) if parts is None else parts
+    u0 = {k: jnp.asarray(v) for k, v in u0.items()}
+    # The first time, a structure's programs compile in three threads at once (XLA compiles
+    # without the GIL): the solver's, the report's, and (here) the seeds'.
+    shapes = _signature((parts[0], u0, grid, starts, keep_start))
+    if shapes in _programs:
+        seeds, kern = _seeds(parts, u0, starts, grid, keep_start), _kernels(parts, u0)
+    else:
+        with concurrent.futures.ThreadPoolExecutor(2) as pool:
+            kernels = pool.submit(_kernels, parts, u0)
+            pool.submit(_report_programs, parts[0], u0)
+            seeds = _seeds(parts, u0, starts, grid, keep_start)
+            kern = kernels.result()
+        _programs[shapes] = True
+    values, sound, steps, costs = _race(kern, seeds, max_steps)
+    best = int(np.argmin(costs))
+    p = int(np.size(ravel_pytree(u0)[0]))
+    cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))
+    cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
+    u = {k: jnp.asarray(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}
+    summary, ul = _program("fit_summary", _summary_kernel, kern.template, u), _leaves(u)
+    parts = jax.device_get([summary(*leaves, *ul) for leaves in kern.parts])
+    zero = np.asarray(np.sum([c["zero"] for c in parts]), costs.dtype)
+    report = _program("fit_report", report_core, kern.template, u, cost, jtr, jtj, zero)
+    out = jax.device_get(report(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
+    n = max(int(np.sum(np.asarray(problem.mask))), 1)
+    stats = [[np.array([c["stats"][i][j] for c in parts]) for j in (0, 1)] for i in (0, 1)]
+    with np.errstate(invalid="ignore", over="ignore"):  # a value that is not finite gives NaN, as in a program
+        rmse, rel_rmse = (combined_rms(big, sq, n, xp=np) for big, sq in stats)
+    return dict(out, u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best,
+                rel=np.stack([c["rel"] for c in parts]), rmse=rmse, rel_rmse=rel_rmse, bad=int(sum(int(c["bad"]) for c in parts)))
