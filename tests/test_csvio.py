@@ -9,6 +9,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ctfit._io import csv_files as _csvio
+import ctfit
 from ctfit import DataError, Measurement, read_csv, write_csv
 
 HEADER = "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf"
@@ -456,3 +457,66 @@ def test_a_wide_file_reads_and_its_errors_stay_short(tmp_path):
     assert len(read_csv(write(tmp_path, f"{HEADER},{extra}\n10,0,30,180,550,0.1,{ones}\n"))) == 1
     with pytest.raises(DataError, match=r"expected 100006 fields \(theta_i,phi_i,.{60,80}…\), found 100005$"):
         read_csv(write(tmp_path, f"{HEADER},{extra}\n10,0,30,180,550,0.1,{ones[2:]}\n"))
+
+
+# --- large files are mapped and parsed a block at a time (issue 20, item 16) ------------------
+
+
+def _big_csv(path, n=200_000, bad_row=None):
+    rng = np.random.default_rng(0)
+    rows = np.column_stack([rng.uniform(0, 80, n), np.zeros(n), rng.uniform(0, 80, n), rng.uniform(0, 360, n), np.full(n, 550.0), rng.uniform(0.01, 3, n)])
+    lines = [",".join(f"{v:.6f}" for v in r) for r in rows]
+    if bad_row is not None:
+        lines[bad_row] = lines[bad_row][:-1] + "\udcff"  # one byte that is not UTF-8
+    body = "\n".join(lines).encode("utf-8", "surrogateescape")
+    path.write_bytes("\ufeff# note: ü\ntheta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n".encode() + body + b"\n")
+    return path
+
+
+def test_a_mapped_file_reads_as_a_read_one(tmp_path, monkeypatch):
+    import ctfit._io.files as files
+
+    path = _big_csv(tmp_path / "big.csv", n=20_000)
+    read = ctfit.read_csv(path)
+    monkeypatch.setattr(files, "MAP_BYTES", 0)
+    mapped = ctfit.read_csv(path)
+    assert mapped.meta == read.meta == {"note": "ü"}
+    for name in ("theta_i", "theta_o", "phi_o", "brdf"):
+        np.testing.assert_array_equal(getattr(mapped, name), getattr(read, name))
+    cr = tmp_path / "cr.csv"
+    cr.write_bytes(path.read_bytes().replace(b"\n", b"\r\n"))
+    np.testing.assert_array_equal(ctfit.read_csv(cr).brdf, read.brdf)
+
+
+@pytest.mark.parametrize("mapped", [False, True])
+def test_a_byte_that_is_not_utf8_far_into_the_file_is_located(tmp_path, monkeypatch, mapped):
+    import ctfit._io.files as files
+
+    monkeypatch.setattr(files, "MAP_BYTES", 0 if mapped else 1 << 40)
+    monkeypatch.setattr(files, "_CHECK_BLOCK", 1 << 12)  # the bad byte in a later block
+    path = _big_csv(tmp_path / "bad.csv", n=5_000, bad_row=4_000)
+    with pytest.raises(DataError, match=r"bad\.csv:4003: byte 0xff at byte offset \d+ .* is not UTF-8"):
+        ctfit.read_csv(path)
+
+
+def test_a_large_file_is_not_held_in_memory(tmp_path, monkeypatch):
+    """Mapped, the file's bytes are never copied whole: the traced peak of reading drops by
+    about the file's size (what is left: the columns and one block's temporaries)."""
+    import tracemalloc
+
+    import ctfit._io.files as files
+
+    path = _big_csv(tmp_path / "big.csv")
+    size = path.stat().st_size
+
+    def peak():
+        tracemalloc.start()
+        ctfit.read_csv(path)
+        top = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return top
+
+    monkeypatch.setattr(files, "MAP_BYTES", 1 << 40)
+    whole = peak()
+    monkeypatch.setattr(files, "MAP_BYTES", 0)
+    assert peak() < whole - 0.8 * size

@@ -19,7 +19,7 @@ import re
 import numpy as np
 
 from .errors import DataError
-from .files import atomic_write, read_utf8
+from .files import atomic_write, map_utf8
 from .untrusted import check_input_file, quote, shorten
 from .._model import Measurement, format_value as _fmt, invalid_value
 
@@ -65,10 +65,11 @@ def read_csv(path) -> Measurement:
     ctfit._io.errors.DataError: bad.csv:2: column 'theta_i' (1): 95.0 is outside [0, 90] degrees
     """
     check_input_file(path)
-    raw = read_utf8(path)
-    if b"\r" in raw:  # Windows (CR LF) and old Mac (CR) line endings
-        raw = raw.replace(b"\r\n", b"\n").replace(b"\r", b"\n")
-    meta, meta_lines, header_line, header, pos = _split_header(raw, path)
+    raw, pos = map_utf8(path)  # a large file is mapped, and parsed a block at a time
+    if raw.find(b"\r") >= 0:  # Windows (CR LF) and old Mac (CR) line endings
+        raw = raw[pos:].replace(b"\r\n", b"\n").replace(b"\r", b"\n")
+        pos = 0
+    meta, meta_lines, header_line, header, pos = _split_header(raw, path, pos)
     cols = _Header(header, header_line, path)
     end = len(raw)
     while end > pos and raw[end - 1] in b" \t\n":
@@ -83,9 +84,10 @@ def read_csv(path) -> Measurement:
     return _measurement(values, channel, meta, path)
 
 
-def _split_header(raw: bytes, path):
-    """(meta, line number of each meta key, header line number, header text, body offset)."""
-    meta, meta_lines, pos, line_no, blank = {}, {}, 0, 0, True
+def _split_header(raw: bytes, path, pos: int = 0):
+    """(meta, line number of each meta key, header line number, header text, body offset); the
+    file's text starts at ``pos`` (after a byte-order mark)."""
+    meta, meta_lines, line_no, blank = {}, {}, 0, True
     while pos <= len(raw):
         end = raw.find(b"\n", pos)
         end = len(raw) if end < 0 else end
@@ -214,7 +216,7 @@ def _parse_fast(raw: bytes, pos: int, end: int, cols: _Header):
     buf = np.frombuffer(work, np.uint8)
     ncols = len(cols.names)
     sep = np.flatnonzero((buf == 44) | (buf == 10))
-    nrows = raw.count(b"\n", pos, end) + 1
+    nrows = int(np.count_nonzero(buf[:n] == 10)) + 1
     line_ends = sep[ncols - 1 :: ncols]
     # Every row has ncols fields iff there are nrows·ncols separators and each ncols-th is a newline.
     if len(sep) != nrows * ncols or not (buf[line_ends] == 10).all():

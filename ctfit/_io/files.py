@@ -15,6 +15,7 @@ __all__ = [
     "TEMPORARY",
     "atomic_save",
     "atomic_write",
+    "map_utf8",
     "read_text",
     "read_utf8",
     "remove_stale_temporaries",
@@ -26,6 +27,11 @@ __all__ = [
 _temporaries: dict[str, tuple[str, bool]] = {}  # writes under way: temporary → (the user's path, whether a file is there)
 
 
+MAP_BYTES = 1 << 26
+"""Files of this size and more are mapped (:func:`map_utf8`), not read into memory."""
+_CHECK_BLOCK = 1 << 20  # decoded a block at a time: the text is never held whole
+
+
 def read_utf8(path) -> bytes:
     """The file's bytes, checked to be UTF-8, without a leading byte-order mark.
 
@@ -33,19 +39,54 @@ def read_utf8(path) -> bytes:
     """
     with open(path, "rb") as f:
         raw = f.read()
-    if not raw.isascii():
+    _check_utf8(raw, path)
+    return raw.removeprefix(b"\xef\xbb\xbf")
+
+
+def map_utf8(path):
+    """The file's bytes as :func:`read_utf8` gives them, but a file of :data:`MAP_BYTES` or more
+    is mapped read-only (``mmap``) instead of read: a reader that goes through it block by block
+    holds a block at a time, whatever the file's size. Returns (buffer, offset of the first byte
+    after a byte-order mark). The buffer supports ``find``, ``rfind``, slicing and ``len``."""
+    import mmap
+
+    with open(path, "rb") as f:
+        size = os.fstat(f.fileno()).st_size
+        if size < MAP_BYTES:
+            raw = f.read()
+        else:
+            raw = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    _check_utf8(raw, path)
+    return raw, 3 if raw[:3] == b"\xef\xbb\xbf" else 0
+
+
+def _check_utf8(raw, path) -> None:
+    """:class:`DataError` (line, byte offset) at the first byte of ``raw`` that is not UTF-8,
+    decoded block by block (an incremental decoder: a character may span two blocks)."""
+    import codecs
+
+    decoder = codecs.getincrementaldecoder("utf-8")()
+    for start in range(0, max(len(raw), 1), _CHECK_BLOCK):
+        block = raw[start : start + _CHECK_BLOCK]
+        if block.isascii():
+            continue
         try:
-            raw.decode("utf-8")
+            decoder.decode(block, final=start + _CHECK_BLOCK >= len(raw))
         except UnicodeDecodeError as e:
-            line = raw.count(b"\n", 0, e.start) + 1
-            line_start = raw.rfind(b"\n", 0, e.start) + 1
+            at = start + e.start - len(decoder.getstate()[0])
+            line = sum(raw[i : min(i + _CHECK_BLOCK, at)].count(b"\n") for i in range(0, at, _CHECK_BLOCK)) + 1
+            line_start = raw.rfind(b"\n", 0, at) + 1
             raise DataError(
-                f"byte 0x{raw[e.start]:02x} at byte offset {e.start} (byte {e.start - line_start + 1} of the line) "
+                f"byte 0x{raw[at]:02x} at byte offset {at} (byte {at - line_start + 1} of the line) "
                 "is not UTF-8; save the file as UTF-8 (plain ASCII is fine)",
                 path=path,
                 line=line,
             ) from None
-    return raw.removeprefix(b"\xef\xbb\xbf")
+    try:
+        decoder.decode(b"", final=True)
+    except UnicodeDecodeError as e:
+        at = len(raw) - len(decoder.getstate()[0]) + e.start
+        raise DataError(f"the file ends inside a UTF-8 character (byte offset {at}); save the file as UTF-8", path=path) from None
 
 
 def read_text(path) -> str:
