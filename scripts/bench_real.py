@@ -202,7 +202,7 @@ def section(rows: list[dict], args, started: float, load: tuple[float, float], p
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("files", type=Path, nargs="*", help="data files (default: the test-bed and the three ALTA files)")
-    ap.add_argument("--quick", action="store_true", help="smoke run: the pink felt only, one search structure per family, 2 starts, 20 Adam steps")
+    ap.add_argument("--quick", "--small", dest="quick", action="store_true", help="smoke run: the pink felt only, one search structure per family, 2 starts, 20 Adam steps")
     ap.add_argument("--starts", type=int, default=None, help="starts per search fit (default 20; --quick: 2)")
     ap.add_argument("--losses", default=None, help="comma-separated losses for the search (default: all; --quick: log)")
     ap.add_argument("--steps", type=int, default=None, help="Adam steps of the Mitsuba peer (default 1000; --quick: 20)")
