@@ -44,14 +44,12 @@ sys.path.insert(0, str(SCRIPTS))
 
 from _numpy_model import NumpyProblem, read_csv_numpy  # noqa: E402
 from _whole_process import run  # noqa: E402
-from bench_fit import cpu_name, llvm_path  # noqa: E402
+from bench_fit import CTFIT, PY, cpu_name, llvm_path  # noqa: E402  (the same interpreter and ctfit command)
 
 import ctfit  # noqa: E402
 from ctfit.internal import LOSSES  # noqa: E402
 
 SECTION = "## Results"
-PY = sys.executable
-CTFIT = str(Path(sys.executable).with_name("ctfit"))
 MAX_THETA = 80.0
 FILES = [*sorted((ROOT / "measurements" / "testbed").glob("*.csv")), *(ROOT / "measurements" / "brdf" / n for n in ("retro-gray-tape.dat", "retro-3M-jaune.dat", "pink-felt-1d.alta"))]
 QUICK_FILES = [ROOT / "measurements" / "brdf" / "pink-felt-1d.alta"]
