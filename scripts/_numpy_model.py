@@ -2,15 +2,17 @@
 fit benchmarks (``bench_fit.py``, ``fit_tradeoffs.py``).
 
 Same model as ctfit: normalised Cook–Torrance, Σ_j w_j Beckmann D(m_j), the paper's V-cavity G,
-the paper's unpolarised Fresnel with the effective index from F0 (k = 0); a metal (d = 0) or, with
-``diffuse=True``, the paper's homogeneous material R = s R_s + (1 − s) F0/π. Unconstrained
-coordinates, as SciPy's ``least_squares(method="lm")`` needs: u = (logit F0 (W bands), log m
-(J lobes), w_1..w_{J−1} as logits against w_0 (softmax)[, logit s]); ctfit's own fit varies box
+the paper's unpolarised Fresnel with the effective index from F0 (k = 0); a metal (d = 0), with
+``diffuse=True`` (or ``"F0/pi"``) the paper's homogeneous material R = s R_s + (1 − s) F0/π, with
+``diffuse="spectrum"`` R = s R_s + (1 − s) R_d, R_d per band. Unconstrained coordinates, as SciPy's
+``least_squares(method="lm")`` needs: u = (logit F0 (W bands), log m (J lobes), w_1..w_{J−1} as
+logits against w_0 (softmax)[, logit s][, log R_d (W)]); ctfit's own fit varies box
 coordinates inside bounds instead (``docs/fitting.md``), the sampler these ones. The residual
-weightings are ctfit's (the ``--loss`` choices of ``docs/fitting.md``).
+weightings are ctfit's (the ``--loss`` choices of ``docs/fitting.md``), and "log-ratio": ln f − ln y
+on the samples with y > 0 (``bench_real.py``).
 
 Imports NumPy only, so that a SciPy process timed as a whole (``bench_fit.py``) pays for nothing
-else; :func:`read_csv_numpy` reads a spectral measurement CSV for it.
+else; :func:`read_csv_numpy` reads a spectral or RGB measurement CSV for it.
 """
 
 from __future__ import annotations
@@ -19,7 +21,9 @@ import numpy as np
 
 __all__ = ["np_geometry", "np_fresnel_f0", "NumpyProblem", "NumpyData", "read_csv_numpy", "NUMPY_LOSSES"]
 
-NUMPY_LOSSES = ("absolute", "relative", "sigma", "cosine", "log")
+NUMPY_LOSSES = ("absolute", "relative", "sigma", "cosine", "log", "log-ratio")
+NUMPY_DIFFUSES = (False, True, "F0/pi", "spectrum")
+TINY = 1e-300
 
 
 def np_geometry(pairs):
@@ -72,9 +76,9 @@ class NumpyData:
 
 
 def read_csv_numpy(path) -> NumpyData:
-    """A spectral measurement CSV (``docs/measurement-formats.md``: ``#`` lines, a header naming
-    theta_i, phi_i, theta_o, phi_o, wavelength_nm, brdf[, sigma]) read with ``numpy.loadtxt``;
-    no checks beyond NumPy's (the files are the benchmark's own)."""
+    """A measurement CSV (``docs/measurement-formats.md``: ``#`` lines, a header naming theta_i,
+    phi_i, theta_o, phi_o, wavelength_nm or channel (R, G, B), brdf[, sigma]) read with
+    ``numpy.loadtxt``; no checks beyond NumPy's (the files are the benchmark's own)."""
     with open(path, encoding="utf-8") as f:
         skip = 0
         for line in f:
@@ -82,23 +86,27 @@ def read_csv_numpy(path) -> NumpyData:
             if line.strip() and not line.lstrip().startswith("#"):
                 names = [c.strip().strip('"') for c in line.split(",")]
                 break
-    cols = np.loadtxt(path, delimiter=",", skiprows=skip, ndmin=2, dtype=float).T
+    rgb = {"channel": lambda c: "RGB".index(c.strip())} if "channel" in names else {}
+    cols = np.loadtxt(path, delimiter=",", skiprows=skip, ndmin=2, dtype=float, converters={names.index(k): f for k, f in rgb.items()}).T
     col = dict(zip(names, cols))
-    wl, band = np.unique(col["wavelength_nm"], return_inverse=True)
+    wl, band = np.unique(col["channel" if rgb else "wavelength_nm"], return_inverse=True)
     return NumpyData(col["theta_i"], col["phi_i"], col["theta_o"], col["phi_o"], band, len(wl), col["brdf"], col.get("sigma"))
 
 
 class NumpyProblem:
     """r(u) on the samples for a ``lobes``-lobe material, u = (logit F0 (W), log m (J), logit w (J − 1)
-    [, logit s with ``diffuse``]).
+    [, logit s with ``diffuse``][, log R_d (W) with ``diffuse="spectrum"``]).
 
     ``loss`` as in ctfit: absolute f − y; relative (f − y)/max(y, 10⁻³ max y); sigma (f − y)/σ;
-    cosine (f − y) cos θ_i; log ln(1 + f cos θ_i) − ln(1 + y cos θ_i).
+    cosine (f − y) cos θ_i; log ln(1 + f cos θ_i) − ln(1 + y cos θ_i); and log-ratio ln f − ln y
+    where y > 0 (0 elsewhere).
     """
 
-    def __init__(self, data, lobes: int = 2, loss: str = "sigma", diffuse: bool = False):
+    def __init__(self, data, lobes: int = 2, loss: str = "sigma", diffuse: bool | str = False):
         if loss not in NUMPY_LOSSES:
             raise ValueError(f"loss must be one of {NUMPY_LOSSES}, got {loss!r}")
+        if diffuse not in NUMPY_DIFFUSES:
+            raise ValueError(f"diffuse must be one of {NUMPY_DIFFUSES}, got {diffuse!r}")
         pairs, index = data.directions()
         self.shape = (len(pairs), data.n_bands)
         self.geom = np_geometry(pairs)
@@ -109,22 +117,26 @@ class NumpyProblem:
         self.grid = len(pairs) * data.n_bands <= 1.5 * len(index)
         self.y, self.sigma = data.brdf, data.sigma
         self.w_bands = data.n_bands
-        self.lobes, self.loss, self.diffuse = lobes, loss, diffuse
+        self.lobes, self.loss, self.diffuse, self.rd = lobes, loss, bool(diffuse), diffuse == "spectrum"
         y_pos = self.y[self.y > 0]
         self.floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
         self.cos_i = np.cos(np.deg2rad(pairs[:, 0]))[index]
 
     def params(self, u):
-        """(F0 (W,), m (J,), w (J,)) from the free values ``u``; with ``diffuse``, s as a fourth."""
+        """(F0 (W,), m (J,), w (J,)) from the free values ``u``; with ``diffuse``, s as a fourth, with
+        ``diffuse="spectrum"`` R_d (W,) as a fifth."""
         w_b, j = self.w_bands, self.lobes
         f0 = 1 / (1 + np.exp(-u[:w_b]))
         m = np.exp(u[w_b : w_b + j])
         w = np.exp(np.concatenate([[0.0], u[w_b + j : w_b + 2 * j - 1]]))
         out = (f0, m, w / w.sum())
-        return out + (1 / (1 + np.exp(-u[w_b + 2 * j - 1])),) if self.diffuse else out
+        if self.diffuse:
+            out += (1 / (1 + np.exp(-u[w_b + 2 * j - 1])),)
+        return out + (np.exp(u[w_b + 2 * j : 2 * w_b + 2 * j]),) if self.rd else out
 
     def model(self, u):
         f0, m, w, *s = self.params(u)
+        rd = s[1] if self.rd else f0 / np.pi
         t = self.tan2[:, None]
         d = np.exp(-t / m**2) * (1 + t) ** 2 / m**2
         spec = (0.25 / np.pi) * self.g_red * (d @ w)
@@ -135,7 +147,7 @@ class NumpyProblem:
         else:  # F per sample: scattered data, every sample its own pair
             f = np_fresnel_f0(self.geom["cos_vh"][self.index], f0[self.band]) * spec[self.index]
         if self.diffuse:
-            f = s[0] * f + np.where(valid[self.index], (1 - s[0]) * f0[self.band] / np.pi, 0.0)
+            f = s[0] * f + np.where(valid[self.index], (1 - s[0]) * rd[self.band], 0.0)
         return f
 
     def residual(self, u):
@@ -148,4 +160,7 @@ class NumpyProblem:
             return (f - y) / np.maximum(y, self.floor)
         if self.loss == "cosine":
             return (f - y) * self.cos_i
+        if self.loss == "log-ratio":
+            pos = y > 0
+            return np.where(pos, np.log(np.maximum(f, TINY)) - np.log(np.where(pos, y, 1.0)), 0.0)
         return np.log1p(f * self.cos_i) - np.log1p(y * self.cos_i)

@@ -319,7 +319,8 @@ def texels(n_texels: int, seed: int) -> dict:
     return dict(rows=rows)
 
 
-def _llvm() -> str | None:
+def llvm_path() -> str | None:
+    """Dr.Jit's libLLVM (≥ 17): DRJIT_LIBLLVM_PATH, else the first of LLVM_CANDIDATES present, else None."""
     given = os.environ.get("DRJIT_LIBLLVM_PATH")
     if given:
         return given
@@ -332,7 +333,7 @@ def mitsuba(b: Bench, n_pairs: int, seed: int) -> dict:
         import mitsuba  # noqa: F401
     except ImportError as e:
         return _skip(f"mitsuba is not installed ({e})")
-    llvm = _llvm()
+    llvm = llvm_path()
     if llvm is None:
         return _skip("Dr.Jit's LLVM backend needs libLLVM ≥ 17 (e.g. `apt-get install libllvm19`, then DRJIT_LIBLLVM_PATH="
                      "/usr/lib/x86_64-linux-gnu/libLLVM-19.so); LLVM 14/15 abort with \"Cannot select fmaximum\"")
@@ -497,7 +498,7 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
     import scipy
 
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    cpu = _cpu_name()
+    cpu = cpu_name()
     reps = args.repeat
     L = [SECTION, "",
          f"`scripts/bench_fit.py{' --small' if args.small else ''} --repeat {reps}` ({datetime.date.today().isoformat()}; {os.cpu_count()}-core "
@@ -604,7 +605,7 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
     return "\n".join(L) + "\n"
 
 
-def _cpu_name() -> str:
+def cpu_name() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
             if line.startswith("model name"):
@@ -636,7 +637,7 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    print(f"machine: {_cpu_name()}, {os.cpu_count()} CPUs; python {platform.python_version()}, jax {jax.__version__}; {args.repeat} runs per figure", flush=True)
+    print(f"machine: {cpu_name()}, {os.cpu_count()} CPUs; python {platform.python_version()}, jax {jax.__version__}; {args.repeat} runs per figure", flush=True)
     with tempfile.TemporaryDirectory(prefix="ctfit-bench-fit-") as tmp:
         b = Bench(Path(tmp), args.repeat)
         fl = floor(b)
