@@ -73,22 +73,14 @@ def candidates(losses, quick: bool = False) -> list[tuple[str, ctfit.Structure, 
     """(label, structure, loss) for every structure the search tries × ``losses``: the metal family
     (Fresnel "f0" or "conductor" × diffuse None, "F0/pi", "spectrum", "constant") and the plastic
     family (diffuse "spectrum", "constant", "transmitted"), 1–3 lobes each (``quick``: one lobe, the
-    metal structure "f0", R_d = F0/π). A family this ctfit lacks (``Structure`` refuses its ``family``) is skipped
-    with one printed line."""
+    metal structure "f0", R_d = F0/π, and the plastic with a Lambertian R_d)."""
     lobes = (1,) if quick else (1, 2, 3)
     metal = [dict(lobes=n, fresnel=fr, diffuse=d) for fr in METAL_FRESNELS for n in lobes for d in METAL_DIFFUSES]
-    kinds = {"metal": metal[1:2] if quick else metal,
-             "plastic": [dict(family="plastic", lobes=n, diffuse=d) for n in lobes for d in PLASTIC_DIFFUSES[: 1 if quick else None]]}
+    plastic = [dict(family="plastic", lobes=n, diffuse=d) for n in lobes for d in PLASTIC_DIFFUSES[: 1 if quick else None]]
     out = []
-    for family, options in kinds.items():
-        try:
-            built = [(kw, ctfit.Structure(**kw)) for kw in options]
-        except TypeError as e:  # the one place: a family this ctfit's Structure does not take
-            print(f"skipped: {len(options)} {family} structure(s), Structure(family={family!r}, ...) not available ({e})", flush=True)
-            continue
-        for kw, st in built:
-            label = ", ".join(f"{k}={v}" for k, v in kw.items())
-            out += [(f"{label}; loss {loss}", st, loss) for loss in losses]
+    for kw in (metal[1:2] if quick else metal) + plastic:
+        label = ", ".join(f"{k}={v}" for k, v in kw.items())
+        out += [(f"{label}; loss {loss}", ctfit.Structure(**kw), loss) for loss in losses]
     return out
 
 
