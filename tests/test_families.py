@@ -168,25 +168,21 @@ def test_family_and_diffuse_options_fix_the_structure(tmp_path):
 # --- loss, quality, warnings -----------------------------------------------------------------
 
 
-def test_the_relative_floor_comes_from_the_typical_sample_not_the_peak():
-    """A peak 5 decades above the diffuse part no longer lifts the floor above every off-peak
-    sample (which made the default fit absolute there, issue 25)."""
+def test_the_log_ratio_loss_floors_at_the_typical_sample():
+    """ln((f + ε)/(y + ε)) with ε = 10⁻² × the median sample: a peak 5 decades above the diffuse
+    part does not lift it above the off-peak samples (the relative loss's 10⁻³ × max does)."""
     from ctfit._fitting.problem import loss_floor
 
     y = np.array([0.01, 0.1, 0.2, 0.3, 1e4])
-    assert loss_floor(y, "relative") == pytest.approx(0.01 * 0.2)  # was 10⁻³ × 1e4 = 10
-    assert loss_floor(np.array([1.0, 2.0, 3.0]), "relative") == pytest.approx(1e-3 * 3.0)  # modest range: as before
+    assert loss_floor(y, "log-ratio") == pytest.approx(0.01 * 0.2)
+    assert loss_floor(y, "relative") == pytest.approx(10.0)
     truth = plastic("spectrum")
     data = dataclasses.replace(ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=4), sigma=None)
-    res = ctfit.fit(data, truth.structure)
-    assert res.stats["loss"] == "relative"
-    f, yy = np.asarray(ctfit.evaluate(res.material, data)), data.brdf
-    floor = res.stats["relative_floor"]
-    assert floor == pytest.approx(loss_floor(yy, "relative"))
-    assert res.stats["cost"] == pytest.approx(0.5 * np.sum(((f - yy) / np.maximum(yy, floor)) ** 2), rel=1e-6)
+    assert ctfit.fit(data, truth.structure).stats["loss"] == "relative"  # the default without σ
     lr = ctfit.fit(data, truth.structure, loss="log-ratio")
-    f = np.asarray(ctfit.evaluate(lr.material, data))
+    f, yy = np.asarray(ctfit.evaluate(lr.material, data)), data.brdf
     eps = lr.stats["relative_floor"]
+    assert eps == pytest.approx(loss_floor(yy, "log-ratio"))
     assert lr.stats["cost"] == pytest.approx(0.5 * np.sum((np.log(f + eps) - np.log(yy + eps)) ** 2), rel=1e-6)
 
 

@@ -76,9 +76,7 @@ def fit_texel_command(o) -> int:
     if o.sample_ or o.material is not None or o.as_json or o.backend is not None:
         raise UserError("texel data: leave out --sample, --material, --json and --backend")
     _check_texel_outputs(o)
-    st = structure_from_options(None, o)
-    if st is None:
-        raise UserError("texel data: every texel is fitted with one structure; give --family, --diffuse and --lobes N (not auto)")
+    st = texel_structure(o)
     setup_jax(o.float32)
     check_fit_choices(o)
     kw = fit_kwargs(o)

@@ -21,6 +21,7 @@ __all__ = [
     "fit_kwargs",
     "report_file",
     "structure_from_options",
+    "texel_structure",
     "write_summary",
 ]
 
@@ -47,6 +48,18 @@ def structure_from_options(base, o):
         return None
     fresnel = "n" if family == "plastic" else (fres or "f0")
     return Structure(lobes=int(o.lobes), geometry=o.geometry or "v-cavity", fresnel=fresnel, diffuse=None if diffuse == "none" else diffuse, family=family)
+
+
+def texel_structure(o):
+    """The one structure every texel of a texel store is fitted with: the options', each part left
+    to the data (auto) taken from the paper's homogeneous material — a metal, R_d = F0/π, one lobe
+    (a map of texels is not a file whose data can choose; docs/formats.md)."""
+    from types import SimpleNamespace
+
+    fixed = SimpleNamespace(**{**vars(o), "family": "metal" if _family(o) == "auto" else o.family,
+                               "diffuse": "F0/pi" if _diffuse(o) == "auto" else _diffuse(o), "no_diffuse": False,
+                               "lobes": "1" if o.lobes == "auto" else o.lobes})
+    return structure_from_options(None, fixed)
 
 
 def _family(o) -> str:
@@ -172,8 +185,6 @@ def _check_cluster_options(o) -> None:
         raise UserError(f"{which} needs -o (the results are written per file as they complete, and a re-run skips the files done)")
     if o.sample_:
         raise UserError(f"{which} fits only; leave out --sample (or sample the files afterwards)")
-    if o.material is None and "auto" in (_family(o), _diffuse(o), o.lobes):
-        raise UserError(f"{which} fits one structure to every file; give --family, --diffuse and --lobes N (not auto), or --material")
     if o.as_json:
         raise UserError(f"{which} writes each result to -o; leave out --json")
 

@@ -55,6 +55,8 @@ def fit_many(
     progress: bool = False,
 ) -> list:
     """Fit ``structure`` to every item on a Dask cluster; one :class:`~ctfit.FitResult` per item, in input order.
+    ``structure=None``: each item's structure is chosen by its data, as :func:`~ctfit.fit` chooses it
+    (then ``start`` and ``fixed`` do not apply, and items are fitted one by one on their worker).
 
     ``items``: paths of measurement files (CSV, ALTA, MERL .binary, RGL .bsdf; read on the workers, with
     ``param_out`` as for :func:`~ctfit.read_alta`) or :class:`~ctfit.Measurement` objects.
@@ -262,7 +264,15 @@ def _fit_task(items: list, structure, options: dict, param_out, x64: bool) -> li
             except _CAUGHT as e:
                 outs[j] = _portable(e)
         ready, options["start"] = kept, starts
-    if ready:
+    if ready and structure is None:  # the data chooses each item's structure (ctfit.fit's default)
+        from .least_squares import fit
+
+        for j, meas in ready:
+            try:
+                outs[j] = fit(meas, **{k: v for k, v in options.items() if k not in ("start", "fixed")})
+            except _CAUGHT as e:
+                outs[j] = _portable(e)
+    elif ready:
         fits = fit_batch([m for _, m in ready], structure, return_errors=True, **options)
         for (j, _), got in zip(ready, fits):
             outs[j] = _portable(got) if isinstance(got, Exception) else got

@@ -301,16 +301,13 @@ def make_problem(
 
 
 def loss_floor(y, loss: str) -> float:
-    """The floor of the relative losses: :data:`LOG_RATIO_FLOOR` × the median positive value (the
-    typical sample), and for "relative" at most 10⁻³ × the largest one: every sample within two
-    decades of the typical one is weighed by its relative error, however high the peak (a floor
-    from the peak alone, 10⁻³ × max, lies above the whole diffuse part of a measurement whose peak
-    is 4–5 decades high, and made such fits absolute)."""
+    """The floor of the relative losses: for "log-ratio", :data:`LOG_RATIO_FLOOR` × the median
+    positive value (the typical sample: every sample within two decades of it is weighed by its
+    relative error, however high the peak); for "relative", 10⁻³ × the largest value."""
     y_pos = np.asarray(y)[np.asarray(y) > 0]
     if not len(y_pos):
         return 1.0
-    typical = LOG_RATIO_FLOOR * float(np.median(y_pos))
-    return typical if loss == "log-ratio" else min(typical, 1e-3 * float(np.max(y_pos)))
+    return LOG_RATIO_FLOOR * float(np.median(y_pos)) if loss == "log-ratio" else 1e-3 * float(np.max(y_pos))
 
 
 BUCKET_MIN = 256

@@ -10,7 +10,7 @@ residual map over the Rusinkiewicz angles (θ_h, θ_d).
   (nearest 450, 550, 650 nm) unless ``bands`` says otherwise. 1-D data (every sample has V = L,
   an ALTA ``COS_TH`` file) is one panel: the back-scatter curve against θ_i.
 - :func:`plot_residual_map`: ln(model/data) of every sample, averaged per (θ_h, θ_d) cell
-  (Rusinkiewicz 1998, :func:`ctfit.angles_deg_to_half_diff`), on a diverging colour map
+  (Rusinkiewicz 1998, :func:`ctfit.angles_deg_to_half_diff_deg`), on a diverging colour map
   centred at 0; cells without samples are left blank (grey).
 
 Both take a :class:`~ctfit.Material` or a :class:`~ctfit.FitResult` and use only the public
@@ -25,7 +25,7 @@ import textwrap
 
 import numpy as np
 
-from .._io import angles_deg_to_half_diff
+from .._io import angles_deg_to_half_diff_deg
 from .._model import evaluate, evaluate_at
 
 __all__ = ["plot_polar", "plot_residual_map", "draw_polar", "draw_residual_map", "residual_cells", "PLANE_TOL_DEG"]
@@ -258,7 +258,7 @@ def residual_cells(material, data, bins: int = 30, band=None):
     model = np.asarray(evaluate(material, data), dtype=float)
     measured = np.asarray(data.brdf, dtype=float)
     pairs, index = data.directions()
-    th, td, _ = (np.degrees(a) for a in angles_deg_to_half_diff(*pairs.T))
+    th, td, _ = angles_deg_to_half_diff_deg(*pairs.T)
     th, td = th[index], td[index]
     use = np.ones(len(data), bool) if band is None else np.asarray(data.band) == int(band)
     ok = use & np.isfinite(model) & np.isfinite(measured) & (model > 0) & (measured > 0)

@@ -29,7 +29,7 @@ from .scene import LIGHT_DIRECTIONS, SOLID_ANGLES, Scene, Tile, render_bands, sc
 from .surfaces import VIEW_DIRECTION, surface_normals
 from .tone import BACKGROUND, tone_map
 from .._colour import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion
-from .._io import angles_deg_to_half_diff
+from .._io import angles_deg_to_half_diff_deg
 from .._model import evaluate_at
 
 __all__ = ["MeasuredBRDF", "Comparison", "half_diff_folded_deg", "render_comparison"]
@@ -49,9 +49,9 @@ def half_diff_folded_deg(theta_i, phi_i, theta_o, phi_o) -> np.ndarray:
     >>> half_diff_folded_deg(40.0, 0.0, 20.0, 180.0).round(6).tolist()  # H at 10°, 30° from L and V
     [10.0, 30.0, 0.0]
     """
-    th, td, pd = angles_deg_to_half_diff(theta_i, phi_i, theta_o, phi_o)
-    pd = np.mod(np.abs(np.degrees(pd)), 180.0)
-    return np.stack(np.broadcast_arrays(np.degrees(th), np.degrees(td), np.minimum(pd, 180.0 - pd)), axis=-1)
+    th, td, pd = angles_deg_to_half_diff_deg(theta_i, phi_i, theta_o, phi_o)
+    pd = np.mod(np.abs(pd), 180.0)
+    return np.stack(np.broadcast_arrays(th, td, np.minimum(pd, 180.0 - pd)), axis=-1)
 
 
 def _band_groups(data):
