@@ -173,17 +173,18 @@ def test_bad_counts_are_refused_before_any_work(tmp_path, args, option):
 def test_lobes_auto_shows_convergence_and_keeps_the_library_choice(tmp_path):
     csv = write(tmp_path, "d.csv", n_pairs=150)
     out = tmp_path / "auto.json"
-    r = run("fit", csv, "--lobes", "auto", "-o", out)
+    r = run("fit", csv, "--lobes", "auto", "--family", "metal", "-o", out)
     assert r.exit_code == 0, r.output
     header, *rows = [line for line in r.stdout.splitlines() if line.startswith("  ")][:7]
-    assert header.split() == ["lobes", "diffuse", "params", "rel_rmse", "BIC", "converged"]
-    assert all(row.split()[5] in ("True", "False") for row in rows)
-    kept = [row.split() for row in rows if row.endswith("<- kept")]
+    assert header.split() == ["structure", "params", "median", "|f−y|/y", "BIC", "converged"]
+    rows = [row for row in rows if row.strip().startswith("metal")]
+    assert all(row.split()[-1] in ("True", "False") or row.endswith("<- chosen") for row in rows)
+    kept = [row for row in rows if row.endswith("<- chosen")]
     assert len(kept) == 1
-    best, _ = ctfit.select_structure(ctfit.read_measurement(csv), [ctfit.Structure(lobes=j, diffuse=d) for j in (1, 2, 3) for d in (None, "F0/pi")])
+    best, _ = ctfit.choose_structure(ctfit.read_measurement(csv), families=("metal",))
     doc = json.loads(out.read_text())
-    assert len(doc["lobes"]) == best.material.structure.lobes == int(kept[0][0])
-    assert kept[0][1] == str(best.material.structure.has_diffuse)
+    assert len(doc["lobes"]) == best.material.structure.lobes
+    assert kept[0].split(",")[0].strip() == "metal" and ctfit.structure_label(best.material.structure) in kept[0]
 
 
 def test_progress_bars_off_without_a_terminal_and_on_when_forced(tmp_path, monkeypatch):

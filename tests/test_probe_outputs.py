@@ -264,11 +264,11 @@ def test_missing_and_folder_inputs_are_named_in_plain_words(tmp_path):
     missing = tmp_path / "missing.csv"
     for args, said in [
         (("eval", MATERIAL, missing, "-o", tmp_path / "x.csv"), f"error: {missing}: no such file"),
-        (("eval", MATERIAL, tmp_path, "-o", tmp_path / "x.csv"), f"error: {tmp_path}: is a folder, not a file"),
+        (("eval", MATERIAL, tmp_path, "-o", tmp_path / "x.csv"), f"error: {tmp_path}: not a regular file but a folder; ctfit reads files only"),
         (("sample", MATERIAL, missing, "-o", tmp_path / "x.json"), f"error: {missing}: no such file"),
-        (("sample", MATERIAL, tmp_path, "-o", tmp_path / "x.json"), f"error: {tmp_path}: is a folder, not a file"),
+        (("sample", MATERIAL, tmp_path, "-o", tmp_path / "x.json"), f"error: {tmp_path}: not a regular file but a folder; ctfit reads files only"),
         (("render", MATERIAL, "-o", tmp_path / "x.png", "--compare", missing), f"error: {missing}: no such file"),
-        (("render", MATERIAL, "-o", tmp_path / "x.png", "--compare", tmp_path), f"error: {tmp_path}: is a folder, not a file"),
+        (("render", MATERIAL, "-o", tmp_path / "x.png", "--compare", tmp_path), f"error: {tmp_path}: not a regular file but a folder; ctfit reads files only"),
     ]:
         r = run(*args)
         assert (r.exit_code, r.output) == (2, said + "\n"), args

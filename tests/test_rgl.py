@@ -262,11 +262,12 @@ def _rewritten(fields, **changes):
 def test_fit_recovers_the_material_and_its_colour(files, tmp_path):
     """``ctfit fit`` on a spectral file (360–1000 nm) recovers m, s and F0(λ) across the whole band;
     its colour (from the visible part, 360–830 nm) is the material's. A folder's .bsdf files are fitted."""
-    out, folder = tmp_path / "fit.json", tmp_path / "materials"
+    fits, folder = tmp_path / "fits", tmp_path / "materials"
     folder.mkdir()
     (folder / "material_spec.bsdf").write_bytes(files["spec"].read_bytes())
-    r = CliRunner().invoke(app, ["fit", str(folder), "--geometry", "smith-rational", "-o", str(out)])
+    r = CliRunner().invoke(app, ["fit", str(folder), "--geometry", "smith-rational", "--diffuse", "F0/pi", "--lobes", "1", "-o", str(fits)])
     assert r.exit_code == 0, r.output
+    out = fits / "material_spec.fit.json"  # a folder's results: a folder (with summary.json)
     fitted, truth = ctfit.load_material(out), material(spectral=True)
     np.testing.assert_array_equal(fitted.wavelength_nm, SPECTRAL_NM)
     np.testing.assert_allclose(fitted.params.m, [ALPHA], rtol=1e-3)

@@ -121,6 +121,8 @@ def choose_structure(
                 continue  # a diffuse part this family has not (e.g. "F0/pi" for a plastic)
     if not combos:
         raise ValueError(f"no structure of families {tuple(families)} has diffuse part {diffuse!r}")
+    fits_data = [st for st in combos if n_free_parameters(st, data.n_bands, kwargs.get("fixed", ())) <= len(data)]
+    combos = fits_data or combos[:1]  # too few samples for all: the first one's error says so
     tried = []
     wrap = progress or (lambda it: it)
     for st in wrap(combos):

@@ -164,7 +164,7 @@ def transmitted_diffuse_factor(n, cos_l, cos_v):
 
     >>> import numpy as np
     >>> print(f"{float(transmitted_diffuse_factor(1.5, 1.0, 1.0)):.4f}")  # (1 − 0.04)² / (2.25 (1 − 0.597))
-    1.0168
+    1.0159
     """
     f_int = fresnel_diffuse_reflectance(1 / jnp.asarray(n))
     return (1 - fresnel_dielectric(cos_l, n)) * (1 - fresnel_dielectric(cos_v, n)) / (n * n * (1 - f_int))
