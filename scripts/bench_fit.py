@@ -152,7 +152,7 @@ def scipy_start(path: Path, lobes: int, n_bands: int, diffuse: bool) -> Path:
 
 
 def scipy_run(b: Bench, start: Path, files: list[Path], grid: bool = False):
-    cmd = [PY, str(SCRIPTS / "_scipy_fit.py"), str(start), *map(str, files), "--lobes", "2", "--diffuse", "--loss", "relative"]
+    cmd = [PY, str(SCRIPTS / "_scipy_fit.py"), str(start), *map(str, files), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--diffuse", "--loss", "relative"]
     r = run(cmd + (["--grid"] if grid else []), env=b.env).check("the SciPy process")
     return r, [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
 
@@ -176,7 +176,7 @@ def primed_by(b: Bench, n: int, seed: int) -> Path:
     folder = b.folder(f"prime-{n}")
     path = data.write_scattered(folder / f"scattered-{n}.csv", n, seed)
     cache = b.folder("primed-cache")
-    b.ctfit(["fit", str(path), "--lobes", "2", "--json", "-q"], cache, f"ctfit (priming with {n:,} samples)")
+    b.ctfit(["fit", str(path), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--json", "-q"], cache, f"ctfit (priming with {n:,} samples)")
     return cache
 
 
@@ -187,7 +187,7 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
     path = data.write_scattered(folder / f"scattered-{n}.csv", n, seed)
     other = data.write_scattered(folder / f"scattered-{new_n}.csv", new_n, seed + 1) if new_n else None
     start = scipy_start(folder / "start.json", 2, len(data.WL31), True)
-    args = ["fit", str(path), "--lobes", "2", "--json", "-q"]
+    args = ["fit", str(path), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--json", "-q"]
     warm_cache = b.folder("warm-cache")
     cold, first = b.ctfit(args, warm_cache, "ctfit (cold, priming)")  # the first cold run fills the warm cache
     primed = b.backup(warm_cache) if other else None
@@ -212,7 +212,7 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
             runs["cold"].append(r.wall_s)
             runs["cold_fit_s"].append(doc["fit"]["time_s"])
         if other:
-            r, res["new"] = b.ctfit(["fit", str(other), "--lobes", "2", "--json", "-q"], warm_cache, "ctfit (new size)")
+            r, res["new"] = b.ctfit(["fit", str(other), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--json", "-q"], warm_cache, "ctfit (new size)")
             runs["new"].append(r.wall_s)
             runs["new_fit_s"].append(res["new"]["fit"]["time_s"])
             b.restore(primed, warm_cache)  # what the new size added is gone for the next round
@@ -244,16 +244,16 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     files = data.write_batch(folder / "files", n_files, n_samples, seed)
     start = scipy_start(folder / "start.json", 2, len(data.WL31), True)
     cache = b.folder("batch-cache")
-    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "-q", "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
+    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
     t_scipy, t_ctfit = [], []
     for _ in range(b.repeat):
         r, sp = scipy_run(b, start, files)
         t_scipy.append(r.wall_s)
         out = b.folder("batch-out")
-        r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "-q", "-o", str(out)], cache, "ctfit fit DIR")
+        r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(out)], cache, "ctfit fit DIR")
         t_ctfit.append(r.wall_s)
         peak = r.peak_mb
-    docs = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.json"))}
+    docs = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.fit.json"))}
     sp_cost = {Path(x["file"]).stem: x["cost"] for x in sp}
     ct_cost = {k.split(".")[0]: d["fit"]["cost"] for k, d in docs.items()}
     rel = np.array([(ct_cost[k] - sp_cost[k]) / sp_cost[k] for k in sp_cost if k in ct_cost])

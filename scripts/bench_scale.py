@@ -130,8 +130,8 @@ def database(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     modes = {
         "scipy": lambda fs: scipy_cmd(start, fs, 2, True),
         "fit loop": lambda fs: [PY, "-c", LOOP, "2", "F0/pi", *map(str, fs)],
-        "fit_batch": lambda fs: [CTFIT, "fit", *map(str, fs), "--lobes", "2", "-q", "-o", str(out)],
-        "--workers 2": lambda fs: [CTFIT, "fit", *map(str, fs), "--lobes", "2", "-q", "-o", str(out), "--workers", "2"],
+        "fit_batch": lambda fs: [CTFIT, "fit", *map(str, fs), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(out)],
+        "--workers 2": lambda fs: [CTFIT, "fit", *map(str, fs), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(out), "--workers", "2"],
     }
     res = {}
     for name, cmd in modes.items():
@@ -183,7 +183,7 @@ def texels(b: Bench, n_texels: int, n_loop: int, n_scipy: int, seed: int) -> dic
         "scipy": (lambda src, k: scipy_cmd(start, csvs[:k], 1, False), n_scipy),
         "fit loop": (lambda src, k: [PY, "-c", TEXEL_LOOP, str(src), str(k)], n_loop),
         "fit_batch": (lambda src, k: [PY, "-c", TEXEL_BATCH, str(src)], n_texels),
-        "--workers 2": (lambda src, k: [CTFIT, "fit", str(src), "-o", str(maps), "--no-diffuse", "-q", "--workers", "2"], n_texels),
+        "--workers 2": (lambda src, k: [CTFIT, "fit", str(src), "-o", str(maps), "--no-diffuse", "--lobes", "1", "-q", "--workers", "2"], n_texels),
     }
     res = {}
     for name, (cmd, count) in modes.items():

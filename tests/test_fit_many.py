@@ -143,7 +143,6 @@ def test_cli_workers_writes_summarises_and_skips_what_is_done(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["--workers", "2"], "needs -o"),
     (["--workers", "2", "-o", "OUT", "--sample"], "leave out --sample"),
-    (["--workers", "2", "-o", "OUT", "--lobes", "auto"], "not auto"),
     (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1", "-o", "OUT"], "give one of them"),
 ])
 def test_cli_cluster_options_are_refused_before_any_work(tmp_path, args, message):

@@ -151,9 +151,9 @@ def test_residual_map_cells_are_mean_log_ratios():
     ax, bar = fig.axes
     shown = ax.collections[0].get_array()
     # Directly: ln(model/data) per sample, cells of 15° in θ_h (rows) and θ_d (columns).
-    th, td, _ = ctfit.angles_deg_to_half_diff(data.theta_i, data.phi_i, data.theta_o, data.phi_o)
+    th, td, _ = ctfit.angles_deg_to_half_diff_deg(data.theta_i, data.phi_i, data.theta_o, data.phi_o)
     r = np.log(ctfit.evaluate(model, data) / data.brdf)
-    h, d = np.minimum(np.degrees(th) // 15, 5).astype(int), np.minimum(np.degrees(td) // 15, 5).astype(int)
+    h, d = np.minimum(th // 15, 5).astype(int), np.minimum(td // 15, 5).astype(int)
     expected = np.full((6, 6), np.nan)
     for i, j in set(zip(h, d)):
         expected[i, j] = r[(h == i) & (d == j)].mean()

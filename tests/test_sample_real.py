@@ -23,12 +23,13 @@ pytestmark = pytest.mark.filterwarnings("ignore::ctfit._io.errors.DataWarning")
 GRAY = ("retro-gray-tape.dat", ["--param-out", "INV_STERADIAN_COSINE_FACTOR"])
 JAUNE = ("retro-3M-jaune.dat", [])
 PINK = ("pink-felt-1d.alta", [])
+PAPERS_METAL = ["--family", "metal", "--diffuse", "F0/pi", "--lobes", "1"]  # the structure these verdicts are stated for
 
 
 def _fit_and_sample(tmp_path, name, extra, *sample_args):
     data = str(MEASURED / name)
     fit_json = tmp_path / "x.fit.json"
-    fitted = runner.invoke(app, ["fit", data, "-o", str(fit_json), "-q", *extra])
+    fitted = runner.invoke(app, ["fit", data, "-o", str(fit_json), "-q", *PAPERS_METAL, *extra])
     assert fitted.exit_code == 0, fitted.output
     out = runner.invoke(app, ["sample", str(fit_json), data, "--steps", "300", "-q", *extra, *sample_args])
     return out, json.loads(fit_json.read_text())

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .fit_command import KEPT, check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options
+from .fit_command import KEPT, check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options, texel_structure
 from .inputs import read_data, setup_jax
 from .messages import UserError, failure_line
 
