@@ -152,7 +152,7 @@ def scipy_start(path: Path, lobes: int, n_bands: int, diffuse: bool) -> Path:
 
 
 def scipy_run(b: Bench, start: Path, files: list[Path], grid: bool = False):
-    cmd = [PY, str(SCRIPTS / "_scipy_fit.py"), str(start), *map(str, files), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--diffuse", "--loss", "relative"]
+    cmd = [PY, str(SCRIPTS / "_scipy_fit.py"), str(start), *map(str, files), "--lobes", "2", "--diffuse", "--loss", "relative"]
     r = run(cmd + (["--grid"] if grid else []), env=b.env).check("the SciPy process")
     return r, [json.loads(line) for line in r.stdout.splitlines() if line.startswith("{")]
 
