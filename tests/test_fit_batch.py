@@ -98,8 +98,11 @@ def test_batch_sizes_grow_by_root_two():
 
 @pytest.fixture
 def compiled(monkeypatch):
-    """Names of the programs XLA compiles while the test runs (the compiled-program memory emptied)."""
+    """Names of the programs XLA compiles while the test runs (the compiled-program memory emptied,
+    and no on-disk store: an earlier CLI test in this process may have enabled one, whose programs
+    would load instead of compiling)."""
     monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(_aot, "_store", lambda: None)
     seen = []
 
     def listener(event, duration, **kw):

@@ -151,15 +151,20 @@ class PreparedFit:
         return dataclasses.replace(self, problem=problem, chunked=False)
 
 
-def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int,
-             pad_to: tuple[int, int] | None = None, chunk: int | None = None) -> PreparedFit:
-    """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
-    samples), or with ``chunk`` to a multiple of the chunks' rows), free start ``u0`` and m grid of a fit."""
+def check_fit_arguments(data, structure) -> None:
+    """TypeError naming ``data`` (a :class:`~ctfit.Measurement`) or ``structure`` (a Structure or None)."""
     if not isinstance(data, Measurement):
         hint = " (read a file with ctfit.read_measurement(path))" if isinstance(data, (str, bytes)) or hasattr(data, "__fspath__") else ""
         raise TypeError(f"data must be a ctfit.Measurement, got {type(data).__name__}{hint}")
     if structure is not None and not isinstance(structure, Structure):
         raise TypeError(f"structure must be a ctfit.Structure or None, got {type(structure).__name__}")
+
+
+def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int,
+             pad_to: tuple[int, int] | None = None, chunk: int | None = None) -> PreparedFit:
+    """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
+    samples), or with ``chunk`` to a multiple of the chunks' rows), free start ``u0`` and m grid of a fit."""
+    check_fit_arguments(data, structure)
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
     structure = structure or Structure()
@@ -210,6 +215,7 @@ def fit(
     >>> res.converged, np.round(res.material.params.m, 4), np.round(res.material.params.f0, 4)
     (True, array([0.2]), array([0.4, 0.9]))
     """
+    check_fit_arguments(data, structure)
     if structure is None:
         from .structure_selection import choose_structure
 
