@@ -269,8 +269,7 @@ def _quality(data: Measurement, rel, floor: float, structure: Structure, params:
     (f − y)/max(|y|, floor) per sample."""
     y = np.asarray(data.brdf, dtype=float)
     err = np.where(y > 0, np.abs(np.asarray(rel, dtype=float)) * np.maximum(np.abs(y), floor) / np.where(y > 0, y, 1.0), np.nan)
-    material = Material(structure, params, wavelength_nm=data.wavelength_nm, channels=data.channels, band_unknown=data.band_unknown)
-    return quality_from_relative(err, half_angle_deg(data), np.maximum(data.theta_i, data.theta_o), peak_width_deg(material))
+    return quality_from_relative(err, half_angle_deg(data), np.maximum(data.theta_i, data.theta_o), peak_width_deg(structure, params))
 
 
 def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResult:

@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from .._model import Material, Measurement
+from .._model import Material, Measurement, Params, Structure
 from .diagnostics import half_angle_deg
 
 __all__ = ["MODEL_LIMIT", "TAIL_LIMIT", "GRAZING_DEG", "fit_quality", "quality_from_relative", "quality_warning"]
@@ -40,9 +40,8 @@ GRAZING_DEG = 75.0
 _PEAK_MIN_DEG = 5.0
 
 
-def peak_width_deg(material: Material) -> float | None:
+def peak_width_deg(st: Structure, p: Params) -> float | None:
     """The half-vector angle within which a sample counts as near the peak (None: no specular part)."""
-    st, p = material.structure, material.params
     if not st.has_specular:
         return None
     m = float(np.sum(np.asarray(p.w, dtype=float) * np.asarray(p.m, dtype=float)))
@@ -90,7 +89,7 @@ def fit_quality(material: Material, data: Measurement, model=None) -> dict:
     f = np.asarray(evaluate(material, data) if model is None else model, dtype=float)
     err = np.where(y > 0, np.abs(f - y) / np.where(y > 0, y, 1.0), np.nan)
     top = np.maximum(data.theta_i, data.theta_o)
-    return quality_from_relative(err, half_angle_deg(data), top, peak_width_deg(material))
+    return quality_from_relative(err, half_angle_deg(data), top, peak_width_deg(material.structure, material.params))
 
 
 def quality_warning(quality: dict) -> str | None:

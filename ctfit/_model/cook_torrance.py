@@ -233,7 +233,7 @@ def brdf(structure: Structure, params: Params, geom: Geometry):
     [[0.04, 0.9], [0.0, 0.0]]
     """
     valid = geom.valid[..., None]
-    cos_lv = (geom.cos_l[..., None], geom.cos_v[..., None])
+    cos_lv = (geom.cos_l[..., None], geom.cos_v[..., None]) if structure.diffuse == "transmitted" else None
     if not structure.has_specular:
         return combine_parts(structure, params, valid, None, None, cos_lv)
     spec = specular_geometric(structure, params, geom)[..., None]
@@ -264,7 +264,7 @@ def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band):
         k=None if params.k is None else params.k[band],
         rd=None if params.rd is None or jnp.ndim(params.rd) == 0 else params.rd[band],
     )
-    cos_lv = (geom.cos_l, geom.cos_v)
+    cos_lv = (geom.cos_l, geom.cos_v) if structure.diffuse == "transmitted" else None  # only a transmitted diffuse part needs them
     if not structure.has_specular:
         return combine_parts(structure, gathered, geom.valid, None, None, cos_lv)
     spec = specular_geometric(structure, params, geom)
