@@ -10,6 +10,7 @@ Runs, one after another so that their timings do not disturb each other:
 - ``fit_tradeoffs.py``  → docs/fitting-tradeoffs.md (error against run time; the recommended default)
 - ``stability.py``      → docs/stability.md (stiff and extreme cases)
 - ``bench_real.py``     → docs/real-materials.md, "## Results" (fits of data the model cannot represent: default, best, peers)
+- ``loss_choice.py``    → docs/fitting.md, "## The default loss, measured" (each loss on the same test-bed)
 - ``run_notebooks.py``  → notebooks/*.ipynb executed in place, with their outputs
 
 ``--small`` runs the quick version of each into ``--docs DIR`` (a scratch folder: the
@@ -56,6 +57,7 @@ def steps(docs: pathlib.Path, small: bool, scratch: pathlib.Path) -> list[tuple[
         ("fit_tradeoffs", [[str(SCRIPTS / "fit_tradeoffs.py"), *d, *q]]),
         ("stability", [[str(SCRIPTS / "stability.py"), *d, *q]]),
         ("bench_real", [[str(SCRIPTS / "bench_real.py"), *d, *q]]),
+        ("loss_choice", [[str(SCRIPTS / "loss_choice.py"), *d, *q]]),
         ("notebooks", [] if small else [[str(SCRIPTS / "run_notebooks.py")]]),
     ]
 

@@ -168,22 +168,59 @@ def test_family_and_diffuse_options_fix_the_structure(tmp_path):
 # --- loss, quality, warnings -----------------------------------------------------------------
 
 
-def test_the_log_ratio_loss_floors_at_the_typical_sample():
-    """ln((f + ε)/(y + ε)) with ε = 10⁻² × the median sample: a peak 5 decades above the diffuse
-    part does not lift it above the off-peak samples (the relative loss's 10⁻³ × max does)."""
+def test_the_relative_losses_floor_at_the_typical_sample():
+    """The floors come from the median sample, not the peak: a peak 5 decades above the diffuse
+    part does not put the off-peak samples below the floor (the former 10⁻³ × max did); the
+    log-ratio loss is ln((f + ε)/(y + ε)) with ε = 10⁻² × the median."""
     from ctfit._fitting.problem import loss_floor
 
     y = np.array([0.01, 0.1, 0.2, 0.3, 1e4])
     assert loss_floor(y, "log-ratio") == pytest.approx(0.01 * 0.2)
-    assert loss_floor(y, "relative") == pytest.approx(10.0)
+    assert loss_floor(y, "relative") == loss_floor(y, "robust-relative") == pytest.approx(0.1 * 0.2)
+    assert loss_floor(np.array([1e-9, 1e-9, 1e4]), "relative") == pytest.approx(1e-6 * 1e4)  # never below 10⁻⁶ × the peak
     truth = plastic("spectrum")
     data = dataclasses.replace(ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=4), sigma=None)
-    assert ctfit.fit(data, truth.structure).stats["loss"] == "relative"  # the default without σ
     lr = ctfit.fit(data, truth.structure, loss="log-ratio")
     f, yy = np.asarray(ctfit.evaluate(lr.material, data)), data.brdf
     eps = lr.stats["relative_floor"]
     assert eps == pytest.approx(loss_floor(yy, "log-ratio"))
     assert lr.stats["cost"] == pytest.approx(0.5 * np.sum((np.log(f + eps) - np.log(yy + eps)) ** 2), rel=1e-6)
+
+
+def test_the_default_loss_without_sigma_is_the_robust_relative_one():
+    """ρ(r) = 2c²(√(1 + (r/c)²) − 1) of the relative residual, c = 0.05 (SciPy's soft_l1): the
+    fit's cost is Σρ/2; with 1 % noise it fits as the relative loss does, and with a tenth of the
+    samples spoiled (×3) it stays near the truth where the relative loss is pulled away."""
+    from scipy.optimize import least_squares
+
+    truth = plastic("spectrum")
+    data = dataclasses.replace(ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=4), sigma=None)
+    rob = ctfit.fit(data, truth.structure)
+    assert rob.stats["loss"] == "robust-relative"
+    f, y = np.asarray(ctfit.evaluate(rob.material, data)), data.brdf
+    r = (f - y) / np.maximum(y, rob.stats["relative_floor"])
+    assert rob.stats["cost"] == pytest.approx(0.5 * np.sum(2 * 0.05**2 * (np.sqrt(1 + (r / 0.05) ** 2) - 1)), rel=1e-6)
+    # the same ρ as SciPy's: its cost of these residuals is ours
+    scipy_cost = least_squares(lambda x: r * x[0], [1.0], loss="soft_l1", f_scale=0.05, max_nfev=1).cost
+    assert scipy_cost == pytest.approx(rob.stats["cost"], rel=1e-6)
+    rel = ctfit.fit(data, truth.structure, loss="relative")
+    assert abs(float(rob.material.params.s) - float(rel.material.params.s)) < 0.01
+    spoiled = np.random.default_rng(1).random(len(y)) < 0.1
+    bad = data.replace(brdf=np.where(spoiled, 3 * y, y))
+    err = {loss: abs(float(ctfit.fit(bad, truth.structure, loss=loss).material.params.s) - 0.3) for loss in ("robust-relative", "relative")}
+    assert err["robust-relative"] < 0.002 and err["relative"] > 5 * err["robust-relative"], err
+
+
+def test_exact_fits_tie_and_the_fewest_parameters_win():
+    """Noise-free data of the paper's plastic is fitted exactly by the plastic and by a metal with
+    its own R_d (F0 the same in every band): round-off is no evidence, the plastic is chosen and
+    no lobe is added."""
+    truth = plastic("spectrum")
+    data = dataclasses.replace(ctfit.simulate(truth, n_pairs=300, seed=4), sigma=None)
+    res = ctfit.fit(data)
+    choice = res.stats["structure_choice"]
+    assert [c["structure"] for c in choice if c["chosen"]] == ["plastic, 1 lobe, diffuse spectrum"]
+    assert any(c["structure"] == "metal, 1 lobe, diffuse spectrum" and c["median_relative_error"] < 1e-6 for c in choice)
 
 
 def test_the_quality_section_is_the_median_relative_error_per_region():

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._model import Measurement
+from .problem import loss_floor
 
 __all__ = ["angle_lv_deg", "half_angle_deg", "relative_residual_structure", "residual_structure"]
 
@@ -86,7 +87,7 @@ def residual_structure(
     """
     y = np.asarray(data.brdf, dtype=float)
     if floor is None:
-        floor = 1e-3 * float(np.max(y)) if np.any(y > 0) else 1.0
+        floor = loss_floor(y, "relative")
     e = np.asarray(model, dtype=float) - y
     e /= np.maximum(np.abs(y), floor)
     pairs, index = data.directions()

@@ -50,7 +50,7 @@ from .fit_report import (
     undetermined,
     zero_model_cost,
 )
-from .problem import LOSSES, Problem, from_params, make_problem, normal_equations, sum_over_chunks, to_params
+from .problem import LOSSES, Problem, default_loss, from_params, make_problem, normal_equations, sum_over_chunks, to_params
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, judge_converged, solve_seeds
 from .starts import default_start, m_grid, seed_points
 from .validate import check_fittable, nonfinite_reason
@@ -169,7 +169,7 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
     structure = structure or Structure()
     if loss == "auto":
-        loss = "sigma" if data.sigma is not None else "relative"
+        loss = default_loss(data)
     if loss not in LOSSES:
         raise ValueError(f"loss must be 'auto' or one of {LOSSES}, got {loss!r}")
     default = default_start(structure, data)
@@ -203,8 +203,9 @@ def fit(
     ``stats["structure_choice"]``).
 
     ``start`` gives starting values (and the values of the ``fixed`` parameters); ``loss`` is
-    one of ``LOSSES`` or "auto" (sigma-weighted when the data has sigma, else "relative":
-    (f − y)/max(y, floor), the floor from the typical sample, docs/fitting.md).
+    one of ``LOSSES`` or "auto" (sigma-weighted when the data has sigma, else "robust-relative":
+    the relative error (f − y)/max(y, floor), the floor from the typical sample, with large ones
+    damped as in SciPy's ``soft_l1``; docs/fitting.md).
     Per-band parameters of ``start`` must already be on the data's bands.
 
     >>> import numpy as np, ctfit
@@ -303,7 +304,10 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResul
     zero_cost = float(out["zero_cost"])
     explains_nothing = bool(explains_none(cost, zero_cost))
     converged = bool(judge_converged(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype))
-    bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, 1e-300) / n)) + p * math.log(n)
+    # Round-off is no evidence: a cost below 100 ε² of the zero model's is an exact fit, and exact fits
+    # of several structures tie on it, so the BIC keeps the one with the fewest parameters.
+    exact = 2 * zero_cost * (100 * float(jnp.finfo(dtype).eps)) ** 2
+    bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, exact, 1e-300) / n)) + p * math.log(n)
     stats = {
         "converged": converged,
         "steps": int(np.asarray(steps)[best]),

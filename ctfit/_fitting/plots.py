@@ -31,6 +31,7 @@ import numpy as np
 
 from .._model import normal_reflectance
 from .diagnostics import angle_lv_deg, half_angle_deg
+from .problem import loss_floor
 from .._model import Measurement, band_labels, evaluate
 
 __all__ = ["make_fit_figure", "make_fit_quality_figure", "plot_fit", "signed_in_plane_angle"]
@@ -222,7 +223,7 @@ def _auto_limits(ax, data_y, model_y) -> str:
 
 
 def _residual_panel(ax, result, data, model, x, xlabel, labels) -> None:
-    floor = result.stats.get("relative_floor", 1e-3 * float(np.max(data.brdf)))
+    floor = result.stats.get("relative_floor", loss_floor(data.brdf, "relative"))
     rel = (model - data.brdf) / np.maximum(np.abs(data.brdf), floor)
     if data.n_bands == 1:
         ax.plot(x, rel, ".", ms=2, alpha=0.5)

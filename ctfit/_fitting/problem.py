@@ -45,9 +45,18 @@ from .._model import (
     parameter,
 )
 
-__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "loss_floor", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
+__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "RELATIVE_FLOOR", "FLOOR_OF_PEAK", "ROBUST_SCALE", "loss_floor", "default_loss", "texel_floors", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
 
-LOSSES = ("absolute", "relative", "sigma", "cosine", "log", "log-ratio")
+LOSSES = ("absolute", "relative", "robust-relative", "sigma", "cosine", "log", "log-ratio")
+RELATIVE_FLOOR = 0.1
+"""The relative loss's floor, a fraction of the median positive sample (:func:`loss_floor`;
+chosen by measurement, docs/fitting.md)."""
+ROBUST_SCALE = 0.05
+"""The "robust-relative" loss's scale c: relative residuals well below it count as in "relative",
+larger ones grow as √(2|r|c) (SciPy's ``soft_l1``), so a region the model cannot follow (a
+retro-reflection, the grazing fringe) does not pull the rest of the fit (docs/fitting.md)."""
+FLOOR_OF_PEAK = 1e-6
+"""The relative loss's floor is never below this fraction of the largest sample."""
 LOG_RATIO_FLOOR = 0.01
 """The "log-ratio" loss's ε as a fraction of the median positive measured value (docs/fitting.md)."""
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
@@ -301,13 +310,37 @@ def make_problem(
 
 
 def loss_floor(y, loss: str) -> float:
-    """The floor of the relative losses: for "log-ratio", :data:`LOG_RATIO_FLOOR` × the median
-    positive value (the typical sample: every sample within two decades of it is weighed by its
-    relative error, however high the peak); for "relative", 10⁻³ × the largest value."""
+    """The floor of the relative losses, from the typical sample (the median positive value), not
+    the peak: for "relative", :data:`RELATIVE_FLOOR` × the median (every sample within a decade
+    below it is weighed by its relative error, however high the peak; darker ones — the
+    instrument's noise floor, stray zeros — by their absolute error over the floor), never below
+    :data:`FLOOR_OF_PEAK` × the largest value (so that relative residuals stay representable);
+    for "log-ratio", :data:`LOG_RATIO_FLOOR` × the median. "robust-relative" has the relative floor."""
     y_pos = np.asarray(y)[np.asarray(y) > 0]
     if not len(y_pos):
         return 1.0
-    return LOG_RATIO_FLOOR * float(np.median(y_pos)) if loss == "log-ratio" else 1e-3 * float(np.max(y_pos))
+    typical = float(np.median(y_pos))
+    if loss == "log-ratio":
+        return LOG_RATIO_FLOOR * typical
+    return max(RELATIVE_FLOOR * typical, FLOOR_OF_PEAK * float(np.max(y_pos)))
+
+
+def default_loss(data) -> str:
+    """The loss of ``loss="auto"``: "sigma" when the data has a sigma column, else "robust-relative"
+    (chosen by measurement on data the model cannot represent, docs/fitting.md)."""
+    return "sigma" if getattr(data, "sigma", None) is not None else "robust-relative"
+
+
+def texel_floors(block: np.ndarray) -> np.ndarray:
+    """:func:`loss_floor` ("relative") of each row of ``block`` (texels × samples); 1 where a row has no positive value."""
+    pos = np.where(block > 0, block, np.nan)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no positive value
+            floors = np.maximum(RELATIVE_FLOOR * np.nanmedian(pos, axis=1), FLOOR_OF_PEAK * np.nanmax(pos, axis=1))
+    return np.where(np.isfinite(floors), floors, 1.0)
 
 
 BUCKET_MIN = 256
@@ -474,6 +507,10 @@ def loss_residuals(problem: Problem, values, y, flat: bool = True):
         r = values - y
     elif loss == "relative":
         r = (values - y) / jnp.maximum(y, problem.floor)
+    elif loss == "robust-relative":  # soft-L1 of the relative residual: ρ(r) = 2c²(√(1 + (r/c)²) − 1) = r'²
+        r = (values - y) / jnp.maximum(y, problem.floor)
+        z = r / ROBUST_SCALE
+        r = r * jnp.sqrt(2.0 / (jnp.hypot(1.0, z) + 1.0))  # = sign(r)·√ρ(r), smooth at 0 (no cancellation)
     elif loss == "sigma":
         r = (values - y) / problem.sigma
     elif loss == "cosine":

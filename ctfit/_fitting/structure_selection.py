@@ -50,13 +50,15 @@ def _contains(big: Structure, small: Structure) -> bool:
     same = all(getattr(big, a) == getattr(small, a) for a in ("distribution", "geometry", "fresnel", "normalization"))
     one_more_lobe = big.lobes == small.lobes + 1 and big.diffuse == small.diffuse and small.lobes >= 1
     diffuse_added = big.lobes == small.lobes >= 1 and small.diffuse is None and big.diffuse is not None
-    return same and (one_more_lobe or diffuse_added)
+    rd_freed = big.lobes == small.lobes >= 1 and small.diffuse == "F0/pi" and big.diffuse == "spectrum"  # R_d(λ) = F0(λ)/π is one R_d(λ)
+    return same and big.family == small.family and (one_more_lobe or diffuse_added or rd_freed)
 
 
 def _embedded_start(inner: FitResult, big: Structure) -> Params:
     """``inner``'s fitted parameters as a start of the larger structure ``big``, same model:
     the new lobe gets weight 0 and the slope of the m grid farthest (in log) from the fitted
-    ones; a new diffuse part gets s = 1 (its R_d then starts at the default)."""
+    ones; a new diffuse part gets s = 1 (its R_d then starts at the default); a free R_d(λ) in
+    place of R_d = F0/π starts at F0/π."""
     p, small = inner.material.params, inner.material.structure
     m, w = np.asarray(p.m, dtype=float), np.asarray(p.w, dtype=float)
     if big.lobes > small.lobes:
@@ -64,16 +66,18 @@ def _embedded_start(inner: FitResult, big: Structure) -> Params:
         new = grid[np.argmax(np.min(np.abs(np.log(grid)[:, None] - np.log(m)[None, :]), axis=1))]
         m, w = np.append(m, new), np.append(w, 0.0)
     s = np.asarray(p.s) if small.has_s else (np.asarray(1.0) if big.has_s else None)
-    return Params(s=s, m=m, w=w, f0=p.f0 if big.fresnel == "f0" else None, n=p.n if big.fresnel != "f0" else None, k=p.k, rd=p.rd)
+    rd = np.asarray(p.f0, dtype=float) / np.pi if (small.diffuse == "F0/pi" and big.diffuse == "spectrum" and p.f0 is not None) else p.rd
+    return Params(s=s, m=m, w=w, f0=p.f0 if big.fresnel == "f0" else None, n=p.n if big.fresnel != "f0" else None, k=p.k, rd=rd)
 
 
 DEFAULT_FAMILIES = ("metal", "plastic")
 """The families the data-chosen default tries (:data:`~ctfit.FAMILIES`)."""
 DEFAULT_LOBES = (1, 2, 3)
 """The lobe counts the data-chosen default tries."""
-DIFFUSE_FORMS = {"metal": (None, "F0/pi"), "plastic": ("spectrum", "transmitted")}
-"""The diffuse parts each family tries: a metal without one or with the paper's R_d = F0/π; a
-plastic with its own R_d(λ), Lambertian or seen through its interface."""
+DIFFUSE_FORMS = {"metal": (None, "F0/pi", "spectrum"), "plastic": ("spectrum", "transmitted")}
+"""The diffuse parts each family tries: a metal without one, with the paper's R_d = F0/π or with
+its own R_d(λ) (a strong, coloured specular part over a diffuse one: sheen of fabric, metallic
+paint); a plastic with its own R_d(λ), Lambertian or seen through its interface."""
 
 
 def structure_label(st: Structure) -> str:
@@ -125,8 +129,10 @@ def choose_structure(
     combos = fits_data or combos[:1]  # too few samples for all: the first one's error says so
     tried = []
     wrap = progress or (lambda it: it)
-    for st in wrap(combos):
-        tried.append((st, fit(data, st, **kwargs)))
+    for st in wrap(combos):  # a combination that contains an earlier one also starts from its fit
+        inner = [r for sm, r in tried if _contains(st, sm) and np.isfinite(r.stats["cost"])]
+        start = _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner and "start" not in kwargs else None
+        tried.append((st, fit(data, st, start=start, **kwargs)))
     best_st, best = min(tried, key=lambda sr: _bic(sr[1]))
     for j in lobes[1:]:
         bigger = Structure(**{**best_st.__dict__, "lobes": j})

@@ -33,6 +33,7 @@ from .options import takes_fit_options
 from .seeded_solve import judge_converged
 from .batch import default_width, mapped
 from .._model import Material, Measurement, Params, Structure, value_rules
+from .problem import texel_floors
 from .validate import representable_range
 
 __all__ = ["fit_texels", "texel_status", "TexelFits", "CHUNK", "TEXEL_STATUS"]
@@ -152,7 +153,7 @@ def fit_texels(
     good = np.flatnonzero(status == 0)
     first = np.asarray(values[good[0]], dtype=float) if good.size else np.ones(len(measurement))
     template = measurement.replace(brdf=first, sigma=None)
-    loss = "relative" if loss == "auto" else loss
+    loss = "robust-relative" if loss == "auto" else loss
     # One size for every texel: laid out at its own size, no bucket padding.
     prep = prepare_fit(template, structure, start=options["start"], fixed=options["fixed"], loss=loss, dtype=dtype, starts=options["starts"],
                        pad_to=(len(template.directions()[0]), len(template)))
@@ -212,8 +213,7 @@ class _Layout:
             ys[:, self.index, self.band] = block
         else:
             ys = block
-        positive = np.where(block > 0, block, -np.inf).max(axis=1)
-        floors = np.where(np.isfinite(positive), 1e-3 * positive, 1.0)
+        floors = texel_floors(block)
         return ys.astype(dtype), floors.astype(dtype)
 
 

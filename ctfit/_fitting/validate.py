@@ -3,7 +3,7 @@
 Before the fit (:func:`check_fittable`, a ``ValueError`` naming the file): at least as many
 samples as free parameters; every BRDF value finite; the data's scale, max(brdf), inside the
 range the fit's dtype can square and sum (:func:`representable_range`) — the residuals are
-(model − data), or that over max(data, 10⁻³ max(data)), squared and summed over the samples,
+(model − data), or that over the relative loss's floor (at least 10⁻⁶ max(data)), squared and summed over the samples,
 so data at 1e300 sr⁻¹ overflows and data at 1e-300 sr⁻¹ everywhere makes every relative
 residual overflow. With the sigma loss, max(brdf)/min(sigma) must be in range too.
 
@@ -24,14 +24,14 @@ __all__ = ["check_fittable", "n_free_parameters", "nonfinite_reason", "represent
 
 _HEADROOM = 1e4
 """Squares of values up to max/1e4 summed over 1e8 samples stay finite."""
-_START_SCALE = 1e6
+_START_SCALE = 1e9
 """The largest relative residual of a starting model (a model value of ~1e3 sr⁻¹ over the
-relative loss's floor, 10⁻³ of the data's scale) times the data's scale."""
+relative loss's floor, at least 10⁻⁶ of the data's scale: ``problem.FLOOR_OF_PEAK``) times the data's scale."""
 
 
 def representable_range(dtype) -> tuple[float, float]:
     """(lowest, highest) data scale max(brdf) in sr⁻¹ that a fit in ``dtype`` can take:
-    about [7.5e-145, 1.3e150] for float64, [5.4e-10, 1.8e15] for float32."""
+    about [7.5e-142, 1.3e150] for float64, [5.4e-7, 1.8e15] for float32."""
     root = math.sqrt(float(np.finfo(np.dtype(dtype)).max))
     return _START_SCALE * _HEADROOM / root, root / _HEADROOM
 

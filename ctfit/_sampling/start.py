@@ -48,8 +48,8 @@ def resolve_fit(target, data, loss: str | None, fixed: tuple[str, ...] | None):
     """(material, loss, fixed, note): the fitted material the sampler starts from, and a note when
     the fit had to be run.
 
-    ``target``: a FitResult or a Material. ``loss`` None: the fit's, else sigma/relative by the
-    data. The fit is run (from the material's values) unless ``target`` already is one with this loss.
+    ``target``: a FitResult or a Material. ``loss`` None: the fit's (a "robust-relative" fit is sampled with
+    the "relative" likelihood, multiplicative noise), else sigma/relative by the data. The fit is run (from the material's values) unless ``target`` already is one with this loss.
     """
     from .._fitting import fit
 
@@ -58,8 +58,10 @@ def resolve_fit(target, data, loss: str | None, fixed: tuple[str, ...] | None):
         raise TypeError(f"sample() takes a FitResult or a Material, got {type(target).__name__}")
     fitted = _fitted_loss(target)
     loss = loss or fitted or ("sigma" if data.sigma is not None else "relative")
+    if loss == "robust-relative":
+        loss = "relative"  # its likelihood: relative noise (a robust fit damps outliers; a likelihood has none to damp)
     fixed = tuple(material.meta.get("fixed", ())) if fixed is None else tuple(fixed)
-    if fitted == loss:
+    if fitted == loss or (fitted, loss) == ("robust-relative", "relative"):
         return material, loss, fixed, None
     dtype = jax.numpy.float64 if jax.config.jax_enable_x64 else jax.numpy.float32
     res = fit(data, material.structure, start=start_params(material, data), fixed=fixed, loss=loss, dtype=dtype)
