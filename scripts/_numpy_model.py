@@ -21,7 +21,7 @@ import numpy as np
 
 __all__ = ["np_geometry", "np_fresnel_f0", "NumpyProblem", "NumpyData", "read_csv_numpy", "NUMPY_LOSSES"]
 
-NUMPY_LOSSES = ("absolute", "relative", "sigma", "cosine", "log", "log-ratio")
+NUMPY_LOSSES = ("absolute", "relative", "robust-relative", "sigma", "cosine", "log", "log-ratio")
 NUMPY_DIFFUSES = (False, True, "F0/pi", "spectrum")
 TINY = 1e-300
 
@@ -97,7 +97,9 @@ class NumpyProblem:
     """r(u) on the samples for a ``lobes``-lobe material, u = (logit F0 (W), log m (J), logit w (J − 1)
     [, logit s with ``diffuse``][, log R_d (W) with ``diffuse="spectrum"``]).
 
-    ``loss`` as in ctfit: absolute f − y; relative (f − y)/max(y, 10⁻³ max y); sigma (f − y)/σ;
+    ``loss`` as in ctfit: absolute f − y; relative r = (f − y)/max(y, floor), the floor
+    max(0.1 × median y, 10⁻⁶ max y); robust-relative r·√(2/(√(1 + (r/0.05)²) + 1)) (SciPy's
+    ``soft_l1`` with ``f_scale=0.05``, as a residual); sigma (f − y)/σ;
     cosine (f − y) cos θ_i; log ln(1 + f cos θ_i) − ln(1 + y cos θ_i); and log-ratio ln f − ln y
     where y > 0 (0 elsewhere).
     """
@@ -119,7 +121,7 @@ class NumpyProblem:
         self.w_bands = data.n_bands
         self.lobes, self.loss, self.diffuse, self.rd = lobes, loss, bool(diffuse), diffuse == "spectrum"
         y_pos = self.y[self.y > 0]
-        self.floor = 1e-3 * float(np.max(y_pos)) if len(y_pos) else 1.0
+        self.floor = max(0.1 * float(np.median(y_pos)), 1e-6 * float(np.max(y_pos))) if len(y_pos) else 1.0
         self.cos_i = np.cos(np.deg2rad(pairs[:, 0]))[index]
 
     def params(self, u):
@@ -158,6 +160,9 @@ class NumpyProblem:
             return f - y
         if self.loss == "relative":
             return (f - y) / np.maximum(y, self.floor)
+        if self.loss == "robust-relative":
+            r = (f - y) / np.maximum(y, self.floor)
+            return r * np.sqrt(2.0 / (np.hypot(1.0, r / 0.05) + 1.0))
         if self.loss == "cosine":
             return (f - y) * self.cos_i
         if self.loss == "log-ratio":

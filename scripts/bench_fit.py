@@ -176,7 +176,7 @@ def primed_by(b: Bench, n: int, seed: int) -> Path:
     folder = b.folder(f"prime-{n}")
     path = data.write_scattered(folder / f"scattered-{n}.csv", n, seed)
     cache = b.folder("primed-cache")
-    b.ctfit(["fit", str(path), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--json", "-q"], cache, f"ctfit (priming with {n:,} samples)")
+    b.ctfit(["fit", str(path), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "--json", "-q"], cache, f"ctfit (priming with {n:,} samples)")
     return cache
 
 
@@ -187,7 +187,7 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
     path = data.write_scattered(folder / f"scattered-{n}.csv", n, seed)
     other = data.write_scattered(folder / f"scattered-{new_n}.csv", new_n, seed + 1) if new_n else None
     start = scipy_start(folder / "start.json", 2, len(data.WL31), True)
-    args = ["fit", str(path), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--json", "-q"]
+    args = ["fit", str(path), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "--json", "-q"]
     warm_cache = b.folder("warm-cache")
     cold, first = b.ctfit(args, warm_cache, "ctfit (cold, priming)")  # the first cold run fills the warm cache
     primed = b.backup(warm_cache) if other else None
@@ -212,7 +212,7 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
             runs["cold"].append(r.wall_s)
             runs["cold_fit_s"].append(doc["fit"]["time_s"])
         if other:
-            r, res["new"] = b.ctfit(["fit", str(other), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--json", "-q"], warm_cache, "ctfit (new size)")
+            r, res["new"] = b.ctfit(["fit", str(other), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "--json", "-q"], warm_cache, "ctfit (new size)")
             runs["new"].append(r.wall_s)
             runs["new_fit_s"].append(res["new"]["fit"]["time_s"])
             b.restore(primed, warm_cache)  # what the new size added is gone for the next round
@@ -244,13 +244,13 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     files = data.write_batch(folder / "files", n_files, n_samples, seed)
     start = scipy_start(folder / "start.json", 2, len(data.WL31), True)
     cache = b.folder("batch-cache")
-    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
+    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
     t_scipy, t_ctfit = [], []
     for _ in range(b.repeat):
         r, sp = scipy_run(b, start, files)
         t_scipy.append(r.wall_s)
         out = b.folder("batch-out")
-        r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(out)], cache, "ctfit fit DIR")
+        r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o", str(out)], cache, "ctfit fit DIR")
         t_ctfit.append(r.wall_s)
         peak = r.peak_mb
     docs = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.fit.json"))}
@@ -522,7 +522,7 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
           f"| `ctfit --version` | {_s(fl['version'])} |", ""]
     L += ["### Scattered samples", "",
           "Every row its own direction pair, one of 31 bands (400–700 nm) at random; two lobes (m = 0.2, 0.4; w = 0.6, 0.4), s = 0.9 with "
-          "R_d = F0/π, F0 0.5 → 0.95, 2 % noise, relative loss (`ctfit fit FILE --lobes 2`).", ""]
+          "R_d = F0/π, F0 0.5 → 0.95, 2 % noise, relative loss (`ctfit fit FILE --lobes 2 --loss relative`: the same least-squares problem as the SciPy peer).", ""]
     L += [f"Failed, {c['n']:,} samples: {c['failed']}" for c in cases if "failed" in c]
     ok = [c for c in cases if "failed" not in c]
     L += ["| | " + " | ".join(f"{c['n']:,} samples" for c in ok) + " |", "|---|" + "---|" * len(ok)] if ok else []

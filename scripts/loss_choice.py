@@ -9,8 +9,7 @@ For every file and loss, one process (each its own compiled programs; a single p
 hold them all) runs ``ctfit.fit(data, loss=LOSS)`` — the structure chosen by the data as the
 default does — and reports the median and 90th percentile of |f − y|/y over the samples with
 y > 0 and θ_i, θ_o ≤ 80° (``bench_real.relative_error``, the figure users judge a fit by), the
-structure chosen and the fit's time. ``relative@peak`` is the relative loss with the floor it had
-before (10⁻³ × the largest sample), for comparison.
+structure chosen and the fit's time.
 
 Run: ``python scripts/loss_choice.py [--small] [--docs DIR] [--losses a,b] [FILE...]``.
 """
@@ -32,7 +31,7 @@ sys.path.insert(0, str(SCRIPTS))
 from _docs import write_section  # noqa: E402
 
 SECTION = "## The default loss, measured"
-LOSSES = ("relative@peak", "relative", "robust-relative", "log", "log-ratio")
+LOSSES = ("relative", "robust-relative", "log", "log-ratio", "absolute")
 SMALL_LOSSES = ("relative", "robust-relative")
 
 
@@ -43,15 +42,9 @@ def one(path: Path, loss: str) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    import numpy as np
-
     import ctfit
-    from ctfit._fitting import problem
     from bench_real import read, relative_error
 
-    if loss == "relative@peak":  # the former floor: 10⁻³ × the largest sample
-        problem.loss_floor = lambda y, name, _own=problem.loss_floor: (1e-3 * float(np.max(np.asarray(y))) if name == "relative" else _own(y, name))
-        loss = "relative"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ctfit.DataWarning)
         data = read(path)
@@ -75,8 +68,7 @@ def section(rows: dict, files, losses, started: float) -> str:
              f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime(started))} with `python scripts/loss_choice.py` on "
              f"{platform.processor() or platform.machine()}, Python {platform.python_version()}, {time.time() - started:.0f} s in all. "
              "Each cell: the median |f − y|/y (θ_i, θ_o ≤ 80°) of `ctfit.fit(data, loss=…)` with the structure the data chooses, "
-             "the 90th percentile in parentheses; `relative@peak` is the relative loss with the former floor, 10⁻³ × the largest "
-             "sample.", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+             "the 90th percentile in parentheses.", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for f in files:
         cells = [f.name]
         for loss in losses:

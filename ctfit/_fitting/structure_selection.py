@@ -70,6 +70,16 @@ def _embedded_start(inner: FitResult, big: Structure) -> Params:
     return Params(s=s, m=m, w=w, f0=p.f0 if big.fresnel == "f0" else None, n=p.n if big.fresnel != "f0" else None, k=p.k, rd=rd)
 
 
+def _lobes_start(res: FitResult, other: Structure) -> Params:
+    """``res``'s lobes, s and Fresnel parameters as a start of ``other`` (same family and lobe
+    count, another diffuse part); what ``other`` needs beyond them starts at the defaults."""
+    p, st = res.material.params, res.material.structure
+    s = np.asarray(p.s) if (other.has_s and st.has_s) else None
+    rd = p.rd if (other.has_rd and st.has_rd) else None
+    return Params(s=s, m=np.asarray(p.m, dtype=float), w=np.asarray(p.w, dtype=float), f0=p.f0 if other.fresnel == "f0" else None,
+                  n=p.n if other.fresnel != "f0" else None, k=p.k if other.fresnel == "conductor" else None, rd=rd)
+
+
 DEFAULT_FAMILIES = ("metal", "plastic")
 """The families the data-chosen default tries (:data:`~ctfit.FAMILIES`)."""
 DEFAULT_LOBES = (1, 2, 3)
@@ -102,7 +112,9 @@ def choose_structure(
 
     Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse``
     given) is fitted with the fewest ``lobes``; the one with the lowest BIC then gets more lobes in
-    turn (nested starts, :func:`select_structure`) while the BIC falls. Fits of one measurement in
+    turn (nested starts, :func:`select_structure`) while the BIC falls; if it got more, the
+    family's other diffuse parts are fitted with as many lobes too (from its lobes: a diffuse part
+    chosen at one lobe may have stood in for a second lobe). Fits of one measurement in
     one loss, so their BICs compare. ``fresnel``: "f0" (default) or "conductor" for a metal.
     Returns the best fit and every (structure, fit) tried, in order.
 
@@ -141,6 +153,15 @@ def choose_structure(
         if _bic(res) >= _bic(best):
             break
         best_st, best = bigger, res
+    if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen
+        chosen, chosen_st = best, best_st
+        for st in combos:
+            if st.family == chosen_st.family and st.diffuse != chosen_st.diffuse:
+                other = Structure(**{**st.__dict__, "lobes": chosen_st.lobes})
+                res = fit(data, other, start=None if "start" in kwargs else _lobes_start(chosen, other), **kwargs)
+                tried.append((other, res))
+                if _bic(res) < _bic(best):
+                    best_st, best = other, res
     best.stats["structure_choice"] = choice_table(tried, best)
     return best, tried
 
