@@ -276,3 +276,25 @@ def test_a_plastic_posterior_samples_its_index_and_diffuse_spectrum():
     assert {"n", "Rd"} <= set(post.chain)
     n = np.asarray(post.chain["n"])
     assert np.all((n >= ctfit.PLASTIC_INDEX_RANGE[0]) & (n <= ctfit.PLASTIC_INDEX_RANGE[1]))
+
+
+def test_large_data_is_screened_and_the_choice_fitted_to_all_of_it():
+    """Above SCREEN_SAMPLES the candidates are compared on a random subset of the direction pairs
+    (every band of a pair kept); the structure chosen is then fitted to all the data, exactly as
+    naming that structure would, and the table's BICs are scaled to the whole data."""
+    from ctfit._fitting.structure_selection import SCREEN_SAMPLES, screening_sample
+
+    truth = plastic("spectrum")
+    data = dataclasses.replace(ctfit.simulate(truth, n_pairs=2000, noise=0.01, seed=3), sigma=None)
+    sub = screening_sample(data)
+    assert len(sub) < len(data) and abs(len(sub) - SCREEN_SAMPLES) <= data.n_bands
+    assert len(sub) == len(sub.directions()[0]) * data.n_bands  # whole direction pairs
+    assert len(screening_sample(sub)) == len(sub)  # small data is not screened
+    res = ctfit.fit(data)
+    assert res.stats["structure_screening"] == {"samples": len(sub), "of": len(data)}
+    assert res.stats["n_samples"] == len(data)
+    direct = ctfit.fit(data, res.material.structure)
+    assert res.stats["cost"] == pytest.approx(direct.stats["cost"], rel=1e-9)
+    assert res.material.structure.family == "plastic" and abs(float(res.material.params.s) - 0.3) < 0.01
+    chosen = [row for row in res.stats["structure_choice"] if row["chosen"]]
+    assert len(chosen) == 1 and chosen[0]["bic"] == min(row["bic"] for row in res.stats["structure_choice"])

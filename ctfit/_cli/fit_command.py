@@ -364,7 +364,7 @@ def _fit_measurement(meas, o, base, show: bool):
             diffuse=None if diffuse == "auto" else diffuse, geometry=o.geometry or "v-cavity", fresnel={"conductor": "conductor"}.get(o.fresnel),
             progress=lambda it: bar(it, desc="structures", enabled=show), **kw)
         if not o.as_json:
-            echo(_choice_table(tried, res))
+            echo(_choice_table(res))
         return res
     start, fixed = start_from_material(base, st, meas) if base else (None, ())
     return run_fit(meas, st, start=start, fixed=fixed, **kw)
@@ -439,16 +439,17 @@ def _expand(paths) -> list[Path]:
     return list(files)
 
 
-def _choice_table(tried, best) -> str:
-    """The structures the data chose among: each one's parameters, median relative error, BIC."""
-    from .._fitting import structure_label
-
-    lines = ["structure chosen by the data (lowest BIC):",
+def _choice_table(res) -> str:
+    """The structures the data chose among (``res.stats["structure_choice"]``): each one's
+    parameters, median relative error, BIC; where they were compared on a screening sample, its size."""
+    screening = res.stats.get("structure_screening") or {}
+    on = (f"; compared on {screening['samples']:,} of its {screening['of']:,} samples, the choice then fitted to all"
+          if screening.get("samples", 0) < screening.get("of", 0) else "")
+    lines = [f"structure chosen by the data (lowest BIC{on}):",
              f"  {'structure':<42} {'params':>6} {'median |f−y|/y':>15} {'BIC':>14} {'converged':>10}"]
-    for st, r in tried:
-        s = r.stats
-        median = s.get("quality", {}).get("median_relative_error")
+    for row in res.stats["structure_choice"]:
+        median = row.get("median_relative_error")
         med = "–" if median is None else f"{median:.1%}"
-        mark = "  <- chosen" if r is best else ""
-        lines.append(f"  {structure_label(st):<42} {s['n_params']:>6} {med:>15} {s['bic']:>14.6g} {str(bool(r.converged)):>10}{mark}")
+        mark = "  <- chosen" if row["chosen"] else ""
+        lines.append(f"  {row['structure']:<42} {row['params']:>6} {med:>15} {row['bic']:>14.6g} {str(row['converged']):>10}{mark}")
     return "\n".join(lines)

@@ -8,7 +8,7 @@ from .._model import Measurement, Params, Structure
 from .least_squares import FitResult, fit
 from .validate import n_free_parameters
 
-__all__ = ["select_structure", "choose_structure", "structure_label", "DIFFUSE_FORMS"]
+__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "DIFFUSE_FORMS", "SCREEN_SAMPLES"]
 
 
 def select_structure(
@@ -80,6 +80,10 @@ def _lobes_start(res: FitResult, other: Structure) -> Params:
                   n=p.n if other.fresnel != "f0" else None, k=p.k if other.fresnel == "conductor" else None, rd=rd)
 
 
+SCREEN_SAMPLES = 4096
+"""Above about this many samples, the data-chosen default compares its candidates on a random
+subset of the direction pairs holding about this many (:func:`screening_sample`), then fits the
+structure chosen to all the data: the choice costs a fraction of the fits on the whole file."""
 DEFAULT_FAMILIES = ("metal", "plastic")
 """The families the data-chosen default tries (:data:`~ctfit.FAMILIES`)."""
 DEFAULT_LOBES = (1, 2, 3)
@@ -115,7 +119,11 @@ def choose_structure(
     turn (nested starts, :func:`select_structure`) while the BIC falls; if it got more, the
     family's other diffuse parts are fitted with as many lobes too (from its lobes: a diffuse part
     chosen at one lobe may have stood in for a second lobe). Fits of one measurement in
-    one loss, so their BICs compare. ``fresnel``: "f0" (default) or "conductor" for a metal.
+    one loss, so their BICs compare. Data of more than :data:`SCREEN_SAMPLES` samples is screened:
+    the candidates are fitted to a random subset of its direction pairs, their BICs scaled to the
+    whole data, and the structure chosen is then fitted to all of it, as ``fit(data, structure)``
+    would (the same result as naming that structure; ``tried`` holds the
+    screening fits; ``stats["structure_screening"]`` the sizes). ``fresnel``: "f0" (default) or "conductor" for a metal.
     Returns the best fit and every (structure, fit) tried, in order.
 
     >>> import numpy as np, ctfit
@@ -139,18 +147,21 @@ def choose_structure(
         raise ValueError(f"no structure of families {tuple(families)} has diffuse part {diffuse!r}")
     fits_data = [st for st in combos if n_free_parameters(st, data.n_bands, kwargs.get("fixed", ())) <= len(data)]
     combos = fits_data or combos[:1]  # too few samples for all: the first one's error says so
+    screen = screening_sample(data)
+    n_full = len(data)
+    bic = lambda r: _full_bic(r, n_full)  # noqa: E731
     tried = []
     wrap = progress or (lambda it: it)
     for st in wrap(combos):  # a combination that contains an earlier one also starts from its fit
         inner = [r for sm, r in tried if _contains(st, sm) and np.isfinite(r.stats["cost"])]
         start = _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner and "start" not in kwargs else None
-        tried.append((st, fit(data, st, start=start, **kwargs)))
-    best_st, best = min(tried, key=lambda sr: _bic(sr[1]))
+        tried.append((st, fit(screen, st, start=start, **kwargs)))
+    best_st, best = min(tried, key=lambda sr: bic(sr[1]))
     for j in lobes[1:]:
         bigger = Structure(**{**best_st.__dict__, "lobes": j})
-        res = fit(data, bigger, start=None if "start" in kwargs else _embedded_start(best, bigger), **kwargs)
+        res = fit(screen, bigger, start=None if "start" in kwargs else _embedded_start(best, bigger), **kwargs)
         tried.append((bigger, res))
-        if _bic(res) >= _bic(best):
+        if bic(res) >= bic(best):
             break
         best_st, best = bigger, res
     if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen
@@ -158,22 +169,46 @@ def choose_structure(
         for st in combos:
             if st.family == chosen_st.family and st.diffuse != chosen_st.diffuse:
                 other = Structure(**{**st.__dict__, "lobes": chosen_st.lobes})
-                res = fit(data, other, start=None if "start" in kwargs else _lobes_start(chosen, other), **kwargs)
+                res = fit(screen, other, start=None if "start" in kwargs else _lobes_start(chosen, other), **kwargs)
                 tried.append((other, res))
-                if _bic(res) < _bic(best):
+                if bic(res) < bic(best):
                     best_st, best = other, res
-    best.stats["structure_choice"] = choice_table(tried, best)
+    table = choice_table(tried, best, n_full)
+    if screen is not data:  # the structure chosen, fitted to all the data as that structure alone would be
+        best = fit(data, best_st, **kwargs)
+    best.stats["structure_choice"] = table
+    best.stats["structure_screening"] = {"samples": len(screen), "of": n_full}
     return best, tried
 
 
-def choice_table(tried: list[tuple[Structure, FitResult]], best: FitResult) -> list[dict]:
-    """Every candidate's structure, cost, BIC and median relative error, and which was chosen
-    (the fit JSON's ``fit.structure_choice``)."""
-    return [{"structure": structure_label(st), "cost": r.stats["cost"], "bic": r.stats["bic"],
-             "median_relative_error": r.stats.get("quality", {}).get("median_relative_error"), "chosen": r is best}
+def screening_sample(data: Measurement, samples: int = SCREEN_SAMPLES) -> Measurement:
+    """The data the candidates are compared on: all of it up to about ``samples`` samples, else
+    the samples of a random subset of its direction pairs (every band of a pair kept; seed 0, so
+    the choice is reproducible) holding about ``samples``."""
+    pairs, index = data.directions()
+    if len(data) <= samples or len(pairs) < 2:
+        return data
+    n_pairs = max(1, min(len(pairs), int(np.ceil(len(pairs) * samples / len(data)))))
+    keep = np.isin(index, np.random.default_rng(0).choice(len(pairs), n_pairs, replace=False))
+    fields = ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf") + (("sigma",) if data.sigma is not None else ())
+    return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
+
+
+def _full_bic(res: FitResult, n_full: int) -> float:
+    """The BIC of a fit to a screening sample of n of ``n_full`` samples, scaled to all of them:
+    the likelihood term (N ln(RSS/N), or χ²) grows with the samples, the penalty P ln N with ln N."""
+    s = res.stats
+    n, p = max(int(s["n_samples"]), 1), int(s["n_params"])
+    if not np.isfinite(s["bic"]):
+        return np.inf
+    return (s["bic"] - p * np.log(n)) * (n_full / n) + p * np.log(n_full)
+
+
+def choice_table(tried: list[tuple[Structure, FitResult]], best: FitResult, n_full: int | None = None) -> list[dict]:
+    """Every candidate's structure, parameters, cost, BIC (scaled to ``n_full`` samples when the
+    candidates were fitted to a screening sample), median relative error, whether it converged and
+    which was chosen (the fit JSON's ``fit.structure_choice``)."""
+    return [{"structure": structure_label(st), "params": int(r.stats["n_params"]), "cost": r.stats["cost"],
+             "bic": _full_bic(r, n_full or int(r.stats["n_samples"])),
+             "median_relative_error": r.stats.get("quality", {}).get("median_relative_error"), "converged": bool(r.converged), "chosen": r is best}
             for st, r in tried]
-
-
-def _bic(res: FitResult) -> float:
-    bic = res.stats["bic"]
-    return bic if np.isfinite(bic) else np.inf
