@@ -103,8 +103,10 @@ def ctfit_default(path: Path, folder: Path, env: dict, data: ctfit.Measurement) 
             r.check(f"ctfit fit {path.name}")
         walls.append(r.wall_s)
     doc = json.loads(out.read_text())
-    med, p90 = relative_error(ctfit.evaluate(ctfit.load_material(out), data), data.brdf, data.theta_i, data.theta_o)
-    return dict(median=med, p90=p90, cold_s=walls[0], warm_s=walls[1], quality=doc.get("quality"), converged=doc["fit"]["converged"])
+    material = ctfit.load_material(out)
+    med, p90 = relative_error(ctfit.evaluate(material, data), data.brdf, data.theta_i, data.theta_o)
+    return dict(median=med, p90=p90, cold_s=walls[0], warm_s=walls[1], quality=doc.get("quality"), converged=doc["fit"]["converged"],
+                structure=ctfit.structure_label(material.structure))
 
 
 def best_fit(path: Path, losses, starts: int, quick: bool, env: dict) -> dict:
@@ -187,6 +189,47 @@ def bench_file(path: Path, tmp: Path, env: dict, args) -> dict:
     return row
 
 
+DEFAULT_SECTION = "## The default, measured"
+DEFAULT_COLUMNS = ("file", "samples", "median", "p90", "structure chosen", "cold s", "warm s", "better of best CT and Mitsuba", "default / better")
+
+
+def reference_errors(doc: Path) -> dict:
+    """{file: (best CT median, Mitsuba median)} from the "## Results" table of ``doc`` (fractions; NaN where absent)."""
+    if not doc.is_file():
+        return {}
+    lines = doc.read_text(encoding="utf-8").split(SECTION, 1)[-1].split("\n## ", 1)[0].splitlines()
+    head = next((ln for ln in lines if ln.startswith("| file |")), None)
+    if head is None:
+        return {}
+    names = [c.strip() for c in head.strip("|").split("|")]
+    pct = lambda c: float(c.split("%")[0]) / 100 if "%" in c else float("nan")  # noqa: E731
+    out = {}
+    for ln in lines:
+        cells = [c.strip() for c in ln.strip("|").split("|")]
+        if ln.startswith("| ") and len(cells) == len(names) and cells[0] not in ("file", "---"):
+            out[cells[0]] = (pct(cells[names.index("best median")]), pct(cells[names.index("Mitsuba median")]))
+    return out
+
+
+def default_section(rows: list[dict], refs: dict, args, started: float, load: tuple[float, float]) -> str:
+    """The section of ``--default-only``: the default fit of every file, against the search's best and Mitsuba's."""
+    lines = [DEFAULT_SECTION, "", f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} with `python scripts/bench_real.py "
+             f"{' '.join(args.argv)}` on {cpu_name()} ({os.cpu_count()} CPUs, shared: load average {load[0]:.1f} at the start, "
+             f"{load[1]:.1f} at the end), Python {platform.python_version()}; {time.perf_counter() - started:.0f} s in all. `ctfit fit FILE` "
+             "as a user runs it, whole processes: cold (an empty compilation cache), then warm (the cache the cold run filled). The "
+             "reference is the better of the exhaustive search's best and Mitsuba + Adam in \"Results\" above (its own run).", "",
+             "| " + " | ".join(DEFAULT_COLUMNS) + " |", "|" + "---|" * len(DEFAULT_COLUMNS)]
+    for r in rows:
+        d = r["default"]
+        best, mits = refs.get(r["file"], (float("nan"), float("nan")))
+        ref = float(np.nanmin([best, mits])) if np.isfinite([best, mits]).any() else float("nan")
+        ratio = d["median"] / ref if np.isfinite(ref) and ref > 0 else float("nan")
+        lines.append("| " + " | ".join([r["file"], f"{r['samples']:,}", f"{100 * d['median']:.2f} %", f"{100 * d['p90']:.2f} %", d["structure"],
+                                         f"{d['cold_s']:.1f}", f"{d['warm_s']:.1f}", f"{100 * ref:.2f} %" if np.isfinite(ref) else "–",
+                                         f"{ratio:.2f}" if np.isfinite(ratio) else ("≤ 1" if d["median"] <= 1e-6 else "–")]) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def cells(row: dict) -> list[str]:
     """The row's cells in the order of ``COLUMNS``."""
     d, b, s, m = row["default"], row["best"], row["scipy"], row["mitsuba"]
@@ -219,6 +262,7 @@ def main(argv=None) -> int:
     ap.add_argument("--losses", default=None, help=f"comma-separated losses for the search (default: {','.join(SEARCH_LOSSES)}; --quick: log)")
     ap.add_argument("--steps", type=int, default=None, help="Adam steps of the Mitsuba peer (default 1000; --quick: 20)")
     ap.add_argument("--docs", type=Path, help=f"write the section {SECTION!r} of DIR/real-materials.md")
+    ap.add_argument("--default-only", action="store_true", help=f"only ctfit's default fit: writes the section {DEFAULT_SECTION!r}")
     ap.add_argument("--search", nargs=2, metavar=("FILE", "LOSS"), help=argparse.SUPPRESS)  # one loss's search, in its own process
     args = ap.parse_args(argv)
     if args.search:
@@ -240,6 +284,22 @@ def main(argv=None) -> int:
     print(" | ".join(COLUMNS), flush=True)
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
     rows = []
+    if args.default_only:
+        refs = reference_errors((args.docs or ROOT / "docs") / "real-materials.md")
+        with tempfile.TemporaryDirectory(prefix="ctfit-bench-real-") as tmp:
+            for path in map(Path, files):
+                (Path(tmp) / path.stem).mkdir()
+                data = read(path)
+                rows.append(dict(file=path.name, samples=len(data), default=ctfit_default(path, Path(tmp) / path.stem, env, data)))
+                d = rows[-1]["default"]
+                print(f"{path.name}: median {100 * d['median']:.2f} %, {d['structure']}, cold {d['cold_s']:.1f} s, warm {d['warm_s']:.1f} s", flush=True)
+                text = default_section(rows, refs, args, started, (load0, os.getloadavg()[0]))
+                if args.docs:
+                    from _docs import write_section
+
+                    write_section(args.docs / "real-materials.md", DEFAULT_SECTION, text)
+        print(text)
+        return 0
     with tempfile.TemporaryDirectory(prefix="ctfit-bench-real-") as tmp:
         for i, path in enumerate(files):
             rows.append(bench_file(Path(path), Path(tmp), env, args))

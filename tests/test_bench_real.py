@@ -73,3 +73,19 @@ def test_quick_run_prints_every_column(tmp_path):
     assert all(e.endswith(" %") and 0 <= float(e[:-2]) < 100 for e in errors), errors
     doc = (tmp_path / "real-materials.md").read_text()
     assert doc.startswith(bench.SECTION) and "| " + " | ".join(bench.COLUMNS) + " |" in doc and table[0] in doc
+
+
+def test_default_only_section_compares_with_the_search_and_mitsuba(tmp_path):
+    """``--default-only`` reads the best and Mitsuba medians of the "Results" table and divides the
+    default's median by the better of the two."""
+    doc = tmp_path / "real-materials.md"
+    head = "| " + " | ".join(bench.COLUMNS) + " |"
+    cells = ["a.csv", "10", "9.00 %", "1 %", "1", "1", "4.00 %", "1 %", "x", "1", "1 %", "1 %", "1", "5.00 %", "1 %", "1"]
+    doc.write_text(f"# t\n\n{bench.SECTION}\n\nMeasured.\n\n{head}\n|" + "---|" * len(bench.COLUMNS) + "\n| " + " | ".join(cells) + " |\n")
+    refs = bench.reference_errors(doc)
+    assert refs == {"a.csv": (pytest.approx(0.04), pytest.approx(0.05))}
+    args = type("A", (), {"argv": ["--default-only"]})()
+    row = dict(file="a.csv", samples=10, default=dict(median=0.05, p90=0.1, structure="metal, 1 lobe, no diffuse", cold_s=2.0, warm_s=1.0))
+    text = bench.default_section([row], refs, args, 0.0, (1.0, 1.0))
+    assert text.startswith(bench.DEFAULT_SECTION)
+    assert "| a.csv | 10 | 5.00 % | 10.00 % | metal, 1 lobe, no diffuse | 2.0 | 1.0 | 4.00 % | 1.25 |" in text
