@@ -241,9 +241,13 @@ def _compile_fresh(lowered):
     cache serialises without some of its functions, and the store keeps the program anyway.
     The setting is changed for this thread only (JAX's thread-local context), so programs may
     be compiled in several threads at once."""
-    from jax._src import config as jax_config
-
-    with jax_config.enable_compilation_cache(False):
+    try:  # JAX's thread-local switch; not public API, so a JAX without it compiles through the cache
+        from jax._src.config import enable_compilation_cache as cache_switch
+    except ImportError:
+        cache_switch = None
+    if cache_switch is None or not callable(cache_switch):
+        return lowered.compile()
+    with cache_switch(False):
         return lowered.compile()
 
 
