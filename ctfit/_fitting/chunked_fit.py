@@ -194,11 +194,11 @@ class _Kernels:
     ne: object
     init: object
     step: object
+    zeros: list  # the sums' starting values, on the device once (programs do not donate their inputs)
 
     def normal_equations(self, flat):
         """(½‖r‖², Jᵀr, JᵀJ) at ``flat``: device arrays, summed over the chunks."""
-        p = flat.shape[0]
-        acc = [jax.device_put(np.zeros(s, flat.dtype)) for s in ((), (p,), (p, p))]
+        acc = self.zeros
         u0 = _leaves(self.u0)
         for leaves in self.parts:
             acc = self.ne(*acc, *leaves, flat, *u0)
@@ -229,7 +229,7 @@ def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
     init = _program("lm_init", _lm_init, flat, flat, flat)
     state = init(flat, flat, flat)["state"]
     step = _program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat)
-    return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step)
+    return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step, zeros)
 
 
 def _report_programs(template: Problem, u0: dict) -> None:

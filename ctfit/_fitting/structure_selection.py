@@ -184,11 +184,12 @@ def choose_structure(
 def screening_sample(data: Measurement, samples: int = SCREEN_SAMPLES) -> Measurement:
     """The data the candidates are compared on: all of it up to about ``samples`` samples, else
     the samples of a random subset of its direction pairs (every band of a pair kept; seed 0, so
-    the choice is reproducible) holding about ``samples``."""
+    the choice is reproducible) holding at most about ``samples`` (a power of two: whole chunks
+    of the fit's programs, no chunk of padding)."""
     pairs, index = data.directions()
     if len(data) <= samples or len(pairs) < 2:
         return data
-    n_pairs = max(1, min(len(pairs), int(np.ceil(len(pairs) * samples / len(data)))))
+    n_pairs = max(1, min(len(pairs), int(len(pairs) * samples // len(data))))  # at most ``samples``: whole chunks
     keep = np.isin(index, np.random.default_rng(0).choice(len(pairs), n_pairs, replace=False))
     fields = ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf") + (("sigma",) if data.sigma is not None else ())
     return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
