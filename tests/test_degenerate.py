@@ -424,3 +424,15 @@ def test_cli_render_warns_in_one_line(alta, tmp_path):
     assert out.returncode == 0, out.stderr
     warned = [line for line in out.stderr.splitlines() if "wavelength is unknown" in line]
     assert len(warned) == 1 and warned[0].startswith("warning:")
+
+
+def test_noisy_simulation_of_a_material_invisible_to_its_samples_is_refused_by_the_fit_not_by_simulate():
+    """m = 10⁻⁴ under simulate's sampling (docs/stability.md): every sample is 0 or a subnormal
+    number. A noisy simulation is still a valid measurement (its sigma positive, where 10⁻⁶ of a
+    subnormal maximum is 0); the fit then refuses it in one line."""
+    metal = ctfit.Material(Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([1e-4]), w=np.ones(1), f0=np.array([0.55, 0.7, 0.85, 0.95])),
+                           wavelength_nm=np.array([400.0, 500.0, 600.0, 700.0]))
+    data = ctfit.simulate(metal, n_pairs=300, noise=0.01, seed=1)
+    assert np.max(data.brdf) < 1e-300 and np.all(data.sigma > 0)
+    with pytest.raises(ValueError, match="every brdf is (0: there is nothing to fit|at most)"):
+        ctfit.fit(data, metal.structure)

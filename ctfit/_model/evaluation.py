@@ -215,7 +215,7 @@ def simulate(
         rng = np.random.default_rng([seed, 1])
         with np.errstate(over="ignore"):
             values = np.maximum(truth * (1 + noise * rng.standard_normal(truth.shape)), 0.0)
-            sigma = noise * np.maximum(truth, 1e-6 * np.max(truth))
+            sigma = noise * np.maximum(truth, max(1e-6 * float(np.max(truth)), np.finfo(float).tiny))  # > 0 even where the truth is 0 everywhere
         if not (np.all(np.isfinite(values)) and np.all(np.isfinite(sigma))):
             raise ValueError(f"noise={noise:g} is too large: the noisy values overflow")
     return base.replace(brdf=values, sigma=sigma)
