@@ -178,6 +178,7 @@ def test_the_relative_losses_floor_at_the_typical_sample():
     assert loss_floor(y, "log-ratio") == pytest.approx(0.01 * 0.2)
     assert loss_floor(y, "relative") == loss_floor(y, "robust-relative") == pytest.approx(0.1 * 0.2)
     assert loss_floor(np.array([1e-9, 1e-9, 1e4]), "relative") == pytest.approx(1e-6 * 1e4)  # never below 10⁻⁶ × the peak
+    assert loss_floor(y, "sigma") == loss_floor(y, "absolute") == pytest.approx(1e-3 * 1e4)  # the seeds' weights of the other losses
     truth = plastic("spectrum")
     data = dataclasses.replace(ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=4), sigma=None)
     lr = ctfit.fit(data, truth.structure, loss="log-ratio")

@@ -45,7 +45,7 @@ from .._model import (
     parameter,
 )
 
-__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "RELATIVE_FLOOR", "FLOOR_OF_PEAK", "ROBUST_SCALE", "loss_floor", "default_loss", "texel_floors", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
+__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "RELATIVE_FLOOR", "FLOOR_OF_PEAK", "SEED_FLOOR", "ROBUST_SCALE", "loss_floor", "default_loss", "texel_floors", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
 
 LOSSES = ("absolute", "relative", "robust-relative", "sigma", "cosine", "log", "log-ratio")
 RELATIVE_FLOOR = 0.1
@@ -57,6 +57,12 @@ larger ones grow as √(2|r|c) (SciPy's ``soft_l1``), so a region the model cann
 retro-reflection, the grazing fringe) does not pull the rest of the fit (docs/fitting.md)."""
 FLOOR_OF_PEAK = 1e-6
 """The relative loss's floor is never below this fraction of the largest sample."""
+SEED_FLOOR = 1e-3
+"""For the losses without a floor of their own (sigma, absolute, cosine, log): the floor, × the
+largest value, of the relative weights the seeds are scored with (and of ``rel_rmse``). From the
+peak, as before the relative losses' floor moved to the typical sample: with the typical sample's
+floor the seeds of σ-weighted synthetic fits fell into wrong basins (docs/stability.md: a
+conductor with n(λ) crossing 1; s = 1 in float32)."""
 LOG_RATIO_FLOOR = 0.01
 """The "log-ratio" loss's ε as a fraction of the median positive measured value (docs/fitting.md)."""
 _SHAPE = ("m", "w")  # parameters of S, the per-direction factor
@@ -315,14 +321,18 @@ def loss_floor(y, loss: str) -> float:
     below it is weighed by its relative error, however high the peak; darker ones — the
     instrument's noise floor, stray zeros — by their absolute error over the floor), never below
     :data:`FLOOR_OF_PEAK` × the largest value (so that relative residuals stay representable);
-    for "log-ratio", :data:`LOG_RATIO_FLOOR` × the median. "robust-relative" has the relative floor."""
+    for "log-ratio", :data:`LOG_RATIO_FLOOR` × the median. "robust-relative" has the relative floor.
+    The other losses have no floor in their residuals; theirs (:data:`SEED_FLOOR` × the largest
+    value) weighs the seeds' relative scores and defines their ``rel_rmse``."""
     y_pos = np.asarray(y)[np.asarray(y) > 0]
     if not len(y_pos):
         return 1.0
     typical = float(np.median(y_pos))
     if loss == "log-ratio":
         return LOG_RATIO_FLOOR * typical
-    return max(RELATIVE_FLOOR * typical, FLOOR_OF_PEAK * float(np.max(y_pos)))
+    if loss in ("relative", "robust-relative"):
+        return max(RELATIVE_FLOOR * typical, FLOOR_OF_PEAK * float(np.max(y_pos)))
+    return SEED_FLOOR * float(np.max(y_pos))
 
 
 def default_loss(data) -> str:
