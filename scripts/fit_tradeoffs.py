@@ -595,7 +595,7 @@ def markdown(res, doc: pathlib.Path, fig: pathlib.Path) -> str:
            + ("." if rec["challengers"] else "; there was no challenger, so none ran."))
     )
     lines.append("")
-    loss_txt = "`auto` (σ-weighted when the data has σ, as here; else relative)" if rec["loss"] == "auto" else f"`{rec['loss']}`"
+    loss_txt = "`auto` (σ-weighted when the data has σ, as here; else robust-relative)" if rec["loss"] == "auto" else f"`{rec['loss']}`"
     cur = defaults["library"]
     agree = (rec["solver"], rec["precision"], rec["loss"]) == cur == defaults["cli"]
     lines.append(
