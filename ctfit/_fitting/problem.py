@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 
 import equinox as eqx
 import jax
@@ -45,7 +46,7 @@ from .._model import (
     parameter,
 )
 
-__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "RELATIVE_FLOOR", "FLOOR_OF_PEAK", "SEED_FLOOR", "ROBUST_SCALE", "loss_floor", "default_loss", "texel_floors", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
+__all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "RELATIVE_FLOOR", "FLOOR_OF_PEAK", "SEED_FLOOR", "ROBUST_SCALE", "loss_floor", "default_loss", "row_floors", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
 
 LOSSES = ("absolute", "relative", "robust-relative", "sigma", "cosine", "log", "log-ratio")
 RELATIVE_FLOOR = 0.1
@@ -323,16 +324,8 @@ def loss_floor(y, loss: str) -> float:
     :data:`FLOOR_OF_PEAK` × the largest value (so that relative residuals stay representable);
     for "log-ratio", :data:`LOG_RATIO_FLOOR` × the median. "robust-relative" has the relative floor.
     The other losses have no floor in their residuals; theirs (:data:`SEED_FLOOR` × the largest
-    value) weighs the seeds' relative scores and defines their ``rel_rmse``."""
-    y_pos = np.asarray(y)[np.asarray(y) > 0]
-    if not len(y_pos):
-        return 1.0
-    typical = float(np.median(y_pos))
-    if loss == "log-ratio":
-        return LOG_RATIO_FLOOR * typical
-    if loss in ("relative", "robust-relative"):
-        return max(RELATIVE_FLOOR * typical, FLOOR_OF_PEAK * float(np.max(y_pos)))
-    return SEED_FLOOR * float(np.max(y_pos))
+    value) weighs the seeds' relative scores and defines their ``rel_rmse``. 1 without a positive value."""
+    return float(row_floors(np.asarray(y, dtype=float).reshape(1, -1), loss)[0])
 
 
 def default_loss(data) -> str:
@@ -341,15 +334,18 @@ def default_loss(data) -> str:
     return "sigma" if getattr(data, "sigma", None) is not None else "robust-relative"
 
 
-def texel_floors(block: np.ndarray) -> np.ndarray:
-    """:func:`loss_floor` ("relative") of each row of ``block`` (texels × samples); 1 where a row has no positive value."""
+def row_floors(block: np.ndarray, loss: str) -> np.ndarray:
+    """:func:`loss_floor` of each row of ``block`` (e.g. texels × samples)."""
     pos = np.where(block > 0, block, np.nan)
-    with np.errstate(all="ignore"):
-        import warnings
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN rows: no positive value
-            floors = np.maximum(RELATIVE_FLOOR * np.nanmedian(pos, axis=1), FLOOR_OF_PEAK * np.nanmax(pos, axis=1))
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a row without a positive value: NaN, then 1
+        peak = np.nanmax(pos, axis=1)
+        if loss == "log-ratio":
+            floors = LOG_RATIO_FLOOR * np.nanmedian(pos, axis=1)
+        elif loss in ("relative", "robust-relative"):
+            floors = np.maximum(RELATIVE_FLOOR * np.nanmedian(pos, axis=1), FLOOR_OF_PEAK * peak)
+        else:
+            floors = SEED_FLOOR * peak
     return np.where(np.isfinite(floors), floors, 1.0)
 
 

@@ -33,7 +33,7 @@ from .options import takes_fit_options
 from .seeded_solve import judge_converged
 from .batch import default_width, mapped
 from .._model import Material, Measurement, Params, Structure, value_rules
-from .problem import texel_floors
+from .problem import row_floors
 from .validate import representable_range
 
 __all__ = ["fit_texels", "texel_status", "TexelFits", "CHUNK", "TEXEL_STATUS"]
@@ -200,10 +200,10 @@ def texel_status(values, chunk: int, dtype) -> np.ndarray:
 
 
 class _Layout:
-    """Texels' values (chunk, samples) in the problem's layout, with each texel's relative-loss floor."""
+    """Texels' values (chunk, samples) in the problem's layout, with each texel's loss floor."""
 
     def __init__(self, problem, data: Measurement):
-        self.grid = problem.spec.grid
+        self.grid, self.loss = problem.spec.grid, problem.spec.loss
         self.shape = problem.y.shape
         self.index, self.band = data.directions()[1], np.asarray(data.band)
 
@@ -213,7 +213,7 @@ class _Layout:
             ys[:, self.index, self.band] = block
         else:
             ys = block
-        floors = texel_floors(block)
+        floors = row_floors(block, self.loss)
         return ys.astype(dtype), floors.astype(dtype)
 
 
