@@ -149,7 +149,7 @@ def test_a_stored_program_is_not_compiled_again(store, monkeypatch):
     monkeypatch.setattr(compiler, "backend_compile_and_load", no_compiling)
     monkeypatch.setattr(compiler, "compile_or_get_cached", no_compiling)
     again = _aot.cached_call("toy", _fn, *_args())
-    np.testing.assert_array_equal(again["y"], jnp.arange(3.0) * 2.0 + jnp.array([1.0, 4.0, 9.0]))
+    np.testing.assert_array_equal(again["y"], np.arange(3.0) * 2.0 + np.array([1.0, 4.0, 9.0]))  # NumPy: JAX would compile it
 
 
 _FIT_SCRIPT = """
@@ -188,6 +188,39 @@ def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_p
     third = run()
     assert third.returncode == 0, third.stderr[-2000:]
     assert first.stdout == second.stdout == third.stdout
+
+
+def _ignores_its_second(x, unused):
+    return {"y": x * 2.0}
+
+
+def test_programs_of_one_hlo_under_two_keys_are_both_stored(tmp_path, monkeypatch):
+    """jit leaves unused arguments out, so two stored programs (keys differing in the shape of an
+    argument the program does not read) can lower to one HLO. JAX's cache must not hand the
+    second the first's executable: that hit would keep the process from storing anything more
+    (a 1-band file fitted after a 3-band one shared the fit report's HLO this way)."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    store = tmp_path / "store"
+    store.mkdir()
+    monkeypatch.setattr(_aot, "_store", lambda: store)
+    monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
+    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    compilation_cache.reset_cache()
+    try:
+        x = jnp.arange(3.0)
+        first = _aot.cached_call("twin", _ignores_its_second, x, jnp.ones(4))
+        second = _aot.cached_call("twin", _ignores_its_second, x, jnp.ones(7))
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+        compilation_cache.reset_cache()
+    np.testing.assert_array_equal(first["y"], second["y"])
+    assert _aot._jax_cache_hits == 0
+    assert len(list(store.glob("twin-*.xla"))) == 2
 
 
 def test_the_source_digest_covers_subpackages(tmp_path, monkeypatch):
@@ -232,7 +265,7 @@ def test_an_entry_copied_over_another_programs_name_is_not_run(store, monkeypatc
     box, x, _ = _args()
     _aot.cached_call("toy", _fn, box, x, 2)
     _aot.cached_call("toy", _fn, box, x, 3)
-    name = lambda power: store / f"toy-{_aot._key('toy', (box, x, power))[:32]}.xla"  # noqa: E731
+    name = lambda power: store / f"toy-{_aot._key('toy', ('run', box, x, power))[:32]}.xla"  # noqa: E731 (the key: effort, then arguments)
     name(3).write_bytes(name(2).read_bytes())  # the square's program where the cube's belongs
     monkeypatch.setattr(_aot, "_memory", {})
     with pytest.warns(RuntimeWarning, match="holds another program"):

@@ -41,7 +41,7 @@ from jax.flatten_util import ravel_pytree
 from .._runtime import stored_program
 from .fit_report import report_core, summary_of_part, combined_rms, zero_model_cost
 from .problem import Problem, normal_equations
-from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver
+from .seeded_solve import RACE_MARGIN, RACE_STEPS, STATIONARY_TOLERANCE, flat_bounds, lm_solver
 from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
 
 __all__ = ["ROWS", "chunk_problems", "chunked_core"]
@@ -85,13 +85,18 @@ def _signature(args) -> tuple:
     return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args))
 
 
+_CALLED_OFTEN = ("fit_ne", "lm_step")
+"""The programs a fit calls at every Levenberg–Marquardt step; the others run once per fit (or
+once per chunk), so XLA compiles them for a short compile (:data:`~ctfit._runtime.COMPILE_EFFORT`)."""
+
+
 def _program(name: str, fn, *args):
     """:func:`~ctfit._runtime.stored_program`, looked up first under a key that is cheap to
     compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file."""
     sig = (name, *_signature(args))
     run = _programs.get(sig)
     if run is None:
-        run = _programs[sig] = stored_program(name, fn, *args)
+        run = _programs[sig] = stored_program(name, fn, *args, effort="run" if name in _CALLED_OFTEN else "once")
     return run
 
 
@@ -158,24 +163,24 @@ def _cost_given(flat, f):
     return f, None
 
 
-def _lm(y, lower, upper, grad, hess):
-    solver = lm_solver(y.dtype, lower, upper, (grad, hess), _given)
+def _lm(y, lower, upper, grad, hess, tol):
+    solver = lm_solver(y.dtype, lower, upper, (grad, hess), _given, stol=tol[0], gtol=tol[1])
     template = solver.init(_cost_given, y, jnp.zeros((), y.dtype), {}, jax.ShapeDtypeStruct((), y.dtype), None, frozenset())
     return solver, template
 
 
-def _lm_init(y, lower, upper):
-    """optimistix's ``init`` and first ``terminate`` (``_run_solver``'s)."""
+def _lm_init(y, lower, upper, tol):
+    """optimistix's ``init`` and first ``terminate`` (``_run_solver``'s); ``tol``: (stol, gtol)."""
     p = y.shape[0]
-    solver, state = _lm(y, lower, upper, jnp.zeros((p,), y.dtype), jnp.zeros((p, p), y.dtype))
+    solver, state = _lm(y, lower, upper, jnp.zeros((p,), y.dtype), jnp.zeros((p, p), y.dtype), tol)
     done, result = solver.terminate(_cost_given, y, jnp.zeros((), y.dtype), {}, state, frozenset())
     sound = (result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(y))
     return dict(state=_leaves(state), y_eval=state.y_eval, done=done, sound=sound)
 
 
-def _lm_step(y, leaves: list, f, grad, hess, lower, upper):
+def _lm_step(y, leaves: list, f, grad, hess, lower, upper, tol):
     """One optimistix step given the cost, Jᵀr and JᵀJ at the point the state evaluates."""
-    solver, template = _lm(y, lower, upper, grad, hess)
+    solver, template = _lm(y, lower, upper, grad, hess, tol)
     dynamic, static = eqx.partition(template, eqx.is_array)
     state = eqx.combine(jax.tree.unflatten(jax.tree.structure(dynamic), leaves), static)
     y, state, _ = solver.step(_cost_given, y, f, {}, state, frozenset())
@@ -204,15 +209,16 @@ class _Kernels:
             acc = self.ne(*acc, *leaves, flat, *u0)
         return acc
 
-    def run(self, y0, lower, upper, budget: int):
-        """``_run_solver`` on the host: (value, converged, steps, sound, cost)."""
-        out = self.init(y0, lower, upper)
+    def run(self, y0, lower, upper, budget: int, tol):
+        """``_run_solver`` on the host: (value, converged, steps, sound, cost); ``tol``: the
+        solver's (stol, gtol) (:func:`~ctfit._fitting.seeded_solve.lm_solver`), a device array."""
+        out = self.init(y0, lower, upper, tol)
         y, leaves, y_eval = y0, out["state"], out["y_eval"]
         done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
         k, cost = 0, np.inf
         while not done and sound and k < budget:
             f, grad, hess = self.normal_equations(y_eval)
-            out = self.step(y, *leaves, f, grad, hess, lower, upper)
+            out = self.step(y, *leaves, f, grad, hess, lower, upper, tol)
             y, leaves, y_eval, cost = out["y"], out["state"], out["y_eval"], out["cost"]
             done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
             k += 1
@@ -226,9 +232,10 @@ def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
     flat = jax.device_put(np.zeros(p, dtype))
     zeros = [jax.device_put(np.zeros(s, dtype)) for s in ((), (p,), (p, p))]
     ne = _program("fit_ne", _ne_kernel, zeros, template, flat, u0)
-    init = _program("lm_init", _lm_init, flat, flat, flat)
-    state = init(flat, flat, flat)["state"]
-    step = _program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat)
+    tol = jax.device_put(np.zeros(2, dtype))
+    init = _program("lm_init", _lm_init, flat, flat, flat, tol)
+    state = init(flat, flat, flat, tol)["state"]
+    step = _program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat, tol)
     return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step, zeros)
 
 
@@ -261,10 +268,15 @@ def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> di
     return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1], total))))
 
 
-def _race(kern: _Kernels, seeds: dict, max_steps: int):
+def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None):
     """``_structured_lm``'s race on the host: every seed ``RACE_STEPS`` steps, then those within
-    ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs."""
+    ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs.
+    ``tolerance``: stop where one more Gauss–Newton step promises less than this relative
+    decrease of the cost (None: ``lm_solver``'s tests)."""
     n, p = seeds["flat"].shape
+    dtype = seeds["flat"].dtype
+    stol = STATIONARY_TOLERANCE[np.dtype(dtype).name]
+    tol = jax.device_put(np.array([stol, stol * 1e-3] if tolerance is None else [tolerance, tolerance], dtype))
     extra = _padded_size(p) - p
     flat = np.pad(seeds["flat"], ((0, 0), (0, extra)))
     lower, upper = (jax.device_put(np.pad(seeds[k], (0, extra))) for k in ("lower", "upper"))
@@ -277,16 +289,18 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int):
         if race:
             go = not ok[j] and costs[j] <= RACE_MARGIN * min(costs)
             budget = (max_steps - RACE_STEPS if go else 0) if i >= n else RACE_STEPS
-        v, o, k, fine, c = kern.run(values[j], lower, upper, budget)
+        v, o, k, fine, c = kern.run(values[j], lower, upper, budget, tol)
         if k > 0:  # a seed that did not go on keeps what it had
             values[j], ok[j], sound[j], costs[j] = v, o, fine, (c if math.isfinite(c) else math.inf)
         steps[j] += k
     return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype)
 
 
-def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False, parts: list[Problem] | None = None) -> dict:
+def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False, parts: list[Problem] | None = None,
+                 tolerance: float | None = None) -> dict:
     """``fit_core``'s output (host arrays) for the solver "lm", on chunks: ``problem`` laid out
-    by ``make_problem(chunk=ROWS)``, ``parts`` its :func:`chunk_problems` (made here if None)."""
+    by ``make_problem(chunk=ROWS)``, ``parts`` its :func:`chunk_problems` (made here if None);
+    ``tolerance``: :func:`_race`'s."""
     parts = chunk_problems(problem) if parts is None else parts
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
     # The first time, a structure's programs compile in three threads at once (XLA compiles
@@ -301,7 +315,7 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
             seeds = _seeds(parts, u0, starts, grid, keep_start)
             kern = kernels.result()
         _programs[shapes] = True
-    values, sound, steps, costs = _race(kern, seeds, max_steps)
+    values, sound, steps, costs = _race(kern, seeds, max_steps, tolerance)
     best = int(np.argmin(costs))
     p = int(np.size(ravel_pytree(u0)[0]))
     cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))

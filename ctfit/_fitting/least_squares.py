@@ -55,7 +55,7 @@ from .seeded_solve import STATIONARY_TOLERANCE, explains_none, judge_converged, 
 from .starts import default_start, m_grid, seed_points
 from .validate import check_fittable, nonfinite_reason
 
-__all__ = ["fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "solve_prepared"]
+__all__ = ["fit", "fit_to_tolerance", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "solve_prepared"]
 
 
 
@@ -223,19 +223,28 @@ def fit(
         if start is not None or fixed:
             raise ValueError("structure=None lets the data choose the structure; give a structure with start or fixed")
         return choose_structure(data, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)[0]
+    return fit_to_tolerance(data, structure, start=start, fixed=fixed, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
+
+
+def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: float | None = None, start: Params | None = None, fixed: tuple[str, ...] = (),
+                     loss: str = "auto", solver: str = "lm", dtype=jnp.float64, starts: int = 3, max_steps: int = 256) -> FitResult:
+    """:func:`fit` of ``structure``, its Levenberg–Marquardt ("lm") stopping where one more
+    Gauss–Newton step promises less than ``tolerance`` relative decrease of the cost, and judged
+    converged there (None: :data:`~ctfit._fitting.seeded_solve.STATIONARY_TOLERANCE`). The
+    data-chosen default screens its candidates so (:data:`~ctfit._fitting.structure_selection.SCREEN_TOLERANCE`)."""
     t0 = time.perf_counter()
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS if solver == "lm" else None)
-    return finish_fit(prep, solve_prepared(prep, solver, max_steps), solver, t0)
+    return finish_fit(prep, solve_prepared(prep, solver, max_steps, tolerance), solver, t0, tolerance if solver == "lm" else None)
 
 
-def solve_prepared(prep: PreparedFit, solver: str, max_steps: int) -> dict:
+def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: float | None = None) -> dict:
     """``fit_core``'s output (host arrays) for one prepared fit: on chunks for "lm" (a problem
-    laid out with ``chunk``: :func:`~ctfit._fitting.chunked_fit.chunked_core`), else the one
-    compiled program of its size bucket."""
+    laid out with ``chunk``: :func:`~ctfit._fitting.chunked_fit.chunked_core`, which stops at
+    ``tolerance``), else the one compiled program of its size bucket."""
     if solver == "lm" and prep.chunked:
         parts = chunk_problems(prep.problem)
         prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
-        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts)
+        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance)
     return jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
 
 
@@ -273,8 +282,9 @@ def _quality(data: Measurement, rel, floor: float, structure: Structure, params:
     return quality_from_relative(err, half_angle_deg(data), np.maximum(data.theta_i, data.theta_o), peak_width_deg(structure, params))
 
 
-def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResult:
-    """The :class:`FitResult` of a prepared fit from ``fit_core``'s output (host arrays); ``t0``: when it began."""
+def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None) -> FitResult:
+    """The :class:`FitResult` of a prepared fit from ``fit_core``'s output (host arrays); ``t0``:
+    when it began; ``tolerance``: the stationarity it was solved to (:func:`fit_to_tolerance`)."""
     data, structure, loss, dtype, problem = prep.data, prep.structure, prep.loss, prep.dtype, prep.problem
     costs, ok, steps, best = out["costs"], out["ok"], out["steps"], int(out["best"])
     u = out["u"]
@@ -298,12 +308,13 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float) -> FitResul
     per_sample = rel[index, data.band] if problem.spec.grid else rel[: len(data)]
     quality = _quality(data, per_sample, floor, structure, params)
     gn_decrease = float(out["gn_decrease"])
-    stationary = gn_decrease <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
+    tolerance = STATIONARY_TOLERANCE[jnp.dtype(dtype).name] if tolerance is None else tolerance
+    stationary = gn_decrease <= tolerance
     rmse = float(out["rmse"])
     not_finite = nonfinite_reason(cost, rmse, int(out["bad"]), n, dtype)  # a result that is not finite has not converged
     zero_cost = float(out["zero_cost"])
     explains_nothing = bool(explains_none(cost, zero_cost))
-    converged = bool(judge_converged(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype))
+    converged = bool(judge_converged(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype, tolerance))
     # Round-off is no evidence: a cost below 100 ε² of the zero model's is an exact fit, and exact fits
     # of several structures tie on it, so the BIC keeps the one with the fewest parameters.
     exact = 2 * zero_cost * (100 * float(jnp.finfo(dtype).eps)) ** 2

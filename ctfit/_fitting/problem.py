@@ -120,10 +120,10 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     pairs = np.asarray(pairs)
     n = len(pairs)
     if n == 0:
-        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs)))
+        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs), effort="once"))
     blocks = -(-n // GEOMETRY_BLOCK)
     padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
-    parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK])) for b in range(blocks)]
+    parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK], effort="once")) for b in range(blocks)]
     put = (lambda a: a) if on_host else jax.device_put  # noqa: E731
     return Geometry(**{k: put(np.concatenate([p[k] for p in parts])[:n]) for k in parts[0]})
 

@@ -65,10 +65,11 @@ def explains_none(cost, zero_cost):
     return (np.asarray(zero_cost) > 0) & (np.asarray(cost) >= NO_SIGNAL * np.asarray(zero_cost))
 
 
-def judge_converged(ok, finite, gn_decrease, cost, zero_cost, dtype):
+def judge_converged(ok, finite, gn_decrease, cost, zero_cost, dtype, tolerance: float | None = None):
     """``converged`` of one fit or of many (arrays): no numerical failure, finite, stationary
-    (``STATIONARY_TOLERANCE``) and describing some of the data (:func:`explains_none`)."""
-    stationary = np.asarray(gn_decrease) <= STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
+    (``tolerance``, by default ``STATIONARY_TOLERANCE``) and describing some of the data (:func:`explains_none`)."""
+    tolerance = STATIONARY_TOLERANCE[jnp.dtype(dtype).name] if tolerance is None else tolerance
+    stationary = np.asarray(gn_decrease) <= tolerance
     return np.asarray(ok, bool) & np.asarray(finite, bool) & stationary & ~explains_none(cost, zero_cost)
 
 
@@ -123,13 +124,16 @@ def _run_solver(solver, y0, data, budget):
     return y, done & sound, k, sound
 
 
-def lm_solver(dtype, lower, upper, data, gauss_newton) -> StructuredLevenbergMarquardt:
+def lm_solver(dtype, lower, upper, data, gauss_newton, stol=None, gtol=None) -> StructuredLevenbergMarquardt:
     """The fit's projected Levenberg–Marquardt (tolerances of ``dtype``) in the box [lower, upper];
-    ``gauss_newton(flat, data)`` gives Jᵀr and JᵀJ."""
+    ``gauss_newton(flat, data)`` gives Jᵀr and JᵀJ. ``stol``, ``gtol`` (scalars, may be traced):
+    :class:`~ctfit._fitting.solvers.StructuredLevenbergMarquardt`'s; by default
+    :data:`STATIONARY_TOLERANCE` and a thousandth of it."""
     rtol, atol = (1e-8, 1e-12) if dtype == jnp.float64 else (1e-5, 1e-8)
     descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
     tol = STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
-    return StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=gauss_newton, descent=descent, gtol=tol * 1e-3, stol=tol)
+    stol, gtol = (tol if stol is None else stol), (tol * 1e-3 if gtol is None else gtol)
+    return StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=gauss_newton, descent=descent, gtol=gtol, stol=stol)
 
 
 def _structured_lm(problem: Problem, seeds: dict, max_steps: int):

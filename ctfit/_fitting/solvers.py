@@ -201,7 +201,7 @@ class StructuredLevenbergMarquardt(optx.AbstractQuasiNewton):
         directions the data does not determine (R_d growing as s → 1, keeping d·R_d fixed),
         where the iterate keeps moving but the cost does not change."""
         small_change = cauchy_termination(self.rtol, self.atol, self.norm, y_eval, y_eval - y, info.f, info.f - f)
-        if self.gtol <= 0:
+        if isinstance(self.gtol, (int, float)) and self.gtol <= 0:  # a traced gtol is > 0
             return small_change
         lower = getattr(self.descent, "lower", None)
         upper = getattr(self.descent, "upper", None)

@@ -12,6 +12,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "compile_cache": ['enable_compilation_cache', 'matplotlib_config_fallback'],
         "memory": ['return_large_blocks'],
         "progress": ['bar', 'closed_pipe', 'echo', 'progress_enabled'],
-        "stored_programs": ['cached_call', 'kept_program', 'stored_program'],
+        "stored_programs": ['COMPILE_EFFORT', 'cached_call', 'kept_program', 'stored_program'],
     },
 )

@@ -54,7 +54,18 @@ from jax.experimental import serialize_executable
 from .compile_cache import program_store_folder, unsafe_folder, warn_once
 from .._io import atomic_write
 
-_FORMAT = 3  # 1: jax.export programs (compiled again in every process); 2: executables; 3: with their key
+_FORMAT = 4  # 1: jax.export programs (compiled again in every process); 2: executables; 3: with their key; 4: compile efforts
+
+COMPILE_EFFORT = {
+    "run": {"xla_llvm_disable_expensive_passes": True},
+    "once": {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True},
+}
+"""XLA's options per compile effort (``Lowered.compile(compiler_options=...)``). "run": programs
+called many times per fit (a Levenberg–Marquardt step, the normal equations of a chunk); LLVM's
+expensive passes left out, which cuts their compile by 20–50 % here and leaves their run time as
+it was. "once": programs called once or once per chunk (seeds, residual summary, report); LLVM
+not optimising at all halves their compile, and they run a few milliseconds per fit. Measured
+in docs/fitting.md ("Compile time")."""
 _memory: dict[str, Callable] = {}  # "name-key" → program, the least recently used first
 _jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
 
@@ -236,7 +247,7 @@ def _plain(treedef) -> bool:
     return ok(probe)
 
 
-def _compile_fresh(lowered):
+def _compile_fresh(lowered, options: dict):
     """``lowered.compile()`` past JAX's persistent cache: an executable that JAX loaded from its
     cache serialises without some of its functions, and the store keeps the program anyway.
     The setting is changed for this thread only (JAX's thread-local context), so programs may
@@ -246,37 +257,39 @@ def _compile_fresh(lowered):
     except ImportError:
         cache_switch = None
     if cache_switch is None or not callable(cache_switch):
-        return lowered.compile()
+        return lowered.compile(compiler_options=options)
     with cache_switch(False):
-        return lowered.compile()
+        return lowered.compile(compiler_options=options)
 
 
-def cached_call(name: str, fn: Callable, *args):
+def cached_call(name: str, fn: Callable, *args, effort: str = "run"):
     """``fn(*args)`` through a compiled executable kept in memory and, when enabled, on disk.
 
     ``fn`` is traced with the arrays of ``args`` (anything :func:`equinox.is_array` accepts) as
     inputs and everything else static, as :func:`equinox.filter_jit` would. The result is the
     same as ``eqx.filter_jit(fn)(*args)``. The output must be built of dicts, lists, tuples,
     ``None`` and arrays only (its structure is stored with the executable, and JAX cannot
-    store the structure of an Equinox module).
+    store the structure of an Equinox module). ``effort``: how hard XLA optimises it
+    (:data:`COMPILE_EFFORT`).
     """
     leaves = jax.tree.leaves(eqx.filter(args, eqx.is_array))
-    run, out = _program(name, fn, args, leaves)
+    run, out = _program(name, fn, args, leaves, effort)
     return run(*leaves) if out is None else out
 
 
-def stored_program(name: str, fn: Callable, *args) -> Callable:
+def stored_program(name: str, fn: Callable, *args, effort: str = "run") -> Callable:
     """The program :func:`cached_call` runs for ``fn(*args)``, to be called many times: it takes
     the array leaves of arguments like ``args`` (``jax.tree.leaves(eqx.filter(args,
     eqx.is_array))``, same shapes and dtypes) and returns ``fn``'s output. Kept in memory and on
     disk as :func:`cached_call`'s; ``args`` give the shapes (a stored program is tried on them)."""
     leaves = jax.tree.leaves(eqx.filter(args, eqx.is_array))
-    return _program(name, fn, args, leaves)[0]
+    return _program(name, fn, args, leaves, effort)[0]
 
 
-def _program(name: str, fn: Callable, args: tuple, leaves: list):
+def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     """(program, its output on ``leaves`` or None): the output when a stored program was tried."""
-    digest = _key(name, args)
+    options = COMPILE_EFFORT[effort]
+    digest = _key(name, (effort, *args))
     dynamic, static = eqx.partition(args, eqx.is_array)
     in_def = jax.tree.structure(dynamic)
     if digest is None:
@@ -306,9 +319,13 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list):
             raise TypeError(f"cached_call({name!r}): the output must be built of dicts, lists, tuples, None and arrays")
         return out
 
-    flat.__name__ = flat.__qualname__ = f"ctfit_{name}"  # the program's name in JAX's logs
+    # The program's name in JAX's logs, and in JAX's cache key: with the entry's digest in it, JAX's
+    # cache never hands this store a program compiled under another key (two programs of one
+    # HLO: jit leaves out unused arguments, so e.g. the report of a 1-band and a 3-band fit may
+    # agree), which would keep the process from storing anything (see below).
+    flat.__name__ = flat.__qualname__ = f"ctfit_{name}_{digest[:16]}"
     lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
-    run = _remember(key, _compile_fresh(lowered) if path is not None else lowered.compile())
+    run = _remember(key, _compile_fresh(lowered, options) if path is not None else lowered.compile(compiler_options=options))
     # Once this process has loaded an executable from JAX's cache, executables compiled
     # after it serialise without some of their functions ("Function … not found" when the
     # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.
