@@ -33,7 +33,7 @@ STRUCTURES = [
     dict(lobes=1, diffuse="spectrum"), dict(lobes=2, diffuse="spectrum"), dict(lobes=1, diffuse="constant"),
 ]
 CHILD = r"""
-import json, sys, time, collections
+import json, re, sys, time, collections
 import jax
 jax.config.update("jax_enable_x64", True)
 import ctfit
@@ -41,7 +41,7 @@ ctfit.enable_compilation_cache()
 compiles = collections.defaultdict(list)
 def listener(event, duration, **kw):
     if event == "/jax/core/compile/backend_compile_duration":
-        compiles[kw.get("fun_name", "?")].append(duration)
+        compiles[re.sub(r"_[0-9a-f]{16}(?=\)?$)", "", kw.get("fun_name", "?"))].append(duration)  # a stored program's name ends in its key
 jax.monitoring.register_event_duration_secs_listener(listener)
 data = ctfit.read_measurement(sys.argv[1])
 rows = []

@@ -30,6 +30,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import math
+import threading
 
 import equinox as eqx
 import jax
@@ -44,24 +45,24 @@ from .problem import Problem, normal_equations
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, STATIONARY_TOLERANCE, flat_bounds, lm_solver
 from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
 
-__all__ = ["ROWS", "chunk_problems", "chunked_core"]
+__all__ = ["ROWS", "chunk_problems", "chunked_core", "prefetch"]
 
 ROWS = 2048
 """Cells per chunk: samples of the pairs layout; the grid layout takes a power of two of
 direction pairs with about this many cells (:func:`~ctfit._fitting.problem.chunk_rows`)."""
 
 
-def chunk_problems(problem: Problem) -> list[Problem]:
+def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
     """``problem`` (rows a multiple of the chunk's: ``make_problem(chunk=ROWS)``) cut into
-    problems of one shape, on the host. Pairs layout: each chunk's samples carry their own
-    direction pair's geometry (``pair`` = 0, 1, …)."""
+    problems of one shape, on the host (the first ``limit`` of them). Pairs layout: each chunk's
+    samples carry their own direction pair's geometry (``pair`` = 0, 1, …)."""
     from .problem import chunk_rows
 
     rows = chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
     host = lambda a: None if a is None else np.asarray(a)  # noqa: E731
     y, sigma, cos_i, mask = (host(a) for a in (problem.y, problem.sigma, problem.cos_i, problem.mask))
     geom = jax.tree.map(np.asarray, problem.geom)
-    count = y.shape[0] // rows
+    count = y.shape[0] // rows if limit is None else min(limit, y.shape[0] // rows)
     own = None if problem.spec.grid else jax.device_put(np.arange(rows, dtype=np.asarray(problem.pair).dtype))
     pair, band = host(problem.pair), host(problem.band)
     out = []
@@ -90,13 +91,23 @@ _CALLED_OFTEN = ("fit_ne", "lm_step")
 once per chunk), so XLA compiles them for a short compile (:data:`~ctfit._runtime.COMPILE_EFFORT`)."""
 
 
+_making: dict = {}  # signature → the lock of the thread making that program
+_making_guard = threading.Lock()
+
+
 def _program(name: str, fn, *args):
     """:func:`~ctfit._runtime.stored_program`, looked up first under a key that is cheap to
-    compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file."""
+    compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file.
+    Threads asking for one program at once (:func:`prefetch`) make it once."""
     sig = (name, *_signature(args))
     run = _programs.get(sig)
     if run is None:
-        run = _programs[sig] = stored_program(name, fn, *args, effort="run" if name in _CALLED_OFTEN else "once")
+        with _making_guard:
+            lock = _making.setdefault(sig, threading.Lock())
+        with lock:
+            run = _programs.get(sig)
+            if run is None:
+                run = _programs[sig] = stored_program(name, fn, *args, effort="run" if name in _CALLED_OFTEN else "once")
     return run
 
 
@@ -248,24 +259,45 @@ def _report_programs(template: Problem, u0: dict) -> None:
     _program("fit_report", report_core, template, u0, zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
 
 
+def _seed_programs(template: Problem, u0: dict, k: int, grid, keep_start: bool):
+    """The programs of the seeds: (scores' first pass, second pass, choice), or (None, None,
+    choice) without a grid."""
+    if "m" not in u0 or k < 1 or grid is None:
+        return None, None, _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
+    g = grid.shape[0]
+    acc = [np.zeros((g, template.fixed_bands), grid.dtype) for _ in range(2)]
+    total = np.zeros((g,), grid.dtype)
+    return (_program("fit_grid_sums", _sums_kernel, acc, template, u0, grid), _program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc),
+            _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start))
+
+
 def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> dict:
     """The flat seeds and the bounds (host arrays): the scores' two passes over the chunks, then
     the choice (:func:`~ctfit._fitting.starts.seed_points`' steps)."""
     template, chunks = parts[0], [_leaves(pt) for pt in parts]
-    if "m" not in u0 or k < 1 or grid is None:
-        pick = _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
+    sums, costs, pick = _seed_programs(template, u0, k, grid, keep_start)
+    if sums is None:
         return jax.device_get(pick(*_leaves((template, u0))))
     u0l, g = _leaves(u0), grid.shape[0]
     acc = [jax.device_put(np.zeros((g, template.fixed_bands), grid.dtype)) for _ in range(2)]
-    sums = _program("fit_grid_sums", _sums_kernel, acc, template, u0, grid)
     for leaves in chunks:
         acc = sums(*acc, *leaves, *u0l, grid)
     total = jax.device_put(np.zeros((g,), grid.dtype))
-    costs = _program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc)
     for leaves in chunks:
         total = costs(total, *leaves, *u0l, grid, *acc)
-    pick = _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start)
     return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1], total))))
+
+
+def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False) -> None:
+    """Make (load from the store, or compile) every program :func:`chunked_core` calls for a fit
+    of ``problem``'s layout from ``u0``'s shapes, without fitting. Run in a background thread
+    while another fit runs, it takes the loading or compiling off that fit's path."""
+    (template,) = chunk_problems(problem, limit=1)
+    u0 = {k: jnp.asarray(v) for k, v in u0.items()}
+    _kernels([template], u0)
+    _report_programs(template, u0)
+    _seed_programs(template, u0, starts, grid, keep_start)
+    _programs[_signature((template, u0, grid, starts, keep_start))] = True
 
 
 def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None):
@@ -320,7 +352,7 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     p = int(np.size(ravel_pytree(u0)[0]))
     cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))
     cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
-    u = {k: jnp.asarray(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}
+    u = {k: jax.device_put(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}  # (jnp.asarray compiles a copy program per shape)
     summary, ul = _program("fit_summary", _summary_kernel, kern.template, u), _leaves(u)
     parts = jax.device_get([summary(*leaves, *ul) for leaves in kern.parts])
     zero = np.asarray(np.sum([c["zero"] for c in parts]), costs.dtype)

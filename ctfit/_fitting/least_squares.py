@@ -35,7 +35,7 @@ import numpy as np
 
 from .._model import Material, Measurement, Params, Structure
 from .._runtime import cached_call
-from .chunked_fit import ROWS, chunk_problems, chunked_core
+from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch
 from .diagnostics import half_angle_deg, relative_residual_structure
 from .quality import peak_width_deg, quality_from_relative, quality_warning
 from .fit_report import (
@@ -55,7 +55,7 @@ from .seeded_solve import STATIONARY_TOLERANCE, explains_none, judge_converged, 
 from .starts import default_start, m_grid, seed_points
 from .validate import check_fittable, nonfinite_reason
 
-__all__ = ["fit", "fit_to_tolerance", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "solve_prepared"]
+__all__ = ["fit", "fit_to_tolerance", "prefetch_fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "solve_prepared"]
 
 
 
@@ -235,6 +235,20 @@ def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: floa
     t0 = time.perf_counter()
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS if solver == "lm" else None)
     return finish_fit(prep, solve_prepared(prep, solver, max_steps, tolerance), solver, t0, tolerance if solver == "lm" else None)
+
+
+def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool = False, fixed: tuple[str, ...] = (), loss: str = "auto",
+                 solver: str = "lm", dtype=jnp.float64, starts: int = 3, **_) -> None:
+    """Make (load or compile) the programs a :func:`fit` of ``structure`` to ``data`` will call
+    (with a start given or not), without fitting: for a background thread, while other fits run.
+    Nothing for solvers other than "lm", or for a fit that cannot be prepared (its own fit says why)."""
+    if solver != "lm":
+        return
+    try:
+        prep = prepare_fit(data, structure, start=None, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS)
+    except (ValueError, TypeError):
+        return
+    prefetch(prep.problem, prep.u0, prep.grid, prep.k, given_start)
 
 
 def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: float | None = None) -> dict:

@@ -24,6 +24,7 @@ passes instead of one per parameter.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import math
 import warnings
 
@@ -112,20 +113,36 @@ GEOMETRY_BLOCK = 4096
 program of this shape (no program per data size)."""
 
 
+_recent_geometry: dict = {}  # content digest of a small set of pairs → its geometry (host arrays)
+RECENT_GEOMETRY_PAIRS = 16384
+"""Geometry of at most this many direction pairs is kept for the next fit of the same pairs (the
+data-chosen default fits several structures to one screening sample); the last 4 kept."""
+
+
 def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     """The :class:`Geometry` of direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, shape (D, 4),
     through the program store (a stored program loads in a fraction of what compiling the
     trigonometry costs), ``GEOMETRY_BLOCK`` pairs at a time, joined on the host (and left there
-    with ``on_host``)."""
+    with ``on_host``). The geometry of a few small sets of pairs is kept for their next fit."""
     pairs = np.asarray(pairs)
     n = len(pairs)
     if n == 0:
         return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs), effort="once"))
-    blocks = -(-n // GEOMETRY_BLOCK)
-    padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
-    parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK], effort="once")) for b in range(blocks)]
     put = (lambda a: a) if on_host else jax.device_put  # noqa: E731
-    return Geometry(**{k: put(np.concatenate([p[k] for p in parts])[:n]) for k in parts[0]})
+    key = (pairs.dtype.str, pairs.shape, hashlib.blake2b(np.ascontiguousarray(pairs).tobytes(), digest_size=16).digest()) if n <= RECENT_GEOMETRY_PAIRS else None
+    fields = _recent_geometry.pop(key, None)
+    if fields is None:
+        blocks = -(-n // GEOMETRY_BLOCK)
+        padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
+        parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK], effort="once")) for b in range(blocks)]
+        fields = {k: np.concatenate([p[k] for p in parts])[:n] for k in parts[0]}
+        for v in fields.values():
+            v.setflags(write=False)  # shared by the fits of these pairs
+    if key is not None:
+        _recent_geometry[key] = fields  # the most recently used last
+        for old in list(_recent_geometry)[:-4]:
+            del _recent_geometry[old]
+    return Geometry(**{k: put(v) for k, v in fields.items()})
 
 
 def _weights(u_w, space: str):

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import concurrent.futures
+
 import numpy as np
 
 from .._model import Measurement, Params, Structure
-from .least_squares import FitResult, fit, fit_to_tolerance
+from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
 
 __all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "DIFFUSE_FORMS", "SCREEN_SAMPLES", "SCREEN_TOLERANCE"]
@@ -156,37 +158,56 @@ def choose_structure(
     screen = screening_sample(data)
     n_full = len(data)
     tolerance = SCREEN_TOLERANCE if screen is not data else None
-    fit_screen = lambda st, start: fit_to_tolerance(screen, st, start=start, tolerance=tolerance, **kwargs)  # noqa: E731
-    bic = lambda r: _full_bic(r, n_full)  # noqa: E731
-    tried = []
-    wrap = progress or (lambda it: it)
-    for st in wrap(combos):  # a combination that contains an earlier one also starts from its fit
-        inner = [r for sm, r in tried if _contains(st, sm) and np.isfinite(r.stats["cost"])]
-        start = _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner and "start" not in kwargs else None
-        tried.append((st, fit_screen(st, start)))
-    best_st, best = min(tried, key=lambda sr: bic(sr[1]))
-    for j in lobes[1:]:
-        bigger = Structure(**{**best_st.__dict__, "lobes": j})
-        res = fit_screen(bigger, None if "start" in kwargs else _embedded_start(best, bigger))
-        tried.append((bigger, res))
-        if bic(res) >= bic(best):
-            break
-        best_st, best = bigger, res
-    if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen
-        chosen, chosen_st = best, best_st
-        for st in combos:
-            if st.family == chosen_st.family and st.diffuse != chosen_st.diffuse:
-                other = Structure(**{**st.__dict__, "lobes": chosen_st.lobes})
-                res = fit_screen(other, None if "start" in kwargs else _lobes_start(chosen, other))
-                tried.append((other, res))
-                if bic(res) < bic(best):
+    user_start = kwargs.pop("start", None)
+    given = user_start is None  # the choice gives nested starts unless the caller gave a start
+    tried: list[tuple[Structure, FitResult]] = []
+
+    def fit_screen(st: Structure, start: Params | None) -> FitResult:
+        tried.append((st, fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, **kwargs)))
+        return tried[-1][1]
+
+    # Each stage's later fits have their programs made (loaded or compiled) in the background
+    # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
+    with concurrent.futures.ThreadPoolExecutor(1) as background:
+        ahead = lambda st: background.submit(prefetch_fit, screen, st, given_start=True, **kwargs)  # noqa: E731 (always a start)
+        best_st, best = _first_stage(combos, fit_screen, background, screen, given, kwargs, progress, n_full)
+        for i, j in enumerate(lobes[1:], start=2):
+            bigger = Structure(**{**best_st.__dict__, "lobes": j})
+            if i < len(lobes):
+                ahead(Structure(**{**best_st.__dict__, "lobes": lobes[i]}))
+            res = fit_screen(bigger, _embedded_start(best, bigger))
+            if _full_bic(res, n_full) >= _full_bic(best, n_full):
+                break
+            best_st, best = bigger, res
+        if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen
+            chosen, chosen_st = best, best_st
+            others = [Structure(**{**st.__dict__, "lobes": chosen_st.lobes}) for st in combos if st.family == chosen_st.family and st.diffuse != chosen_st.diffuse]
+            for other in others[1:]:
+                ahead(other)
+            for other in others:
+                res = fit_screen(other, _lobes_start(chosen, other))
+                if _full_bic(res, n_full) < _full_bic(best, n_full):
                     best_st, best = other, res
     table = choice_table(tried, best, n_full)
     if screen is not data:  # the structure chosen, fitted to all the data as that structure alone would be
-        best = fit(data, best_st, **kwargs)
+        best = fit(data, best_st, start=user_start, **kwargs)
     best.stats["structure_choice"] = table
     best.stats["structure_screening"] = {"samples": len(screen), "of": n_full}
     return best, tried
+
+
+def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: dict, progress, n_full: int):
+    """Fit every (family, diffuse part) combination with the fewest lobes, each that contains an
+    earlier one also from that one's fit; the programs of the later ones made in ``background``
+    meanwhile. Returns the (structure, fit) of the lowest BIC."""
+    fits = []
+    for i, st in enumerate(combos):
+        if i > 0:
+            background.submit(prefetch_fit, screen, st, given_start=not given or any(_contains(st, sm) for sm in combos[:i]), **kwargs)
+    for st in (progress or (lambda it: it))(combos):
+        inner = [r for sm, r in fits if _contains(st, sm) and np.isfinite(r.stats["cost"])]
+        fits.append((st, fit_screen(st, _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner else None)))
+    return min(fits, key=lambda sr: _full_bic(sr[1], n_full))
 
 
 def screening_sample(data: Measurement, samples: int = SCREEN_SAMPLES) -> Measurement:

@@ -64,8 +64,8 @@ COMPILE_EFFORT = {
 called many times per fit (a Levenberg–Marquardt step, the normal equations of a chunk); LLVM's
 expensive passes left out, which cuts their compile by 20–50 % here and leaves their run time as
 it was. "once": programs called once or once per chunk (seeds, residual summary, report); LLVM
-not optimising at all halves their compile, and they run a few milliseconds per fit. Measured
-in docs/fitting.md ("Compile time")."""
+not optimising at all halves their compile, and they run a few milliseconds per fit
+(docs/fitting.md, "Compiled programs are kept"; ``scripts/compile_times.py``)."""
 _memory: dict[str, Callable] = {}  # "name-key" → program, the least recently used first
 _jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
 
@@ -319,11 +319,11 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
             raise TypeError(f"cached_call({name!r}): the output must be built of dicts, lists, tuples, None and arrays")
         return out
 
-    # The program's name in JAX's logs, and in JAX's cache key: with the entry's digest in it, JAX's
-    # cache never hands this store a program compiled under another key (two programs of one
-    # HLO: jit leaves out unused arguments, so e.g. the report of a 1-band and a 3-band fit may
-    # agree), which would keep the process from storing anything (see below).
-    flat.__name__ = flat.__qualname__ = f"ctfit_{name}_{digest[:16]}"
+    # The program's name in JAX's logs, and in JAX's cache key: with the entry's digest in it when
+    # stored, JAX's cache never hands the store a program compiled under another key (two programs
+    # of one HLO: jit leaves out unused arguments, so e.g. the report of a 1-band and a 3-band fit
+    # may agree), which would keep the process from storing anything (see below).
+    flat.__name__ = flat.__qualname__ = f"ctfit_{name}_{digest[:16]}" if path is not None else f"ctfit_{name}"
     lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
     run = _remember(key, _compile_fresh(lowered, options) if path is not None else lowered.compile(compiler_options=options))
     # Once this process has loaded an executable from JAX's cache, executables compiled

@@ -1,0 +1,93 @@
+"""What makes the data-chosen default fast: screening fits stopped at SCREEN_TOLERANCE, programs
+made ahead in a background thread (prefetch_fit), the geometry of one set of direction pairs
+computed once, and the run-once programs compiled for a short compile (COMPILE_EFFORT)."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ctfit
+from ctfit._fitting import problem as problem_module
+from ctfit._fitting.least_squares import fit_to_tolerance, prefetch_fit
+from ctfit._fitting.structure_selection import SCREEN_TOLERANCE
+from ctfit._runtime import stored_programs
+
+ST = ctfit.Structure(family="plastic", lobes=1, diffuse="spectrum")
+
+
+def _plastic(n_pairs: int, seed: int) -> ctfit.Measurement:
+    truth = ctfit.Material(ST, ctfit.Params(s=np.asarray(0.3), m=np.array([0.2]), w=np.ones(1), n=np.full(3, 1.5), rd=np.array([0.1, 0.2, 0.05])),
+                           channels=("R", "G", "B"))
+    return ctfit.simulate(truth, n_pairs=n_pairs, noise=0.01, seed=seed)
+
+
+def test_a_looser_tolerance_stops_sooner_and_counts_as_converged_there():
+    data = _plastic(300, 1)
+    full = ctfit.fit(data, ST)
+    loose = fit_to_tolerance(data, ST, tolerance=1e-3)
+    assert full.converged and loose.converged
+    assert loose.stats["gauss_newton_decrease"] <= 1e-3
+    assert loose.stats["steps"] < full.stats["steps"]
+    assert loose.stats["cost"] == pytest.approx(full.stats["cost"], rel=1e-2)
+    assert not any("not a minimum" in w for w in loose.warnings)
+    same = fit_to_tolerance(data, ST)  # no tolerance: fit's own
+    assert same.stats["cost"] == full.stats["cost"] and same.stats["steps"] == full.stats["steps"]
+
+
+def test_screening_fits_stop_at_the_screening_tolerance_and_the_choice_is_fitted_fully():
+    data = _plastic(2000, 3)  # 6,000 samples: screened
+    best, tried = ctfit.choose_structure(data, lobes=(1,))
+    assert best.stats["structure_screening"]["samples"] < len(data)
+    assert all(r.stats["gauss_newton_decrease"] <= SCREEN_TOLERANCE for _, r in tried if r.converged)
+    direct = ctfit.fit(data, best.material.structure)
+    assert best.stats["cost"] == direct.stats["cost"] and best.stats["steps"] == direct.stats["steps"]
+
+
+def test_programs_made_ahead_leave_the_fit_nothing_to_compile(compilations):
+    st = ctfit.Structure(family="plastic", lobes=2, diffuse="transmitted")  # a structure no other test here fits
+    data = _plastic(400, 5)
+    prefetch_fit(data, st)
+    compilations.clear()
+    res = ctfit.fit(data, st)
+    assert np.isfinite(res.stats["cost"]) and compilations == []
+
+
+def test_the_geometry_of_one_set_of_pairs_is_computed_once(monkeypatch):
+    pairs = np.random.default_rng(0).uniform(0, 60, (300, 4))
+    first = problem_module._geometry_deg(pairs, on_host=True)
+
+    def no_program(*a, **k):
+        raise AssertionError("the geometry was computed again")
+
+    monkeypatch.setattr(problem_module, "cached_call", no_program)
+    again = problem_module._geometry_deg(pairs.copy(), on_host=True)  # equal values, another array
+    np.testing.assert_array_equal(again.cos_vh, first.cos_vh)
+    with pytest.raises(ValueError):
+        again.cos_vh[0] = 0.0  # shared by the fits of these pairs: read-only
+
+
+def test_each_compile_effort_is_its_own_program(tmp_path, monkeypatch):
+    """As in a fresh process without JAX's cache (tests/test_aot.py's ``store``)."""
+    import jax
+    from jax.experimental.compilation_cache import compilation_cache
+
+    monkeypatch.setattr(stored_programs, "_store", lambda: tmp_path)
+    monkeypatch.setattr(stored_programs, "_memory", {})
+    monkeypatch.setattr(stored_programs, "_jax_cache_hits", 0)
+    folder = jax.config.jax_compilation_cache_dir
+    jax.config.update("jax_compilation_cache_dir", None)
+    compilation_cache.reset_cache()
+    x = jnp.arange(4.0)
+    try:
+        fast = stored_programs.cached_call("effort", jnp.sin, x, effort="once")
+        tuned = stored_programs.cached_call("effort", jnp.sin, x, effort="run")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", folder)
+        compilation_cache.reset_cache()
+    np.testing.assert_allclose(fast, tuned, rtol=1e-12)
+    assert len(list(tmp_path.glob("effort-*.xla"))) == 2
+    assert set(stored_programs.COMPILE_EFFORT) == {"run", "once"}
+    with pytest.raises(KeyError):
+        stored_programs.cached_call("effort", jnp.sin, x, effort="fastest")
