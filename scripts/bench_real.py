@@ -105,8 +105,9 @@ def ctfit_default(path: Path, folder: Path, env: dict, data: ctfit.Measurement) 
     doc = json.loads(out.read_text())
     material = ctfit.load_material(out)
     med, p90 = relative_error(ctfit.evaluate(material, data), data.brdf, data.theta_i, data.theta_o)
+    chosen = [row["structure"] for row in doc["fit"].get("structure_choice", []) if row.get("chosen")]  # as chosen (a fit with s = 0 keeps no lobes)
     return dict(median=med, p90=p90, cold_s=walls[0], warm_s=walls[1], quality=doc.get("quality"), converged=doc["fit"]["converged"],
-                structure=ctfit.structure_label(material.structure))
+                structure=chosen[0] if chosen else ctfit.structure_label(material.structure))
 
 
 def best_fit(path: Path, losses, starts: int, quick: bool, env: dict) -> dict:

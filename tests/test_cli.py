@@ -105,6 +105,16 @@ def test_bad_input_exits_2_with_one_error_line(simulated, tmp_path, args, messag
     assert message in r.output and "Traceback" not in r.output
 
 
+def test_an_input_link_that_leads_nowhere_is_named_so(tmp_path):
+    (tmp_path / "a.csv").symlink_to(tmp_path / "b.csv")
+    (tmp_path / "b.csv").symlink_to(tmp_path / "a.csv")
+    (tmp_path / "gone.csv").symlink_to(tmp_path / "deleted.csv")
+    loop, dangling = run("fit", tmp_path / "a.csv"), run("fit", tmp_path / "gone.csv")
+    assert loop.exit_code == dangling.exit_code == 2
+    assert "a.csv: is a symbolic link that leads to itself" in loop.output
+    assert "gone.csv: is a symbolic link to " in dangling.output and "deleted.csv, which does not exist" in dangling.output
+
+
 def test_bad_csv_names_file_line_and_column(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,500,0.5\n10,0,95,180,500,0.5\n")

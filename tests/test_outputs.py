@@ -173,6 +173,22 @@ def test_a_converged_result_is_kept_when_a_new_fit_does_not_converge(tmp_path):
     assert unconverged_target(target)[0] == target
 
 
+def test_the_not_converged_name_of_a_long_name_fits_the_file_system(tmp_path):
+    """A target name of 250 bytes (under the usual limit of 255) cannot take ".not-converged.json"
+    as it is: the new result would not be written at all. It gets a shortened name that holds a
+    digest of the whole, so two long names stay apart."""
+    results = []
+    for tail in ("a", "b"):
+        target = tmp_path / ("é" * 118 + tail + ".fit.json")  # 246 bytes
+        target.write_text(json.dumps({"fit": {"converged": True}}))
+        where, note = unconverged_target(target)
+        assert len(os.fsencode(where.name)) <= 255 and where.name.endswith(".not-converged.json") and where.parent == tmp_path
+        where.write_text("{}")  # can be written
+        assert target.read_text() == json.dumps({"fit": {"converged": True}}) and str(where) in note
+        results.append(where)
+    assert results[0] != results[1]
+
+
 # --- atomic_write ---------------------------------------------------------------------------------
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import errno
 import functools
+import hashlib
 import os
 import stat
 from pathlib import Path
@@ -239,6 +240,20 @@ def _holds_converged_fit(path: Path) -> bool:
     return isinstance(doc, dict) and isinstance(doc.get("fit"), dict) and doc["fit"].get("converged") is True
 
 
+def _fitting_name(stem: str, suffix: str, folder: Path) -> str:
+    """``stem + suffix``, or, where that is longer than the folder's file names may be (255
+    bytes on most file systems), ``stem`` cut short with a digest of the whole of it in front of
+    ``suffix``: another stem never gets the same name."""
+    limit = _name_max(folder)
+    name = stem + suffix
+    if len(os.fsencode(name)) <= limit:
+        return name
+    digest = "-" + hashlib.sha256(os.fsencode(stem)).hexdigest()[:12]
+    room = limit - len(os.fsencode(digest + suffix))
+    cut = os.fsencode(stem)[:room].decode("utf-8", errors="ignore")  # whole characters only
+    return cut + digest + suffix
+
+
 def unconverged_target(target) -> tuple[Path, str | None]:
     """Where a fit that did not converge is written, and what to tell the user.
 
@@ -249,7 +264,7 @@ def unconverged_target(target) -> tuple[Path, str | None]:
     target = Path(target)
     if _holds_converged_fit(target):
         stem = target.name[: -len(".json")] if target.name.endswith(".json") else target.name
-        beside = target.with_name(stem + ".not-converged.json")
+        beside = target.with_name(_fitting_name(stem, ".not-converged.json", target.parent))
         return beside, f"{target} holds a converged fit and is kept; the fit that did not converge is written to {beside}"
     if target.exists() and not writes_in_place(target):
         return target, f"{target} replaced by a fit that did not converge"
