@@ -86,9 +86,12 @@ def _signature(args) -> tuple:
     return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args))
 
 
-_CALLED_OFTEN = ("fit_ne", "lm_step")
-"""The programs a fit calls at every Levenberg–Marquardt step; the others run once per fit (or
-once per chunk), so XLA compiles them for a short compile (:data:`~ctfit._runtime.COMPILE_EFFORT`)."""
+_CALLED_OFTEN = ("fit_ne", "lm_step", "fit_grid_sums", "fit_grid_costs", "fit_summary")
+"""The programs a fit calls at every Levenberg–Marquardt step or once per chunk (a MERL table has
+1,600 chunks), compiled for speed (:data:`~ctfit._runtime.COMPILE_EFFORT` "run"); the others
+(the seeds' choice, ``lm_init``, the report) run once per fit and are compiled for a short
+compile ("once"). One effort per program whatever the data's size: a file of another size
+compiles nothing."""
 
 
 _making: dict = {}  # signature → the lock of the thread making that program
@@ -99,6 +102,7 @@ def _program(name: str, fn, *args):
     """:func:`~ctfit._runtime.stored_program`, looked up first under a key that is cheap to
     compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file.
     Threads asking for one program at once (:func:`prefetch`) make it once."""
+    effort = "run" if name in _CALLED_OFTEN else "once"
     sig = (name, *_signature(args))
     run = _programs.get(sig)
     if run is None:
@@ -107,7 +111,7 @@ def _program(name: str, fn, *args):
         with lock:
             run = _programs.get(sig)
             if run is None:
-                run = _programs[sig] = stored_program(name, fn, *args, effort="run" if name in _CALLED_OFTEN else "once")
+                run = _programs[sig] = stored_program(name, fn, *args, effort=effort)
     return run
 
 

@@ -127,14 +127,14 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     pairs = np.asarray(pairs)
     n = len(pairs)
     if n == 0:
-        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs), effort="once"))
+        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs)))
     put = (lambda a: a) if on_host else jax.device_put  # noqa: E731
     key = (pairs.dtype.str, pairs.shape, hashlib.blake2b(np.ascontiguousarray(pairs).tobytes(), digest_size=16).digest()) if n <= RECENT_GEOMETRY_PAIRS else None
     fields = _recent_geometry.pop(key, None)
     if fields is None:
         blocks = -(-n // GEOMETRY_BLOCK)
         padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
-        parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK], effort="once")) for b in range(blocks)]
+        parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK])) for b in range(blocks)]
         fields = {k: np.concatenate([p[k] for p in parts])[:n] for k in parts[0]}
         for v in fields.values():
             v.setflags(write=False)  # shared by the fits of these pairs

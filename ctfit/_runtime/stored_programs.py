@@ -61,10 +61,10 @@ COMPILE_EFFORT = {
     "once": {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True},
 }
 """XLA's options per compile effort (``Lowered.compile(compiler_options=...)``). "run": programs
-called many times per fit (a Levenberg–Marquardt step, the normal equations of a chunk); LLVM's
-expensive passes left out, which cuts their compile by 20–50 % here and leaves their run time as
-it was. "once": programs called once or once per chunk (seeds, residual summary, report); LLVM
-not optimising at all halves their compile, and they run a few milliseconds per fit
+called many times (a Levenberg–Marquardt step, the programs called once per chunk, the
+geometry); LLVM's expensive passes left out, which cuts their compile by 20–50 % here and leaves
+their run time as it was. "once": programs called once per fit (the seeds' choice, the report);
+LLVM not optimising at all halves their compile, and they run a few milliseconds per fit
 (docs/fitting.md, "Compiled programs are kept"; ``scripts/compile_times.py``)."""
 _memory: dict[str, Callable] = {}  # "name-key" → program, the least recently used first
 _jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
