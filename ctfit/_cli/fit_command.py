@@ -3,9 +3,7 @@ fitted together by ``fit_batch``), reported, written; the exit status from the o
 
 from __future__ import annotations
 
-import errno
 import json
-import os
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -435,14 +433,9 @@ def _expand(paths) -> list[Path]:
                 raise UserError(f"{p}: folder has no measurement files (.csv, .binary, .alta, .dat, .bsdf)")
             files.update(dict.fromkeys(found))
         elif not p.exists():
-            if p.is_symlink():  # a link whose target is missing, or a loop of links
-                try:
-                    os.stat(p)
-                except OSError as e:
-                    if e.errno == errno.ELOOP:
-                        raise UserError(f"{p}: is a symbolic link that leads to itself") from None
-                raise UserError(f"{p}: is a symbolic link to {os.readlink(p)}, which does not exist")
-            raise UserError(f"{p}: no such file")
+            from .._io import broken_link
+
+            raise UserError(f"{p}: {broken_link(p) or 'no such file'}")
         else:
             files[p] = None
     return list(files)

@@ -42,7 +42,7 @@ from jax.flatten_util import ravel_pytree
 from .._runtime import stored_program
 from .fit_report import report_core, summary_of_part, combined_rms, zero_model_cost
 from .problem import Problem, normal_equations
-from .seeded_solve import RACE_MARGIN, RACE_STEPS, STATIONARY_TOLERANCE, flat_bounds, lm_solver
+from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver, stop_tolerances
 from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
 
 __all__ = ["ROWS", "chunk_problems", "chunked_core", "prefetch"]
@@ -310,9 +310,7 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     ``tolerance``: stop where one more Gauss–Newton step promises less than this relative
     decrease of the cost (None: ``lm_solver``'s tests)."""
     n, p = seeds["flat"].shape
-    dtype = seeds["flat"].dtype
-    stol = STATIONARY_TOLERANCE[np.dtype(dtype).name]
-    tol = jax.device_put(np.array([stol, stol * 1e-3] if tolerance is None else [tolerance, tolerance], dtype))
+    tol = jax.device_put(np.array(stop_tolerances(seeds["flat"].dtype, tolerance), seeds["flat"].dtype))
     extra = _padded_size(p) - p
     flat = np.pad(seeds["flat"], ((0, 0), (0, extra)))
     lower, upper = (jax.device_put(np.pad(seeds[k], (0, extra))) for k in ("lower", "upper"))

@@ -141,7 +141,7 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     if key is not None:
         _recent_geometry[key] = fields  # the most recently used last
         for old in list(_recent_geometry)[:-4]:
-            del _recent_geometry[old]
+            _recent_geometry.pop(old, None)  # (a background fit may prune too)
     return Geometry(**{k: put(v) for k, v in fields.items()})
 
 

@@ -19,7 +19,7 @@ from jax.flatten_util import ravel_pytree
 from .problem import Problem, bounds, half_squared_norm, normal_equations, residual
 from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, predicted_decrease
 
-__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "judge_converged", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "RACE_STEPS", "RACE_MARGIN"]
+__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "judge_converged", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "stop_tolerances", "RACE_STEPS", "RACE_MARGIN"]
 
 SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
 
@@ -124,15 +124,24 @@ def _run_solver(solver, y0, data, budget):
     return y, done & sound, k, sound
 
 
+def stop_tolerances(dtype, tolerance: float | None = None) -> tuple[float, float]:
+    """(stol, gtol) of :class:`~ctfit._fitting.solvers.StructuredLevenbergMarquardt`: by default
+    :data:`STATIONARY_TOLERANCE` and a thousandth of it; with ``tolerance``, stop wherever one more
+    Gauss–Newton step promises less than that relative decrease (both ``tolerance``)."""
+    if tolerance is not None:
+        return tolerance, tolerance
+    tol = STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
+    return tol, tol * 1e-3
+
+
 def lm_solver(dtype, lower, upper, data, gauss_newton, stol=None, gtol=None) -> StructuredLevenbergMarquardt:
     """The fit's projected Levenberg–Marquardt (tolerances of ``dtype``) in the box [lower, upper];
     ``gauss_newton(flat, data)`` gives Jᵀr and JᵀJ. ``stol``, ``gtol`` (scalars, may be traced):
-    :class:`~ctfit._fitting.solvers.StructuredLevenbergMarquardt`'s; by default
-    :data:`STATIONARY_TOLERANCE` and a thousandth of it."""
+    by default :func:`stop_tolerances`'."""
     rtol, atol = (1e-8, 1e-12) if dtype == jnp.float64 else (1e-5, 1e-8)
     descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
-    tol = STATIONARY_TOLERANCE[jnp.dtype(dtype).name]
-    stol, gtol = (tol if stol is None else stol), (tol * 1e-3 if gtol is None else gtol)
+    if stol is None or gtol is None:
+        stol, gtol = stop_tolerances(dtype)
     return StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=gauss_newton, descent=descent, gtol=gtol, stol=stol)
 
 

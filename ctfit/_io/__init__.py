@@ -16,7 +16,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "material_files": ['float_list', 'jsonable', 'load_material', 'material_from_dict', 'material_to_dict', 'save_material_json'],
         "merl": ['angles_deg_to_half_diff', 'angles_deg_to_half_diff_deg', 'half_diff_deg_to_angles_deg', 'half_diff_to_angles_deg', 'merl_cell_centres', 'merl_phi_d_index', 'merl_theta_d_index', 'merl_theta_h_index', 'merl_table', 'read_merl', 'write_merl'],
         "optical_constants": ['read_optical_constants'],
-        "output_paths": ['check_backend', 'check_output', 'check_output_folder', 'result_targets', 'same_file', 'unconverged_target'],
+        "output_paths": ['broken_link', 'check_backend', 'check_output', 'check_output_folder', 'result_targets', 'same_file', 'unconverged_target'],
         "readers": ['read_measurement', 'reader_for'],
         "rgl": ['bilinear', 'marginal_sample', 'read_rgl', 'read_tensor_file'],
         "untrusted": ['check_input_file', 'parse_json', 'quote', 'read_json_or_none', 'shorten'],

@@ -247,21 +247,6 @@ def _plain(treedef) -> bool:
     return ok(probe)
 
 
-def _compile_fresh(lowered, options: dict):
-    """``lowered.compile()`` past JAX's persistent cache: an executable that JAX loaded from its
-    cache serialises without some of its functions, and the store keeps the program anyway.
-    The setting is changed for this thread only (JAX's thread-local context), so programs may
-    be compiled in several threads at once."""
-    try:  # JAX's thread-local switch; not public API, so a JAX without it compiles through the cache
-        from jax._src.config import enable_compilation_cache as cache_switch
-    except ImportError:
-        cache_switch = None
-    if cache_switch is None or not callable(cache_switch):
-        return lowered.compile(compiler_options=options)
-    with cache_switch(False):
-        return lowered.compile(compiler_options=options)
-
-
 def cached_call(name: str, fn: Callable, *args, effort: str = "run"):
     """``fn(*args)`` through a compiled executable kept in memory and, when enabled, on disk.
 
@@ -325,7 +310,7 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     # may agree), which would keep the process from storing anything (see below).
     flat.__name__ = flat.__qualname__ = f"ctfit_{name}_{digest[:16]}" if path is not None else f"ctfit_{name}"
     lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
-    run = _remember(key, _compile_fresh(lowered, options) if path is not None else lowered.compile(compiler_options=options))
+    run = _remember(key, lowered.compile(compiler_options=options))
     # Once this process has loaded an executable from JAX's cache, executables compiled
     # after it serialise without some of their functions ("Function … not found" when the
     # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.
