@@ -170,9 +170,9 @@ print(repr(float(ctfit.fit(simulate(truth, 120, noise=0.01, seed=3), st).stats["
 def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_path):
     """Three processes with JAX's cache on for every program: the first compiles and stores the
     fit; the second, the stored executable deleted, loads other programs from JAX's cache and
-    compiles the fit again; the third runs whatever the store then holds. After a JAX cache hit
-    a process's new executables serialise without some of their functions (jaxlib 0.10), so
-    such a process must not store them."""
+    compiles the fit again; the third runs whatever the store then holds. Whatever JAX's cache
+    served (with jaxlib 0.10 an executable loaded from there could serialise without some of
+    its functions), what the store then holds runs, and gives the same fit."""
     import subprocess
     import sys
 
@@ -221,6 +221,68 @@ def test_programs_of_one_hlo_under_two_keys_are_both_stored(tmp_path, monkeypatc
     np.testing.assert_array_equal(first["y"], second["y"])
     assert _aot._jax_cache_hits == 0
     assert len(list(store.glob("twin-*.xla"))) == 2
+
+
+def test_a_program_lost_from_the_store_is_stored_again(tmp_path, monkeypatch):
+    """A store entry removed (damaged, or deleted by hand) must be compiled and stored again, not
+    served by JAX's persistent cache: that hit would keep this and every later process from
+    storing anything more, and every "warm" fit would trace and load from JAX's cache again."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    store = tmp_path / "store"
+    store.mkdir()
+    monkeypatch.setattr(_aot, "_store", lambda: store)
+    monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
+    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    compilation_cache.reset_cache()
+    try:
+        x = jnp.arange(3.0)
+        _aot.cached_call("lost", _ignores_its_second, x, jnp.ones(4))
+        (entry,) = store.glob("lost-*.xla")
+        entry.unlink()
+        _aot._memory.clear()  # as a new process
+        again = _aot.cached_call("lost", _ignores_its_second, x, jnp.ones(4))
+        after = jax.config.jax_persistent_cache_min_compile_time_secs
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+        compilation_cache.reset_cache()
+    np.testing.assert_array_equal(again["y"], np.arange(3.0) * 2.0)
+    assert _aot._jax_cache_hits == 0
+    assert entry.is_file()
+    assert after == 0  # JAX's threshold as the user set it, once the program is made
+
+
+def test_a_jax_cache_hit_of_another_program_does_not_stop_the_store(tmp_path, monkeypatch):
+    """JAX's cache keeps small programs too (a dtype conversion that once took 0.5 s to compile);
+    a process that loads one from there still stores the programs it compiles afterwards."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    store = tmp_path / "store"
+    store.mkdir()
+    monkeypatch.setattr(_aot, "_store", lambda: store)
+    monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
+    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    compilation_cache.reset_cache()
+    try:
+        small = jax.jit(lambda v: v.astype(jnp.float32) + 1)
+        small(jnp.arange(5.0))
+        jax.clear_caches()  # as a new process: the small program comes from JAX's cache
+        small(jnp.arange(5.0))
+        assert _aot._jax_cache_hits >= 1
+        out = _aot.cached_call("after_a_hit", _ignores_its_second, jnp.arange(3.0), jnp.ones(2))
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+        compilation_cache.reset_cache()
+    np.testing.assert_array_equal(out["y"], np.arange(3.0) * 2.0)
+    assert len(list(store.glob("after_a_hit-*.xla"))) == 1
 
 
 def test_the_source_digest_covers_subpackages(tmp_path, monkeypatch):

@@ -161,7 +161,7 @@ def fit_texel_maps(
     record = json.dumps(dict(structure=repr(structure), **{k: (np.dtype(v).name if k == "dtype" else v) for k, v in options.items()}), sort_keys=True)
     stamp = dict(input=os.fspath(path), input_sha256=_file_sha256(path), fit_options=record)
     row = int(np.prod(sizes[1:])) if len(sizes) > 1 else 1
-    rows = max(1, chunk // row)
+    rows = max(1, min(chunk // row, sizes[0]))  # an image smaller than a chunk is not padded to one
     spans = [(a, min(a + rows, sizes[0])) for a in range(0, sizes[0], rows)]
     x64 = np.dtype(dtype).itemsize == 8
     source = (os.fspath(path), os.path.abspath(path))  # workers may run in another folder

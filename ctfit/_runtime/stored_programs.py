@@ -35,14 +35,17 @@ goniometer geometry compiled in: its key holds the geometry's values; the last f
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import importlib.metadata
+import math
 import os
 import pathlib
 import pickle
 import platform
 import stat
+import threading
 import warnings
 from typing import Callable
 
@@ -233,6 +236,36 @@ def _save(path: pathlib.Path, key: str, compiled) -> None:
     atomic_write(path, [pickle.dumps(entry, protocol=pickle.HIGHEST_PROTOCOL)])
 
 
+_outside = threading.Lock()
+_outside_depth = 0
+_outside_saved = None
+
+
+@contextlib.contextmanager
+def _outside_jax_cache():
+    """Programs compiled meanwhile (in any thread) are not written to JAX's persistent cache.
+
+    The store keeps the programs compiled in here; JAX's cache keeps the others. A program bound
+    for the store must not come back from JAX's cache, which the store then could not keep (see
+    :func:`_program`): a program JAX's cache held but the store lacked (an entry dropped as
+    damaged) would be served by JAX, traced and lowered, in every later process. JAX's threshold
+    of compile time is raised meanwhile, then restored.
+    """
+    global _outside_depth, _outside_saved
+    with _outside:
+        if _outside_depth == 0:
+            _outside_saved = jax.config.jax_persistent_cache_min_compile_time_secs
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", math.inf)
+        _outside_depth += 1
+    try:
+        yield
+    finally:
+        with _outside:
+            _outside_depth -= 1
+            if _outside_depth == 0:
+                jax.config.update("jax_persistent_cache_min_compile_time_secs", _outside_saved)
+
+
 def _plain(treedef) -> bool:
     """Whether a tree structure uses only containers that survive pickling (no custom nodes)."""
     probe = jax.tree.unflatten(treedef, [0] * treedef.num_leaves)
@@ -307,14 +340,18 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     # The program's name in JAX's logs, and in JAX's cache key: with the entry's digest in it when
     # stored, JAX's cache never hands the store a program compiled under another key (two programs
     # of one HLO: jit leaves out unused arguments, so e.g. the report of a 1-band and a 3-band fit
-    # may agree), which would keep the process from storing anything (see below).
+    # may agree), which would keep it out of the store (see below).
     flat.__name__ = flat.__qualname__ = f"ctfit_{name}_{digest[:16]}" if path is not None else f"ctfit_{name}"
     lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
-    run = _remember(key, lowered.compile(compiler_options=options))
-    # Once this process has loaded an executable from JAX's cache, executables compiled
-    # after it serialise without some of their functions ("Function … not found" when the
-    # stored copy runs in another process; jaxlib 0.10): such a process stores nothing.
-    if path is not None and not _jax_cache_hits:
+    hits = _jax_cache_hits
+    with _outside_jax_cache() if path is not None else contextlib.nullcontext():
+        run = _remember(key, lowered.compile(compiler_options=options))
+    # A program JAX's cache served is not stored (a jaxlib 0.10 executable loaded from JAX's
+    # cache could serialise without some of its functions). Hits of other programs, in this
+    # thread or another meanwhile, count too: cautious. A hit of an unrelated program earlier in
+    # the process (JAX keeps even a dtype conversion that once took 0.5 s to compile) does not
+    # stop the store: with that rule, the store stayed empty in every process that met one.
+    if path is not None and _jax_cache_hits == hits:
         try:
             _save(path, key, run)
         except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
