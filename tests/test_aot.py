@@ -194,95 +194,69 @@ def _ignores_its_second(x, unused):
     return {"y": x * 2.0}
 
 
-def test_programs_of_one_hlo_under_two_keys_are_both_stored(tmp_path, monkeypatch):
+@pytest.fixture
+def store_beside_jax_cache(tmp_path, monkeypatch):
+    """A program store (the folder, yielded) and JAX's persistent cache on for every program
+    (threshold 0), both in ``tmp_path``; JAX's cache as it was afterwards."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    store = tmp_path / "store"
+    store.mkdir()
+    monkeypatch.setattr(_aot, "_store", lambda: store)
+    monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
+    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
+    compilation_cache.reset_cache()
+    try:
+        yield store
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before[0])
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
+        compilation_cache.reset_cache()
+
+
+def test_programs_of_one_hlo_under_two_keys_are_both_stored(store_beside_jax_cache):
     """jit leaves unused arguments out, so two stored programs (keys differing in the shape of an
     argument the program does not read) can lower to one HLO. JAX's cache must not hand the
-    second the first's executable: that hit would keep the process from storing anything more
-    (a 1-band file fitted after a 3-band one shared the fit report's HLO this way)."""
-    from jax.experimental.compilation_cache import compilation_cache
-
-    store = tmp_path / "store"
-    store.mkdir()
-    monkeypatch.setattr(_aot, "_store", lambda: store)
-    monkeypatch.setattr(_aot, "_memory", {})
-    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
-    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)
-    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
-    compilation_cache.reset_cache()
-    try:
-        x = jnp.arange(3.0)
-        first = _aot.cached_call("twin", _ignores_its_second, x, jnp.ones(4))
-        second = _aot.cached_call("twin", _ignores_its_second, x, jnp.ones(7))
-    finally:
-        jax.config.update("jax_compilation_cache_dir", before[0])
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
-        compilation_cache.reset_cache()
+    second the first's executable, which the store then could not keep (a 1-band file fitted
+    after a 3-band one shared the fit report's HLO this way)."""
+    x = jnp.arange(3.0)
+    first = _aot.cached_call("twin", _ignores_its_second, x, jnp.ones(4))
+    second = _aot.cached_call("twin", _ignores_its_second, x, jnp.ones(7))
     np.testing.assert_array_equal(first["y"], second["y"])
     assert _aot._jax_cache_hits == 0
-    assert len(list(store.glob("twin-*.xla"))) == 2
+    assert len(list(store_beside_jax_cache.glob("twin-*.xla"))) == 2
 
 
-def test_a_program_lost_from_the_store_is_stored_again(tmp_path, monkeypatch):
+def test_a_program_lost_from_the_store_is_stored_again(store_beside_jax_cache):
     """A store entry removed (damaged, or deleted by hand) must be compiled and stored again, not
-    served by JAX's persistent cache: that hit would keep this and every later process from
-    storing anything more, and every "warm" fit would trace and load from JAX's cache again."""
-    from jax.experimental.compilation_cache import compilation_cache
-
-    store = tmp_path / "store"
-    store.mkdir()
-    monkeypatch.setattr(_aot, "_store", lambda: store)
-    monkeypatch.setattr(_aot, "_memory", {})
-    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
-    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)
-    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
-    compilation_cache.reset_cache()
-    try:
-        x = jnp.arange(3.0)
-        _aot.cached_call("lost", _ignores_its_second, x, jnp.ones(4))
-        (entry,) = store.glob("lost-*.xla")
-        entry.unlink()
-        _aot._memory.clear()  # as a new process
-        again = _aot.cached_call("lost", _ignores_its_second, x, jnp.ones(4))
-        after = jax.config.jax_persistent_cache_min_compile_time_secs
-    finally:
-        jax.config.update("jax_compilation_cache_dir", before[0])
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
-        compilation_cache.reset_cache()
+    served by JAX's persistent cache: until 2026-11-26 that hit kept this and every later process
+    from storing anything more, and every "warm" fit traced and loaded from JAX's cache again."""
+    x = jnp.arange(3.0)
+    _aot.cached_call("lost", _ignores_its_second, x, jnp.ones(4))
+    (entry,) = store_beside_jax_cache.glob("lost-*.xla")
+    entry.unlink()
+    _aot._memory.clear()  # as a new process
+    again = _aot.cached_call("lost", _ignores_its_second, x, jnp.ones(4))
     np.testing.assert_array_equal(again["y"], np.arange(3.0) * 2.0)
     assert _aot._jax_cache_hits == 0
     assert entry.is_file()
-    assert after == 0  # JAX's threshold as the user set it, once the program is made
+    assert jax.config.jax_persistent_cache_min_compile_time_secs == 0  # JAX's threshold as the user set it
 
 
-def test_a_jax_cache_hit_of_another_program_does_not_stop_the_store(tmp_path, monkeypatch):
+def test_a_jax_cache_hit_of_another_program_does_not_stop_the_store(store_beside_jax_cache):
     """JAX's cache keeps small programs too (a dtype conversion that once took 0.5 s to compile);
     a process that loads one from there still stores the programs it compiles afterwards."""
-    from jax.experimental.compilation_cache import compilation_cache
-
-    store = tmp_path / "store"
-    store.mkdir()
-    monkeypatch.setattr(_aot, "_store", lambda: store)
-    monkeypatch.setattr(_aot, "_memory", {})
-    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
-    before = (jax.config.jax_compilation_cache_dir, jax.config.jax_persistent_cache_min_compile_time_secs)
-    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "jax"))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0)
-    compilation_cache.reset_cache()
-    try:
-        small = jax.jit(lambda v: v.astype(jnp.float32) + 1)
-        small(jnp.arange(5.0))
-        jax.clear_caches()  # as a new process: the small program comes from JAX's cache
-        small(jnp.arange(5.0))
-        assert _aot._jax_cache_hits >= 1
-        out = _aot.cached_call("after_a_hit", _ignores_its_second, jnp.arange(3.0), jnp.ones(2))
-    finally:
-        jax.config.update("jax_compilation_cache_dir", before[0])
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", before[1])
-        compilation_cache.reset_cache()
+    small = jax.jit(lambda v: v.astype(jnp.float32) + 1)
+    small(jnp.arange(5.0))
+    jax.clear_caches()  # as a new process: the small program comes from JAX's cache
+    small(jnp.arange(5.0))
+    assert _aot._jax_cache_hits >= 1
+    out = _aot.cached_call("after_a_hit", _ignores_its_second, jnp.arange(3.0), jnp.ones(2))
     np.testing.assert_array_equal(out["y"], np.arange(3.0) * 2.0)
-    assert len(list(store.glob("after_a_hit-*.xla"))) == 1
+    assert len(list(store_beside_jax_cache.glob("after_a_hit-*.xla"))) == 1
 
 
 def test_the_source_digest_covers_subpackages(tmp_path, monkeypatch):
