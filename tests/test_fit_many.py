@@ -117,13 +117,14 @@ runner = CliRunner()
 def test_cli_workers_writes_summarises_and_skips_what_is_done(tmp_path):
     files = write_folder(tmp_path / "data")
     out = tmp_path / "out"
-    first = runner.invoke(app, ["fit", str(tmp_path / "data"), "-o", str(out), "--workers", "2"])
+    named = ["--family", "metal", "--lobes", "1", "--diffuse", "F0/pi"]  # the workers' bookkeeping, not the data-chosen default (tested apart)
+    first = runner.invoke(app, ["fit", str(tmp_path / "data"), "-o", str(out), "--workers", "2", *named])
     assert first.exit_code == 2, first.output  # the bad file
     summary = json.loads((out / "summary.json").read_text())
     assert (summary["converged"], summary["failed"]) == (5, 1)
     bad = next(r for r in summary["results"] if r["outcome"] == "failed")
     assert bad["data"].endswith("bad.csv") and "theta_i" in bad["reason"]
-    serial = runner.invoke(app, ["fit", *map(str, files), "-o", str(tmp_path / "serial")])
+    serial = runner.invoke(app, ["fit", *map(str, files), "-o", str(tmp_path / "serial"), *named])
     assert serial.exit_code == 0, serial.output
     for path in files:
         doc = json.loads((out / f"{path.stem}.fit.json").read_text())
@@ -133,7 +134,7 @@ def test_cli_workers_writes_summarises_and_skips_what_is_done(tmp_path):
         assert doc["fit"]["cost"] == pytest.approx(alone["fit"]["cost"], rel=1e-12)
     (out / "f3.fit.json").unlink()
     ctfit.write_csv(one_lobe(0.4, seed=9, n_pairs=100), files[1])  # changed input: fitted again
-    again = runner.invoke(app, ["fit", str(tmp_path / "data"), "-o", str(out), "--workers", "2"], env={"CTFIT_PROGRESS": "1"})
+    again = runner.invoke(app, ["fit", str(tmp_path / "data"), "-o", str(out), "--workers", "2", *named], env={"CTFIT_PROGRESS": "1"})
     assert "tasks:" in again.output  # a bar over the tasks
     rows = {r["data"].rsplit("/", 1)[-1]: r for r in json.loads((out / "summary.json").read_text())["results"]}
     assert [name for name, r in rows.items() if not r["kept"] and r["outcome"] == "converged"] == ["f1.csv", "f3.csv"], again.output

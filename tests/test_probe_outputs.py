@@ -101,7 +101,8 @@ def test_a_closed_stdout_costs_no_result(tmp_path):
     for i, name in enumerate(names):
         assert run("simulate", MATERIAL, "-o", tmp_path / name, *SMALL, "--seed", i).exit_code == 0
     out = tmp_path / "out"
-    proc = subprocess.Popen(_ctfit("fit", *(tmp_path / n for n in names), "-o", out, "--starts", 1), env=_env(tmp_path),
+    named = ("--family", "metal", "--lobes", 1, "--diffuse", "F0/pi")  # one structure: a cold process compiles one, not the choice's
+    proc = subprocess.Popen(_ctfit("fit", *(tmp_path / n for n in names), "-o", out, "--starts", 1, *named), env=_env(tmp_path),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     proc.stdout.close()  # `| head -0`: the reader is gone before the first table
     with proc.stderr:
