@@ -443,15 +443,19 @@ def _expand(paths) -> list[Path]:
 
 def _choice_table(res) -> str:
     """The structures the data chose among (``res.stats["structure_choice"]``): each one's
-    parameters, median relative error, BIC; where they were compared on a screening sample, its size."""
+    parameters, median relative error, BIC; where they were compared on a screening sample, its
+    size and each one's median relative error on the held-out pairs, which chose."""
     screening = res.stats.get("structure_screening") or {}
-    on = (f"; compared on {screening['samples']:,} of its {screening['of']:,} samples, the choice then fitted to all"
-          if screening.get("samples", 0) < screening.get("of", 0) else "")
-    lines = [f"structure chosen by the data (lowest BIC{on}):",
-             f"  {'structure':<42} {'params':>6} {'median |f−y|/y':>15} {'BIC':>14} {'converged':>10}"]
+    screened = screening.get("samples", 0) < screening.get("of", 0)
+    held = screened and screening.get("criterion", "").startswith("held-out")
+    how = (f"lowest median |f−y|/y on {screening.get('heldout_samples', 0):,} held-out samples" if held else "lowest BIC")
+    on = f"; fitted to {screening['samples']:,} of its {screening['of']:,} samples, the choice then fitted to all" if screened else ""
+    lines = [f"structure chosen by the data ({how}{on}):",
+             f"  {'structure':<42} {'params':>6} {'median |f−y|/y':>15}" + (f" {'held-out':>9}" if held else "") + f" {'BIC':>14} {'converged':>10}"]
     for row in res.stats["structure_choice"]:
-        median = row.get("median_relative_error")
+        median, out = row.get("median_relative_error"), row.get("heldout_median_relative_error")
         med = "–" if median is None else f"{median:.1%}"
+        ho = (f" {'–' if out is None else f'{out:.1%}':>9}") if held else ""
         mark = "  <- chosen" if row["chosen"] else ""
-        lines.append(f"  {row['structure']:<42} {row['params']:>6} {med:>15} {row['bic']:>14.6g} {str(row['converged']):>10}{mark}")
+        lines.append(f"  {row['structure']:<42} {row['params']:>6} {med:>15}{ho} {row['bic']:>14.6g} {str(row['converged']):>10}{mark}")
     return "\n".join(lines)

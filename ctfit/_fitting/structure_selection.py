@@ -10,7 +10,8 @@ from .._model import Measurement, Params, Structure
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
 
-__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "DIFFUSE_FORMS", "SCREEN_SAMPLES", "SCREEN_TOLERANCE"]
+__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "DIFFUSE_FORMS",
+           "SCREEN_SAMPLES", "SCREEN_TOLERANCE", "HELDOUT_PAIRS", "CHOICE_GAIN"]
 
 
 def select_structure(
@@ -120,16 +121,18 @@ def choose_structure(
     data: Measurement, *, families=DEFAULT_FAMILIES, lobes=DEFAULT_LOBES, diffuse=None, geometry: str = "v-cavity",
     fresnel: str | None = None, progress=None, **kwargs,
 ) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
-    """The data-chosen default structure: family × diffuse part × lobe count, lowest BIC.
+    """The data-chosen default structure: family × diffuse part × lobe count, by BIC or, on large
+    data, by the median relative error on held-out direction pairs.
 
     Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse``
-    given) is fitted with the fewest ``lobes``; the one with the lowest BIC then gets more lobes in
-    turn (nested starts, :func:`select_structure`) while the BIC falls; if it got more, the
+    given) is fitted with the fewest ``lobes``; the one preferred (:func:`_better`) then gets more
+    lobes in turn (nested starts, :func:`select_structure`) while that improves; if it got more, the
     family's other diffuse parts are fitted with as many lobes too (from its lobes: a diffuse part
     chosen at one lobe may have stood in for a second lobe). Fits of one measurement in
     one loss, so their BICs compare. Data of more than :data:`SCREEN_SAMPLES` samples is screened:
-    the candidates are fitted to a random subset of its direction pairs, their BICs scaled to the
-    whole data, and the structure chosen is then fitted to all of it, as ``fit(data, structure)``
+    the candidates are fitted to a random subset of its direction pairs and compared by their
+    median relative error on other pairs (:func:`heldout_sample`, :func:`heldout_error`; their BICs
+    scaled to the whole data for the table), and the structure chosen is then fitted to all of it, as ``fit(data, structure)``
     would (the same result as naming that structure; ``tried`` holds the
     screening fits; ``stats["structure_screening"]`` the sizes). ``fresnel``: "f0" (default) or "conductor" for a metal.
     Returns the best fit and every (structure, fit) tried, in order.
@@ -162,21 +165,29 @@ def choose_structure(
     given = user_start is None  # the choice gives nested starts unless the caller gave a start
     tried: list[tuple[Structure, FitResult]] = []
 
+    held = heldout_sample(data)
+
     def fit_screen(st: Structure, start: Params | None) -> FitResult:
-        tried.append((st, fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, **kwargs)))
-        return tried[-1][1]
+        res = fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, **kwargs)
+        if held is not None:
+            res.stats["heldout_median_relative_error"] = heldout_error(res, held)
+        tried.append((st, res))
+        return res
+
+    def better(new: FitResult, old: FitResult) -> bool:
+        return _better(new, old, n_full, held is not None)
 
     # Each stage's later fits have their programs made (loaded or compiled) in the background
     # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
     with concurrent.futures.ThreadPoolExecutor(1) as background:
         ahead = lambda st: background.submit(prefetch_fit, screen, st, given_start=True, **kwargs)  # noqa: E731 (always a start)
-        best_st, best = _first_stage(combos, fit_screen, background, screen, given, kwargs, progress, n_full)
+        best_st, best = _first_stage(combos, fit_screen, background, screen, given, kwargs, progress, better)
         for i, j in enumerate(lobes[1:], start=2):
             bigger = Structure(**{**best_st.__dict__, "lobes": j})
             if i < len(lobes):
                 ahead(Structure(**{**best_st.__dict__, "lobes": lobes[i]}))
             res = fit_screen(bigger, _embedded_start(best, bigger))
-            if _full_bic(res, n_full) >= _full_bic(best, n_full):
+            if not better(res, best):
                 break
             best_st, best = bigger, res
         if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen
@@ -186,20 +197,22 @@ def choose_structure(
                 ahead(other)
             for other in others:
                 res = fit_screen(other, _lobes_start(chosen, other))
-                if _full_bic(res, n_full) < _full_bic(best, n_full):
+                if better(res, best):
                     best_st, best = other, res
     table = choice_table(tried, best, n_full)
+    criterion = "held-out median relative error" if held is not None else "BIC"
     if screen is not data:  # the structure chosen, fitted to all the data as that structure alone would be
         best = fit(data, best_st, start=user_start, **kwargs)
     best.stats["structure_choice"] = table
-    best.stats["structure_screening"] = {"samples": len(screen), "of": n_full}
+    best.stats["structure_screening"] = {"samples": len(screen), "of": n_full, "criterion": criterion,
+                                         "heldout_samples": 0 if held is None else len(held)}
     return best, tried
 
 
-def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: dict, progress, n_full: int):
+def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: dict, progress, better):
     """Fit every (family, diffuse part) combination with the fewest lobes, each that contains an
     earlier one also from that one's fit; the programs of the later ones made in ``background``
-    meanwhile. Returns the (structure, fit) of the lowest BIC."""
+    meanwhile. Returns the (structure, fit) ``better`` keeps, in their order."""
     fits = []
     for i, st in enumerate(combos):
         if i > 0:
@@ -207,7 +220,85 @@ def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: di
     for st in (progress or (lambda it: it))(combos):
         inner = [r for sm, r in fits if _contains(st, sm) and np.isfinite(r.stats["cost"])]
         fits.append((st, fit_screen(st, _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner else None)))
-    return min(fits, key=lambda sr: _full_bic(sr[1], n_full))
+    best = fits[0]
+    for st, res in fits[1:]:
+        if better(res, best[1]):
+            best = (st, res)
+    return best
+
+
+HELDOUT_PAIRS = 2048
+"""Screened data: the candidates are compared on up to this many direction pairs that the
+screening sample left out (:func:`heldout_sample`), every band of each."""
+CHOICE_GAIN = 0.02
+"""Compared on held-out pairs, a candidate with more parameters is chosen over one with fewer only
+if its median relative error there is lower by more than this fraction; one with fewer only
+if not higher by more than it (:func:`_better`)."""
+
+
+def _better(new: FitResult, old: FitResult, n_full: int, heldout: bool) -> bool:
+    """Whether ``new`` is chosen over ``old``: the lower BIC (scaled to ``n_full`` samples), or with
+    ``heldout`` the lower median relative error on the held-out pairs, more parameters having to
+    gain :data:`CHOICE_GAIN` of it and fewer allowed to lose as much."""
+    if not heldout:
+        return _full_bic(new, n_full) < _full_bic(old, n_full)
+    a, b = (r.stats.get("heldout_median_relative_error", np.inf) for r in (new, old))
+    if not np.isfinite(a):
+        return False
+    if not np.isfinite(b):
+        return True
+    more = int(new.stats["n_params"]) - int(old.stats["n_params"])
+    return a < b * (1 - CHOICE_GAIN) if more > 0 else a < b * (1 + CHOICE_GAIN) if more < 0 else a < b
+
+
+def _screening_pairs(data: Measurement, samples: int):
+    """(direction pairs, each sample's pair, the pairs of the screening sample or None: all)."""
+    pairs, index = data.directions()
+    if len(data) <= samples or len(pairs) < 2:
+        return pairs, index, None
+    n_pairs = max(1, min(len(pairs), int(len(pairs) * samples // len(data))))  # at most ``samples``: whole chunks
+    return pairs, index, np.random.default_rng(0).choice(len(pairs), n_pairs, replace=False)
+
+
+def heldout_sample(data: Measurement, samples: int = SCREEN_SAMPLES, pairs: int = HELDOUT_PAIRS) -> Measurement | None:
+    """The samples of up to ``pairs`` direction pairs (seed 1) that the screening sample of
+    ``data`` (:func:`screening_sample`) left out: where screened candidates are compared, each by the
+    median relative error of its model there (:func:`heldout_error`). None for data that is not screened."""
+    all_pairs, index, chosen = _screening_pairs(data, samples)
+    if chosen is None:
+        return None
+    rest = np.setdiff1d(np.arange(len(all_pairs)), chosen)
+    if len(rest) == 0:
+        return None
+    if len(rest) > pairs:
+        rest = np.random.default_rng(1).choice(rest, pairs, replace=False)
+    keep = np.isin(index, rest)
+    fields = ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf") + (("sigma",) if data.sigma is not None else ())
+    return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
+
+
+def heldout_error(res: FitResult, held: Measurement) -> float:
+    """The median over the samples of ``held`` with y > 0 of |f − y| / y, f the model of ``res``: its
+    direction pairs padded to :data:`HELDOUT_PAIRS`, so one stored program per structure serves
+    every file."""
+    import jax
+
+    from .._model.evaluation import _grid_values_impl
+    from .._runtime import cached_call
+
+    pairs, index = held.directions()
+    size = max(HELDOUT_PAIRS, len(pairs))
+    dt = np.float64 if jax.config.jax_enable_x64 else np.float32
+    padded = np.concatenate([pairs, np.repeat(pairs[:1], size - len(pairs), axis=0)]).astype(dt)
+    params = jax.tree.map(lambda a: np.asarray(a, dtype=dt), res.material.params)
+    values = np.asarray(cached_call("heldout_values", _grid_values_impl, res.material.structure, params, padded, effort="once"))
+    f, y = values[index, np.asarray(held.band)], np.asarray(held.brdf, dtype=float)
+    ok = y > 0
+    if not ok.any():
+        return np.inf
+    with np.errstate(invalid="ignore", over="ignore"):
+        err = np.abs(f[ok] - y[ok]) / y[ok]
+    return float(np.median(err)) if np.all(np.isfinite(err)) else np.inf
 
 
 def screening_sample(data: Measurement, samples: int = SCREEN_SAMPLES) -> Measurement:
@@ -215,11 +306,10 @@ def screening_sample(data: Measurement, samples: int = SCREEN_SAMPLES) -> Measur
     the samples of a random subset of its direction pairs (every band of a pair kept; seed 0, so
     the choice is reproducible) holding at most about ``samples`` (a power of two: whole chunks
     of the fit's programs, no chunk of padding)."""
-    pairs, index = data.directions()
-    if len(data) <= samples or len(pairs) < 2:
+    _, index, chosen = _screening_pairs(data, samples)
+    if chosen is None:
         return data
-    n_pairs = max(1, min(len(pairs), int(len(pairs) * samples // len(data))))  # at most ``samples``: whole chunks
-    keep = np.isin(index, np.random.default_rng(0).choice(len(pairs), n_pairs, replace=False))
+    keep = np.isin(index, chosen)
     fields = ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf") + (("sigma",) if data.sigma is not None else ())
     return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
 
@@ -240,5 +330,6 @@ def choice_table(tried: list[tuple[Structure, FitResult]], best: FitResult, n_fu
     which was chosen (the fit JSON's ``fit.structure_choice``)."""
     return [{"structure": structure_label(st), "params": int(r.stats["n_params"]), "cost": r.stats["cost"],
              "bic": _full_bic(r, n_full or int(r.stats["n_samples"])),
-             "median_relative_error": r.stats.get("quality", {}).get("median_relative_error"), "converged": bool(r.converged), "chosen": r is best}
+             "median_relative_error": r.stats.get("quality", {}).get("median_relative_error"),
+             "heldout_median_relative_error": r.stats.get("heldout_median_relative_error"), "converged": bool(r.converged), "chosen": r is best}
             for st, r in tried]
