@@ -1,4 +1,4 @@
-"""Which structure the data supports: nested candidates fitted in turn, the lowest BIC kept."""
+"""Which structure the data supports: nested candidates fitted in turn, kept by BIC or, on large data, by their error on held-out pairs."""
 
 from __future__ import annotations
 
