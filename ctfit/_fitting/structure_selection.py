@@ -6,7 +6,7 @@ import concurrent.futures
 
 import numpy as np
 
-from .._model import Measurement, Params, Structure
+from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
 
@@ -146,26 +146,12 @@ def choose_structure(
     >>> best.material.structure.family, best.material.structure.lobes
     ('plastic', 1)
     """
-    combos = []
-    for family in families:
-        for form in DIFFUSE_FORMS[family] if diffuse in (None, "auto") else (diffuse,):
-            try:
-                combos.append(Structure(lobes=lobes[0], geometry=geometry, fresnel=(fresnel or "f0") if family == "metal" else "n",
-                                        diffuse=None if form == "none" else form, family=family))
-            except ValueError:
-                continue  # a diffuse part this family has not (e.g. "F0/pi" for a plastic)
-    if not combos:
-        raise ValueError(f"no structure of families {tuple(families)} has diffuse part {diffuse!r}")
-    fits_data = [st for st in combos if n_free_parameters(st, data.n_bands, kwargs.get("fixed", ())) <= len(data)]
-    combos = fits_data or combos[:1]  # too few samples for all: the first one's error says so
-    screen = screening_sample(data)
-    n_full = len(data)
+    combos = _first_combos(data, families, lobes[0], diffuse, geometry, fresnel, kwargs.get("fixed", ()))
+    screen, held, n_full = screening_sample(data), heldout_sample(data), len(data)
     tolerance = SCREEN_TOLERANCE if screen is not data else None
     user_start = kwargs.pop("start", None)
     given = user_start is None  # the choice gives nested starts unless the caller gave a start
     tried: list[tuple[Structure, FitResult]] = []
-
-    held = heldout_sample(data)
 
     def fit_screen(st: Structure, start: Params | None) -> FitResult:
         res = fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, **kwargs)
@@ -207,6 +193,23 @@ def choose_structure(
     best.stats["structure_screening"] = {"samples": len(screen), "of": n_full, "criterion": criterion,
                                          "heldout_samples": 0 if held is None else len(held)}
     return best, tried
+
+
+def _first_combos(data: Measurement, families, lobes: int, diffuse, geometry: str, fresnel, fixed) -> list[Structure]:
+    """Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse``
+    given) with ``lobes`` lobes, those with more free parameters than ``data`` has samples left out
+    (all of them too many: the first, whose fit's error says so)."""
+    combos = []
+    for family in families:
+        for form in DIFFUSE_FORMS[family] if diffuse in (None, "auto") else (diffuse,):
+            try:
+                combos.append(Structure(lobes=lobes, geometry=geometry, fresnel=(fresnel or "f0") if family == "metal" else "n",
+                                        diffuse=None if form == "none" else form, family=family))
+            except ValueError:
+                continue  # a diffuse part this family has not (e.g. "F0/pi" for a plastic)
+    if not combos:
+        raise ValueError(f"no structure of families {tuple(families)} has diffuse part {diffuse!r}")
+    return [st for st in combos if n_free_parameters(st, data.n_bands, fixed) <= len(data)] or combos[:1]
 
 
 def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: dict, progress, better):
@@ -277,13 +280,17 @@ def heldout_sample(data: Measurement, samples: int = SCREEN_SAMPLES, pairs: int 
     return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
 
 
+def _values_at_pairs(structure: Structure, params: Params, pairs):
+    """The model at direction pairs (θ_i, φ_i, θ_o, φ_o in degrees, one row each): (pairs, bands)."""
+    return brdf(structure, params, geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3]))
+
+
 def heldout_error(res: FitResult, held: Measurement) -> float:
     """The median over the samples of ``held`` with y > 0 of |f − y| / y, f the model of ``res``: its
     direction pairs padded to :data:`HELDOUT_PAIRS`, so one stored program per structure serves
     every file."""
     import jax
 
-    from .._model.evaluation import _grid_values_impl
     from .._runtime import cached_call
 
     pairs, index = held.directions()
@@ -291,7 +298,7 @@ def heldout_error(res: FitResult, held: Measurement) -> float:
     dt = np.float64 if jax.config.jax_enable_x64 else np.float32
     padded = np.concatenate([pairs, np.repeat(pairs[:1], size - len(pairs), axis=0)]).astype(dt)
     params = jax.tree.map(lambda a: np.asarray(a, dtype=dt), res.material.params)
-    values = np.asarray(cached_call("heldout_values", _grid_values_impl, res.material.structure, params, padded, effort="once"))
+    values = np.asarray(cached_call("heldout_values", _values_at_pairs, res.material.structure, params, padded, effort="once"))
     f, y = values[index, np.asarray(held.band)], np.asarray(held.brdf, dtype=float)
     ok = y > 0
     if not ok.any():
