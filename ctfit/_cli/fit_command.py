@@ -447,7 +447,7 @@ def _choice_table(res) -> str:
     size and each one's median relative error on the held-out pairs, which chose."""
     screening = res.stats.get("structure_screening") or {}
     screened = screening.get("samples", 0) < screening.get("of", 0)
-    held = screened and screening.get("criterion", "").startswith("held-out")
+    held = screened and bool(screening.get("heldout_samples"))
     how = (f"lowest median |f−y|/y on {screening.get('heldout_samples', 0):,} held-out samples" if held else "lowest BIC")
     on = f"; fitted to {screening['samples']:,} of its {screening['of']:,} samples, the choice then fitted to all" if screened else ""
     lines = [f"structure chosen by the data ({how}{on}):",

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import concurrent.futures
 
+import jax
 import numpy as np
 
 from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg
+from .._runtime import cached_call
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
 
@@ -254,6 +256,13 @@ def _better(new: FitResult, old: FitResult, n_full: int, heldout: bool) -> bool:
     return a < b * (1 - CHOICE_GAIN) if more > 0 else a < b * (1 + CHOICE_GAIN) if more < 0 else a < b
 
 
+def _samples_of_pairs(data: Measurement, index, kept) -> Measurement:
+    """The samples of ``data`` whose direction pair (``index``, :meth:`~ctfit.Measurement.directions`'s) is in ``kept``."""
+    keep = np.isin(index, kept)
+    fields = ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf") + (("sigma",) if data.sigma is not None else ())
+    return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
+
+
 def _screening_pairs(data: Measurement, samples: int):
     """(direction pairs, each sample's pair, the pairs of the screening sample or None: all)."""
     pairs, index = data.directions()
@@ -275,9 +284,7 @@ def heldout_sample(data: Measurement, samples: int = SCREEN_SAMPLES, pairs: int 
         return None
     if len(rest) > pairs:
         rest = np.random.default_rng(1).choice(rest, pairs, replace=False)
-    keep = np.isin(index, rest)
-    fields = ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf") + (("sigma",) if data.sigma is not None else ())
-    return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
+    return _samples_of_pairs(data, index, rest)
 
 
 def _values_at_pairs(structure: Structure, params: Params, pairs):
@@ -289,10 +296,6 @@ def heldout_error(res: FitResult, held: Measurement) -> float:
     """The median over the samples of ``held`` with y > 0 of |f − y| / y, f the model of ``res``: its
     direction pairs padded to :data:`HELDOUT_PAIRS`, so one stored program per structure serves
     every file."""
-    import jax
-
-    from .._runtime import cached_call
-
     pairs, index = held.directions()
     size = max(HELDOUT_PAIRS, len(pairs))
     dt = np.float64 if jax.config.jax_enable_x64 else np.float32
@@ -316,9 +319,7 @@ def screening_sample(data: Measurement, samples: int = SCREEN_SAMPLES) -> Measur
     _, index, chosen = _screening_pairs(data, samples)
     if chosen is None:
         return data
-    keep = np.isin(index, chosen)
-    fields = ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf") + (("sigma",) if data.sigma is not None else ())
-    return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
+    return _samples_of_pairs(data, index, chosen)
 
 
 def _full_bic(res: FitResult, n_full: int) -> float:

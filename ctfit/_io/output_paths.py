@@ -60,17 +60,23 @@ def same_file(a, b) -> bool:
     return bool(_identity(a) & _identity(b))
 
 
+def _loops(path: Path) -> bool:
+    """Whether ``path`` is a symbolic link that leads (through others, maybe) to itself."""
+    try:
+        os.stat(path)
+    except OSError as e:
+        return e.errno == errno.ELOOP
+    return False
+
+
 def broken_link(path) -> str | None:
     """Why ``path``, a symbolic link, leads to no file ("is a symbolic link that leads to itself",
     or "… to TARGET, which does not exist"); None when it is no link or leads to a file."""
     path = Path(path)
     if not path.is_symlink() or os.path.exists(path):
         return None
-    try:
-        os.stat(path)
-    except OSError as e:
-        if e.errno == errno.ELOOP:
-            return "is a symbolic link that leads to itself"
+    if _loops(path):
+        return "is a symbolic link that leads to itself"
     return f"is a symbolic link to {os.readlink(path)}, which does not exist"
 
 
@@ -139,7 +145,7 @@ def check_output(path, inputs=(), *, option: str = "-o", chosen: bool = False) -
     for inp in inputs:
         if inp is not None and mine & _input_identity(os.path.abspath(inp)):
             raise OutputError(f"{_at(option, path)}: is the input {inp}; write the result to another file")
-    if broken_link(path) == "is a symbolic link that leads to itself":
+    if path.is_symlink() and _loops(path):
         raise OutputError(f"{_at(option, path)}: is a symbolic link that leads to itself; remove it or choose another name")
     if path.is_dir():
         raise OutputError(f"{_at(option, path)}: is a folder; give a file name")

@@ -71,15 +71,14 @@ LLVM not optimising at all halves their compile, and they run a few milliseconds
 (docs/fitting.md, "Compiled programs are kept"; ``scripts/compile_times.py``)."""
 _memory: dict[str, Callable] = {}  # "name-key" → program, the least recently used first
 _jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
-_jax_cache_hits_by_thread: dict[int, int] = {}  # the same, per thread (JAX reports a hit in the thread that compiles)
+_thread_hits = threading.local()  # .count: the same, in this thread (JAX reports a hit in the thread that compiles)
 
 
 def _count_jax_cache_hit(event: str, **_) -> None:
     global _jax_cache_hits
     if event == "/jax/compilation_cache/cache_hits":
         _jax_cache_hits += 1
-        me = threading.get_ident()
-        _jax_cache_hits_by_thread[me] = _jax_cache_hits_by_thread.get(me, 0) + 1
+        _thread_hits.count = getattr(_thread_hits, "count", 0) + 1
 
 
 jax.monitoring.register_event_listener(_count_jax_cache_hit)
@@ -346,8 +345,7 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     # may agree), which would keep it out of the store (see below).
     flat.__name__ = flat.__qualname__ = f"ctfit_{name}_{digest[:16]}" if path is not None else f"ctfit_{name}"
     lowered = jax.jit(flat).lower(*(jax.ShapeDtypeStruct(x.shape, x.dtype) for x in leaves))
-    me = threading.get_ident()
-    hits = _jax_cache_hits_by_thread.get(me, 0)
+    hits = getattr(_thread_hits, "count", 0)
     with _outside_jax_cache() if path is not None else contextlib.nullcontext():
         run = _remember(key, lowered.compile(compiler_options=options))
     # A program JAX's cache served (a hit in this thread during its compile) is not stored: a
@@ -356,7 +354,7 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     # conversion that once took 0.5 s to compile), do not stop the store: with that rule, the
     # store stayed empty in every process that met one, and a background compile lost its entry
     # to a small program the main thread loaded meanwhile.
-    if path is not None and _jax_cache_hits_by_thread.get(me, 0) == hits:
+    if path is not None and getattr(_thread_hits, "count", 0) == hits:
         try:
             _save(path, key, run)
         except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
