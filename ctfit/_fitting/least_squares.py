@@ -199,7 +199,8 @@ def fit(
     max_steps: int = 256,
 ) -> FitResult:
     """Fit ``structure`` to ``data``; without one, the data chooses it (:func:`~ctfit.choose_structure`:
-    metal or plastic, its diffuse part and 1–3 lobes, by BIC; the candidates are in
+    metal or plastic, its diffuse part and 1–3 lobes, by BIC or on large data by the error on
+    held-out direction pairs; the candidates are in
     ``stats["structure_choice"]``).
 
     ``start`` gives starting values (and the values of the ``fixed`` parameters); ``loss`` is

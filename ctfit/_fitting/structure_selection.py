@@ -131,12 +131,15 @@ def choose_structure(
     lobes in turn (nested starts, :func:`select_structure`) while that improves; if it got more, the
     family's other diffuse parts are fitted with as many lobes too (from its lobes: a diffuse part
     chosen at one lobe may have stood in for a second lobe). Fits of one measurement in
-    one loss, so their BICs compare. Data of more than :data:`SCREEN_SAMPLES` samples is screened:
+    one loss, so their BICs compare. A candidate with one lobe more is solved from the smaller
+    one's fit and from the grid seeds (``starts``: where its new lobe goes is open); one that only
+    adds or changes the diffuse part, from the smaller one's fit alone (its lobes are placed).
+    Data of more than :data:`SCREEN_SAMPLES` samples is screened:
     the candidates are fitted to a random subset of its direction pairs and compared by their
     median relative error on other pairs (:func:`heldout_sample`, :func:`heldout_error`; their BICs
-    scaled to the whole data for the table), and the structure chosen is then fitted to all of it, as ``fit(data, structure)``
-    would (the same result as naming that structure; ``tried`` holds the
-    screening fits; ``stats["structure_screening"]`` the sizes). ``fresnel``: "f0" (default) or "conductor" for a metal.
+    scaled to the whole data for the table), and the structure chosen is then fitted to all of
+    it, solved from its fit to the subset (``tried`` holds the screening fits;
+    ``stats["structure_screening"]`` the sizes). ``fresnel``: "f0" (default) or "conductor" for a metal.
     Returns the best fit and every (structure, fit) tried, in order.
 
     >>> import numpy as np, ctfit
@@ -155,8 +158,8 @@ def choose_structure(
     given = user_start is None  # the choice gives nested starts unless the caller gave a start
     tried: list[tuple[Structure, FitResult]] = []
 
-    def fit_screen(st: Structure, start: Params | None) -> FitResult:
-        res = fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, **kwargs)
+    def fit_screen(st: Structure, start: Params | None, seeded: bool = True) -> FitResult:
+        res = fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, **_seeding(kwargs, given and not seeded))
         if held is not None:
             res.stats["heldout_median_relative_error"] = heldout_error(res, held)
         tried.append((st, res))
@@ -167,8 +170,8 @@ def choose_structure(
 
     # Each stage's later fits have their programs made (loaded or compiled) in the background
     # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
-    with concurrent.futures.ThreadPoolExecutor(1) as background:
-        ahead = lambda st: background.submit(prefetch_fit, screen, st, given_start=True, **kwargs)  # noqa: E731 (always a start)
+    with concurrent.futures.ThreadPoolExecutor(2) as background:
+        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, **_seeding(kwargs, given and not seeded))  # noqa: E731
         best_st, best = _first_stage(combos, fit_screen, background, screen, given, kwargs, progress, better)
         for i, j in enumerate(lobes[1:], start=2):
             bigger = Structure(**{**best_st.__dict__, "lobes": j})
@@ -182,15 +185,15 @@ def choose_structure(
             chosen, chosen_st = best, best_st
             others = [Structure(**{**st.__dict__, "lobes": chosen_st.lobes}) for st in combos if st.family == chosen_st.family and st.diffuse != chosen_st.diffuse]
             for other in others[1:]:
-                ahead(other)
+                ahead(other, seeded=False)
             for other in others:
-                res = fit_screen(other, _lobes_start(chosen, other))
+                res = fit_screen(other, _lobes_start(chosen, other), seeded=False)
                 if better(res, best):
                     best_st, best = other, res
     table = choice_table(tried, best, n_full)
     criterion = "held-out median relative error" if held is not None else "BIC"
-    if screen is not data:  # the structure chosen, fitted to all the data as that structure alone would be
-        best = fit(data, best_st, start=user_start, **kwargs)
+    if screen is not data:  # the structure chosen, fitted to all the data from its fit to the screening sample
+        best = fit_to_tolerance(data, best_st, start=best.material.params, **_seeding(kwargs, True))
     best.stats["structure_choice"] = table
     best.stats["structure_screening"] = {"samples": len(screen), "of": n_full, "criterion": criterion,
                                          "heldout_samples": 0 if held is None else len(held)}
@@ -220,16 +223,23 @@ def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: di
     meanwhile. Returns the (structure, fit) ``better`` keeps, in their order."""
     fits = []
     for i, st in enumerate(combos):
+        nested = any(_contains(st, sm) for sm in combos[:i])
         if i > 0:
-            background.submit(prefetch_fit, screen, st, given_start=not given or any(_contains(st, sm) for sm in combos[:i]), **kwargs)
+            background.submit(prefetch_fit, screen, st, given_start=not given or nested, **_seeding(kwargs, given and nested))
     for st in (progress or (lambda it: it))(combos):
         inner = [r for sm, r in fits if _contains(st, sm) and np.isfinite(r.stats["cost"])]
-        fits.append((st, fit_screen(st, _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner else None)))
+        start = _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner else None
+        fits.append((st, fit_screen(st, start, seeded=start is None)))
     best = fits[0]
     for st, res in fits[1:]:
         if better(res, best[1]):
             best = (st, res)
     return best
+
+
+def _seeding(kwargs: dict, start_only: bool) -> dict:
+    """``kwargs`` of a fit; ``start_only``: solved from its start alone (``starts=0``: no grid seeds)."""
+    return dict(kwargs, starts=0) if start_only else kwargs
 
 
 HELDOUT_PAIRS = 2048
