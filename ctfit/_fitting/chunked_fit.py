@@ -11,10 +11,13 @@ any file, each adding its share to a running sum on the device (calls are queued
   (:func:`~ctfit._fitting.problem.normal_equations`);
 - ``fit_grid_sums`` and ``fit_grid_costs``: the two passes of the seeds' scores
   (:func:`~ctfit._fitting.starts.grid_sums`, :func:`~ctfit._fitting.starts.grid_costs`);
-- ``fit_summary``: residual summary and the cost of a zero model, per chunk.
+- ``fit_summary``: residual summary and the cost of a zero model, per chunk;
+- ``fit_zero``: the cost of a zero model alone, with no structure in it (one program per loss,
+  layout and bands, shared by every structure): for fits without the report (``report=False``).
 
 Programs whose shapes depend only on the parameters: ``fit_seeds`` (the seeds from their
-scores, the bounds), ``fit_report`` (:func:`~ctfit._fitting.fit_report.report_core`), and
+scores, the bounds), ``fit_report`` (:func:`~ctfit._fitting.fit_report.report_core`; without the
+report, ``fit_light``: :func:`~ctfit._fitting.fit_report.light_report_core`), and
 optimistix's solver itself (:func:`~ctfit._fitting.seeded_solve.lm_solver`): ``lm_init`` and
 ``lm_step``, one step of ``StructuredLevenbergMarquardt`` given the cost, Jᵀr and JᵀJ at the
 point it evaluates, compiled per number of parameters and shared by every structure. The host
@@ -40,8 +43,9 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from .._runtime import stored_program
-from .fit_report import report_core, summary_of_part, combined_rms, zero_model_cost
-from .problem import Problem, normal_equations
+from .._model import Params, Structure
+from .fit_report import light_report_core, report_core, summary_of_part, combined_rms, zero_model_cost
+from .problem import Problem, Spec, normal_equations
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver, stop_tolerances
 from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
 
@@ -160,6 +164,17 @@ def _summary_kernel(part: Problem, u: dict):
     return dict(rel=rel, stats=stats, bad=bad, zero=zero_model_cost(part))
 
 
+def _zero_kernel(acc, part: Problem):
+    return acc + zero_model_cost(part)
+
+
+def _data_only(part: Problem) -> Problem:
+    """``part`` with no structure in it (a metal of one lobe, nothing fixed, no geometry): what
+    the cost of a zero model reads, so that one ``fit_zero`` serves every structure."""
+    spec = Spec(structure=Structure(), free=(), loss=part.spec.loss, grid=part.spec.grid)
+    return dataclasses.replace(part, spec=spec, geom=None, fixed=Params())
+
+
 def _seeds_program(part: Problem, u0: dict, k: int, grid, num, den, costs, keep_start: bool):
     if grid is None:
         seeds = jax.tree.map(lambda a: a[None], u0)
@@ -254,13 +269,16 @@ def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
     return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step, zeros)
 
 
-def _report_programs(template: Problem, u0: dict) -> None:
-    """Make (compile or load) the programs of the report, for the shapes of ``u0``."""
+def _report_programs(template: Problem, u0: dict, report: bool = True):
+    """Make (compile or load) the programs of the report, for the shapes of ``u0``: (summary,
+    report), or without the report (cost of a zero model, light report)."""
     flat = ravel_pytree(u0)[0]
     p, dtype = flat.shape[0], flat.dtype
     zero = np.zeros((), dtype)
-    _program("fit_summary", _summary_kernel, template, u0)
-    _program("fit_report", report_core, template, u0, zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
+    rest = (zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
+    if not report:
+        return _program("fit_zero", _zero_kernel, zero, _data_only(template)), _program("fit_light", light_report_core, template, u0, *rest)
+    return _program("fit_summary", _summary_kernel, template, u0), _program("fit_report", report_core, template, u0, *rest)
 
 
 def _seed_programs(template: Problem, u0: dict, k: int, grid, keep_start: bool):
@@ -292,16 +310,17 @@ def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> di
     return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1], total))))
 
 
-def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False) -> None:
+def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False, report: bool = True) -> None:
     """Make (load from the store, or compile) every program :func:`chunked_core` calls for a fit
-    of ``problem``'s layout from ``u0``'s shapes, without fitting. Run in a background thread
-    while another fit runs, it takes the loading or compiling off that fit's path."""
+    of ``problem``'s layout from ``u0``'s shapes (with the report or without), without fitting.
+    Run in a background thread while another fit runs, it takes the loading or compiling off
+    that fit's path."""
     (template,) = chunk_problems(problem, limit=1)
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
     _kernels([template], u0)
-    _report_programs(template, u0)
+    _report_programs(template, u0, report)
     _seed_programs(template, u0, starts, grid, keep_start)
-    _programs[_signature((template, u0, grid, starts, keep_start))] = True
+    _programs[_signature((template, u0, grid, starts, keep_start, report))] = True
 
 
 def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None):
@@ -331,21 +350,23 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
 
 
 def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False, parts: list[Problem] | None = None,
-                 tolerance: float | None = None) -> dict:
+                 tolerance: float | None = None, report: bool = True) -> dict:
     """``fit_core``'s output (host arrays) for the solver "lm", on chunks: ``problem`` laid out
     by ``make_problem(chunk=ROWS)``, ``parts`` its :func:`chunk_problems` (made here if None);
-    ``tolerance``: :func:`_race`'s."""
+    ``tolerance``: :func:`_race`'s. ``report=False``: only what comparing fits needs (the
+    parameters, the cost of a zero model, the Gauss–Newton decrease; no residual summary or
+    standard errors), with two small programs in place of the summary's and the report's."""
     parts = chunk_problems(problem) if parts is None else parts
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
     # The first time, a structure's programs compile in three threads at once (XLA compiles
     # without the GIL): the solver's, the report's, and (here) the seeds'.
-    shapes = _signature((parts[0], u0, grid, starts, keep_start))
+    shapes = _signature((parts[0], u0, grid, starts, keep_start, report))
     if shapes in _programs:
         seeds, kern = _seeds(parts, u0, starts, grid, keep_start), _kernels(parts, u0)
     else:
         with concurrent.futures.ThreadPoolExecutor(2) as pool:
             kernels = pool.submit(_kernels, parts, u0)
-            pool.submit(_report_programs, parts[0], u0)
+            pool.submit(_report_programs, parts[0], u0, report)
             seeds = _seeds(parts, u0, starts, grid, keep_start)
             kern = kernels.result()
         _programs[shapes] = True
@@ -355,14 +376,28 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))
     cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
     u = {k: jax.device_put(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}  # (jnp.asarray compiles a copy program per shape)
+    solved = dict(u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best)
+    if not report:
+        zero_program, light = _report_programs(kern.template, u0, report=False)
+        zero = jax.device_put(np.zeros((), costs.dtype))
+        dynamic, static = eqx.partition(kern.template, eqx.is_array)
+        for leaves in kern.parts:
+            zero = zero_program(zero, *_leaves(_data_only(eqx.combine(jax.tree.unflatten(jax.tree.structure(dynamic), leaves), static))))
+        zero = np.asarray(jax.device_get(zero))
+        out = jax.device_get(light(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
+        return dict(out, **solved, zero_cost=zero)
+    return dict(_report(kern, problem, u, cost, jtr, jtj, costs.dtype), **solved)
+
+
+def _report(kern: _Kernels, problem: Problem, u: dict, cost, jtr, jtj, dtype) -> dict:
+    """The residual summary (chunk by chunk) and the report at the solution ``u``."""
     summary, ul = _program("fit_summary", _summary_kernel, kern.template, u), _leaves(u)
     parts = jax.device_get([summary(*leaves, *ul) for leaves in kern.parts])
-    zero = np.asarray(np.sum([c["zero"] for c in parts]), costs.dtype)
+    zero = np.asarray(np.sum([c["zero"] for c in parts]), dtype)
     report = _program("fit_report", report_core, kern.template, u, cost, jtr, jtj, zero)
     out = jax.device_get(report(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
     n = max(int(np.sum(np.asarray(problem.mask))), 1)
     stats = [[np.array([c["stats"][i][j] for c in parts]) for j in (0, 1)] for i in (0, 1)]
     with np.errstate(invalid="ignore", over="ignore"):  # a value that is not finite gives NaN, as in a program
         rmse, rel_rmse = (combined_rms(big, sq, n, xp=np) for big, sq in stats)
-    return dict(out, u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best,
-                rel=np.stack([c["rel"] for c in parts]), rmse=rmse, rel_rmse=rel_rmse, bad=int(sum(int(c["bad"]) for c in parts)))
+    return dict(out, rel=np.stack([c["rel"] for c in parts]), rmse=rmse, rel_rmse=rel_rmse, bad=int(sum(int(c["bad"]) for c in parts)))

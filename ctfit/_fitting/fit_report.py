@@ -22,7 +22,7 @@ from .solvers import active_set
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
-    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "zero_model_cost", "summary_of_part", "combined_rms", "PARAM_FIELDS",
+    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "zero_model_cost", "summary_of_part", "combined_rms", "PARAM_FIELDS",
 ]
 
 PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
@@ -200,18 +200,29 @@ def zero_model_cost(part: Problem):
 
 def report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost) -> dict:
     """What the report needs at the solution ``u`` (its ½‖r‖² ``cost``, Jᵀr, JᵀJ; the cost of a
-    zero model): the active set, JᵀJ on the free coordinates, the Gauss–Newton decrease, the
-    Jacobian of the reported quantities and the parameters. Uses only ``problem.spec`` and
+    zero model): :func:`light_report_core`'s, with JᵀJ on the free coordinates and the Jacobian
+    of the reported quantities (the standard errors'). Uses only ``problem.spec`` and
     ``problem.fixed``: any chunk of the problem serves."""
     flat, unravel = ravel_pytree(u)
+    out = light_report_core(problem, u, cost, jtr, jtj, zero_cost)
+    keep = ~out["on_bound"]
+    jtj = jnp.where(keep[:, None] & keep[None, :], jtj, 0)
+    jt = jax.jacfwd(lambda f: constrained_quantities(problem, unravel, f))(flat) if flat.size else None
+    return dict(out, jtj=jtj, jt=jt, zero_cost=zero_cost)
+
+
+def light_report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost) -> dict:
+    """What comparing a fit needs at its solution ``u``: the active set, the Gauss–Newton
+    decrease on the free coordinates and the parameters (no standard errors: the data-chosen
+    default's candidates, :func:`~ctfit._fitting.least_squares.fit_to_tolerance` with ``report=False``)."""
+    flat, _ = ravel_pytree(u)
     lower, upper = flat_bounds(problem, u)
     on_bound = active_set(flat, jtr, lower, upper)  # held on a bound: a result, not a failure
     keep = ~on_bound
     jtr = jnp.where(keep, jtr, 0)
     jtj = jnp.where(keep[:, None] & keep[None, :], jtj, 0)
-    jt = jax.jacfwd(lambda f: constrained_quantities(problem, unravel, f))(flat) if flat.size else None
     params = to_params(problem.spec, u, problem.fixed)
     params = {k: getattr(params, k) for k in PARAM_FIELDS}  # plain containers: the executable's output is stored (_runtime/stored_programs.py)
     if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
         params["n"] = effective_index(params["f0"])  # reported beside F0
-    return dict(jtj=jtj, on_bound=on_bound, gn_decrease=gauss_newton_decrease(jtj, jtr, cost, zero_cost), zero_cost=zero_cost, jt=jt, params=params)
+    return dict(on_bound=on_bound, gn_decrease=gauss_newton_decrease(jtj, jtr, cost, zero_cost), params=params)

@@ -55,7 +55,8 @@ from .seeded_solve import STATIONARY_TOLERANCE, explains_none, judge_converged, 
 from .starts import default_start, m_grid, seed_points
 from .validate import check_fittable, nonfinite_reason
 
-__all__ = ["fit", "fit_to_tolerance", "prefetch_fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "solve_prepared"]
+__all__ = ["fit", "fit_to_tolerance", "prefetch_fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "finish_light",
+           "solve_prepared"]
 
 
 
@@ -228,38 +229,44 @@ def fit(
 
 
 def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: float | None = None, start: Params | None = None, fixed: tuple[str, ...] = (),
-                     loss: str = "auto", solver: str = "lm", dtype=jnp.float64, starts: int = 3, max_steps: int = 256) -> FitResult:
+                     loss: str = "auto", solver: str = "lm", dtype=jnp.float64, starts: int = 3, max_steps: int = 256, report: bool = True) -> FitResult:
     """:func:`fit` of ``structure``, its Levenberg–Marquardt ("lm") stopping where one more
     Gauss–Newton step promises less than ``tolerance`` relative decrease of the cost, and judged
     converged there (None: :data:`~ctfit._fitting.seeded_solve.STATIONARY_TOLERANCE`). The
-    data-chosen default screens its candidates so (:data:`~ctfit._fitting.structure_selection.SCREEN_TOLERANCE`)."""
+    data-chosen default screens its candidates so (:data:`~ctfit._fitting.structure_selection.SCREEN_TOLERANCE`).
+    ``report=False`` ("lm"): only what comparing fits needs (:func:`finish_light`), which spares
+    compiling or loading the residual summary's and the report's programs of ``structure``."""
     t0 = time.perf_counter()
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS if solver == "lm" else None)
-    return finish_fit(prep, solve_prepared(prep, solver, max_steps, tolerance), solver, t0, tolerance if solver == "lm" else None)
+    light = not report and solver == "lm"
+    out = solve_prepared(prep, solver, max_steps, tolerance, report=not light)
+    return (finish_light if light else finish_fit)(prep, out, solver, t0, tolerance if solver == "lm" else None)
 
 
 def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool = False, fixed: tuple[str, ...] = (), loss: str = "auto",
-                 solver: str = "lm", dtype=jnp.float64, starts: int = 3, **_) -> None:
-    """Make (load or compile) the programs a :func:`fit` of ``structure`` to ``data`` will call
-    (with a start given or not), without fitting: for a background thread, while other fits run.
-    Nothing for solvers other than "lm", or for a fit that cannot be prepared (its own fit says why)."""
+                 solver: str = "lm", dtype=jnp.float64, starts: int = 3, report: bool = True, **_) -> None:
+    """Make (load or compile) the programs a :func:`fit_to_tolerance` of ``structure`` to ``data``
+    will call (with a start given or not, with the report or not), without fitting: for a
+    background thread, while other fits run. Nothing for solvers other than "lm", or for a fit
+    that cannot be prepared (its own fit says why)."""
     if solver != "lm":
         return
     try:
         prep = prepare_fit(data, structure, start=None, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS)
     except (ValueError, TypeError):
         return
-    prefetch(prep.problem, prep.u0, prep.grid, prep.k, given_start)
+    prefetch(prep.problem, prep.u0, prep.grid, prep.k, given_start, report)
 
 
-def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: float | None = None) -> dict:
+def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: float | None = None, report: bool = True) -> dict:
     """``fit_core``'s output (host arrays) for one prepared fit: on chunks for "lm" (a problem
     laid out with ``chunk``: :func:`~ctfit._fitting.chunked_fit.chunked_core`, which stops at
-    ``tolerance``), else the one compiled program of its size bucket."""
+    ``tolerance``, and leaves out the report with ``report=False``), else the one compiled
+    program of its size bucket."""
     if solver == "lm" and prep.chunked:
         parts = chunk_problems(prep.problem)
         prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
-        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance)
+        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance, report=report)
     return jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
 
 
@@ -297,6 +304,34 @@ def _quality(data: Measurement, rel, floor: float, structure: Structure, params:
     return quality_from_relative(err, half_angle_deg(data), np.maximum(data.theta_i, data.theta_o), peak_width_deg(structure, params))
 
 
+def _bic(cost: float, zero_cost: float, n: int, p: int, loss: str, dtype) -> float:
+    """BIC = N ln(RSS/N) + P ln N (χ² + P ln N with the sigma loss), RSS = 2·cost. Round-off is no
+    evidence: a cost below 100 ε² of the zero model's is an exact fit, and exact fits of several
+    structures tie on it, so the BIC keeps the one with the fewest parameters."""
+    exact = 2 * zero_cost * (100 * float(jnp.finfo(dtype).eps)) ** 2
+    return (2 * cost if loss == "sigma" else n * math.log(max(2 * cost, exact, 1e-300) / n)) + p * math.log(n)
+
+
+def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None) -> FitResult:
+    """The :class:`FitResult` of a fit solved without the report (``chunked_core(report=False)``):
+    its material, and the stats that compare fits (converged, steps, cost, n_samples, n_params,
+    bic, gauss_newton_decrease, …; ``report`` False). No standard errors (``stderr`` None), no
+    residual summary, quality or warnings: :func:`fit_to_tolerance` from its parameters gives them."""
+    dtype, problem = prep.dtype, prep.problem
+    costs, ok, best = out["costs"], out["ok"], int(out["best"])
+    params, _ = sorted_lobes(Params(**{k: None if v is None else np.asarray(v) for k, v in out["params"].items()}))
+    n, p = int(np.asarray(problem.mask).sum()), int(sum(np.size(v) for v in out["u"].values()))
+    cost, zero_cost, gn_decrease = float(costs[best]), float(out["zero_cost"]), float(out["gn_decrease"])
+    converged = bool(judge_converged(np.asarray(ok)[best], math.isfinite(cost), gn_decrease, cost, zero_cost, dtype, tolerance))
+    stats = {"converged": converged, "steps": int(np.asarray(out["steps"])[best]), "cost": cost, "time_s": time.perf_counter() - t0, "n_samples": n,
+             "n_params": p, "bic": _bic(cost, zero_cost, n, p, prep.loss, dtype), "loss": prep.loss, "solver": solver, "dtype": jnp.dtype(dtype).name,
+             "starts": int(np.asarray(costs).size), "relative_floor": float(problem.floor), "gauss_newton_decrease": gn_decrease,
+             "on_bound": labelled(out["u"], np.asarray(out["on_bound"], bool)), "report": False}
+    material = Material(structure=prep.structure, params=Params(**{k: getattr(params, k) for k in PARAM_FIELDS}), wavelength_nm=prep.data.wavelength_nm,
+                        channels=prep.data.channels, name=f"fit of {prep.data.source}", band_unknown=prep.data.band_unknown)
+    return FitResult(material=material, stats=stats, stderr=None, warnings=[], loss=prep.loss, solver=solver)
+
+
 def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None) -> FitResult:
     """The :class:`FitResult` of a prepared fit from ``fit_core``'s output (host arrays); ``t0``:
     when it began; ``tolerance``: the stationarity it was solved to (:func:`fit_to_tolerance`)."""
@@ -330,10 +365,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     zero_cost = float(out["zero_cost"])
     explains_nothing = bool(explains_none(cost, zero_cost))
     converged = bool(judge_converged(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype, tolerance))
-    # Round-off is no evidence: a cost below 100 ε² of the zero model's is an exact fit, and exact fits
-    # of several structures tie on it, so the BIC keeps the one with the fewest parameters.
-    exact = 2 * zero_cost * (100 * float(jnp.finfo(dtype).eps)) ** 2
-    bic = (rss_like if loss == "sigma" else n * math.log(max(rss_like, exact, 1e-300) / n)) + p * math.log(n)
+    bic = _bic(cost, zero_cost, n, p, loss, dtype)
     stats = {
         "converged": converged,
         "steps": int(np.asarray(steps)[best]),

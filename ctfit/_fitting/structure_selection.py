@@ -12,7 +12,7 @@ from .._runtime import cached_call
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
 
-__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "DIFFUSE_FORMS",
+__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error", "DIFFUSE_FORMS",
            "SCREEN_SAMPLES", "SCREEN_TOLERANCE", "HELDOUT_PAIRS", "CHOICE_GAIN"]
 
 
@@ -137,9 +137,11 @@ def choose_structure(
     Data of more than :data:`SCREEN_SAMPLES` samples is screened:
     the candidates are fitted to a random subset of its direction pairs and compared by their
     median relative error on other pairs (:func:`heldout_sample`, :func:`heldout_error`; their BICs
-    scaled to the whole data for the table), and the structure chosen is then fitted to all of
-    it, solved from its fit to the subset (``tried`` holds the screening fits;
-    ``stats["structure_screening"]`` the sizes). ``fresnel``: "f0" (default) or "conductor" for a metal.
+    scaled to the whole data for the table; ``stats["structure_screening"]`` the sizes). The
+    candidates are fitted without the report (``report=False``: no standard errors, residual
+    summary or warnings; their ``quality`` holds the median relative error alone); the structure
+    chosen is then fitted to all the data, with the report, from its candidate's fit.
+    ``fresnel``: "f0" (default) or "conductor" for a metal.
     Returns the best fit and every (structure, fit) tried, in order.
 
     >>> import numpy as np, ctfit
@@ -159,7 +161,8 @@ def choose_structure(
     tried: list[tuple[Structure, FitResult]] = []
 
     def fit_screen(st: Structure, start: Params | None, seeded: bool = True) -> FitResult:
-        res = fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, **_seeding(kwargs, given and not seeded))
+        res = fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, report=False, **_seeding(kwargs, given and not seeded))
+        res.stats["quality"] = {"median_relative_error": model_median_error(res, screen)}
         if held is not None:
             res.stats["heldout_median_relative_error"] = heldout_error(res, held)
         tried.append((st, res))
@@ -171,7 +174,8 @@ def choose_structure(
     # Each stage's later fits have their programs made (loaded or compiled) in the background
     # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
     with concurrent.futures.ThreadPoolExecutor(2) as background:
-        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, **_seeding(kwargs, given and not seeded))  # noqa: E731
+        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, report=False,  # noqa: E731
+                                                          **_seeding(kwargs, given and not seeded))
         best_st, best = _first_stage(combos, fit_screen, background, screen, given, kwargs, progress, better)
         for i, j in enumerate(lobes[1:], start=2):
             bigger = Structure(**{**best_st.__dict__, "lobes": j})
@@ -182,22 +186,30 @@ def choose_structure(
                 break
             best_st, best = bigger, res
         if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen
-            chosen, chosen_st = best, best_st
-            others = [Structure(**{**st.__dict__, "lobes": chosen_st.lobes}) for st in combos if st.family == chosen_st.family and st.diffuse != chosen_st.diffuse]
-            for other in others[1:]:
-                ahead(other, seeded=False)
-            for other in others:
-                res = fit_screen(other, _lobes_start(chosen, other), seeded=False)
-                if better(res, best):
-                    best_st, best = other, res
+            best_st, best = _other_diffuse_parts(combos, best_st, best, fit_screen, ahead, better)
     table = choice_table(tried, best, n_full)
     criterion = "held-out median relative error" if held is not None else "BIC"
-    if screen is not data:  # the structure chosen, fitted to all the data from its fit to the screening sample
-        best = fit_to_tolerance(data, best_st, start=best.material.params, **_seeding(kwargs, True))
+    # The structure chosen, fitted to all the data (with the report) from its candidate's fit
+    found = np.isfinite(best.stats["cost"])
+    best = fit_to_tolerance(data, best_st, start=best.material.params if found else user_start, **_seeding(kwargs, bool(found)))
     best.stats["structure_choice"] = table
     best.stats["structure_screening"] = {"samples": len(screen), "of": n_full, "criterion": criterion,
                                          "heldout_samples": 0 if held is None else len(held)}
     return best, tried
+
+
+def _other_diffuse_parts(combos, chosen_st: Structure, chosen: FitResult, fit_screen, ahead, better):
+    """The family's other diffuse parts of ``combos`` at ``chosen_st``'s lobe count, each from
+    ``chosen``'s lobes alone (programs made ``ahead``); the (structure, fit) ``better`` keeps."""
+    best_st, best = chosen_st, chosen
+    others = [Structure(**{**st.__dict__, "lobes": chosen_st.lobes}) for st in combos if st.family == chosen_st.family and st.diffuse != chosen_st.diffuse]
+    for other in others[1:]:
+        ahead(other, seeded=False)
+    for other in others:
+        res = fit_screen(other, _lobes_start(chosen, other), seeded=False)
+        if better(res, best):
+            best_st, best = other, res
+    return best_st, best
 
 
 def _first_combos(data: Measurement, families, lobes: int, diffuse, geometry: str, fresnel, fixed) -> list[Structure]:
@@ -225,7 +237,7 @@ def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: di
     for i, st in enumerate(combos):
         nested = any(_contains(st, sm) for sm in combos[:i])
         if i > 0:
-            background.submit(prefetch_fit, screen, st, given_start=not given or nested, **_seeding(kwargs, given and nested))
+            background.submit(prefetch_fit, screen, st, given_start=not given or nested, report=False, **_seeding(kwargs, given and nested))
     for st in (progress or (lambda it: it))(combos):
         inner = [r for sm, r in fits if _contains(st, sm) and np.isfinite(r.stats["cost"])]
         start = _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner else None
@@ -303,16 +315,22 @@ def _values_at_pairs(structure: Structure, params: Params, pairs):
 
 
 def heldout_error(res: FitResult, held: Measurement) -> float:
-    """The median over the samples of ``held`` with y > 0 of |f − y| / y, f the model of ``res``: its
-    direction pairs padded to :data:`HELDOUT_PAIRS`, so one stored program per structure serves
-    every file."""
-    pairs, index = held.directions()
-    size = max(HELDOUT_PAIRS, len(pairs))
+    """The median relative error of ``res`` on the held-out samples ``held`` (:func:`model_median_error`)."""
+    return model_median_error(res, held)
+
+
+def model_median_error(res: FitResult, data: Measurement) -> float:
+    """The median over the samples of ``data`` with y > 0 of |f − y| / y, f the model of ``res``: its
+    direction pairs evaluated :data:`HELDOUT_PAIRS` at a time (the last block padded), so one
+    stored program per structure serves every file."""
+    pairs, index = data.directions()
+    size = -(-len(pairs) // HELDOUT_PAIRS) * HELDOUT_PAIRS
     dt = np.float64 if jax.config.jax_enable_x64 else np.float32
     padded = np.concatenate([pairs, np.repeat(pairs[:1], size - len(pairs), axis=0)]).astype(dt)
     params = jax.tree.map(lambda a: np.asarray(a, dtype=dt), res.material.params)
-    values = np.asarray(cached_call("heldout_values", _values_at_pairs, res.material.structure, params, padded, effort="once"))
-    f, y = values[index, np.asarray(held.band)], np.asarray(held.brdf, dtype=float)
+    values = np.concatenate([np.asarray(cached_call("heldout_values", _values_at_pairs, res.material.structure, params, padded[i: i + HELDOUT_PAIRS],
+                                                    effort="once")) for i in range(0, size, HELDOUT_PAIRS)])
+    f, y = values[index, np.asarray(data.band)], np.asarray(data.brdf, dtype=float)
     ok = y > 0
     if not ok.any():
         return np.inf
