@@ -339,3 +339,41 @@ def test_a_jax_cache_folder_others_can_write_to_is_not_used(tmp_path, jax_cache_
         assert jax_cache_config.program_store_folder() is None
     assert jax.config.jax_compilation_cache_dir is None
     assert not list(shared.iterdir())
+
+
+def test_threads_asking_for_one_program_at_once_make_it_once(store, monkeypatch):
+    """A fit and the background threads that make the next candidates' programs may ask for one
+    program together (the screening sample's geometry): it is compiled once, the others wait for
+    it. Before, three threads compiled the geometry at once in a first run."""
+    import threading
+
+    compiled = []
+    lower = _aot.jax.jit
+
+    def counting_jit(fn, *a, **k):
+        jitted = lower(fn, *a, **k)
+
+        class Lowering:
+            def lower(self, *args):
+                lowered = jitted.lower(*args)
+                compiled.append(fn.__name__)
+                return lowered
+
+        return Lowering()
+
+    monkeypatch.setattr(_aot.jax, "jit", counting_jit)
+    start, outs = threading.Barrier(3), []
+
+    def ask():
+        start.wait()
+        outs.append(_aot.cached_call("together", _fn, *_args())["y"])
+
+    threads = [threading.Thread(target=ask) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(compiled) == 1 and len(outs) == 3
+    for y in outs:
+        np.testing.assert_array_equal(y, outs[0])
+    assert len(list(store.glob("together-*.xla"))) == 1

@@ -123,6 +123,12 @@ def _leaves(tree) -> list:
     return jax.tree.leaves(eqx.filter(tree, eqx.is_array))
 
 
+def _flat_shape(u0: dict) -> tuple[int, np.dtype]:
+    """The size and dtype of ``ravel_pytree(u0)[0]``, on the host (an eager ``ravel_pytree``
+    compiles a concatenation per shape, in every process)."""
+    return int(sum(np.size(v) for v in u0.values())), np.result_type(*[np.asarray(v).dtype for v in u0.values()])
+
+
 def _unflat(u0: dict, flat) -> dict:
     """``ravel_pytree``'s inverse on the host: the dict of ``u0``'s shapes from a flat vector."""
     out, at = {}, 0
@@ -257,8 +263,8 @@ class _Kernels:
 
 def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
     template = parts[0]
-    p = _padded_size(ravel_pytree(u0)[0].shape[0])
-    dtype = ravel_pytree(u0)[0].dtype
+    size, dtype = _flat_shape(u0)
+    p = _padded_size(size)
     flat = jax.device_put(np.zeros(p, dtype))
     zeros = [jax.device_put(np.zeros(s, dtype)) for s in ((), (p,), (p, p))]
     ne = _program("fit_ne", _ne_kernel, zeros, template, flat, u0)
@@ -272,8 +278,7 @@ def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
 def _report_programs(template: Problem, u0: dict, report: bool = True):
     """Make (compile or load) the programs of the report, for the shapes of ``u0``: (summary,
     report), or without the report (cost of a zero model, light report)."""
-    flat = ravel_pytree(u0)[0]
-    p, dtype = flat.shape[0], flat.dtype
+    p, dtype = _flat_shape(u0)
     zero = np.zeros((), dtype)
     rest = (zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
     if not report:
@@ -372,7 +377,7 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
         _programs[shapes] = True
     values, sound, steps, costs = _race(kern, seeds, max_steps, tolerance)
     best = int(np.argmin(costs))
-    p = int(np.size(ravel_pytree(u0)[0]))
+    p = _flat_shape(u0)[0]
     cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))
     cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
     u = {k: jax.device_put(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}  # (jnp.asarray compiles a copy program per shape)

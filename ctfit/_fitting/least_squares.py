@@ -181,9 +181,9 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
         start = Params(**{k: (getattr(start, k) if getattr(start, k) is not None else getattr(default, k)) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
     check_fittable(data, structure, fixed=fixed, loss=loss, dtype=dtype)
     problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True, pad_to=pad_to, chunk=chunk)
-    u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
+    u0 = {k: jax.device_put(np.asarray(v, dtype=dtype)) for k, v in from_params(problem.spec, start).items()}  # (jnp.asarray compiles a conversion)
     k = starts if "m" in u0 else 1
-    grid = jnp.asarray(np.log(m_grid(structure.lobes, structure.diffuse is not None)), dtype=dtype) if ("m" in u0 and k >= 1) else None
+    grid = jax.device_put(np.log(m_grid(structure.lobes, structure.diffuse is not None)).astype(dtype)) if ("m" in u0 and k >= 1) else None
     return PreparedFit(data, structure, loss, dtype, start, tuple(fixed), problem, u0, grid, k, given_start, chunk is not None)
 
 

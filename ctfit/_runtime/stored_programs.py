@@ -319,6 +319,22 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     run = _recall(key)
     if run is not None:
         return run, None
+    with _making_guard:
+        making = _making.setdefault(key, threading.Lock())
+    with making:  # threads asking for one program at once (a fit and the background's) make it once
+        run = _recall(key)
+        if run is not None:
+            return run, None
+        return _load_or_compile(name, fn, static, in_def, leaves, key, digest, options)
+
+
+_making: dict[str, threading.Lock] = {}  # key → the lock of the thread making that program
+_making_guard = threading.Lock()
+
+
+def _load_or_compile(name: str, fn: Callable, static, in_def, leaves: list, key: str, digest: str, options: dict):
+    """:func:`_program`'s work once the program is not in memory: load it from the store, or
+    trace, compile and store it. (program, its output on ``leaves`` or None)."""
     store = _store()
     path = store / f"{name}-{digest[:32]}.xla" if store is not None else None
     if path is not None and path.is_file():
