@@ -377,3 +377,31 @@ def test_threads_asking_for_one_program_at_once_make_it_once(store, monkeypatch)
     for y in outs:
         np.testing.assert_array_equal(y, outs[0])
     assert len(list(store.glob("together-*.xla"))) == 1
+
+
+def test_the_store_keeps_the_programs_used_last_under_its_limit(store, monkeypatch):
+    """Every ctfit and every layout stores programs of its own, which nothing else deletes (this
+    machine's store had grown to 4,313 entries, about 1 GB): above STORE_LIMIT the entries used
+    longest ago go, until a quarter of it is free. Loading an entry counts as a use."""
+    import os
+    import time
+
+    monkeypatch.setattr(_aot, "_store_bytes", {})
+    first = _aot.cached_call("kept", _fn, *_args())
+    size = next(store.glob("kept-*.xla")).stat().st_size
+    monkeypatch.setattr(_aot, "STORE_LIMIT", int(3.5 * size))
+    box, x, _ = _args()
+    for power in (3, 4):
+        _aot.cached_call("kept", _fn, box, x, power)
+    assert len(list(store.glob("kept-*.xla"))) == 3  # under the limit: nothing deleted
+    old = time.time() - 1000
+    for i, path in enumerate(sorted(store.glob("kept-*.xla"), key=lambda p: p.stat().st_mtime)):
+        os.utime(path, (old + i, old + i))  # stored in this order, long ago
+    oldest = min(store.glob("kept-*.xla"), key=lambda p: p.stat().st_mtime)
+    monkeypatch.setattr(_aot, "_memory", {})  # a new process: the first program is loaded, which counts as a use
+    np.testing.assert_array_equal(_aot.cached_call("kept", _fn, *_args())["y"], first["y"])
+    assert oldest.exists() and oldest.stat().st_mtime > old + 100
+    _aot.cached_call("kept", _fn, box, x, 5)  # a fourth: above the limit
+    left = list(store.glob("kept-*.xla"))
+    assert oldest in left and len(left) == 2  # the two used longest ago are gone: at most 3/4 of the limit left
+    assert sum(p.stat().st_size for p in left) <= 0.75 * _aot.STORE_LIMIT

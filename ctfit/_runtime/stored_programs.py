@@ -225,17 +225,65 @@ def _runtime_ready() -> bool:
 def _load(path: pathlib.Path, key: str):
     """The executable stored at ``path`` under ``key`` (the store is this user's alone, see
     :func:`_trusted`); ``ValueError`` when the entry was stored under another key (a file of
-    another program, or of another ctfit, under this one's name)."""
+    another program, or of another ctfit, under this one's name). The entry's time is set to
+    now: the store keeps the programs used last (:func:`_prune`)."""
     stored = pickle.loads(path.read_bytes())
     if not (isinstance(stored, tuple) and len(stored) == 4 and stored[0] == hashlib.sha256(key.encode()).hexdigest()):
         raise ValueError("it holds another program (its key is not this one's)")
+    with contextlib.suppress(OSError):
+        os.utime(path)
     return serialize_executable.deserialize_and_load(*stored[1:])
 
 
 def _save(path: pathlib.Path, key: str, compiled) -> None:
-    """Store ``compiled`` at ``path``, with a digest of its ``key`` that :func:`_load` checks."""
+    """Store ``compiled`` at ``path``, with a digest of its ``key`` that :func:`_load` checks;
+    then keep the store under :data:`STORE_LIMIT` (:func:`_prune`)."""
     entry = (hashlib.sha256(key.encode()).hexdigest(), *serialize_executable.serialize(compiled))
-    atomic_write(path, [pickle.dumps(entry, protocol=pickle.HIGHEST_PROTOCOL)])
+    data = pickle.dumps(entry, protocol=pickle.HIGHEST_PROTOCOL)
+    atomic_write(path, [data])
+    _prune(path.parent, len(data))
+
+
+STORE_LIMIT = 512 * 2**20
+"""Bytes the program store may hold. Every ctfit (its source is in each key) and every data
+layout has programs of its own, and nothing else ever deletes them: above this, the entries
+used longest ago are deleted (:func:`_prune`) until a quarter of it is free. A default fit of one
+layout stores about 11 MB."""
+_store_bytes: dict[pathlib.Path, int] = {}  # folder → its size, as this process last knew it
+_store_guard = threading.Lock()
+
+
+def _prune(store: pathlib.Path, added: int) -> None:
+    """Count ``added`` bytes into ``store``'s size (found once per process, by a listing) and,
+    above :data:`STORE_LIMIT`, delete the entries used longest ago (their file times: a load
+    sets it) until the store holds at most three quarters of it."""
+    with _store_guard:
+        if store not in _store_bytes:
+            _store_bytes[store] = sum(_entries(store)[1])
+        else:
+            _store_bytes[store] += added
+        if _store_bytes[store] <= STORE_LIMIT:
+            return
+        paths, sizes, times = _entries(store)
+        total = sum(sizes)
+        for i in np.argsort(times, kind="stable"):
+            if total <= 0.75 * STORE_LIMIT:
+                break
+            paths[i].unlink(missing_ok=True)
+            total -= sizes[i]
+        _store_bytes[store] = total
+
+
+def _entries(store: pathlib.Path) -> tuple[list[pathlib.Path], list[int], list[float]]:
+    """The store's entries: paths, sizes and file times (entries gone meanwhile left out)."""
+    paths, sizes, times = [], [], []
+    for path in store.glob("*.xla"):
+        with contextlib.suppress(OSError):
+            st = path.stat()
+            paths.append(path)
+            sizes.append(st.st_size)
+            times.append(st.st_mtime)
+    return paths, sizes, times
 
 
 _outside = threading.Lock()
@@ -341,6 +389,8 @@ def _load_or_compile(name: str, fn: Callable, static, in_def, leaves: list, key:
         try:
             run = _load(path, key)
             out = jax.block_until_ready(run(*leaves))  # a damaged program fails here, not later
+        except FileNotFoundError:
+            pass  # deleted meanwhile (another process kept its store under STORE_LIMIT): compiled below
         except Exception as err:  # noqa: BLE001 — a stale or damaged entry: trace instead
             warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=3)
             path.unlink(missing_ok=True)
