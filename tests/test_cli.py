@@ -152,6 +152,21 @@ def test_resume_needs_a_backend(simulated, tmp_path):
     assert r.exit_code == 2 and "--backend" in r.output
 
 
+def test_the_color_table_rounds_and_names_srgb_once():
+    """The table shows six significant digits (it printed white_XYZ's Y as 0.9999999999999999; the
+    JSON keeps every digit) and one row of sRGB values: ``rgb`` in sRGB, and ``sRGB`` beside it only
+    for another colourspace."""
+    r = run("color", ROOT / "configs" / "gold.toml")
+    assert r.exit_code == 0, r.output
+    rows = dict(line.strip().split(": ", 1) for line in r.stdout.splitlines())
+    assert rows["white_XYZ"] == "[0.950471, 1, 1.08883]" and "sRGB" not in rows and "rgb" in rows
+    assert all(len(x.strip("[] ").split("e")[0].replace("-", "").replace(".", "").lstrip("0")) <= 6 for x in rows["XYZ"].split(","))
+    other = dict(line.strip().split(": ", 1) for line in run("color", ROOT / "configs" / "gold.toml", "--colorspace", "Display P3").stdout.splitlines())
+    assert other["sRGB"] == rows["rgb"] and other["rgb"] != rows["rgb"]
+    doc = json.loads(run("color", ROOT / "configs" / "gold.toml", "--json").stdout)
+    assert len(repr(doc["XYZ"][0])) > 8  # the JSON keeps every digit
+
+
 def test_color_json_has_the_documented_keys():
     r = run("color", ROOT / "configs" / "gold.toml", "--json")
     assert r.exit_code == 0, r.output

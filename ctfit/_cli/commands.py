@@ -293,15 +293,26 @@ def color(
 
         mat = load_material_file(material)
         rep = colour_report(mat, angle_deg=angle, illuminant=illuminant, colourspace=colourspace)
-        if as_json:
-            echo(json.dumps(rep, indent=2, default=float))
-        else:
-            echo("\n".join(f"{k:>24}: {v}" for k, v in rep.items()))
+        echo(json.dumps(rep, indent=2, default=float) if as_json else _colour_table(rep))
 
     run_body(body)
 
 
 app.command("colour", hidden=True, help="The same as ctfit color.")(color)
+
+
+def _colour_table(rep: dict) -> str:
+    """``ctfit color``'s table: numbers to six significant digits (the JSON keeps every digit), and
+    the ``sRGB`` row only where ``rgb`` is of another colourspace."""
+    import numpy as np
+
+    def shown(v):
+        if isinstance(v, (list, tuple, np.ndarray)):
+            return "[" + ", ".join(shown(x) for x in v) + "]"
+        return f"{v:.6g}" if isinstance(v, (float, np.floating)) else str(v)
+
+    same = rep.get("colourspace") == "sRGB"
+    return "\n".join(f"{k:>24}: {shown(v)}" for k, v in rep.items() if not (same and k == "sRGB"))
 
 
 @app.command("export")
