@@ -107,6 +107,8 @@ def test_installed_wheel_finds_the_optical_constants(tmp_path):
     for table in sorted(TABLES.glob("*.csv")):
         assert f"ctfit/data/optical_constants/{table.name}" in names, table.name
     assert not any(n.startswith(("measurements/", "tests/", "notebooks/")) for n in names)
+    assert "ctfit/py.typed" in names  # PEP 561: type checkers read the package's annotations
+    assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)  # the licence pyproject.toml names (MIT)
 
     site = tmp_path / "site"
     install = subprocess.run(pip + ["install", "-q", "--no-deps", "--target", site, wheel], capture_output=True, text=True)
