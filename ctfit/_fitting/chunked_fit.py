@@ -33,7 +33,6 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import math
-import threading
 
 import equinox as eqx
 import jax
@@ -98,24 +97,14 @@ compile ("once"). One effort per program whatever the data's size: a file of ano
 compiles nothing."""
 
 
-_making: dict = {}  # signature → the lock of the thread making that program
-_making_guard = threading.Lock()
-
-
 def _program(name: str, fn, *args):
     """:func:`~ctfit._runtime.stored_program`, looked up first under a key that is cheap to
     compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file.
-    Threads asking for one program at once (:func:`prefetch`) make it once."""
-    effort = "run" if name in _CALLED_OFTEN else "once"
+    Threads asking for one program at once (:func:`prefetch`) make it once (the store's lock)."""
     sig = (name, *_signature(args))
     run = _programs.get(sig)
     if run is None:
-        with _making_guard:
-            lock = _making.setdefault(sig, threading.Lock())
-        with lock:
-            run = _programs.get(sig)
-            if run is None:
-                run = _programs[sig] = stored_program(name, fn, *args, effort=effort)
+        run = _programs[sig] = stored_program(name, fn, *args, effort="run" if name in _CALLED_OFTEN else "once")
     return run
 
 
@@ -380,14 +369,15 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     p = _flat_shape(u0)[0]
     cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))
     cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
-    u = {k: jax.device_put(v) for k, v in _unflat(u0, np.asarray(values[best])).items()}  # (jnp.asarray compiles a copy program per shape)
     solved = dict(u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best)
+    u = {k: jax.device_put(v) for k, v in solved["u"].items()}  # (jnp.asarray compiles a copy program per shape)
     if not report:
         zero_program, light = _report_programs(kern.template, u0, report=False)
         zero = jax.device_put(np.zeros((), costs.dtype))
         dynamic, static = eqx.partition(kern.template, eqx.is_array)
-        for leaves in kern.parts:
-            zero = zero_program(zero, *_leaves(_data_only(eqx.combine(jax.tree.unflatten(jax.tree.structure(dynamic), leaves), static))))
+        treedef = jax.tree.structure(dynamic)
+        for leaves in kern.parts:  # each chunk with no structure in it (``fit_zero`` is shared)
+            zero = zero_program(zero, *_leaves(_data_only(eqx.combine(jax.tree.unflatten(treedef, leaves), static))))
         zero = np.asarray(jax.device_get(zero))
         out = jax.device_get(light(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
         return dict(out, **solved, zero_cost=zero)

@@ -327,9 +327,14 @@ def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance
              "n_params": p, "bic": _bic(cost, zero_cost, n, p, prep.loss, dtype), "loss": prep.loss, "solver": solver, "dtype": jnp.dtype(dtype).name,
              "starts": int(np.asarray(costs).size), "relative_floor": float(problem.floor), "gauss_newton_decrease": gn_decrease,
              "on_bound": labelled(out["u"], np.asarray(out["on_bound"], bool)), "report": False}
-    material = Material(structure=prep.structure, params=Params(**{k: getattr(params, k) for k in PARAM_FIELDS}), wavelength_nm=prep.data.wavelength_nm,
-                        channels=prep.data.channels, name=f"fit of {prep.data.source}", band_unknown=prep.data.band_unknown)
-    return FitResult(material=material, stats=stats, stderr=None, warnings=[], loss=prep.loss, solver=solver)
+    return FitResult(material=_fitted_material(prep, params), stats=stats, stderr=None, warnings=[], loss=prep.loss, solver=solver)
+
+
+def _fitted_material(prep: PreparedFit, params: Params) -> Material:
+    """The :class:`~ctfit.Material` of a fit of ``prep`` with the fitted ``params``."""
+    data = prep.data
+    return Material(structure=prep.structure, params=Params(**{k: getattr(params, k) for k in PARAM_FIELDS}), wavelength_nm=data.wavelength_nm,
+                    channels=data.channels, name=f"fit of {data.source}", band_unknown=data.band_unknown)
 
 
 def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None) -> FitResult:
@@ -386,15 +391,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
         "no_stderr": [f"{k}[{i}]" for k, v in (stderr or {}).items() for i in np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))],
         "quality": quality,
     }
-    full = Params(**{k: getattr(params, k) for k in ("s", "m", "w", "f0", "n", "k", "rd")})
-    material = Material(
-        structure=structure,
-        params=full,
-        wavelength_nm=data.wavelength_nm,
-        channels=data.channels,
-        name=f"fit of {data.source}",
-        band_unknown=data.band_unknown,
-    )
+    material = _fitted_material(prep, params)
     names = coordinate_names(u)
     not_determined = [names[i] for i in np.flatnonzero(loose)]
     notes = ([not_finite] if not_finite else []) + fit_warnings(params, stderr, not_determined)

@@ -258,15 +258,13 @@ def _prune(store: pathlib.Path, added: int) -> None:
     above :data:`STORE_LIMIT`, delete the entries used longest ago (their file times: a load
     sets it) until the store holds at most three quarters of it."""
     with _store_guard:
-        if store not in _store_bytes:
-            _store_bytes[store] = sum(_entries(store)[1])
-        else:
-            _store_bytes[store] += added
-        if _store_bytes[store] <= STORE_LIMIT:
+        known = _store_bytes.get(store)
+        if known is not None and known + added <= STORE_LIMIT:
+            _store_bytes[store] = known + added
             return
-        paths, sizes, times = _entries(store)
+        paths, sizes, times = _entries(store)  # the first save of this process, or the estimate above the limit
         total = sum(sizes)
-        for i in np.argsort(times, kind="stable"):
+        for i in np.argsort(times, kind="stable") if total > STORE_LIMIT else ():
             if total <= 0.75 * STORE_LIMIT:
                 break
             paths[i].unlink(missing_ok=True)
