@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit.cli import app
+from ctfit.cli import SAMPLE_NOT_USABLE, app
 
 from conftest import ROOT
 
@@ -130,8 +130,11 @@ def test_sample_command_adds_an_uncertainty_section(simulated, tmp_path):
     assert run("fit", csv, "--lobes", 2, "--no-diffuse", "-o", fit_json).exit_code == 0
     out = tmp_path / "sampled.json"
     r = run("sample", fit_json, csv, "--steps", 150, "--walkers", 24, "--seed", 1, "-o", out)
-    assert r.exit_code == 0, r.output
+    # 150 steps are too few for the walkers to mix: written, but not usable (status 1), with how long to run.
     doc = json.loads(out.read_text())
+    need = doc["uncertainty"]["checks"]["mixing"]["steps_needed"]
+    assert r.exit_code == SAMPLE_NOT_USABLE and doc["uncertainty"]["problems"][0].startswith("not mixed: "), r.output
+    assert f"run longer: --steps {need} or more (with --backend FILE, a later --resume continues the chain)" in r.output
     unc = doc["uncertainty"]
     assert len(unc["lobes"]) == 2 and len(unc["F0"]) == len(doc["F0"])
     for entry in [unc["lobes"][0]["m"], unc["F0"][0], unc["n"][0]]:
@@ -140,10 +143,32 @@ def test_sample_command_adds_an_uncertainty_section(simulated, tmp_path):
     # --json prints exactly the document written (the library's serialisation).
     out2 = tmp_path / "sampled2.json"
     r = run("sample", fit_json, csv, "--steps", 150, "--walkers", 24, "--seed", 1, "-o", out2, "--json")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == SAMPLE_NOT_USABLE, r.output
     assert json.loads(r.stdout) == json.loads(out2.read_text())
     # Same seed, same chain: the summaries are reproduced exactly.
     assert json.loads(out2.read_text())["uncertainty"]["lobes"] == unc["lobes"]
+    # Without -o the fit JSON is never written: the result goes to fit.posterior.json beside it.
+    before = fit_json.read_bytes()
+    r = run("sample", fit_json, csv, "--steps", 150, "--walkers", 24, "--seed", 1, "--json")
+    assert fit_json.read_bytes() == before and f"wrote {tmp_path / 'fit.posterior.json'}" in r.output
+    assert json.loads((tmp_path / "fit.posterior.json").read_text())["uncertainty"]["lobes"] == unc["lobes"]
+
+
+def test_sample_writes_progress_lines_into_a_log_and_none_when_quiet(simulated, tmp_path, monkeypatch):
+    """stderr that is no terminal (a log file, a pipe) gets a plain line every few seconds (here
+    every step); -q writes none."""
+    from ctfit._runtime import progress
+
+    d, csv = simulated
+    fit_json = tmp_path / "fit.json"
+    assert run("fit", csv, "--lobes", 1, "--no-diffuse", "-o", fit_json).exit_code == 0
+    monkeypatch.delenv("CTFIT_PROGRESS", raising=False)
+    monkeypatch.setattr(progress, "LINE_EVERY_S", 0.0)
+    r = run("sample", fit_json, csv, "--steps", 20, "--walkers", 24, "-o", tmp_path / "s.json")
+    lines = [line for line in r.output.splitlines() if line.startswith("sampling: ")]
+    assert len(lines) == 20 and lines[-1].startswith("sampling: 20 of 20 steps (100 %)"), r.output
+    quiet = run("sample", fit_json, csv, "--steps", 20, "--walkers", 24, "-o", tmp_path / "s.json", "-q")
+    assert "sampling: " not in quiet.output and quiet.exit_code == SAMPLE_NOT_USABLE
 
 
 def test_resume_needs_a_backend(simulated, tmp_path):

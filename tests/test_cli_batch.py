@@ -212,10 +212,10 @@ def test_sampling_progress_obeys_quiet(tmp_path, monkeypatch):
     monkeypatch.setenv("CTFIT_PROGRESS", "1")
     args = ("fit", csv, "--no-diffuse", "--lobes", "1", "--sample", "--steps", 40, "--walkers", 8)
     r = run(*args)
-    assert r.exit_code == 0, r.output
-    assert "40/40" in r.stderr
+    assert r.exit_code == 1, r.output  # 40 steps: the walkers have not mixed (the posterior is not usable)
+    assert "40/40" in r.stderr and "run longer: --steps" in r.stderr
     r = run(*args, "-q")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 1, r.output
     assert "40/40" not in r.stderr and "\r" not in r.stderr
 
 
@@ -255,10 +255,10 @@ def test_a_stored_chain_needs_resume_or_overwrite(tmp_path):
     csv = write(tmp_path, "d.csv", n_pairs=60)
     chain = tmp_path / "run.h5"
     args = ("fit", csv, "--no-diffuse", "--lobes", "1", "--sample", "--steps", 30, "--walkers", 8, "--backend", chain)
-    assert run(*args).exit_code == 0
+    assert run(*args).exit_code == 1  # 30 steps: written, but the walkers have not mixed
     r = run(*args)
     assert r.exit_code == 2 and "--resume" in r.stderr and "--overwrite" in r.stderr and "fit of" not in r.stdout
     r = run(*args, "--overwrite")
-    assert r.exit_code == 0, r.output
+    assert r.exit_code == 1 and "run longer: --steps" in r.stderr, r.output
     r = run("fit", csv, "--overwrite")
     assert r.exit_code == 2 and "--overwrite needs --backend" in r.stderr

@@ -3,7 +3,8 @@
 import pytest
 
 from conftest import load_script
-from ctfit._runtime.progress import bar, echo, progress_enabled
+from ctfit._runtime import progress
+from ctfit._runtime.progress import ProgressLines, bar, echo, progress_enabled, progress_mode
 
 
 @pytest.mark.parametrize(
@@ -53,3 +54,25 @@ def test_report_quiet_has_no_bar(report, monkeypatch, capfd, tmp_path):
     monkeypatch.setenv("CTFIT_PROGRESS", "1")
     report.main(["--docs", str(tmp_path), "-q"])
     assert "report:" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize("env, quiet, expected", [(None, False, "lines"), ("1", False, "bar"), ("0", False, None), (None, True, None), ("1", True, None)])
+def test_long_work_writes_lines_where_stderr_is_no_terminal(monkeypatch, env, quiet, expected):
+    """A bar on a terminal (or forced); plain lines into a log file or a pipe; nothing when quiet."""
+    if env is None:
+        monkeypatch.delenv("CTFIT_PROGRESS", raising=False)
+    else:
+        monkeypatch.setenv("CTFIT_PROGRESS", env)
+    assert progress_mode(quiet) == expected
+
+
+def test_progress_lines_say_how_far_and_how_long_is_left(monkeypatch, capsys):
+    clock = iter([0.0, 1.0, 2.0, 7.0, 8.0, 12.5, 0.0])  # the start, then one reading per update (and the last line's start)
+    monkeypatch.setattr(progress.time, "monotonic", lambda: next(clock))
+    lines = ProgressLines(1000, desc="sampling", done=200)  # resumed: 200 steps were done before
+    for _ in range(5):
+        lines.update(100)
+    err = capsys.readouterr().err.splitlines()
+    # One line at most every LINE_EVERY_S (5 s): after 7 s and after 12.5 s; the rate counts this run's steps only.
+    assert err == ["sampling: 500 of 1,000 steps (50 %), 7 s, about 12 s left", "sampling: 700 of 1,000 steps (70 %), 12 s, about 8 s left"]
+    assert ProgressLines(10, desc="x").line(3725.0).endswith("1 h 02 min")

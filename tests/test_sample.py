@@ -114,7 +114,7 @@ def metal():
 def test_metal_posterior_covers_truth_and_matches_laplace(metal):
     truth, data, fitted = metal
     assert fitted.converged and fitted.stderr is not None
-    res = sample(fitted, data, steps=1000, seed=3, colour=False)
+    res = sample(fitted, data, steps=4000, seed=3, colour=False)  # 50 τ after burn-in: mixed
     ch = res.chain
     sd_m, sd_f0 = ch["m"].std(axis=0), ch["F0"].std(axis=0)
     # Medians within 2σ of the truth.
@@ -132,12 +132,12 @@ def test_metal_posterior_covers_truth_and_matches_laplace(metal):
     np.testing.assert_allclose(ch["n"], (1 + np.sqrt(ch["F0"])) / (1 - np.sqrt(ch["F0"])), rtol=1e-12)
     d = res.diagnostics
     assert d["walkers"] == default_walkers(5) == 32
-    assert d["draws"] == 32 * (1000 - d["burn"])
+    assert d["draws"] == 32 * (4000 - d["burn"])
     assert set(d["autocorr_time"]) == set(res.labels) == {"m[0]", "F0[0]", "F0[1]", "F0[2]", "F0[3]"}
     assert all(v > 0 for v in d["ess_emcee"].values())
     assert set(d["ess_bulk"]) == set(d["r_hat"]) == {"m[0]", "F0[0]", "F0[1]", "F0[2]", "F0[3]", "n[0]", "n[1]", "n[2]", "n[3]"}
-    assert all(v > 100 for v in d["ess_bulk"].values()) and all(v < 1.2 for v in d["r_hat"].values())
-    assert res.usable and res.problems == []
+    assert all(v > 400 for v in d["ess_bulk"].values()) and all(v < 1.05 for v in d["r_hat"].values())
+    assert res.usable and res.problems == [] and res.checks["mixing"]["flag"] is False
 
 
 def test_same_seed_same_chain_and_short_chain_warns(metal):
@@ -151,8 +151,12 @@ def test_same_seed_same_chain_and_short_chain_warns(metal):
     np.testing.assert_array_equal(a.chain_u, b.chain_u)
     np.testing.assert_array_equal(a.log_prob, b.log_prob)
     assert not np.array_equal(a.chain_u, c.chain_u)
-    assert any("too short" in w for w in a.warnings)
-    assert a.diagnostics["chain_long_enough"] is False
+    # Too short to have mixed: not usable, and the first problem (and warning) says how long to run,
+    # instead of the note on a short chain that it says again.
+    assert a.diagnostics["chain_long_enough"] is False and not a.usable and a.checks["mixing"]["flag"]
+    assert a.problems[0] == a.warnings[0] and a.problems[0].startswith("not mixed: ")
+    assert f"run at least {a.checks['mixing']['steps_needed']:,} steps in all" in a.problems[0]
+    assert a.checks["mixing"]["steps_needed"] > 60 and not any(w.startswith("the chain is too short") for w in a.warnings)
     # A material that is not a fit is fitted first (the same loss as sample() uses), and says so.
     assert any("fitted with loss 'sigma' first, from the material's values" in w for w in a.warnings)
 
@@ -352,9 +356,12 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     write_csv(data, csv)
     fit_json = tmp_path / "metal.fit.json"
     save_material_json(fitted.material, fit_json, extra=fit_result_to_dict(fitted, material_keys=False))
+    before = fit_json.read_bytes()
     doc = sample_command_body(fit_json, csv, walkers=None, steps=200, burn=None, thin=2, seed=0, backend=None, resume=False, plot_dir=tmp_path / "plots", output=None)
-    on_disk = json.loads(fit_json.read_text())
-    assert on_disk == doc
+    assert fit_json.read_bytes() == before  # the input is not written: the result goes beside it
+    posterior = tmp_path / "metal.fit.posterior.json"
+    on_disk = json.loads(posterior.read_text())
+    assert on_disk == doc and on_disk["fit"] == json.loads(before)["fit"]
     assert on_disk["fit"]["loss"] == "sigma" and on_disk["F0"] == json.loads(json.dumps(doc))["F0"]
     u = on_disk["uncertainty"]
     keys = {"median", "p16", "p84"}
@@ -364,13 +371,15 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     assert u["diagnostics"]["thin"] == 2 and u["diagnostics"]["walkers"] == 32
     assert u["likelihood"]["model"] == "gaussian" and "F0" in u["priors"]["parameters"]
     assert len(u["colour"]["sRGB"]) == 3 and len(u["colour"]["Lab"]) == 3
-    assert [pathlib.Path(p).name for p in u["plots"]] == ["metal.fit.corner.png", "metal.fit.spectra.png"]
+    assert [pathlib.Path(p).name for p in u["plots"]] == ["metal.fit.posterior.corner.png", "metal.fit.posterior.spectra.png"]
     for p in u["plots"]:
         assert pathlib.Path(p).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert load_material(fit_json).meta["uncertainty"]["diagnostics"]["steps"] == 200
+    assert load_material(posterior).meta["uncertainty"]["diagnostics"]["steps"] == 200
     table = format_uncertainty_table(doc, "metal")
     assert "lobe 0: m =" in table and "τ_max" in table
-    assert "priors: uniform in F0 on [0, 1]; uniform in m on [1e-05, 4]" in table and "posterior: usable" in table
+    assert "priors: uniform in F0 on [0, 1]; uniform in m on [1e-05, 4]" in table
+    # 200 steps are about 4 τ: the walkers have not mixed, and the table says so and how long to run.
+    assert "posterior: NOT usable" in table and "problem: not mixed: " in table and "steps in all" in table
     # Only the uncertainty section (no wavelengths beside it): bands are numbered, not "0 nm".
     bare = format_uncertainty_table({"uncertainty": u}, "metal")
     assert "band 0" in bare and " 0 nm" not in bare

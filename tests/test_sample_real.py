@@ -31,8 +31,10 @@ def _fit_and_sample(tmp_path, name, extra, *sample_args):
     fit_json = tmp_path / "x.fit.json"
     fitted = runner.invoke(app, ["fit", data, "-o", str(fit_json), "-q", *PAPERS_METAL, *extra])
     assert fitted.exit_code == 0, fitted.output
+    before = fit_json.read_bytes()
     out = runner.invoke(app, ["sample", str(fit_json), data, "--steps", "300", "-q", *extra, *sample_args])
-    return out, json.loads(fit_json.read_text())
+    assert fit_json.read_bytes() == before  # the input is never written; the result goes beside it
+    return out, json.loads((tmp_path / "x.fit.posterior.json").read_text())
 
 
 @pytest.mark.parametrize("name, extra", [GRAY, JAUNE, PINK], ids=["gray-tape", "3M-yellow", "pink-felt"])

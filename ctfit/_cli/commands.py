@@ -163,9 +163,9 @@ fit, runs to a prior bound, or the data do not constrain a parameter): the table
 
 @app.command("sample")
 def sample_cmd(
-    fit_json: Path = typer.Argument(..., help="Fit-result JSON (a material TOML needs -o)."),
+    fit_json: Path = typer.Argument(..., help="Fit-result JSON or material TOML (read only)."),
     data: Path = typer.Argument(..., help="The measurement the material was fitted to."),
-    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: update FIT_JSON in place)."),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: STEM.posterior.json beside FIT_JSON, which is never written unless -o names it)."),
     as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
     loss: Optional[str] = typer.Option(None, "--loss", help="absolute, relative, sigma, cosine, log or log-ratio (default: the fit's; a robust-relative fit is sampled with the relative likelihood); another than the fit's fits again first."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
@@ -179,13 +179,14 @@ def sample_cmd(
     plot: Optional[Path] = typer.Option(None, "--plot", help="Folder for the corner and spectral-band PNGs."),
     idata: Optional[str] = typer.Option(None, "--idata", help="Also write the chain as ArviZ netCDF (az.from_netcdf) to this file."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar (shown only on a terminal)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress (a bar on a terminal, else a line every few seconds on stderr)."),
 ):
-    """Posterior sampling (emcee) of a fitted material: medians and 68 %/95 % intervals, written into the fit JSON.
+    """Posterior sampling (emcee) of a fitted material: medians and 68 %/95 % intervals, written with the fit into STEM.posterior.json (or -o).
 
-    Exit status: 0 a usable posterior; 1 the chain ran but its posterior is not usable (it left
-    the fit, runs to a prior bound, or the data do not constrain a parameter; the table and the
-    JSON's uncertainty.problems say why); 2 an input error.
+    Exit status: 0 a usable posterior; 1 the chain ran but its posterior is not usable (the
+    walkers have not mixed, it left the fit, runs to a prior bound, or the data do not
+    constrain a parameter; the table and the JSON's uncertainty.problems say why, and a chain
+    that has not mixed, how many --steps would do); 2 an input error.
     """
     opts = SimpleNamespace(**locals())
     code = run_body(lambda: _sample_command(opts))
@@ -203,7 +204,9 @@ def _check_sample_options(o) -> Path:
     if o.loss is not None and o.loss not in LOSSES:
         raise UserError(f"--loss must be one of {', '.join(LOSSES)}, got {o.loss!r}")
     o.output, o.backend, o.idata = output_file(o.output), output_file(o.backend, "--backend"), output_file(o.idata, "--idata")
-    target = check_output(o.output or o.fit_json, [o.data], option="-o" if o.output else "")
+    from .sample_command import default_output
+
+    target = check_output(o.output or default_output(o.fit_json), [o.fit_json, o.data] if o.output is None else [o.data], option="-o" if o.output else "")
     if o.backend is not None:
         check_backend(o.backend, [o.fit_json, o.data, target], resume=o.resume, overwrite=o.overwrite)
     if o.idata is not None:
@@ -215,23 +218,26 @@ def _check_sample_options(o) -> Path:
 
 def _sample_command(o) -> int:
     """The ``sample`` command's body: the exit status (0, or ``SAMPLE_NOT_USABLE``)."""
-    _check_sample_options(o)
+    target = _check_sample_options(o)
     setup_jax()
     import warnings
 
-    from .._runtime import progress_enabled
+    from .._runtime import progress_mode
     from .._sampling import ChainTooShortWarning, format_uncertainty_table
-    from .sample_command import sample_command_body
+    from .sample_command import run_longer, sample_command_body
 
     meas = read_data(o.data, o.param_out)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
         doc = sample_command_body(
-            o.fit_json, meas, o.walkers, o.steps, o.burn, o.thin, o.seed, o.backend, o.resume, o.plot, o.output,
-            progress=progress_enabled(o.quiet), overwrite=o.overwrite, loss=o.loss, idata=o.idata,
+            o.fit_json, meas, o.walkers, o.steps, o.burn, o.thin, o.seed, o.backend, o.resume, o.plot, target,
+            progress=progress_mode(o.quiet), overwrite=o.overwrite, loss=o.loss, idata=o.idata,
         )  # fmt: skip
     echo(json.dumps(doc, indent=2) if o.as_json else format_uncertainty_table(doc, str(o.data)))
-    echo(f"wrote {o.output or o.fit_json}", err=True)
+    hint = run_longer(doc, backend=o.backend)
+    if hint:
+        echo(hint, err=True)
+    echo(f"wrote {target}", err=True)
     return 0 if doc["uncertainty"]["usable"] else SAMPLE_NOT_USABLE
 
 

@@ -338,7 +338,7 @@ def report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool) -> str
         target, note = unconverged_target(target)
     usable = True
     if o.sample_:
-        usable = _sample_and_report(res, meas, path, o, t, target, show)
+        usable = _sample_and_report(res, meas, path, o, t, target)
     else:
         _report_fit(res, path, o, target)
     echo_wrote(target, note)
@@ -388,28 +388,31 @@ def _report_fit(res, path: Path, o, target) -> None:
         save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
 
 
-def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target, show: bool) -> bool:
+def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target) -> bool:
     """--sample: the posterior of the fit, its tables (or JSON) on stdout, written to ``target``;
     whether the posterior is usable."""
     import warnings
 
     from .._fitting import format_fit_table
-    from .._runtime import echo
+    from .._runtime import echo, progress_mode
     from .._sampling import ChainTooShortWarning, format_uncertainty_table
-    from .sample_command import fit_sample_body
+    from .sample_command import fit_sample_body, run_longer
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
         doc = fit_sample_body(
             res, meas, walkers=o.walkers, steps=o.steps, burn=o.burn, thin=o.thin, seed=o.seed, backend=t.backend,
             resume=o.resume, overwrite=o.overwrite, output=target, plot_dir=None if t.plot is None else t.plot.parent,
-            plot_stem=t.name, progress=show,
+            plot_stem=t.name, progress=progress_mode(o.quiet),
         )
     if o.as_json:
         echo(json.dumps(doc, indent=2))
     else:
         echo(format_fit_table(res, str(path)))
         echo(format_uncertainty_table(doc, str(path)))
+    hint = run_longer(doc, backend=t.backend)
+    if hint:
+        echo(hint, err=True)
     return bool(doc["uncertainty"]["usable"])
 
 

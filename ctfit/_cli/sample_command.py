@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import pathlib
 
-__all__ = ["sample_command_body", "fit_sample_body"]
+__all__ = ["default_output", "fit_sample_body", "run_longer", "sample_command_body"]
 
 
 def _read_data(data):
@@ -49,6 +49,24 @@ def _stem(path: pathlib.Path) -> str:
         if name.endswith(suffix):
             name = name[: -len(suffix)]
     return name
+
+
+def default_output(fit_json) -> pathlib.Path:
+    """Where ``ctfit sample FIT`` writes without ``-o``: ``<stem>.posterior.json`` beside FIT
+    (``copper.fit.json`` → ``copper.fit.posterior.json``), never FIT itself."""
+    fit_json = pathlib.Path(fit_json)
+    return fit_json.with_name(f"{_stem(fit_json)}.posterior.json")
+
+
+def run_longer(doc: dict, *, backend=None) -> str | None:
+    """The command-line hint for a chain that has not mixed (``uncertainty.checks.mixing``):
+    the ``--steps`` that would do, and how to keep the chain run so far; None when it mixed."""
+    mixing = doc.get("uncertainty", {}).get("checks", {}).get("mixing", {})
+    need = mixing.get("steps_needed")
+    if not mixing.get("flag") or need is None:
+        return None
+    keep = f"--backend {backend} --resume continues this chain" if backend is not None else "with --backend FILE, a later --resume continues the chain"
+    return f"run longer: --steps {need} or more ({keep})"
 
 
 def _write_idata(result, path) -> str:
@@ -102,9 +120,10 @@ def sample_command_body(
 
     Reads the material (fit JSON or TOML) and the measurement (a path, or a
     :class:`~ctfit.Measurement` already read), samples (the loss recorded in
-    the file's ``fit`` section, else sigma/relative), writes ``output`` (default: ``fit_json``
-    itself, updated in place) atomically — every key of the input kept, ``uncertainty``
-    replaced — and, with ``plot_dir``, ``<stem>.corner.png`` and ``<stem>.spectra.png``.
+    the file's ``fit`` section, else sigma/relative), writes ``output`` (default:
+    :func:`default_output`, beside the input, which is never written unless ``output`` names it)
+    atomically — every key of the input kept, ``uncertainty`` replaced — and, with
+    ``plot_dir``, ``<stem>.corner.png`` and ``<stem>.spectra.png``.
     ``overwrite``: start a new chain in an existing ``backend`` (see :func:`ctfit.sample`);
     ``loss``: the likelihood's residual weighting (another than the file's fits again first);
     ``idata``: also write the chain as ArviZ netCDF there. Returns the document written (JSON-ready).
@@ -113,10 +132,9 @@ def sample_command_body(
 
     fit_json = pathlib.Path(fit_json)
     material = load_material(fit_json)
-    if str(fit_json).endswith(".toml") and output is None:
-        raise ValueError(f"{fit_json}: a TOML material is not overwritten; pass an output JSON path")
-    target = pathlib.Path(output) if output is not None else fit_json
-    check_output(target, [data] if isinstance(data, (str, os.PathLike)) else [], option="-o" if output is not None else "")
+    target = pathlib.Path(output) if output is not None else default_output(fit_json)
+    inputs = ([data] if isinstance(data, (str, os.PathLike)) else []) + ([] if output is not None else [fit_json])
+    check_output(target, inputs, option="-o" if output is not None else "")
     if plot_dir is not None:
         check_output_folder(plot_dir, "--plot")
     extra = {

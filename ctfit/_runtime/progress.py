@@ -1,7 +1,10 @@
 """Progress bars for long command-line work (tqdm, on stderr).
 
 A bar shows only when stderr is a terminal and ``--quiet`` was not given; the environment
-variable ``CTFIT_PROGRESS`` overrides the terminal test (``1``: on, ``0``: off). Text written
+variable ``CTFIT_PROGRESS`` overrides the terminal test (``1``: on, ``0``: off). Work that runs
+for minutes (posterior sampling) writes plain lines instead where stderr is not a terminal (a
+log file, a pipe, a batch job): one every :data:`LINE_EVERY_S` seconds (:func:`progress_mode`,
+:class:`ProgressLines`). Text written
 to stdout or stderr while a bar is shown goes through :func:`echo`, which clears the bar
 first, so a line of output never runs into a bar.
 
@@ -16,7 +19,12 @@ import errno
 import os
 import sys
 
-__all__ = ["progress_enabled", "bar", "closed_pipe", "echo"]
+import time
+
+__all__ = ["LINE_EVERY_S", "ProgressLines", "progress_enabled", "progress_mode", "bar", "closed_pipe", "echo"]
+
+LINE_EVERY_S = 5.0
+"""Seconds between two progress lines (:class:`ProgressLines`)."""
 
 
 def progress_enabled(quiet: bool = False) -> bool:
@@ -27,6 +35,51 @@ def progress_enabled(quiet: bool = False) -> bool:
     if forced in ("0", "1"):
         return forced == "1"
     return sys.stderr.isatty()
+
+
+def progress_mode(quiet: bool = False) -> str | None:
+    """How long work shows its progress: "bar" where :func:`progress_enabled` says so, else
+    "lines" (stderr is not a terminal), None with ``quiet`` or ``CTFIT_PROGRESS=0``."""
+    if progress_enabled(quiet):
+        return "bar"
+    return None if quiet or os.environ.get("CTFIT_PROGRESS", "").strip() == "0" else "lines"
+
+
+class ProgressLines:
+    """Progress as plain lines on stderr, at most one every ``every`` seconds (the first after
+    ``every``: work shorter than that writes none): ``DESC: 400 of 2,000 steps (20 %), 31 s,
+    about 1 min 48 s left``. ``done``: steps done before (a resumed run), counted in but not in
+    the rate."""
+
+    def __init__(self, total: int, *, desc: str, unit: str = "steps", done: int = 0, every: float | None = None):
+        self.total, self.desc, self.unit, self.start_count = int(total), desc, unit, int(done)
+        self.count, self.every = int(done), LINE_EVERY_S if every is None else float(every)
+        self.t0 = self.last = time.monotonic()
+
+    def update(self, n: int = 1) -> None:
+        self.count += n
+        now = time.monotonic()
+        if now - self.last >= self.every:
+            self.last = now
+            echo(self.line(now - self.t0), err=True)
+
+    def line(self, elapsed: float) -> str:
+        """The line after ``elapsed`` seconds."""
+        ran = self.count - self.start_count
+        left = (self.total - self.count) * elapsed / ran if ran > 0 else float("nan")
+        share = 100 * self.count / self.total if self.total else 100.0
+        eta = f", about {_duration(left)} left" if left == left and self.count < self.total else ""
+        return f"{self.desc}: {self.count:,} of {self.total:,} {self.unit} ({share:.0f} %), {_duration(elapsed)}{eta}"
+
+
+def _duration(seconds: float) -> str:
+    """``31 s``, ``1 min 48 s``, ``2 h 05 min``."""
+    s = int(round(seconds))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60} s"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
 
 
 def bar(iterable, *, desc: str, enabled: bool, total: int | None = None, leave: bool = False):

@@ -26,6 +26,7 @@ References
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 
@@ -35,7 +36,7 @@ from .._fitting import undetermined
 from .._model import Measurement
 from .backend import fingerprint, open_run
 from .chain_diagnostics import ChainTooShortWarning, autocorr_time, default_burn, likelihood_description, residual_spread, run_notes
-from .checks import check_posterior, fit_distance
+from .checks import check_mixing, check_posterior, fit_distance
 from .draw_colours import colour_summary
 from .posterior_density import PosteriorSetup, set_up_posterior
 from .priors import describe_priors
@@ -60,8 +61,14 @@ def _run(s: PosteriorSetup, x0, cov, *, steps, seed, backend, resume, overwrite,
         sampler.random_state = np.random.RandomState(seed).get_state()
         state = emcee.State(coords, log_prob=lp)
     t = time.perf_counter()
-    if todo > 0:
-        sampler.run_mcmc(state, todo, progress=progress)
+    if todo > 0 and progress == "lines":
+        from .._runtime import ProgressLines
+
+        lines = ProgressLines(steps, desc="sampling", done=done)
+        for _ in sampler.sample(state if state is not None else sampler.get_last_sample(), iterations=todo):
+            lines.update()
+    elif todo > 0:
+        sampler.run_mcmc(state, todo, progress=bool(progress))
     return sampler, todo, done, time.perf_counter() - t
 
 
@@ -97,7 +104,7 @@ def _diagnostics(s: PosteriorSetup, sampler, *, burn, thin, todo, done, run_s, s
 
 def sample(
     fit_result_or_material, data: Measurement, *, walkers: int | None = None, steps: int = 2000, burn: int | None = None,
-    thin: int = 1, seed: int = 0, backend=None, resume: bool = False, overwrite: bool = False, progress: bool = False,
+    thin: int = 1, seed: int = 0, backend=None, resume: bool = False, overwrite: bool = False, progress: bool | str = False,
     priors: dict | None = None, loss: str | None = None, fixed: tuple[str, ...] | None = None, colour: bool = True,
 ) -> SampleResult:
     """Sample the posterior of the material's parameters given ``data``, starting from the fit.
@@ -111,11 +118,14 @@ def sample(
     (default max(2 τ_max, steps/10), at most steps/2), ``thin``; ``seed`` fixes the start and
     emcee's generator. ``backend``: HDF5 file of the chain; ``resume`` continues a stored run to
     ``steps`` (bit-identical to an uninterrupted run), ``overwrite`` starts it again.
-    ``colour``: also summarise the colour (sRGB, CIELAB) of the draws.
+    ``colour``: also summarise the colour (sRGB, CIELAB) of the draws. ``progress``: True (or
+    "bar"), a tqdm bar on stderr; "lines", a line on stderr every few seconds
+    (:class:`~ctfit._runtime.progress.ProgressLines`: for a log file).
 
     Warns :class:`ChainTooShortWarning` when steps − burn < 50 τ_max. The result's ``usable``
-    is False, and ``problems`` says why, when the posterior left the fit, runs to a prior bound
-    or is not constrained by the data (:mod:`ctfit._sampling.checks`).
+    is False, and ``problems`` says why, when the walkers have not mixed (and how many steps
+    would do), the posterior left the fit, runs to a prior bound or is not constrained by the
+    data (:mod:`ctfit._sampling.checks`).
 
     >>> import warnings, numpy as np, ctfit
     >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None),
@@ -192,5 +202,23 @@ def _result(s: PosteriorSetup, sampler, chain, flat, draw_lp, optimum, laplace, 
     per = diagnostics(res.to_inference_data())
     d.update(draws=int(flat.shape[0]), ess_bulk={k: v["ess_bulk"] for k, v in per.items()}, ess_tail={k: v["ess_tail"] for k, v in per.items()},
              r_hat={k: v["r_hat"] for k, v in per.items()}, residual_scale_ratio=spread, time_s=time.perf_counter() - t0)
-    d.update(ess_min=min(d["ess_bulk"].values(), default=float("nan")), r_hat_max=max(d["r_hat"].values(), default=float("nan")))
-    return res
+    d.update(ess_min=_least(d["ess_bulk"].values()), ess_tail_min=_least(d["ess_tail"].values()), r_hat_max=-_least(-r for r in d["r_hat"].values()))
+    return _with_mixing(res, check_mixing(d))
+
+
+def _least(values) -> float:
+    """The smallest value, NaN when there is none or one is NaN (a quantity too short to read)."""
+    v = np.asarray(list(values), dtype=float)
+    return float(np.min(v)) if v.size else float("nan")
+
+
+def _with_mixing(res: SampleResult, mixing: dict) -> SampleResult:
+    """``res`` with the mixing check (:func:`~ctfit._sampling.checks.check_mixing`) in its
+    checks; when it fails, its line first among the problems (and the warnings, less the note
+    on a short chain that the line says again) and the posterior not usable."""
+    checks = {"mixing": {k: v for k, v in mixing.items() if k != "line"}, **res.checks}
+    if not mixing["flag"]:
+        return dataclasses.replace(res, checks=checks)
+    line = mixing["line"]
+    rest = [w for w in res.warnings if not w.startswith("the chain is too short")]
+    return dataclasses.replace(res, usable=False, problems=[line, *res.problems], warnings=[line, *rest], checks=checks)
