@@ -198,7 +198,11 @@ def _check_sample_options(o) -> Path:
     """Options and outputs checked before any work; returns the JSON target."""
     from .._io import check_backend, check_output, check_output_folder
     from .._fitting import LOSSES
+    from .._runtime import need
 
+    need("posterior", "ctfit sample")
+    if o.plot is not None:
+        need("plots", "--plot")
     if (o.resume or o.overwrite) and o.backend is None:
         raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
     if o.loss is not None and o.loss not in LOSSES:
@@ -260,7 +264,9 @@ def render(
 
     def body():
         from .._io import check_output
+        from .._runtime import need
 
+        need("plots", "ctfit render")
         output = output_file(output_text)
         check_output(output, [*materials, compare])
         setup_jax(float32=True)  # float32 is plenty for images

@@ -174,6 +174,19 @@ def _check_fit_options(o) -> None:
         raise UserError(f"--burn must be less than --steps ({o.steps}), got {o.burn}")
     if o.workers is not None or o.scheduler is not None:
         _check_cluster_options(o)
+    _check_extras(o)
+
+
+def _check_extras(o) -> None:
+    """The extras the options need, before any work (one line naming a missing one)."""
+    from .._runtime import need
+
+    if o.workers is not None or o.scheduler is not None:
+        need("cluster", "--workers" if o.workers is not None else "--scheduler")
+    if o.plot is not None:
+        need("plots", "--plot")
+    if o.sample_:
+        need("posterior", "--sample")
 
 
 def _check_cluster_options(o) -> None:

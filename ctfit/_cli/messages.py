@@ -65,6 +65,13 @@ def run_body(fn):
         except UserError as e:
             echo(f"error: {e}", err=True)
             raise typer.Exit(2)
+        except ImportError as e:
+            from .._runtime import MissingExtraError
+
+            if not isinstance(e, MissingExtraError):
+                raise
+            echo(f"error: {e}", err=True)  # the feature, the packages, the pip command
+            raise typer.Exit(2)
         except OSError as e:
             echo(f"error: {os_error_text(e)}", err=True)
             raise typer.Exit(2)

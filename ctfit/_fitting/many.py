@@ -116,6 +116,9 @@ def fit_many(
 
 def _settle_as_completed(futures: dict, settle: Callable, progress: bool) -> None:
     """``settle(i, result)`` for every member ``i`` of each task (future → members) as it completes."""
+    from .._runtime import need
+
+    need("cluster", "fitting on a Dask cluster")
     from distributed import as_completed
 
     from .._runtime import bar

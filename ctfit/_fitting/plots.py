@@ -72,6 +72,9 @@ def plot_fit(result, data: Measurement, path) -> None:
 
 def make_fit_quality_figure(result, data: Measurement):
     """The figure ``plot_fit`` writes: the data-vs-fit panels above the polar plots and the residual map."""
+    from .._runtime import need
+
+    need("plots", "a plot of a fit")
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -98,6 +101,9 @@ def make_fit_quality_figure(result, data: Measurement):
 
 def make_fit_figure(result, data: Measurement):
     """The data-vs-fit figure (a :class:`matplotlib.figure.Figure`, Agg canvas) of ``result``."""
+    from .._runtime import need
+
+    need("plots", "a plot of a fit")
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

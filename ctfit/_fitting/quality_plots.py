@@ -42,6 +42,9 @@ def _material(material_or_result):
 
 
 def _new_figure(size):
+    from .._runtime import need
+
+    need("plots", "a plot of a fit")
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
     from matplotlib.figure import Figure  # noqa: PLC0415
 

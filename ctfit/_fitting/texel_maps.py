@@ -45,6 +45,10 @@ class TexelMapError(ValueError):
 
 
 def _open(path):
+    """The texel file as an xarray Dataset (every texel map starts here: the "cluster" extra)."""
+    from .._runtime import need
+
+    need("cluster", "texel maps")
     import xarray as xr
 
     path = os.fspath(path)
@@ -147,10 +151,11 @@ def fit_texel_maps(
     >>> np.round(maps["m"].values[:, 0], 4)
     array([0.1, 0.2, 0.3])
     """
+    from .._runtime import bar, dask_client, need
+
+    need("cluster", "texel maps")
     import jax.numpy as jnp
     import xarray as xr
-
-    from .._runtime import bar, dask_client
 
     dtype = jnp.float64 if dtype is None else dtype
     if chunk < 1:
@@ -304,9 +309,10 @@ def _write(output, maps: dict, dims: tuple[str, ...], span: tuple[int, int]) -> 
 def save_map_pngs(maps, folder) -> list[Path]:
     """One PNG per map of an image's maps (dims y, x): per lobe (m, weight), per band (F0, Rd),
     and s, cost, rel_rmse, converged; each scaled to its own range (the PNG's name says which)."""
-    from .._runtime import matplotlib_config_fallback
+    from .._runtime import matplotlib_config_fallback, need
     from .._io import atomic_save
 
+    need("plots", "pictures of parameter maps")
     matplotlib_config_fallback()
     import matplotlib
 

@@ -192,7 +192,7 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
             f"{_at(option, path)}: the file exists; continue the chain stored there with {flags[0]}, "
             f"or start again (replacing it) with {flags[1]}"
         )
-    import h5py
+    import h5py  # the "posterior" extra: its callers (sample, the CLI) checked it is installed
 
     if not h5py.is_hdf5(path):
         raise OutputError(f"{_at(option, path)}: is not an HDF5 file, so it holds no chain to continue")

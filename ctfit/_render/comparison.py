@@ -356,6 +356,9 @@ def _comparison_figure(material, data, images, stats, note, max_delta_e):
     """The three panels: measured (grey outside the measured domain), fitted, ΔE2000 with its colourbar."""
     import textwrap  # noqa: PLC0415
 
+    from .._runtime import need
+
+    need("plots", "a rendered comparison")
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
     from matplotlib.colors import ListedColormap  # noqa: PLC0415
     from matplotlib.figure import Figure  # noqa: PLC0415

@@ -22,6 +22,9 @@ def save_png(image: np.ndarray, path) -> Path:
     >>> bool((np.asarray(Image.open(path)) == image).all())
     True
     """
+    from .._runtime import need
+
+    need("plots", "a rendered picture")
     from PIL import Image  # noqa: PLC0415
 
     a = np.asarray(image)

@@ -46,6 +46,9 @@ def _label_height(size: int) -> int:
 
 def _font(px: int):
     """DejaVu Sans (shipped with matplotlib, as in the other figures), else Pillow's default."""
+    from .._runtime import need
+
+    need("plots", "a rendered picture")
     from PIL import ImageFont  # noqa: PLC0415
 
     try:
@@ -71,6 +74,9 @@ def _fit_text(draw, text: str, font, width: int) -> str:
 def assemble_sheet(tiles: list[np.ndarray], names: list[str] | None, size: int, columns: int | None, background) -> np.ndarray:
     """The tiles (uint8, ``size`` square) on a grid (:func:`grid_layout`) over ``background``
     (linear sRGB), each with its name below it unless ``names`` is None."""
+    from .._runtime import need
+
+    need("plots", "a rendered picture")
     from PIL import Image, ImageDraw  # noqa: PLC0415
 
     height, width, boxes = grid_layout(len(tiles), size, columns, labels=names is not None)

@@ -10,6 +10,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     submod_attrs={
         "cluster": ['dask_client', 'prepare_worker', 'worker_count'],
         "compile_cache": ['enable_compilation_cache', 'matplotlib_config_fallback'],
+        "extras": ['EXTRAS', 'MissingExtraError', 'need'],
         "memory": ['return_large_blocks'],
         "progress": ['ProgressLines', 'bar', 'closed_pipe', 'echo', 'progress_enabled', 'progress_mode'],
         "stored_programs": ['COMPILE_EFFORT', 'cached_call', 'kept_program', 'stored_program'],

@@ -42,6 +42,9 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
         yield client
         return
     _quiet_logs()
+    from .extras import need
+
+    need("cluster", "a Dask cluster")
     from distributed import Client, LocalCluster
 
     if scheduler is not None:

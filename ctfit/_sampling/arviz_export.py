@@ -25,7 +25,11 @@ __all__ = ["arviz", "inference_data", "diagnostics"]
 
 
 def arviz():
-    """The ``arviz`` module (its import-time notice of the coming 1.x API silenced)."""
+    """The ``arviz`` module (its import-time notice of the coming 1.x API silenced; the
+    "posterior" extra: one line naming it when missing)."""
+    from .._runtime import need
+
+    need("posterior", "the chain's ESS and R̂ (ArviZ)")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", FutureWarning)
         import arviz as az

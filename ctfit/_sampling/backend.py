@@ -60,9 +60,19 @@ def open_run(backend, *, resume: bool, overwrite: bool, steps: int, shape: tuple
     return be, done
 
 
+def _h5py():
+    """The ``h5py`` module (the "posterior" extra: one line naming it when missing)."""
+    from .._runtime import need
+
+    need("posterior", "a chain file (HDF5)")
+    import h5py
+
+    return h5py
+
+
 def _open_backend(path: pathlib.Path, *, overwrite: bool):
     """emcee's HDF5 backend on ``path`` (checked by :func:`~ctfit._io.output_paths.check_backend`)."""
-    import h5py
+    h5py = _h5py()
 
     if overwrite and path.is_file() and not h5py.is_hdf5(path):
         with deferred(), h5py.File(path, "w"):  # start again in a file h5py cannot open (through a link, if one)
@@ -89,7 +99,7 @@ def _whole_steps_backend():
 
 
 def _write_attrs(path: pathlib.Path, attrs: dict) -> None:
-    import h5py
+    h5py = _h5py()
 
     with h5py.File(path, "a") as f:
         for k, v in attrs.items():
@@ -97,7 +107,7 @@ def _write_attrs(path: pathlib.Path, attrs: dict) -> None:
 
 
 def _read_attr(path: pathlib.Path, key: str):
-    import h5py
+    h5py = _h5py()
 
     with h5py.File(path, "r") as f:
         v = f["ctfit"].attrs.get(key)

@@ -141,6 +141,9 @@ def sample(
     >>> bool(m["p2.5"] < m["p16"] < m["median"] < m["p84"] < m["p97.5"]), bool(m["p2.5"] < 0.25 < m["p97.5"])
     (True, True)
     """
+    from .._runtime import need
+
+    need("posterior", "posterior sampling")  # ArviZ's ESS and R̂ end every run: checked before it starts
     t0 = time.perf_counter()
     if steps < 1 or thin < 1:
         raise ValueError(f"steps and thin must be ≥ 1, got steps={steps}, thin={thin}")

@@ -18,6 +18,9 @@ __all__ = ["plot_corner", "plot_spectra", "CORNER_QUANTILES"]
 
 
 def _pyplot():
+    from .._runtime import need
+
+    need("plots", "a plot of a posterior")
     import matplotlib
 
     if "MPLBACKEND" not in os.environ and matplotlib.get_backend().lower() not in ("agg", "pdf", "svg"):
