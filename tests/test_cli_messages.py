@@ -95,3 +95,39 @@ def test_colour_is_spelled_one_way_and_the_other_is_an_alias(tmp_path):
     assert docs[0] == docs[1] == docs[2] and "Display P3" in json.dumps(docs[0])
     listed = re.findall(r"^\s+(\w+)\s", runner.invoke(app, ["--help"]).output.split("Commands")[-1], re.M)
     assert "color" in listed and "colour" not in listed  # the alias stays hidden
+
+
+def test_the_library_names_its_own_arguments_and_the_command_its_options():
+    """No message of the library names a command-line option (issue 24): it says ``max_steps=``,
+    ``loss=``, ``structure=``, …, and the command translates what it shows."""
+    import ast
+    import re
+
+    from conftest import ROOT
+    from ctfit._cli.messages import cli_message
+
+    flag = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+    hits = []
+    for path in sorted((ROOT / "ctfit").rglob("*.py")):
+        if "_cli" in path.parts or path.name == "cli.py":
+            continue
+        tree = ast.parse(path.read_text())
+        docstrings = {
+            id(node.body[0].value)
+            for node in ast.walk(tree)
+            if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef)) and node.body
+            and isinstance(node.body[0], ast.Expr) and isinstance(node.body[0].value, ast.Constant)
+        }
+        for node in ast.walk(tree):
+            text = node.value if isinstance(node, ast.Constant) and isinstance(node.value, str) else ""
+            if id(node) not in docstrings and flag.search(text) and not re.fullmatch(r"--[a-z-]+", text):  # an option given as a value
+                hits.append(f"{path.relative_to(ROOT)}:{node.lineno}: {text[:80]!r}")
+    assert hits == []
+    shown = {
+        "not a minimum (more max_steps=, or another start)": "not a minimum (more --max-steps, or another start)",
+        "try other lobes (structure=), starting values (start=) or another loss=": "try other lobes (--lobes), starting values (--material) or another --loss",
+        "fit in float64 (dtype=float64), from another start": "fit in float64 (without --float32), from another start",
+        "start again (overwrite=True)": "start again (--overwrite)",
+        "sigma_noise = 0.1, steps: 30, loss: log": "sigma_noise = 0.1, steps: 30, loss: log",  # a table's values stay as they are
+    }
+    assert {k: cli_message(k) for k in shown} == shown

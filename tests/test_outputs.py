@@ -464,7 +464,8 @@ def test_the_interrupted_line(monkeypatch):
 
 _SCRIPT = """
 import hashlib, os, signal, sys
-from ctfit._io.interrupt import deferred, install
+from ctfit._io.interrupt import deferred
+from ctfit._cli.interrupt import install
 install(lambda: "interrupted: " + sys.argv[1])
 print("ready", flush=True)
 if sys.argv[1] == "in C":  # the main thread stays in C code without the GIL: the watcher exits

@@ -162,7 +162,7 @@ def test_writes_into_an_output_folder_replace_a_link_not_its_target(tmp_path):
 _WRITE = """
 import os, signal, sys
 from ctfit._io import files
-from ctfit._io.interrupt import install
+from ctfit._cli.interrupt import install
 install(lambda: "interrupted")
 path, where = sys.argv[1], sys.argv[2]
 def chunks():
@@ -284,7 +284,7 @@ def test_a_plot_format_matplotlib_cannot_write_is_refused_before_the_fit(tmp_pat
 
 _CLUSTER = """
 import os, signal, sys
-from ctfit._io.interrupt import install
+from ctfit._cli.interrupt import install
 from ctfit._runtime import dask_client
 install(lambda: "interrupted")
 with dask_client(workers=1) as client:

@@ -6,7 +6,7 @@ Errors in the input (bad files, bad options) print one ``error:`` line naming th
 and column where known, and exit with status 2; a fit that does not converge exits with 1.
 Warnings print as one line ``warning: MESSAGE``; ``fit`` over several files goes on after a
 file's error and ends with a summary (docs/fitting.md). Outputs are checked before any work
-(``_io/output_paths.py``); Ctrl-C exits with status 130 and one line, ``interrupted`` (``_io/interrupt.py``).
+(``_io/output_paths.py``); Ctrl-C exits with status 130 and one line, ``interrupted`` (``_cli/interrupt.py``).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from typing import List, Optional
 import typer
 
 from .inputs import PARAM_OUT_HELP, WAVELENGTHS_HELP, load_material_file, output_file, parse_wavelengths, read_data, setup_jax
-from .messages import UserError, echo, run_body
+from .messages import UserError, cli_message, echo, run_body
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
 
@@ -237,7 +237,7 @@ def _sample_command(o) -> int:
             o.fit_json, meas, o.walkers, o.steps, o.burn, o.thin, o.seed, o.backend, o.resume, o.plot, target,
             progress=progress_mode(o.quiet), overwrite=o.overwrite, loss=o.loss, idata=o.idata,
         )  # fmt: skip
-    echo(json.dumps(doc, indent=2) if o.as_json else format_uncertainty_table(doc, str(o.data)))
+    echo(json.dumps(doc, indent=2) if o.as_json else cli_message(format_uncertainty_table(doc, str(o.data))))
     hint = run_longer(doc, backend=o.backend)
     if hint:
         echo(hint, err=True)
@@ -371,10 +371,10 @@ def _interrupted_message() -> str:
 
 
 def main():  # console-script entry point
-    """Run the command; Ctrl-C at any moment exits with status 130 and one line (``_io/interrupt.py``)."""
+    """Run the command; Ctrl-C at any moment exits with status 130 and one line (``_cli/interrupt.py``)."""
     from .._runtime import matplotlib_config_fallback
-    from .._io import install
     from .._runtime import return_large_blocks
+    from .interrupt import install
 
     install(_interrupted_message)
     return_large_blocks()  # peak memory: what a command holds at once (``_runtime/memory.py``)

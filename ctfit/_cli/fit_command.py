@@ -8,7 +8,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from .inputs import check_param_out, load_material_file, read_data, setup_jax
-from .messages import UserError, failure_line
+from .messages import UserError, cli_message, failure_line
 
 __all__ = [
     "KEPT",
@@ -396,7 +396,7 @@ def _report_fit(res, path: Path, o, target) -> None:
     from .._io import save_material_json
     from .._runtime import echo
 
-    echo(json.dumps(fit_result_to_dict(res), indent=2) if o.as_json else format_fit_table(res, str(path)))
+    echo(json.dumps(fit_result_to_dict(res), indent=2) if o.as_json else cli_message(format_fit_table(res, str(path))))
     if target is not None:
         save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
 
@@ -421,8 +421,8 @@ def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target) -> 
     if o.as_json:
         echo(json.dumps(doc, indent=2))
     else:
-        echo(format_fit_table(res, str(path)))
-        echo(format_uncertainty_table(doc, str(path)))
+        echo(cli_message(format_fit_table(res, str(path))))  # the library's argument names as options
+        echo(cli_message(format_uncertainty_table(doc, str(path))))
     hint = run_longer(doc, backend=t.backend)
     if hint:
         echo(hint, err=True)

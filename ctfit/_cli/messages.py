@@ -18,7 +18,16 @@ class UserError(Exception):
     """An error caused by the input, reported without a traceback."""
 
 
-_CLI_PHRASES = {"pass resume=False": "leave out --resume", "resume=False": "leave out --resume", "param_out=...": "--param-out"}
+_CLI_PHRASES = {  # library phrases → the command line's (longest first where one holds another)
+    "pass resume=False": "leave out --resume",
+    "resume=False": "leave out --resume",
+    "overwrite=True": "--overwrite",
+    "param_out=...": "--param-out",
+    "(structure=: fewer lobes, no diffuse part)": "(--lobes, --no-diffuse)",
+    "(structure=)": "(--lobes)",
+    "(start=)": "(--material)",
+    "(dtype=float64)": "(without --float32)",
+}
 
 
 _CLI_NAMES = {  # library argument → the option that sets it, for library messages shown by the CLI
@@ -34,16 +43,19 @@ _CLI_NAMES = {  # library argument → the option that sets it, for library mess
     "wavelength_step": "--step",
     "angle_deg": "--angle",
     "seed": "--seed",
+    "loss": "--loss",
 }
 
 
 _CLI_NAME = re.compile(r"(?<![\w-])(" + "|".join(_CLI_NAMES) + r")(?==|\s+must\b)")
+_CLI_BARE = re.compile(r"(?<![\w-])(" + "|".join(_CLI_NAMES) + r")=(?=[),;]|\s|$)")  # "more max_steps=," → "more --max-steps,"
 
 
 def cli_message(text: str) -> str:
     """A library message with its Python argument names (``param_out=``) turned into options."""
     for phrase, option in _CLI_PHRASES.items():
         text = text.replace(phrase, option)
+    text = _CLI_BARE.sub(lambda m: _CLI_NAMES[m[1]], text)
     return _CLI_NAME.sub(lambda m: _CLI_NAMES[m[1]], text)
 
 

@@ -398,13 +398,13 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     if quality_warning(quality):
         notes.append(quality_warning(quality))
     if not stationary:
-        hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more --max-steps, or another start)"
+        hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more max_steps=, or another start)"
         notes.append(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}")
     if explains_nothing:
         notes.append(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
-                     "the solver stalled where the lobe misses the data — try other --lobes, starting values (--material) or another --loss")
+                     "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another loss=")
     if not bool(np.asarray(ok)[best]):
-        notes.append("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (without --float32), from another start, or with fewer lobes")
+        notes.append("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another start, or with fewer lobes")
     return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)
 
 

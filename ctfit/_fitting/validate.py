@@ -62,7 +62,7 @@ def check_fittable(data: Measurement, structure: Structure, *, fixed: tuple[str,
     if n < p:
         raise ValueError(
             f"{data.source}: {n} sample{'s' if n != 1 else ''}, {p} free parameters ({_describe(structure)}): "
-            "measure more or fit fewer (--lobes, --no-diffuse)"
+            "measure more or fit fewer (structure=: fewer lobes, no diffuse part)"
         )
     bad = np.flatnonzero(~np.isfinite(y))
     if bad.size:

@@ -198,7 +198,7 @@ def atomic_write(path, chunks) -> None:
     permissions. Errors name ``path``, never the temporary file (:data:`TEMPORARY`), which is
     removed on any error; the first write into a folder removes stale ones
     (:func:`remove_stale_temporaries`). In the ``ctfit`` command a Ctrl-C during the write
-    removes the temporary file and keeps the old one, and says so (``_io/interrupt.py``).
+    removes the temporary file and keeps the old one, and says so (``_cli/interrupt.py``).
     """
     path = os.fspath(path)
     if os.path.isdir(path):
@@ -252,7 +252,7 @@ def atomic_save(path, save) -> None:
 
 def remove_temporaries(paths=None) -> list[str]:
     """Remove the temporary files of writes under way (all of them by default): for an exit that
-    cannot wait for them to finish (Ctrl-C, see ``_io/interrupt.py``). Returns what that means
+    cannot wait for them to finish (Ctrl-C, see ``_cli/interrupt.py``). Returns what that means
     for each file: ``"PATH was not written (its old content is kept)"`` (or ``"… not created"``)."""
     said = []
     for tmp in list(_temporaries if paths is None else paths):

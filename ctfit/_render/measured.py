@@ -169,5 +169,5 @@ def render_compare(
     else:
         names = [str(x) for x in labels]
         if len(names) != 2:
-            raise ValueError(f"--compare shows two tiles; got {len(names)} labels")
+            raise ValueError(f"a comparison shows two tiles; got {len(names)} labels")
     return assemble_sheet([left, right], names, size, 2, background)

@@ -38,17 +38,17 @@ def open_run(backend, *, resume: bool, overwrite: bool, steps: int, shape: tuple
     if resume and path.is_file() and path.stat().st_size and not be.initialized:  # another program's HDF5 file: never written into unasked
         raise ValueError(
             f"{path}: the HDF5 file holds no chain of ctfit (no group 'ctfit') to continue; name another file, or start a "
-            "chain in this one (overwrite=True; ctfit: --overwrite)"
+            "chain in this one (overwrite=True)"
         )
     if resume and path.exists() and be.initialized and be.iteration > 0:
         if be.shape != shape:
             raise ValueError(
                 f"{path}: the stored run has (walkers, ndim) = {be.shape}, this one {shape}; "
-                "pass the same walkers, or start again (overwrite=True; ctfit: --overwrite)"
+                "pass the same walkers, or start again (overwrite=True)"
             )
         stored = _read_attr(path, "ctfit_fingerprint")
         if stored is not None and stored != fingerprint:
-            raise ValueError(f"{path}: the stored run was sampled for other data, loss or parameters; start again (overwrite=True; ctfit: --overwrite)")
+            raise ValueError(f"{path}: the stored run was sampled for other data, loss or parameters; start again (overwrite=True)")
         done = int(be.iteration)
         if done > steps:
             raise ValueError(f"{path}: the stored run already has {done} steps, more than steps={steps}")

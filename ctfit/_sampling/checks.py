@@ -106,7 +106,7 @@ def _left_fit_line(frac: float, d2: float, limit: float, chain: dict, optimum: d
         f"left the fit: the fit's optimum lies outside the posterior's {HPD_LEVEL:.0%} region ({frac:.1%} of the draws have a "
         f"higher posterior density), further than the fit's own uncertainty explains (D² = {d2:.3g} > {limit:.3g}); the posterior "
         f"(median {post}) is not the fit ({fit}): the model or the noise model does not describe these data "
-        "(try another --loss, or read the fit's residual warnings)"
+        "(try another loss=, or read the fit's residual warnings)"
     )
 
 

@@ -146,7 +146,7 @@ def start_walkers(logp, x0: np.ndarray, cov: np.ndarray, nwalkers: int, rng) -> 
     if not np.isfinite(logp(x0[None])[0]):
         raise ValueError(
             "the posterior density is 0 at the fit's optimum (a value outside the priors' range, lobes with equal m, "
-            "or, with the relative likelihood, a model that is 0 where the data are not); check the fit, the priors, or choose another --loss"
+            "or, with the relative likelihood, a model that is 0 where the data are not); check the fit, the priors, or choose another loss="
         )
     root = _root(cov)
     coords = x0 + rng.standard_normal((nwalkers, x0.size)) @ root.T
