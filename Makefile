@@ -29,6 +29,7 @@ fit: install
 	$(BIN)/ctfit fit out/copper-vase.csv --material configs/copper-vase.toml -o out/copper-vase.fit.json
 
 test: install-test
+	$(BIN)/ruff check ctfit tests scripts
 	$(BIN)/python -m pytest -n 2 -q
 
 # Every measured report in docs/ (benchmarks, error against run time, stability) and the

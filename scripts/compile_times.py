@@ -77,7 +77,7 @@ def section(first: dict, first_s: float, again: dict, again_s: float) -> str:
     for name, times in sorted(first["compiles"].items(), key=lambda kv: -sum(kv[1])):
         times = sorted(times)
         L.append(f"| `{name}` | {len(times)} | {times[len(times) // 2]:.2f} s | {sum(times):.2f} s |")
-    L += ["", f"| structure | first run: fit (programs compiled) | compiled before: fit (programs compiled) |", "|---|---|---|"]
+    L += ["", "| structure | first run: fit (programs compiled) | compiled before: fit (programs compiled) |", "|---|---|---|"]
     for a, b in zip(first["rows"], again["rows"]):
         L.append(f"| {_label(a['structure'])} | {a['time_s']:.2f} s ({a['compiled']}) | {b['time_s']:.2f} s ({b['compiled']}) |")
     L += ["", f"Whole processes: first run {first_s:.1f} s, compiled before {again_s:.1f} s, for all {len(STRUCTURES)} structures."]

@@ -23,8 +23,9 @@ import numpy as np  # noqa: E402
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-import ctfit  # noqa: E402
 from mitsuba_render import render  # noqa: E402
+
+import ctfit  # noqa: E402
 
 WL = np.linspace(420.0, 700.0, 8)
 M = 0.2

@@ -121,7 +121,7 @@ def plot(path, swatch_deg, srgb, f0_mean, fine_deg, de, source) -> None:
     ax.set_ylim(3, 0)
     labels = [
         "exact: F(θ, λ) with\neffective n(λ) from F0(λ)",
-        "paper's approximation\n(F0_avg = Y of F0 = %.3f)" % f0_mean,
+        f"paper's approximation\n(F0_avg = Y of F0 = {f0_mean:.3f})",
         "conductor Fresnel\nwith tabulated n(λ), k(λ)",
     ]
     ax.set_yticks([0.5, 1.5, 2.5], labels)

@@ -386,10 +386,9 @@ def recommend(rows, std: Case, robust, challengers, best) -> dict:
 def ctfit_defaults() -> dict:
     """Defaults of ``ctfit.fit`` and of ``ctfit fit`` (the CLI) as (solver, precision, loss)."""
     import jax.numpy as jnp  # noqa: PLC0415
-
-    import ctfit  # noqa: PLC0415
     import typer.main  # noqa: PLC0415
 
+    import ctfit  # noqa: PLC0415
     from ctfit.cli import app  # noqa: PLC0415
 
     sig = inspect.signature(ctfit.fit).parameters

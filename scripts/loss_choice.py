@@ -42,8 +42,9 @@ def one(path: Path, loss: str) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    import ctfit
     from bench_real import read, relative_error
+
+    import ctfit
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ctfit.DataWarning)

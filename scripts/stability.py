@@ -274,8 +274,9 @@ def _param_errors(case: Case, res) -> dict[str, float]:
 def run_case(case: Case, dtype_name: str, data, clean) -> dict:
     import warnings
 
-    import ctfit
     import jax.numpy as jnp
+
+    import ctfit
 
     dtype = getattr(jnp, dtype_name)
     st = ctfit.Structure(**case.structure)

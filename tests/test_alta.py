@@ -5,9 +5,10 @@ import re
 
 import numpy as np
 import pytest
-from conftest import MEASURED
 
 from ctfit import DataError, DataWarning, read_alta, read_csv, write_csv
+
+from conftest import MEASURED
 
 HEAD_3D = "#DIM 3 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n"
 

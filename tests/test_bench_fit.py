@@ -7,10 +7,11 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT, load_script
 
 import ctfit
 from ctfit._fitting.starts import default_start
+
+from conftest import ROOT, load_script
 
 sys.path.insert(0, str(ROOT / "scripts"))  # the scripts import their helpers by name
 import _bench_fit_data as data  # noqa: E402

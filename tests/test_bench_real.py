@@ -6,9 +6,10 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT, load_script
 
 import ctfit
+
+from conftest import ROOT, load_script
 
 sys.path.insert(0, str(ROOT / "scripts"))  # the scripts import their helpers by name
 import _numpy_model as model  # noqa: E402

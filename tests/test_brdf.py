@@ -15,6 +15,7 @@ from helpers import STRUCTURES, angle_grid, directions, gauss_legendre, make_par
 
 import ctfit
 from ctfit import Params, Structure
+
 from conftest import load_script
 
 DIFFUSE_ONLY = [Structure(lobes=0, fresnel=fr, diffuse=d) for fr in ("f0", "n", "conductor") for d in ("F0/pi", "spectrum", "constant")]

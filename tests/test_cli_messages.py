@@ -103,8 +103,9 @@ def test_the_library_names_its_own_arguments_and_the_command_its_options():
     import ast
     import re
 
-    from conftest import ROOT
     from ctfit._cli.messages import cli_message
+
+    from conftest import ROOT
 
     flag = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
     hits = []

@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_colour import cu_f0, cu_nk
 
 import ctfit
 from ctfit._colour.colorimetry import XYZ_to_Lab, XYZ_to_RGB, delta_E_CIE2000, rgb_conversion, spectral_weights, spectrum_to_RGB, spectrum_to_XYZ
@@ -14,7 +15,6 @@ from ctfit._colour.colour_shift import (
     colour_shift_weight,
     fresnel_reflectance_spectrum,
 )
-from test_colour import cu_f0, cu_nk
 
 WL = np.arange(360.0, 831.0, 5)
 W = spectral_weights(WL)

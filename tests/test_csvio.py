@@ -5,12 +5,11 @@ import re
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 
-from ctfit._io import csv_files as _csvio
 import ctfit
 from ctfit import DataError, Measurement, read_csv, write_csv
+from ctfit._io import csv_files as _csvio
 
 HEADER = "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf"
 

@@ -19,7 +19,6 @@ from hypothesis import HealthCheck, given, settings
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit._cli.messages import cli_message
 import ctfit._fitting.least_squares as _fit
 from ctfit import (
     DataError,
@@ -39,8 +38,9 @@ from ctfit import (
     render_materials,
     save_material_json,
 )
-from ctfit._sampling.draw_colours import draw_colours
+from ctfit._cli.messages import cli_message
 from ctfit._fitting.validate import check_fittable, n_free_parameters, nonfinite_reason, representable_range
+from ctfit._sampling.draw_colours import draw_colours
 from ctfit.cli import app
 
 runner = CliRunner()

@@ -1,8 +1,8 @@
 """Facet-slope distributions D̂ (Cook & Torrance 1982, eqs. 3 and 4): values and normalisation."""
 
 import jax
-import mpmath
 import jax.numpy as jnp
+import mpmath
 import numpy as np
 import pytest
 from helpers import gauss_legendre

@@ -15,8 +15,6 @@ from typer.testing import CliRunner
 import ctfit
 from ctfit.cli import app
 
-from conftest import ROOT
-
 runner = CliRunner()
 RGB = ("R", "G", "B")
 
@@ -302,6 +300,7 @@ def test_gltf_brdf_is_the_specifications_ggx():
     the directional albedo at 30° is just below 1 for a smooth surface and falls with roughness
     (single scattering; ≈ 0.8 at roughness 0.6, as the split-sum tables of real-time renderers)."""
     from scipy.integrate import dblquad
+
     from ctfit._export.gltf import gltf_brdf
 
     def white(rough):

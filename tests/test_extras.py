@@ -8,9 +8,10 @@ import textwrap
 import pytest
 from typer.testing import CliRunner
 
-from conftest import ROOT
 from ctfit._runtime import extras
 from ctfit.cli import app
+
+from conftest import ROOT
 
 runner = CliRunner()
 MISSING = "ctfit_no_such_module"

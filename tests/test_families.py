@@ -2,8 +2,8 @@
 structure, the log-ratio loss, the quality section and honest warnings."""
 
 import dataclasses
-from types import SimpleNamespace
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest

@@ -8,9 +8,8 @@ import optimistix as optx
 import pytest
 
 import ctfit
-from ctfit import fit
+from ctfit import fit, simulate
 from ctfit._fitting.problem import from_params, make_problem, residual, to_params
-from ctfit import simulate
 
 WL8 = np.linspace(400.0, 700.0, 8)
 WL31 = np.linspace(400.0, 700.0, 31)

@@ -7,14 +7,14 @@ import jax
 import jax.monitoring
 import numpy as np
 import pytest
+from helpers import patch_module
 from typer.testing import CliRunner
 
 import ctfit
 from ctfit._fitting import batch as _fit_batch
-from ctfit._runtime import stored_programs as _aot
 from ctfit._fitting.batch import batch_size
+from ctfit._runtime import stored_programs as _aot
 from ctfit.cli import app
-from helpers import patch_module
 
 WL = np.array([450.0, 650.0])
 ST = ctfit.Structure(lobes=1)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit import load_material
+from ctfit import load_material, simulate
 from ctfit._fitting.problem import _stick_fractions, _weights
-from ctfit import simulate
 from ctfit._fitting.solvers import active_set, predicted_decrease
+
 from conftest import ROOT
 
 

@@ -4,7 +4,6 @@ measurement of another size in the same bucket reuses it (no XLA compilation), a
 changes no result."""
 
 import numpy as np
-import pytest
 
 import ctfit
 from ctfit._fitting.problem import bucket, make_problem

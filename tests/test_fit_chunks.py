@@ -8,9 +8,7 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._fitting import least_squares as _fit
-from ctfit._fitting import fit_report
-from ctfit._fitting import problem as _problem
+from ctfit._fitting import fit_report, least_squares as _fit, problem as _problem
 from ctfit._fitting.problem import CHUNK, bucket, half_squared_norm, make_problem, normal_equations
 
 SMALL_CHUNK = 64

@@ -10,9 +10,9 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit._runtime.compile_cache import _default
-from ctfit._runtime.cluster import dask_client
 from ctfit._fitting.many import _tasks, geometry_key, input_sha256
+from ctfit._runtime.cluster import dask_client
+from ctfit._runtime.compile_cache import _default
 from ctfit.cli import app
 
 WL = np.array([450.0, 650.0])

@@ -4,9 +4,8 @@ above that candidate's; conductor fits start from n, k that match the data's F0.
 import numpy as np
 
 import ctfit
-from ctfit import normal_reflectance
+from ctfit import normal_reflectance, simulate
 from ctfit._fitting.structure_selection import _contains, _embedded_start
-from ctfit import simulate
 
 WL = np.linspace(400.0, 700.0, 6)
 

@@ -3,12 +3,13 @@ data, robust y-limits, 1-D data against θ_h, no placeholder wavelength, one in-
 
 import numpy as np
 import pytest
-from conftest import MEASURED
 from matplotlib.text import Text
 
 import ctfit
 from ctfit._fitting.least_squares import FitResult
 from ctfit._fitting.plots import make_fit_figure, plot_fit, signed_in_plane_angle
+
+from conftest import MEASURED
 
 
 def _result(material, warnings=()):

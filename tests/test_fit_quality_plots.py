@@ -6,11 +6,12 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import MEASURED
 
 import ctfit
 from ctfit._fitting.least_squares import FitResult
 from ctfit._fitting.plots import make_fit_quality_figure
+
+from conftest import MEASURED
 
 GLOSS = {"s": 0.6, "d": 0.4, "lobes": [{"m": 0.25}], "F0": [0.9, 0.6, 0.3], "Rd": [0.2, 0.1, 0.05]}
 

@@ -11,10 +11,9 @@ import sys
 
 import jax.numpy as jnp
 import pytest
-
-import ctfit
 import typer.main
 
+import ctfit
 from ctfit.cli import app
 
 from conftest import ROOT

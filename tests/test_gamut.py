@@ -5,8 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from ctfit._colour.colorimetry import RGB_to_XYZ, XYZ_to_xy, dominant_wavelength, rgb_conversion
 from ctfit._colour.gamut import desaturate_to_gamut, in_gamut, scale_to_display, srgb_luminance

@@ -5,10 +5,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import make_params, structure_id
 
 import ctfit
 from ctfit import Light, Params, Structure, reflected_intensity
-from helpers import make_params, structure_id
 
 intensity = eqx.filter_jit(reflected_intensity)
 

@@ -2,8 +2,8 @@
 ``ctfit/__init__.py`` the one public list, and no module reaching into another's private names."""
 
 import ast
-import re
 import importlib
+import re
 from pathlib import Path
 
 import ctfit

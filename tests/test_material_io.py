@@ -16,8 +16,7 @@ import tomli_w
 from hypothesis import HealthCheck, given, settings
 
 import ctfit
-from ctfit import Material, Params, Structure
-from ctfit import MaterialError, load_material, material_from_dict, material_to_dict, read_optical_constants, save_material_json
+from ctfit import Material, MaterialError, Params, Structure, load_material, material_from_dict, material_to_dict, read_optical_constants, save_material_json
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 CONFIGS = sorted((ROOT / "configs").glob("*.toml"))

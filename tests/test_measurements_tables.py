@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from ctfit import read_optical_constants
+
 from conftest import TABLES, load_script
 
 STEMS = ["Cu", "Au", "Ag", "Al", "Fe", "stainless-steel"]

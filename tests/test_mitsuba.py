@@ -176,7 +176,7 @@ def test_smith_rational_brdf_is_mitsuba_s_everywhere(comparison):
     precision everywhere (the exact G1's 0.54 % model difference is gone)."""
     l, v = _directions()
     st = Structure(lobes=1, geometry="smith-rational", fresnel="conductor", normalization="normalized")
-    for (m, eta, k), c in zip(CASES, comparison):
+    for (m, eta, k), _ in zip(CASES, comparison):
         p = Params(m=jnp.asarray([m]), w=jnp.asarray([1.0]), n=jnp.asarray([eta]), k=jnp.asarray([k]))
         r = np.asarray(ctfit.brdf(st, p, ctfit.geometry(jnp.asarray(l), jnp.asarray(v))))[:, 0]
         fr, _ = _mitsuba(m, eta, k, l, v)

@@ -19,8 +19,6 @@ import pytest
 from typer.testing import CliRunner
 
 from ctfit._io import files as _fileio
-from ctfit._runtime import compile_cache as _cache
-from ctfit._runtime import stored_programs as _aot
 from ctfit._io.output_paths import (
     OutputError,
     check_backend,
@@ -29,6 +27,7 @@ from ctfit._io.output_paths import (
     result_targets,
     unconverged_target,
 )
+from ctfit._runtime import compile_cache as _cache, stored_programs as _aot
 from ctfit.cli import app
 
 from conftest import ROOT
@@ -448,8 +447,8 @@ def _interrupt_when(proc, ready, settle: float = 1.0, timeout: float = 240.0):
 
 
 def test_the_interrupted_line(monkeypatch):
-    from ctfit._io import interrupt as _interrupt
     from ctfit._cli.commands import _interrupted_message
+    from ctfit._io import interrupt as _interrupt
 
     monkeypatch.setitem(_interrupt._state, "resumable", None)
     monkeypatch.setattr(sys, "argv", ["ctfit", "sample", "f.json", "d.csv", "--backend", "my run.h5", "--overwrite"])

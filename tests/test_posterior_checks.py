@@ -5,9 +5,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ctfit._sampling.priors import describe_priors, log_prior, normalise_priors, support
 from ctfit._sampling.checks import check_posterior, fit_distance
 from ctfit._sampling.plots import _central_ranges
+from ctfit._sampling.priors import describe_priors, log_prior, normalise_priors, support
 
 
 def test_default_priors_are_proper_and_physical():

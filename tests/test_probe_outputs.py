@@ -6,22 +6,20 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+from test_outputs import no_work  # noqa: F401 — the fixture: a command that starts work before checking its outputs fails
 from typer.testing import CliRunner
 
-from ctfit._io import files as _fileio
-from ctfit._io import output_paths
+from ctfit._io import files as _fileio, output_paths
 from ctfit._io.output_paths import OutputError, check_output
 from ctfit.cli import app
 
 from conftest import ROOT
-from test_outputs import no_work  # noqa: F401 — the fixture: a command that starts work before checking its outputs fails
 
 MATERIAL = ROOT / "configs" / "copper-vase.toml"
 SMALL = ("--samples", 30, "--wavelengths", "450:650:100")

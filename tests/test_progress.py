@@ -2,9 +2,10 @@
 
 import pytest
 
-from conftest import load_script
 from ctfit._runtime import progress
 from ctfit._runtime.progress import ProgressLines, bar, echo, progress_enabled, progress_mode
+
+from conftest import load_script
 
 
 @pytest.mark.parametrize(

@@ -4,9 +4,10 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import MEASURED
 
 from ctfit import DataError, DataWarning, merl_table, read_measurement, write_merl
+
+from conftest import MEASURED
 
 CSV = "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,550,0.5\n"
 ALTA = "#DIM 1 1\n#PARAM_IN COS_TH\n#PARAM_OUT INV_STERADIAN\n0.5 0.25\n"

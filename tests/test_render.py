@@ -4,16 +4,16 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from conftest import ROOT
 
 import ctfit
-from ctfit import Material, Params, Structure
-from ctfit import render_compare, render_linear, render_material, render_materials, save_png, tone_map
+from ctfit import Material, Params, Structure, render_compare, render_linear, render_material, render_materials, save_png, tone_map
+from ctfit._cli.render_command import render_command_body
 from ctfit._render.scene import render_scene, shade_linear
 from ctfit._render.sheet import grid_layout
 from ctfit._render.surfaces import RADIUS, VASE_SCALE, VIEW_DIRECTION, surface_normals, vase_profile
 from ctfit._render.tone import BACKGROUND
-from ctfit._cli.render_command import render_command_body
+
+from conftest import ROOT
 
 RGB = ("R", "G", "B")
 BG = np.round(np.asarray(ctfit.eotf_inverse_sRGB(np.asarray(BACKGROUND))) * 255).astype(np.uint8)

@@ -15,14 +15,14 @@ import pytest
 
 import ctfit
 from ctfit._fitting.problem import from_params, make_problem, to_params
-from ctfit._sampling.priors import normalise_priors
+from ctfit._model.evaluation import simulate
 from ctfit._sampling.chain_diagnostics import ChainTooShortWarning
 from ctfit._sampling.draw_colours import draw_colours
 from ctfit._sampling.emcee_run import sample
-from ctfit._sampling.posterior_density import default_walkers
 from ctfit._sampling.engine import Engine
 from ctfit._sampling.logprob import Layout
-from ctfit._model.evaluation import simulate
+from ctfit._sampling.posterior_density import default_walkers
+from ctfit._sampling.priors import normalise_priors
 
 WL3 = np.array([450.0, 550.0, 650.0])
 WL4 = np.linspace(400.0, 700.0, 4)
@@ -204,9 +204,9 @@ def test_relative_noise_likelihood_is_that_of_noise_proportional_to_the_model(me
     """loss 'relative': y_i ~ N(R_i, (σ_noise R_i)²) — scaled by the model R_i(θ), not by the
     data with the fit's floor — checked against a direct evaluation (flat priors: the log-prior
     is the log-Jacobian of m = exp(u), F0 = sigmoid(u); for σ_noise, 1/σ times |dσ/dv| = σ: 0)."""
-    from ctfit._fitting.problem import model_values
-
     from jax.flatten_util import ravel_pytree
+
+    from ctfit._fitting.problem import model_values
 
     truth, data, _ = metal
     problem = make_problem(truth.structure, data.replace(sigma=None), fixed_params=truth.params, loss="relative", space="unconstrained")
@@ -334,10 +334,10 @@ def test_informative_prior_pulls_the_posterior(metal):
 
 @short
 def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
+    from ctfit._cli.sample_command import sample_command_body
     from ctfit._colour.report import colour_report
     from ctfit._fitting.results import fit_result_to_dict
     from ctfit._io.material_files import load_material, save_material_json
-    from ctfit._cli.sample_command import sample_command_body
     from ctfit._sampling.plots import plot_corner, plot_spectra
     from ctfit._sampling.table import format_uncertainty_table
 

@@ -13,9 +13,10 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
-from conftest import MEASURED
-from ctfit.cli import SAMPLE_NOT_USABLE, app
 from ctfit._model.parameters import M_MAX
+from ctfit.cli import SAMPLE_NOT_USABLE, app
+
+from conftest import MEASURED
 
 runner = CliRunner()
 # The ALTA reader's note on the 86 samples at the horizon (the CLI prints it as one line).

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from ctfit import read_optical_constants
+
 from conftest import MEASURED, ROOT, TABLES
 
 # Built by concatenation so that this file does not match itself.

@@ -6,9 +6,10 @@ import json
 
 import numpy as np
 import pytest
-from conftest import ROOT, load_script
 
 import ctfit
+
+from conftest import ROOT, load_script
 
 mi = pytest.importorskip("mitsuba", reason="Mitsuba 3 is not installed (pip install mitsuba)")
 pytestmark = pytest.mark.mitsuba

@@ -8,9 +8,9 @@ import xarray as xr
 from typer.testing import CliRunner
 
 import ctfit
-from ctfit._runtime.cluster import dask_client
 from ctfit import read_texel_geometry
 from ctfit._fitting.texel_maps import TexelMapError
+from ctfit._runtime.cluster import dask_client
 from ctfit.cli import app
 
 WL = np.array([450.0, 650.0])

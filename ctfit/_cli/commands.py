@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 from types import SimpleNamespace
-from typing import List, Optional
+from typing import Optional
 
 import typer
 
@@ -106,7 +106,7 @@ def simulate(
 
 @app.command()
 def fit(
-    data: List[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary, RGL .bsdf) or folders of them."),
+    data: list[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary, RGL .bsdf) or folders of them."),
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several, a folder of them, a name ending in / or an existing folder: a folder, with summary.json)."),
     as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
     material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),
@@ -196,8 +196,8 @@ def sample_cmd(
 
 def _check_sample_options(o) -> Path:
     """Options and outputs checked before any work; returns the JSON target."""
-    from .._io import check_backend, check_output, check_output_folder
     from .._fitting import LOSSES
+    from .._io import check_backend, check_output, check_output_folder
     from .._runtime import need
 
     need("posterior", "ctfit sample")
@@ -247,7 +247,7 @@ def _sample_command(o) -> int:
 
 @app.command()
 def render(
-    materials: List[Path] = typer.Argument(..., help="Material TOML or fit-result JSON files, one tile each."),
+    materials: list[Path] = typer.Argument(..., help="Material TOML or fit-result JSON files, one tile each."),
     output_text: str = typer.Option(..., "-o", "--output", help="Output PNG."),
     size: int = typer.Option(256, "--size", min=8, help="Tile side in pixels."),
     shape: str = typer.Option("sphere", "--shape", help="sphere or vase."),
@@ -372,8 +372,7 @@ def _interrupted_message() -> str:
 
 def main():  # console-script entry point
     """Run the command; Ctrl-C at any moment exits with status 130 and one line (``_cli/interrupt.py``)."""
-    from .._runtime import matplotlib_config_fallback
-    from .._runtime import return_large_blocks
+    from .._runtime import matplotlib_config_fallback, return_large_blocks
     from .interrupt import install
 
     install(_interrupted_message)

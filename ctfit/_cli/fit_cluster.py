@@ -3,7 +3,6 @@ written as tasks complete, files already fitted from the same bytes and options 
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from .fit_command import KEPT, check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options, texel_structure
@@ -18,9 +17,8 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> tuple[
     same options are skipped; the others are fitted by ``fit_many`` on the cluster and each is
     reported and written as its task completes. Returns the outcomes and the inputs' hashes
     (for ``summary.json``, which the command writes beside the results)."""
-    from .._runtime import dask_client
     from .._fitting import fit_many, input_sha256
-    from .._runtime import echo
+    from .._runtime import dask_client, echo
 
     options = _fit_options_record(o)
     hashes, outcomes, pending = {}, {}, []
@@ -68,8 +66,8 @@ def fit_texel_command(o) -> int:
     """Texel data (``docs/formats.md``): every texel fitted on a Dask cluster (--workers, --scheduler,
     else one local worker per core), the maps written to the Zarr store -o as chunks complete
     (a re-run resumes), PNGs of the maps in the folder --plot. 0: every texel converged, 1: not."""
-    from .._runtime import dask_client, echo, progress_enabled
     from .._fitting import TEXEL_STATUS, fit_texel_maps, save_map_pngs
+    from .._runtime import dask_client, echo, progress_enabled
 
     if o.output is None or o.output.suffix.lower() != ".zarr":
         raise UserError("texel data: give -o MAPS.zarr (the parameter maps are written there as a Zarr store)")

@@ -78,8 +78,8 @@ def _diffuse(o) -> str:
 
 def fit_command(o) -> int:
     """The ``fit`` command: options and outputs checked first, then every file; the exit status."""
-    from .fit_cluster import TEXEL_SUFFIXES, fit_on_cluster, fit_texel_command
     from .._runtime import progress_enabled
+    from .fit_cluster import TEXEL_SUFFIXES, fit_on_cluster, fit_texel_command
 
     _check_fit_options(o)
     if len(o.data) == 1 and o.data[0].suffix.lower() in TEXEL_SUFFIXES:

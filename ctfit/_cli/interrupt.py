@@ -21,7 +21,7 @@ import os
 import signal
 import sys
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 from .._io import remove_temporaries, run_cleanups, set_exit, sigint, wait_for_writes
 

@@ -76,20 +76,20 @@ def run_body(fn):
             return fn()
         except UserError as e:
             echo(f"error: {e}", err=True)
-            raise typer.Exit(2)
+            raise typer.Exit(2) from None
         except ImportError as e:
             from .._runtime import MissingExtraError
 
             if not isinstance(e, MissingExtraError):
                 raise
             echo(f"error: {e}", err=True)  # the feature, the packages, the pip command
-            raise typer.Exit(2)
+            raise typer.Exit(2) from None
         except OSError as e:
             echo(f"error: {os_error_text(e)}", err=True)
-            raise typer.Exit(2)
+            raise typer.Exit(2) from None
         except (ValueError, KeyError) as e:
             echo(f"error: {cli_message(str(e))}", err=True)
-            raise typer.Exit(2)
+            raise typer.Exit(2) from None
 
 
 def echo(text: str, *, err: bool = False) -> None:

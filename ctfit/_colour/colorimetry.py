@@ -55,8 +55,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .gamut import desaturate_to_gamut
 from .._model import safe_sqrt
+from .gamut import desaturate_to_gamut
 
 __all__ = [
     "DEFAULT_OBSERVER",

@@ -23,8 +23,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from .._model import Material, Params, ambient_reflectance, evaluate_at, normal_reflectance
-from .rgb_bands import band_to_rgb
 from .error_grid import unit_directions
+from .rgb_bands import band_to_rgb
 
 __all__ = ["fit_ggx_roughness", "gltf_brdf", "gltf_material"]
 

@@ -41,9 +41,9 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
-from .._runtime import stored_program
 from .._model import Params, Structure
-from .fit_report import light_report_core, report_core, summary_of_part, combined_rms, zero_model_cost
+from .._runtime import stored_program
+from .fit_report import combined_rms, light_report_core, report_core, summary_of_part, zero_model_cost
 from .problem import Problem, Spec, normal_equations
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver, stop_tolerances
 from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores

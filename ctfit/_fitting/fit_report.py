@@ -15,7 +15,6 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .._model import PUBLIC_NAMES, Params, n_from_f0, normal_reflectance, parameter
-
 from .problem import Problem, loss_residuals, map_over_chunks, model_values, to_params
 from .seeded_solve import flat_bounds, gauss_newton_decrease
 from .solvers import active_set

@@ -37,7 +37,6 @@ from .._model import Material, Measurement, Params, Structure
 from .._runtime import cached_call
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch
 from .diagnostics import half_angle_deg, relative_residual_structure
-from .quality import peak_width_deg, quality_from_relative, quality_warning
 from .fit_report import (
     PARAM_FIELDS,
     coordinate_names,
@@ -51,6 +50,7 @@ from .fit_report import (
     zero_model_cost,
 )
 from .problem import LOSSES, Problem, default_loss, from_params, make_problem, normal_equations, sum_over_chunks, to_params
+from .quality import peak_width_deg, quality_from_relative, quality_warning
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, judge_converged, solve_seeds
 from .starts import default_start, m_grid, seed_points
 from .validate import check_fittable, nonfinite_reason

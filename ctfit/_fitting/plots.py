@@ -29,10 +29,9 @@ import textwrap
 
 import numpy as np
 
-from .._model import normal_reflectance
+from .._model import Measurement, band_labels, evaluate, normal_reflectance
 from .diagnostics import angle_lv_deg, half_angle_deg
 from .problem import loss_floor
-from .._model import Measurement, band_labels, evaluate
 
 __all__ = ["make_fit_figure", "make_fit_quality_figure", "plot_fit", "signed_in_plane_angle"]
 

@@ -33,8 +33,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._model import combine_parts, specular_geometric
-from .._runtime import cached_call
 from .._model import (
     Geometry,
     Measurement,
@@ -42,10 +40,13 @@ from .._model import (
     Structure,
     box_bounds,
     clip_box,
+    combine_parts,
     geometry_from_angles_deg,
     n_lower,
     parameter,
+    specular_geometric,
 )
+from .._runtime import cached_call
 
 __all__ = ["Problem", "LOSSES", "LOG_RATIO_FLOOR", "RELATIVE_FLOOR", "FLOOR_OF_PEAK", "SEED_FLOOR", "ROBUST_SCALE", "loss_floor", "default_loss", "row_floors", "make_problem", "to_params", "from_params", "bounds", "residual", "model_values", "normal_equations", "half_squared_norm", "sum_over_chunks", "map_over_chunks", "bucket", "chunk_rows", "chunk_padding"]
 

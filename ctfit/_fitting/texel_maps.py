@@ -309,8 +309,8 @@ def _write(output, maps: dict, dims: tuple[str, ...], span: tuple[int, int]) -> 
 def save_map_pngs(maps, folder) -> list[Path]:
     """One PNG per map of an image's maps (dims y, x): per lobe (m, weight), per band (F0, Rd),
     and s, cost, rel_rmse, converged; each scaled to its own range (the PNG's name says which)."""
-    from .._runtime import matplotlib_config_fallback, need
     from .._io import atomic_save
+    from .._runtime import matplotlib_config_fallback, need
 
     need("plots", "pictures of parameter maps")
     matplotlib_config_fallback()

@@ -27,13 +27,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._model import Material, Measurement, Params, Structure, value_rules
 from .._runtime import cached_call
+from .batch import default_width, mapped
 from .least_squares import FitResult, fit, fit_core, prepare_fit
 from .options import takes_fit_options
-from .seeded_solve import judge_converged
-from .batch import default_width, mapped
-from .._model import Material, Measurement, Params, Structure, value_rules
 from .problem import row_floors
+from .seeded_solve import judge_converged
 from .validate import representable_range
 
 __all__ = ["fit_texels", "texel_status", "TexelFits", "CHUNK", "TEXEL_STATUS"]

@@ -40,10 +40,10 @@ import warnings
 
 import numpy as np
 
+from .._model import Measurement
 from .errors import DataError, DataWarning
 from .files import read_text
 from .untrusted import check_input_file, quote, shorten
-from .._model import Measurement
 
 __all__ = ["PARAM_IN", "PARAM_OUT", "PLACEHOLDER_WAVELENGTH_NM", "read_alta"]
 

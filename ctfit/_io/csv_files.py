@@ -18,10 +18,10 @@ import re
 
 import numpy as np
 
+from .._model import Measurement, format_value as _fmt, invalid_value
 from .errors import DataError
 from .files import atomic_write, map_utf8
 from .untrusted import check_input_file, quote, shorten
-from .._model import Measurement, format_value as _fmt, invalid_value
 
 __all__ = ["read_csv", "write_csv"]
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 __all__ = ["deferred", "note_resumable", "on_interrupt", "resumable", "run_cleanups", "set_exit", "sigint", "wait_for_writes"]
 

@@ -35,10 +35,6 @@ import tomllib
 
 import numpy as np
 
-from .files import atomic_write
-from .errors import MaterialError
-from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits
-from .optical_constants import TABLE_FOLDERS, is_table_name, read_material_text, read_optical_constants, table_folders, table_names
 from .._model import (
     DISTRIBUTIONS,
     FRESNELS,
@@ -53,6 +49,10 @@ from .._model import (
     f0_from_nk,
     n_from_f0,
 )
+from .errors import MaterialError
+from .files import atomic_write
+from .optical_constants import TABLE_FOLDERS, is_table_name, read_material_text, read_optical_constants, table_folders, table_names
+from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits
 
 __all__ = ["load_material", "material_from_dict", "material_to_dict", "save_material_json", "float_list", "jsonable"]
 

@@ -32,10 +32,10 @@ import warnings
 
 import numpy as np
 
-from .errors import DataError
-from .untrusted import check_input_file
-from .files import atomic_write
 from .._model import Measurement
+from .errors import DataError
+from .files import atomic_write
+from .untrusted import check_input_file
 
 __all__ = [
     "MERL_SCALE",

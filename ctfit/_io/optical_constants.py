@@ -13,10 +13,10 @@ import pathlib
 
 import numpy as np
 
+from .._model import f0_from_nk
 from .errors import DataError, MaterialError
 from .files import read_text
 from .untrusted import check_input_file, quote
-from .._model import f0_from_nk
 
 __all__ = ["TABLE_FOLDERS", "read_material_text", "is_table_name", "table_folders", "table_names", "read_optical_constants"]
 

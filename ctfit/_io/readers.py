@@ -13,13 +13,13 @@ from __future__ import annotations
 import os
 import pathlib
 
+from .._model import Measurement
 from .alta import read_alta
 from .csv_files import read_csv
 from .errors import DataError
-from .untrusted import check_input_file
-from .._model import Measurement
 from .merl import MERL_FILE_BYTES, MERL_SHAPE, read_merl
 from .rgl import TENSOR_MAGIC, read_rgl
+from .untrusted import check_input_file
 
 __all__ = ["READERS", "read_measurement", "reader_for"]
 

@@ -34,8 +34,8 @@ import warnings
 
 import numpy as np
 
-from .errors import DataError, DataWarning
 from .._model import Measurement
+from .errors import DataError, DataWarning
 from .untrusted import check_input_file
 
 __all__ = ["MIN_COS", "TENSOR_MAGIC", "bilinear", "marginal_sample", "read_rgl", "read_tensor_file"]

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from .directions import Geometry
 from .distribution import beckmann, gaussian
 from .fresnel_equations import (
     f0_from_n,
@@ -26,7 +27,6 @@ from .fresnel_equations import (
     fresnel_dielectric_f0,
     fresnel_diffuse_reflectance,
 )
-from .directions import Geometry
 from .material import Params, Structure
 from .shadowing import smith_g1_reduced, smith_rational_g1_reduced, v_cavity_reduced
 

@@ -71,7 +71,7 @@ def _real_column(m, name: str):
     return a
 
 
-def check_samples(m: "Measurement") -> None:
+def check_samples(m: Measurement) -> None:
     """Raise (naming the field and the row) unless ``m``'s samples are what every reader
     returns: real numbers of the right domain (:func:`invalid_value`), band indices into its
     bands, positive increasing wavelengths. ``TypeError`` for a wrong kind, ``ValueError`` for a value."""
@@ -191,7 +191,7 @@ class Measurement:
         """
         return self._directions
 
-    def with_directions(self, pairs, index) -> "Measurement":
+    def with_directions(self, pairs, index) -> Measurement:
         """This measurement with its direction pairs given, for readers that know them (a MERL
         table's cells): ``pairs`` (D, 4) unique, ``index`` (N,) with ``pairs[index]`` equal to each
         sample's angles (any integer type: int32 halves its memory). Saves the search in
@@ -249,7 +249,7 @@ class Measurement:
         order = np.argsort(flat, kind="stable")
         return pairs, order
 
-    def replace(self, **changes) -> "Measurement":
+    def replace(self, **changes) -> Measurement:
         """A copy with ``changes``; it keeps the direction pairs found already when the angles stay."""
         new = dataclasses.replace(self, **changes)
         if "_directions" in self.__dict__ and not changes.keys() & {"theta_i", "phi_i", "theta_o", "phi_o"}:

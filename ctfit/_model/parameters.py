@@ -23,7 +23,7 @@ that a prior stated in θ is a density in u), and a line describing both.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

@@ -25,12 +25,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .scene import LIGHT_DIRECTIONS, SOLID_ANGLES, Scene, Tile, render_bands, scene_lights, white_scale
-from .surfaces import VIEW_DIRECTION, surface_normals
-from .tone import BACKGROUND, tone_map
 from .._colour import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion
 from .._io import angles_deg_to_half_diff_deg
 from .._model import evaluate_at
+from .scene import LIGHT_DIRECTIONS, SOLID_ANGLES, Scene, Tile, render_bands, scene_lights, white_scale
+from .surfaces import VIEW_DIRECTION, surface_normals
+from .tone import tone_map
 
 __all__ = ["MeasuredBRDF", "Comparison", "half_diff_folded_deg", "render_comparison"]
 

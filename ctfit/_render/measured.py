@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._model import Material, Measurement, ambient_reflectance
 from .scene import Scene, Tile, render_scene, shade_tile, white_scale
 from .sheet import assemble_sheet, tile_label
 from .surfaces import VIEW_DIRECTION, Surface, surface_normals
 from .tone import BACKGROUND, tone_map
-from .._model import Material, Measurement, ambient_reflectance
 
 __all__ = ["render_compare"]
 

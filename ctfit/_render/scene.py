@@ -31,10 +31,10 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .surfaces import VIEW_DIRECTION, Surface, surface_normals
 from .._colour import colour_science, rgb_conversion, spectral_weights
 from .._io import DataWarning
 from .._model import Light, Material, Params, Structure, reflected_intensity
+from .surfaces import VIEW_DIRECTION, Surface, surface_normals
 
 __all__ = [
     "WAVELENGTH_STEP_NM",

@@ -10,10 +10,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .scene import render_linear
-from .tone import BACKGROUND, tone_map
 from .._colour import eotf_inverse_sRGB
 from .._model import Material
+from .scene import render_linear
+from .tone import BACKGROUND, tone_map
 
 __all__ = ["grid_layout", "assemble_sheet", "tile_label", "render_material", "render_materials"]
 

@@ -17,8 +17,8 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .scene import Tile
 from .._colour import desaturate_to_gamut, eotf_inverse_sRGB, scale_to_display
+from .scene import Tile
 
 __all__ = ["EXPOSURES", "BACKGROUND", "tone_map"]
 

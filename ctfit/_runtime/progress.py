@@ -18,7 +18,6 @@ from __future__ import annotations
 import errno
 import os
 import sys
-
 import time
 
 __all__ = ["LINE_EVERY_S", "ProgressLines", "progress_enabled", "progress_mode", "bar", "closed_pipe", "echo"]

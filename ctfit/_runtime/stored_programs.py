@@ -44,18 +44,17 @@ import os
 import pathlib
 import pickle
 import platform
-import stat
 import threading
 import warnings
-from typing import Callable
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
 import numpy as np
 from jax.experimental import serialize_executable
 
-from .compile_cache import program_store_folder, unsafe_folder, warn_once
 from .._io import atomic_write
+from .compile_cache import program_store_folder, unsafe_folder, warn_once
 
 _FORMAT = 4  # 1: jax.export programs (compiled again in every process); 2: executables; 3: with their key; 4: compile efforts
 

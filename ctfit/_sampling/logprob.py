@@ -29,9 +29,9 @@ import math
 import jax.numpy as jnp
 from jax.flatten_util import ravel_pytree
 
+from .._fitting import Problem, model_values, residual, to_params
 from .._model import PARAMETERS
 from .priors import log_prior, public_name, support
-from .._fitting import Problem, model_values, residual, to_params
 
 __all__ = ["Layout", "log_prob_one", "log_jacobian_one", "likelihood_residual", "relative_residual", "relative_scale"]
 

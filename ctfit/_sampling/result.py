@@ -11,8 +11,8 @@ import dataclasses
 
 import numpy as np
 
-from .._model import Material
 from .._io import jsonable
+from .._model import Material
 
 __all__ = ["SampleResult", "summarise"]
 
