@@ -80,6 +80,7 @@ _EXPORTS = {  # public name -> the subpackage that exports it
     "fit_texel_maps": "._fitting",
     "fit_texels": "._fitting",
     "FitResult": "._fitting",
+    "FitStatus": "._fitting",
     "format_fit_table": "._fitting",
     "plot_polar": "._fitting",
     "plot_residual_map": "._fitting",
@@ -202,6 +203,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
     )
     from ._fitting import (
         FitResult as FitResult,
+        FitStatus as FitStatus,
         TexelFits as TexelFits,
         choose_structure as choose_structure,
         fit as fit,

@@ -101,14 +101,14 @@ def fit_batch(
         if isinstance(got, Exception):
             results[i] = got
         elif chunked:
-            results[i] = _caught(lambda: finish_fit(got, solve_prepared(got, solver, max_steps), solver, time.perf_counter()), return_errors)
+            results[i] = _caught(lambda: finish_fit(got, solve_prepared(got, solver, max_steps), solver, time.perf_counter(), max_steps=max_steps), return_errors)
         else:
             preps[i] = got
     for group in _groups(preps, solver, max_steps):
         for call in _calls(group, preps):
             outs = _caught(lambda: _solve([preps[i] for i in call], solver, max_steps, width), return_errors)
             for i, out in zip(call, outs if isinstance(outs, list) else [outs] * len(call)):
-                results[i] = out if isinstance(out, Exception) else _caught(lambda: finish_fit(preps[i], out, solver, time.perf_counter()), return_errors)
+                results[i] = out if isinstance(out, Exception) else _caught(lambda: finish_fit(preps[i], out, solver, time.perf_counter(), max_steps=max_steps), return_errors)
     share = (time.perf_counter() - t0) / max(len(measurements), 1)
     for r in results:
         if isinstance(r, FitResult):

@@ -51,8 +51,9 @@ from .fit_report import (
 )
 from .problem import LOSSES, Problem, default_loss, from_params, make_problem, normal_equations, sum_over_chunks, to_params
 from .quality import peak_width_deg, quality_from_relative, quality_warning
-from .seeded_solve import STATIONARY_TOLERANCE, explains_none, judge_converged, solve_seeds
+from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds
 from .starts import default_start, m_grid, seed_points
+from .status import FitStatus, fit_status
 from .validate import check_fittable, nonfinite_reason
 
 __all__ = ["fit", "fit_to_tolerance", "prefetch_fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "finish_light",
@@ -90,6 +91,13 @@ class FitResult:
     @property
     def converged(self) -> bool:
         return bool(self.stats["converged"])
+
+    @property
+    def status(self) -> FitStatus | None:
+        """How the fit ended (:class:`~ctfit.FitStatus`); None where it was not recorded (a
+        texel's fit, which keeps only ``converged``; a fit JSON written before it was)."""
+        value = self.stats.get("fit_status")
+        return None if value is None else FitStatus(value)
 
     @property
     def parameters(self) -> dict:
@@ -240,7 +248,7 @@ def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: floa
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS if solver == "lm" else None)
     light = not report and solver == "lm"
     out = solve_prepared(prep, solver, max_steps, tolerance, report=not light)
-    return (finish_light if light else finish_fit)(prep, out, solver, t0, tolerance if solver == "lm" else None)
+    return (finish_light if light else finish_fit)(prep, out, solver, t0, tolerance if solver == "lm" else None, max_steps)
 
 
 def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool = False, fixed: tuple[str, ...] = (), loss: str = "auto",
@@ -312,7 +320,7 @@ def _bic(cost: float, zero_cost: float, n: int, p: int, loss: str, dtype) -> flo
     return (2 * cost if loss == "sigma" else n * math.log(max(2 * cost, exact, 1e-300) / n)) + p * math.log(n)
 
 
-def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None) -> FitResult:
+def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None, max_steps: int | None = None) -> FitResult:
     """The :class:`FitResult` of a fit solved without the report (``chunked_core(report=False)``):
     its material, and the stats that compare fits (converged, steps, cost, n_samples, n_params,
     bic, gauss_newton_decrease, …; ``report`` False). No standard errors (``stderr`` None), no
@@ -322,8 +330,9 @@ def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance
     params, _ = sorted_lobes(Params(**{k: None if v is None else np.asarray(v) for k, v in out["params"].items()}))
     n, p = int(np.asarray(problem.mask).sum()), int(sum(np.size(v) for v in out["u"].values()))
     cost, zero_cost, gn_decrease = float(costs[best]), float(out["zero_cost"]), float(out["gn_decrease"])
-    converged = bool(judge_converged(np.asarray(ok)[best], math.isfinite(cost), gn_decrease, cost, zero_cost, dtype, tolerance))
-    stats = {"converged": converged, "steps": int(np.asarray(out["steps"])[best]), "cost": cost, "time_s": time.perf_counter() - t0, "n_samples": n,
+    steps = int(np.asarray(out["steps"])[best])
+    status = fit_status(np.asarray(ok)[best], math.isfinite(cost), gn_decrease, cost, zero_cost, dtype, tolerance, steps, max_steps)
+    stats = {"converged": status.converged, "fit_status": status.value, "steps": steps, "cost": cost, "time_s": time.perf_counter() - t0, "n_samples": n,
              "n_params": p, "bic": _bic(cost, zero_cost, n, p, prep.loss, dtype), "loss": prep.loss, "solver": solver, "dtype": jnp.dtype(dtype).name,
              "starts": int(np.asarray(costs).size), "relative_floor": float(problem.floor), "gauss_newton_decrease": gn_decrease,
              "on_bound": labelled(out["u"], np.asarray(out["on_bound"], bool)), "report": False}
@@ -337,9 +346,10 @@ def _fitted_material(prep: PreparedFit, params: Params) -> Material:
                     channels=data.channels, name=f"fit of {data.source}", band_unknown=data.band_unknown)
 
 
-def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None) -> FitResult:
+def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None, max_steps: int | None = None) -> FitResult:
     """The :class:`FitResult` of a prepared fit from ``fit_core``'s output (host arrays); ``t0``:
-    when it began; ``tolerance``: the stationarity it was solved to (:func:`fit_to_tolerance`)."""
+    when it began; ``tolerance``: the stationarity it was solved to (:func:`fit_to_tolerance`);
+    ``max_steps``: its step limit (tells :data:`FitStatus.MAX_STEPS` from a stall)."""
     data, structure, loss, dtype, problem = prep.data, prep.structure, prep.loss, prep.dtype, prep.problem
     costs, ok, steps, best = out["costs"], out["ok"], out["steps"], int(out["best"])
     u = out["u"]
@@ -369,10 +379,11 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     not_finite = nonfinite_reason(cost, rmse, int(out["bad"]), n, dtype)  # a result that is not finite has not converged
     zero_cost = float(out["zero_cost"])
     explains_nothing = bool(explains_none(cost, zero_cost))
-    converged = bool(judge_converged(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype, tolerance))
+    status = fit_status(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype, tolerance, int(np.asarray(steps)[best]), max_steps)
     bic = _bic(cost, zero_cost, n, p, loss, dtype)
     stats = {
-        "converged": converged,
+        "converged": status.converged,
+        "fit_status": status.value,
         "steps": int(np.asarray(steps)[best]),
         "cost": cost,
         "rmse": rmse,

@@ -90,7 +90,8 @@ def format_fit_table(res, label: str = "") -> str:
     s = res.stats
     lines.append("-" * 60)
     lines.append(
-        f"  converged: {s['converged']}   steps: {s['steps']}   loss: {s['loss']}   solver: {s['solver']} ({s['dtype']})"
+        f"  converged: {s['converged']}{'' if s['converged'] or 'fit_status' not in s else ' (' + str(s['fit_status']) + ')'}   "
+        f"steps: {s['steps']}   loss: {s['loss']}   solver: {s['solver']} ({s['dtype']})"
     )
     lines.append(
         f"  cost: {s['cost']:.6g}   rmse: {s['rmse']:.4g} sr⁻¹   rel_rmse (rms of (f − y)/max(y, floor)): {s['rel_rmse']:.4g}   "

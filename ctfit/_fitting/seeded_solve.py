@@ -19,7 +19,7 @@ from jax.flatten_util import ravel_pytree
 from .problem import Problem, bounds, half_squared_norm, normal_equations, residual
 from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, predicted_decrease
 
-__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "judge_converged", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "stop_tolerances", "RACE_STEPS", "RACE_MARGIN"]
+__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "stop_tolerances", "RACE_STEPS", "RACE_MARGIN"]
 
 SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
 
@@ -63,14 +63,6 @@ samples, F0 → 0)."""
 def explains_none(cost, zero_cost):
     """Whether a fit's cost is at least ``NO_SIGNAL`` of a zero model's (arrays or scalars)."""
     return (np.asarray(zero_cost) > 0) & (np.asarray(cost) >= NO_SIGNAL * np.asarray(zero_cost))
-
-
-def judge_converged(ok, finite, gn_decrease, cost, zero_cost, dtype, tolerance: float | None = None):
-    """``converged`` of one fit or of many (arrays): no numerical failure, finite, stationary
-    (``tolerance``, by default ``STATIONARY_TOLERANCE``) and describing some of the data (:func:`explains_none`)."""
-    tolerance = STATIONARY_TOLERANCE[jnp.dtype(dtype).name] if tolerance is None else tolerance
-    stationary = np.asarray(gn_decrease) <= tolerance
-    return np.asarray(ok, bool) & np.asarray(finite, bool) & stationary & ~explains_none(cost, zero_cost)
 
 
 RACE_STEPS = 4

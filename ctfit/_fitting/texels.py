@@ -33,7 +33,7 @@ from .batch import default_width, mapped
 from .least_squares import FitResult, fit, fit_core, prepare_fit
 from .options import takes_fit_options
 from .problem import row_floors
-from .seeded_solve import judge_converged
+from .status import judge_converged
 from .validate import representable_range
 
 __all__ = ["fit_texels", "texel_status", "TexelFits", "CHUNK", "TEXEL_STATUS"]
