@@ -24,7 +24,17 @@ __all__ = ["FitStatus", "fit_status", "judge_converged"]
 
 class FitStatus(enum.StrEnum):
     """How a fit ended (``FitResult.status``; ``stats["fit_status"]`` and the fit JSON's
-    ``fit.fit_status``, as its value). Only ``CONVERGED`` has converged."""
+    ``fit.fit_status``, as its value). Only ``CONVERGED`` has converged.
+
+    >>> import numpy as np, ctfit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1),
+    ...                       f0=np.array([0.4, 0.9])), wavelength_nm=np.array([450.0, 650.0]))
+    >>> data = ctfit.simulate(gold, n_pairs=300, noise=0.01, seed=1)
+    >>> ctfit.fit(data, gold.structure).status
+    <FitStatus.CONVERGED: 'converged'>
+    >>> ctfit.fit(data, gold.structure, max_steps=1, starts=1).status  # the step limit came first
+    <FitStatus.MAX_STEPS: 'max_steps'>
+    """
 
     CONVERGED = "converged"
     """Stationary, finite, and explaining some of the data."""
