@@ -6,28 +6,22 @@ import sys
 import textwrap
 
 import pytest
-from typer.testing import CliRunner
 
 from ctfit._runtime import extras
-from ctfit.cli import app
 
 from conftest import ROOT
+from test_cli import run
 
-runner = CliRunner()
 MISSING = "ctfit_no_such_module"
 MATERIAL = ROOT / "configs" / "copper-vase.toml"
 
 
-def run(*args):
-    return runner.invoke(app, [str(a) for a in args])
-
-
 @pytest.fixture(scope="module")
 def measured(tmp_path_factory):
+    """A simulated measurement and a fit of it, alone in a folder."""
     d = tmp_path_factory.mktemp("extras")
-    csv = d / "cu.csv"
+    csv, fit = d / "cu.csv", d / "cu.fit.json"
     assert run("simulate", MATERIAL, "-o", csv, "--samples", 200, "--seed", 1, "--noise", 0.01, "--wavelengths", "400:700:100").exit_code == 0
-    fit = d / "cu.fit.json"
     assert run("fit", csv, "--lobes", 1, "--no-diffuse", "-o", fit).exit_code == 0
     return d, csv, fit
 
