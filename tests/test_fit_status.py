@@ -31,6 +31,9 @@ def test_a_fit_stopped_at_its_step_limit_says_which_limit(data):
     assert res.status is FitStatus.MAX_STEPS and not res.converged and res.stats["steps"] == 1
     assert "  converged: False (max_steps)   steps: 1" in ctfit.format_fit_table(res)
     assert ctfit.fit_result_to_dict(res)["fit"]["fit_status"] == "max_steps"
+    # Its error is that of an unfinished fit, not the model's: no verdict that the model cannot represent the data.
+    assert res.stats["quality"]["median_relative_error"] > 0.3
+    assert not any("does not represent this material" in w for w in res.warnings), res.warnings
 
 
 def test_a_fit_of_a_model_that_explains_nothing_says_so(data):

@@ -406,7 +406,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     names = coordinate_names(u)
     not_determined = [names[i] for i in np.flatnonzero(loose)]
     notes = ([not_finite] if not_finite else []) + fit_warnings(params, stderr, not_determined)
-    if quality_warning(quality):
+    if status.converged and quality_warning(quality):  # "even at the best fit": only a fit that got there says so
         notes.append(quality_warning(quality))
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more max_steps=, or another start)"
