@@ -109,6 +109,7 @@ def test_installed_wheel_finds_the_optical_constants(tmp_path):
         assert f"ctfit/data/optical_constants/{table.name}" in names, table.name
     assert not any(n.startswith(("measurements/", "tests/", "notebooks/")) for n in names)
     assert "ctfit/py.typed" in names  # PEP 561: type checkers read the package's annotations
+    assert "ctfit/__init__.pyi" in names  # the public names: import ctfit reads it (lazy_loader.attach_stub)
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)  # the licence pyproject.toml names (MIT)
 
     site = tmp_path / "site"
