@@ -20,7 +20,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "results": ['fit_result_to_dict', 'format_fit_table'],
         "seeded_solve": ['SOLVERS'],
         "starts": ['start_from_material'],
-        "status": ['FitStatus', 'fit_status', 'judge_converged'],
+        "status": ['FitStatus'],
         "structure_selection": ['choose_structure', 'select_structure', 'structure_label'],
         "texel_maps": ['fit_texel_maps', 'read_texel_geometry', 'save_map_pngs'],
         "texels": ['TEXEL_STATUS', 'TexelFits', 'fit_texels', 'texel_status'],

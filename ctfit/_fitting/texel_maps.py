@@ -151,16 +151,16 @@ def fit_texel_maps(
     >>> np.round(maps["m"].values[:, 0], 4)
     array([0.1, 0.2, 0.3])
     """
-    from .._runtime import bar, dask_client, need
-
-    need("cluster", "texel maps")
     import jax.numpy as jnp
-    import xarray as xr
+
+    from .._runtime import bar, dask_client
 
     dtype = jnp.float64 if dtype is None else dtype
     if chunk < 1:
         raise ValueError(f"chunk must be ≥ 1, got {chunk}")
-    data, dims, sizes = read_texel_geometry(path)
+    data, dims, sizes = read_texel_geometry(path)  # the "cluster" extra checked first (_open)
+    import xarray as xr
+
     _check_geometry(data, structure, loss, dtype)
     options = dict(loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
     record = json.dumps(dict(structure=repr(structure), **{k: (np.dtype(v).name if k == "dtype" else v) for k, v in options.items()}), sort_keys=True)

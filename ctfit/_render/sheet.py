@@ -46,9 +46,6 @@ def _label_height(size: int) -> int:
 
 def _font(px: int):
     """DejaVu Sans (shipped with matplotlib, as in the other figures), else Pillow's default."""
-    from .._runtime import need
-
-    need("plots", "a rendered picture")
     from PIL import ImageFont  # noqa: PLC0415
 
     try:
@@ -76,7 +73,7 @@ def assemble_sheet(tiles: list[np.ndarray], names: list[str] | None, size: int, 
     (linear sRGB), each with its name below it unless ``names`` is None."""
     from .._runtime import need
 
-    need("plots", "a rendered picture")
+    need("plots", "a rendered picture")  # and for _font below
     from PIL import Image, ImageDraw  # noqa: PLC0415
 
     height, width, boxes = grid_layout(len(tiles), size, columns, labels=names is not None)

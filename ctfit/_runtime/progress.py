@@ -28,20 +28,16 @@ LINE_EVERY_S = 5.0
 
 def progress_enabled(quiet: bool = False) -> bool:
     """Whether to draw progress bars: never with ``quiet``; else ``CTFIT_PROGRESS`` or a terminal."""
-    if quiet:
-        return False
-    forced = os.environ.get("CTFIT_PROGRESS", "").strip()
-    if forced in ("0", "1"):
-        return forced == "1"
-    return sys.stderr.isatty()
+    return progress_mode(quiet) == "bar"
 
 
 def progress_mode(quiet: bool = False) -> str | None:
-    """How long work shows its progress: "bar" where :func:`progress_enabled` says so, else
-    "lines" (stderr is not a terminal), None with ``quiet`` or ``CTFIT_PROGRESS=0``."""
-    if progress_enabled(quiet):
-        return "bar"
-    return None if quiet or os.environ.get("CTFIT_PROGRESS", "").strip() == "0" else "lines"
+    """How long work shows its progress: None with ``quiet`` or ``CTFIT_PROGRESS=0``; "bar" with
+    ``CTFIT_PROGRESS=1`` or on a terminal; else "lines" (a log file, a pipe)."""
+    forced = os.environ.get("CTFIT_PROGRESS", "").strip()
+    if quiet or forced == "0":
+        return None
+    return "bar" if forced == "1" or sys.stderr.isatty() else "lines"
 
 
 class ProgressLines:

@@ -40,6 +40,7 @@ from scipy.stats import chi2
 
 from .._model import PARAMETERS
 from .priors import prior_bounds, public_name
+from .table import number_text
 
 __all__ = ["ESS_LIMIT", "HPD_LEVEL", "R_HAT_LIMIT", "TAU_RUNS", "check_mixing", "check_posterior", "fit_distance", "steps_needed"]
 
@@ -184,11 +185,11 @@ def check_mixing(diagnostics: dict) -> dict:
     runs = kept / tau if np.isfinite(tau) and tau > 0 else np.nan
     failed = []
     if not (r_hat <= R_HAT_LIMIT):
-        failed.append(f"R̂_max {_num(r_hat, '.3f')} (a mixed chain has ≤ {R_HAT_LIMIT})")
+        failed.append(f"R̂_max {number_text(r_hat, '.3f')} (a mixed chain has ≤ {R_HAT_LIMIT})")
     if not (min(bulk, tail) >= ESS_LIMIT):
-        failed.append(f"ESS_min {_num(bulk, '.0f')} bulk, {_num(tail, '.0f')} tail (a mixed chain has ≥ {ESS_LIMIT} each)")
+        failed.append(f"ESS_min {number_text(bulk, '.0f')} bulk, {number_text(tail, '.0f')} tail (a mixed chain has ≥ {ESS_LIMIT} each)")
     if not (runs >= TAU_RUNS):
-        failed.append(f"{kept} steps after burn-in = {_num(runs, '.1f')} τ_max (≥ {TAU_RUNS} τ needed)")
+        failed.append(f"{kept} steps after burn-in = {number_text(runs, '.1f')} τ_max (≥ {TAU_RUNS} τ needed)")
     need = steps_needed(steps, burn, tau, min(bulk, tail)) if failed else None
     line = None
     if failed:
@@ -199,6 +200,3 @@ def check_mixing(diagnostics: dict) -> dict:
         "r_hat_limit": R_HAT_LIMIT, "ess_limit": ESS_LIMIT, "tau_runs_limit": TAU_RUNS,
     }
 
-
-def _num(v: float, spec: str) -> str:
-    return format(v, spec) if np.isfinite(v) else "n/a"

@@ -183,8 +183,9 @@ def _result(s: PosteriorSetup, sampler, chain, flat, draw_lp, optimum, laplace, 
     spread = residual_spread(s.engine.residuals(best)[keep], np.asarray(problem.y).reshape(-1)[keep]) if s.layout.noise else None
     tau = np.asarray(list(d["autocorr_time"].values()))
     run = run_notes(d["steps"] - d["burn"], tau, s.layout.labels(), sampler.acceptance_fraction, spread)
-    if not d["chain_long_enough"]:  # run_notes says so first
-        warnings.warn(run[0], ChainTooShortWarning, stacklevel=3)
+    short = run[0] if not d["chain_long_enough"] else None  # run_notes says so first
+    if short is not None:
+        warnings.warn(short, ChainTooShortWarning, stacklevel=3)
     notes = ([s.note] if s.note else []) + run
     if laplace is None:
         notes.append("Laplace standard errors not computed: JᵀJ is singular or ill conditioned (cond > 1e12), as in the fit")
@@ -206,7 +207,7 @@ def _result(s: PosteriorSetup, sampler, chain, flat, draw_lp, optimum, laplace, 
     d.update(draws=int(flat.shape[0]), ess_bulk={k: v["ess_bulk"] for k, v in per.items()}, ess_tail={k: v["ess_tail"] for k, v in per.items()},
              r_hat={k: v["r_hat"] for k, v in per.items()}, residual_scale_ratio=spread, time_s=time.perf_counter() - t0)
     d.update(ess_min=_least(d["ess_bulk"].values()), ess_tail_min=_least(d["ess_tail"].values()), r_hat_max=-_least(-r for r in d["r_hat"].values()))
-    return _with_mixing(res, check_mixing(d))
+    return _with_mixing(res, check_mixing(d), short)
 
 
 def _least(values) -> float:
@@ -215,13 +216,13 @@ def _least(values) -> float:
     return float(np.min(v)) if v.size else float("nan")
 
 
-def _with_mixing(res: SampleResult, mixing: dict) -> SampleResult:
+def _with_mixing(res: SampleResult, mixing: dict, short: str | None) -> SampleResult:
     """``res`` with the mixing check (:func:`~ctfit._sampling.checks.check_mixing`) in its
-    checks; when it fails, its line first among the problems (and the warnings, less the note
-    on a short chain that the line says again) and the posterior not usable."""
+    checks; when it fails, its line first among the problems (and the warnings, in place of
+    ``short``, the note on a short chain, which the line says again) and the posterior not usable."""
     checks = {"mixing": {k: v for k, v in mixing.items() if k != "line"}, **res.checks}
     if not mixing["flag"]:
         return dataclasses.replace(res, checks=checks)
     line = mixing["line"]
-    rest = [w for w in res.warnings if not w.startswith("the chain is too short")]
+    rest = [w for w in res.warnings if w != short]
     return dataclasses.replace(res, usable=False, problems=[line, *res.problems], warnings=[line, *rest], checks=checks)

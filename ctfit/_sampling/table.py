@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from .._model import band_labels
 
-__all__ = ["format_uncertainty_table"]
+__all__ = ["format_uncertainty_table", "number_text"]
 
 
 def _fmt(s: dict | None) -> str:
@@ -15,7 +15,7 @@ def _fmt(s: dict | None) -> str:
     return f"{med:.6g} (+{hi - med:.2g} / −{med - lo:.2g})"
 
 
-def _num(x, spec: str) -> str:
+def number_text(x, spec: str) -> str:
     """``x`` formatted with ``spec``; "n/a" where the JSON holds none (NaN is written as null), e.g.
     τ, ESS or R̂ of a chain too short to estimate them."""
     return "n/a" if x is None or x != x else format(x, spec)
@@ -70,11 +70,11 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
             f"acceptance: {acc['mean']:.2f}"
         )
         lines.append(
-            f"  τ_max: {_num(d['autocorr_time_max'], '.1f')} steps   ESS_min (ArviZ, bulk): {_num(d['ess_min'], '.0f')}   "
-            f"R̂_max: {_num(d.get('r_hat_max'), '.3f')}   "
+            f"  τ_max: {number_text(d['autocorr_time_max'], '.1f')} steps   ESS_min (ArviZ, bulk): {number_text(d['ess_min'], '.0f')}   "
+            f"R̂_max: {number_text(d.get('r_hat_max'), '.3f')}   "
             f"chain ≥ 50 τ: {d['chain_long_enough']}   time: {d['time_s']:.1f} s"
         )
-        per = [f"{k} {_num(d['ess_bulk'][k], '.0f')}/{_num(d['r_hat'][k], '.3f')}" for k in d.get("ess_bulk", {})]
+        per = [f"{k} {number_text(d['ess_bulk'][k], '.0f')}/{number_text(d['r_hat'][k], '.3f')}" for k in d.get("ess_bulk", {})]
         if per:
             lines.append("  ESS (bulk) / R̂ per quantity: " + ", ".join(per))
     priors = u.get("priors", {}).get("parameters", {})
