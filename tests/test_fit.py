@@ -171,6 +171,40 @@ def test_float32_normal_equations_match_float64(n_pairs):
     assert np.max(np.abs(h32 - h64)) < 1e-4 * np.max(np.abs(h64))
 
 
+@pytest.mark.parametrize(("bands", "scattered", "family"),  # RGB: one JᵀJ of the spread columns; 16 bands: per-band blocks
+                         [(3, False, "metal"), (3, True, "metal"), (16, False, "metal"), (16, True, "plastic"), (3, False, "plastic")])
+def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
+    """½‖r‖², Jᵀr and JᵀJ of the fit's chunk kernel against J from ``jax.jacfwd`` of the plain residual."""
+    from jax.flatten_util import ravel_pytree
+
+    from ctfit._fitting.problem import DENSE_BAND_COLUMNS, loss_residuals, model_values, normal_equations
+
+    wl = np.linspace(400.0, 700.0, bands)
+    if family == "metal":
+        st = ctfit.Structure(lobes=2, diffuse="spectrum", fresnel="conductor")
+        truth = material(st, wl, s=np.asarray(0.7), m=np.array([0.1, 0.4]), w=np.array([0.6, 0.4]), n=np.linspace(0.3, 1.9, bands),
+                         k=np.linspace(2, 4, bands), rd=np.linspace(0.05, 0.2, bands))
+    else:
+        st = ctfit.Structure(family="plastic", lobes=3, diffuse="transmitted")
+        truth = material(st, wl, s=np.asarray(0.7), m=np.array([0.1, 0.3, 0.8]), w=np.array([0.5, 0.3, 0.2]), n=np.full(bands, 1.5),
+                         rd=np.linspace(0.05, 0.2, bands))
+    data = simulate(truth, 400, noise=0.02, seed=3)
+    if scattered:
+        keep = np.random.default_rng(0).random(len(data)) < 1.0 / bands
+        data = data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf", "sigma")})
+    problem = make_problem(st, data, fixed_params=truth.params, loss="robust-relative")
+    assert problem.spec.grid is not scattered
+    u = {k: jnp.asarray(v) * 0.97 + 0.01 for k, v in from_params(problem.spec, truth.params).items()}
+    flat, unflat = ravel_pytree(u)
+    assert ((3 if family == "metal" else 1) * bands > DENSE_BAND_COLUMNS) is (bands == 16)  # n, k, R_d or R_d per band: both assemblies are tried
+    cost, grad, hess = eqx.filter_jit(normal_equations)(problem, u)
+    plain = lambda pr, f: loss_residuals(pr, model_values(pr, unflat(f)), pr.y)  # noqa: E731
+    r, jac = eqx.filter_jit(lambda pr, f: (plain(pr, f), jax.jacfwd(lambda g: plain(pr, g))(f)))(problem, flat)
+    np.testing.assert_allclose(cost, 0.5 * r @ r, rtol=1e-12)
+    np.testing.assert_allclose(grad, jac.T @ r, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ r)))
+    np.testing.assert_allclose(hess, jac.T @ jac, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ jac)))
+
+
 def test_a_fit_result_names_its_values_and_errors_alike():
     """``parameters`` and ``parameter_errors``: the fit JSON's names and layout, key for key."""
     import json

@@ -21,8 +21,9 @@ report, ``fit_light``: :func:`~ctfit._fitting.fit_report.light_report_core`), an
 optimistix's solver itself (:func:`~ctfit._fitting.seeded_solve.lm_solver`): ``lm_init`` and
 ``lm_step``, one step of ``StructuredLevenbergMarquardt`` given the cost, Jᵀr and JᵀJ at the
 point it evaluates, compiled per number of parameters and shared by every structure. The host
-runs optimistix's iteration (init, step until it terminates) and the race of the seeds exactly
-as the compiled ``_structured_lm`` does, so results agree with it to rounding.
+runs optimistix's iteration (init, step until it terminates) and the race of the seeds as the
+compiled ``_structured_lm`` does (the seeds of each phase side by side, in threads), so results
+agree with it to rounding.
 
 All programs go through the program store (:func:`~ctfit._runtime.stored_program`), so a new
 process loads them; a file of a new size compiles nothing.
@@ -33,6 +34,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import math
+import os
 
 import equinox as eqx
 import jax
@@ -321,7 +323,9 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     """``_structured_lm``'s race on the host: every seed ``RACE_STEPS`` steps, then those within
     ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs.
     ``tolerance``: stop where one more Gauss–Newton step promises less than this relative
-    decrease of the cost (None: ``lm_solver``'s tests)."""
+    decrease of the cost (None: ``lm_solver``'s tests). The seeds of a phase run side by side,
+    one thread each up to the machine's cores (the programs run without the GIL; every seed's
+    steps are those it would take alone)."""
     n, p = seeds["flat"].shape
     tol = jax.device_put(np.array(stop_tolerances(seeds["flat"].dtype, tolerance), seeds["flat"].dtype))
     extra = _padded_size(p) - p
@@ -330,16 +334,22 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     values = [jax.device_put(v) for v in flat]
     ok, steps, costs, sound = [False] * n, [0] * n, [math.inf] * n, [True] * n
     race = n > 1 and max_steps > RACE_STEPS
-    for i in range(2 * n if race else n):
-        j = i % n
-        budget = max_steps
-        if race:
-            go = not ok[j] and costs[j] <= RACE_MARGIN * min(costs)
-            budget = (max_steps - RACE_STEPS if go else 0) if i >= n else RACE_STEPS
-        v, o, k, fine, c = kern.run(values[j], lower, upper, budget, tol)
-        if k > 0:  # a seed that did not go on keeps what it had
-            values[j], ok[j], sound[j], costs[j] = v, o, fine, (c if math.isfinite(c) else math.inf)
-        steps[j] += k
+
+    def phase(budgets: list[int]) -> None:
+        go = [j for j in range(n) if budgets[j] > 0]
+        with concurrent.futures.ThreadPoolExecutor(max(1, min(len(go), os.cpu_count() or 1))) as pool:
+            runs = list(pool.map(lambda j: kern.run(values[j], lower, upper, budgets[j], tol), go))
+        for j, (v, o, k, fine, c) in zip(go, runs):
+            if k > 0:  # a seed that did not go on keeps what it had
+                values[j], ok[j], sound[j], costs[j] = v, o, fine, (c if math.isfinite(c) else math.inf)
+            steps[j] += k
+
+    if not race:
+        phase([max_steps] * n)
+    else:
+        phase([RACE_STEPS] * n)
+        lowest = min(costs)
+        phase([max_steps - RACE_STEPS if (not ok[j] and costs[j] <= RACE_MARGIN * lowest) else 0 for j in range(n)])
     return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype)
 
 
