@@ -9,5 +9,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
         "commands": ['SAMPLE_NOT_USABLE', 'app', 'main'],
+        "leave": ['console'],
     },
 )

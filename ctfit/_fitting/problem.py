@@ -26,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
-import warnings
 
 import equinox as eqx
 import jax
@@ -354,16 +353,18 @@ def default_loss(data) -> str:
 
 def row_floors(block: np.ndarray, loss: str) -> np.ndarray:
     """:func:`loss_floor` of each row of ``block`` (e.g. texels × samples)."""
-    pos = np.where(block > 0, block, np.nan)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a row without a positive value: NaN, then 1
+    block = np.asarray(block, dtype=float)
+    has = np.any(block > 0, axis=1)  # rows without a positive value: floor 1 (no all-NaN slice: fits run in threads, so no warning filters)
+    floors = np.ones(block.shape[0])
+    if has.any():
+        pos = np.where(block[has] > 0, block[has], np.nan)
         peak = np.nanmax(pos, axis=1)
         if loss == "log-ratio":
-            floors = LOG_RATIO_FLOOR * np.nanmedian(pos, axis=1)
+            floors[has] = LOG_RATIO_FLOOR * np.nanmedian(pos, axis=1)
         elif loss in ("relative", "robust-relative"):
-            floors = np.maximum(RELATIVE_FLOOR * np.nanmedian(pos, axis=1), FLOOR_OF_PEAK * peak)
+            floors[has] = np.maximum(RELATIVE_FLOOR * np.nanmedian(pos, axis=1), FLOOR_OF_PEAK * peak)
         else:
-            floors = SEED_FLOOR * peak
+            floors[has] = SEED_FLOOR * peak
     return np.where(np.isfinite(floors), floors, 1.0)
 
 

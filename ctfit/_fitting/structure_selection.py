@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import concurrent.futures
+import os
+import queue
 
 import jax
 import numpy as np
@@ -165,28 +167,31 @@ def choose_structure(
         res.stats["quality"] = {"median_relative_error": model_median_error(res, screen)}
         if held is not None:
             res.stats["heldout_median_relative_error"] = heldout_error(res, held)
-        tried.append((st, res))
         return res
 
-    def better(new: FitResult, old: FitResult) -> bool:
-        return _better(new, old, n_full, held is not None)
+    def fit_tried(st: Structure, start: Params | None, seeded: bool = True) -> FitResult:
+        tried.append((st, fit_screen(st, start, seeded)))
+        return tried[-1][1]
+
+    better = lambda new, old: _better(new, old, n_full, held is not None)  # noqa: E731
 
     # Each stage's later fits have their programs made (loaded or compiled) in the background
     # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
     with concurrent.futures.ThreadPoolExecutor(2) as background:
         ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, report=False,  # noqa: E731
                                                           **_seeding(kwargs, given and not seeded))
-        best_st, best = _first_stage(combos, fit_screen, background, screen, given, kwargs, progress, better)
+        tried.extend(_first_stage(combos, fit_screen, background, screen, given, kwargs, progress))
+        best_st, best = _preferred(tried, better)
         for i, j in enumerate(lobes[1:], start=2):
             bigger = Structure(**{**best_st.__dict__, "lobes": j})
             if i < len(lobes):
                 ahead(Structure(**{**best_st.__dict__, "lobes": lobes[i]}))
-            res = fit_screen(bigger, _embedded_start(best, bigger))
+            res = fit_tried(bigger, _embedded_start(best, bigger))
             if not better(res, best):
                 break
             best_st, best = bigger, res
         if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen
-            best_st, best = _other_diffuse_parts(combos, best_st, best, fit_screen, ahead, better)
+            best_st, best = _other_diffuse_parts(combos, best_st, best, fit_tried, ahead, better)
     table = choice_table(tried, best, n_full)
     criterion = "held-out median relative error" if held is not None else "BIC"
     # The structure chosen, fitted to all the data (with the report) from its candidate's fit
@@ -229,24 +234,64 @@ def _first_combos(data: Measurement, families, lobes: int, diffuse, geometry: st
     return [st for st in combos if n_free_parameters(st, data.n_bands, fixed) <= len(data)] or combos[:1]
 
 
-def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: dict, progress, better):
+def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: dict, progress) -> list[tuple[Structure, FitResult]]:
     """Fit every (family, diffuse part) combination with the fewest lobes, each that contains an
-    earlier one also from that one's fit; the programs of the later ones made in ``background``
-    meanwhile. Returns the (structure, fit) ``better`` keeps, in their order."""
-    fits = []
+    earlier one from that one's fit (:func:`_chains`: such combinations are fitted in turn, the
+    chains side by side in threads); the programs of the later ones made in ``background``
+    meanwhile. Returns every (structure, fit), in the order of ``combos``."""
     for i, st in enumerate(combos):
         nested = any(_contains(st, sm) for sm in combos[:i])
         if i > 0:
             background.submit(prefetch_fit, screen, st, given_start=not given or nested, report=False, **_seeding(kwargs, given and nested))
-    for st in (progress or (lambda it: it))(combos):
-        inner = [r for sm, r in fits if _contains(st, sm) and np.isfinite(r.stats["cost"])]
-        start = _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner else None
-        fits.append((st, fit_screen(st, start, seeded=start is None)))
+    finished: queue.Queue = queue.Queue()
+
+    def chain(indices: list[int]) -> dict[int, FitResult]:
+        fits: dict[int, FitResult] = {}
+        try:
+            for i in indices:
+                st = combos[i]
+                inner = [r for j, r in fits.items() if _contains(st, combos[j]) and np.isfinite(r.stats["cost"])]
+                start = _embedded_start(min(inner, key=lambda r: r.stats["cost"]), st) if inner else None
+                fits[i] = fit_screen(st, start, seeded=start is None)
+                finished.put(i)
+        finally:
+            for i in indices[len(fits):]:
+                finished.put(i)  # a chain that failed: the progress below still ends
+        return fits
+
+    chains = _chains(combos)
+    with concurrent.futures.ThreadPoolExecutor(max(1, min(len(chains), os.cpu_count() or 1))) as pool:
+        running = [pool.submit(chain, c) for c in chains]
+        for _ in (progress or (lambda it: it))(finished.get() for _ in combos):
+            pass
+        fits = {i: r for f in running for i, r in f.result().items()}
+    return [(st, fits[i]) for i, st in enumerate(combos)]
+
+
+def _preferred(fits: list[tuple[Structure, FitResult]], better) -> tuple[Structure, FitResult]:
+    """The (structure, fit) of ``fits`` that ``better`` keeps, taken in their order."""
     best = fits[0]
     for st, res in fits[1:]:
         if better(res, best[1]):
             best = (st, res)
     return best
+
+
+def _chains(combos: list[Structure]) -> list[list[int]]:
+    """The indices of ``combos`` in chains: a combination that contains earlier ones
+    (:func:`_contains`) joins their chain (fitted after them, from their fits); the others start
+    chains of their own, which need nothing from each other.
+
+    >>> import ctfit
+    >>> _chains([ctfit.Structure(diffuse=d) for d in (None, "F0/pi", "spectrum")]
+    ...         + [ctfit.Structure(family="plastic", diffuse=d) for d in ("spectrum", "transmitted")])
+    [[0, 1, 2], [3], [4]]
+    """
+    chains: list[list[int]] = []
+    for i, st in enumerate(combos):
+        homes = [c for c in chains if any(_contains(st, combos[j]) for j in c)]
+        chains = [c for c in chains if c not in homes] + [sorted(j for c in homes for j in c) + [i]]  # chains it joins become one
+    return sorted(chains)
 
 
 def _seeding(kwargs: dict, start_only: bool) -> dict:
