@@ -5,9 +5,9 @@ optimistix's :class:`optimistix.LevenbergMarquardt` linearises the residual and 
 parameters, and JᵀJ (P × P) can be formed directly from the Jacobian's structure
 (:func:`ctfit._fitting.problem.normal_equations`) without ever building J.
 
-:class:`StructuredLevenbergMarquardt` is an :class:`optimistix.AbstractQuasiNewton` whose
-"Hessian approximation" is that Gauss–Newton matrix JᵀJ, recomputed at every accepted point,
-combined with optimistix's :class:`~optimistix.DampedNewtonDescent` (solving (JᵀJ + λI) δ = −Jᵀr)
+:class:`StructuredLevenbergMarquardt` is an :class:`optimistix.AbstractMinimiser` that steps as
+optimistix's quasi-Newton solvers do, with that Gauss–Newton matrix JᵀJ as the "Hessian
+approximation", recomputed at every accepted point, combined with optimistix's :class:`~optimistix.DampedNewtonDescent` (solving (JᵀJ + λI) δ = −Jᵀr)
 and :class:`~optimistix.ClassicalTrustRegion` (λ from the ratio of actual to predicted
 reduction): the Levenberg–Marquardt method, driven by ``optimistix.minimise`` on the cost
 ½‖r‖², with optimistix's termination tests, adjoints and result codes.
@@ -23,7 +23,6 @@ point is projected onto the box. A parameter that belongs on its bound (s = 1, F
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -33,9 +32,8 @@ import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
 from jaxtyping import Array
-from optimistix._misc import cauchy_termination  # the test optimistix's own quasi-Newton step uses
 
-__all__ = ["StructuredLevenbergMarquardt", "ProjectedDampedNewtonDescent", "active_set", "predicted_decrease"]
+__all__ = ["StructuredLevenbergMarquardt", "ProjectedDampedNewtonDescent", "active_set", "predicted_decrease", "small_change"]
 
 
 class _TrustRegion(optx.ClassicalTrustRegion):
@@ -49,6 +47,14 @@ class _TrustRegion(optx.ClassicalTrustRegion):
         state = super().init(y, f_info_struct)
         dtype = jax.tree.leaves(y)[0].dtype
         return jax.tree.map(lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, state)
+
+
+def small_change(rtol: float, atol: float, norm: Callable, y, y_diff, f, f_diff):
+    """optimistix's Cauchy test, the one its quasi-Newton solvers stop on: in ``norm``, the change
+    of y below ``atol + rtol·|y|`` and the change of the cost below ``atol + rtol·|f|``."""
+    y_small = norm(jnp.abs(y_diff) / (atol + rtol * jnp.abs(y))) < 1
+    f_small = norm(jnp.abs(f_diff) / (atol + rtol * jnp.abs(f))) < 1
+    return y_small & f_small
 
 
 def active_set(y, grad, lower, upper):
@@ -119,16 +125,35 @@ class ProjectedDampedNewtonDescent(optx.AbstractDescent):
         return target - y, optx.RESULTS.successful
 
 
-class StructuredLevenbergMarquardt(optx.AbstractQuasiNewton):
+class _LevenbergMarquardtState(eqx.Module):
+    """The solver's state: the point it evaluates next, the trust region's and the descent's
+    states, the last accepted point's cost, Jᵀr and JᵀJ (and aux), whether to stop, the result
+    so far and the accepted steps (the fields of optimistix's quasi-Newton state it uses)."""
+
+    first_step: Array
+    y_eval: Array
+    search_state: Any
+    f_info: optx.FunctionInfo.EvalGradHessian
+    aux: Any
+    descent_state: Any
+    terminate: Array
+    result: optx.RESULTS
+    num_accepted_steps: Array
+
+
+class StructuredLevenbergMarquardt(optx.AbstractMinimiser):
     """Levenberg–Marquardt with a user-supplied gradient and Gauss–Newton matrix.
 
     ``gauss_newton(y, data) -> (Jᵀr, JᵀJ)`` (for the flat parameter vector ``y``; ``data`` is
     the pytree held in the field of that name) is called once at every accepted point. The
     objective given to ``optimistix.minimise`` must be ½‖r(y)‖² for the same residual r; it is
     only *evaluated* (never differentiated), once per step. So a step costs one evaluation of
-    the cost plus, when accepted, one of the normal equations — where optimistix's own step
-    linearises the objective (a Jacobian-sized pass) on every step and this solver's "Hessian
-    update" would then form the normal equations in a second one.
+    the cost plus, when accepted, one of the normal equations — where optimistix's own
+    Levenberg–Marquardt linearises the residual (a Jacobian-sized pass) on every step.
+
+    An :class:`optimistix.AbstractMinimiser` of its own (its state :class:`_LevenbergMarquardtState`),
+    built of optimistix's public parts: its step is that of optimistix's quasi-Newton solvers,
+    with the cost evaluated, not linearised, and the Hessian approximation JᵀJ.
     """
 
     rtol: float
@@ -138,19 +163,26 @@ class StructuredLevenbergMarquardt(optx.AbstractQuasiNewton):
     gtol: float = 0.0
     stol: float = jnp.inf
     norm: Callable = optx.max_norm
-    use_inverse: bool = eqx.field(static=True, default=False)
     descent: optx.AbstractDescent = optx.DampedNewtonDescent(linear_solver=lx.Cholesky())
     search: optx.ClassicalTrustRegion = _TrustRegion()
-    verbose: Callable = eqx.field(static=True, default=lambda **kw: None)
 
-    def init_hessian(self, y, f, grad):
-        # A placeholder of the right structure: the first step is always accepted and forms
-        # the normal equations at the start (optimistix's search accepts a first step).
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        # The Hessian approximation starts as zeros of its shape: the first step is always
+        # accepted and forms the normal equations at the start (the trust region accepts a first step).
         hess = lx.MatrixLinearOperator(jnp.zeros((y.size, y.size), y.dtype), lx.positive_semidefinite_tag)
-        return optx.FunctionInfo.EvalGradHessian(f, grad, hess), None
+        f_info = optx.FunctionInfo.EvalGradHessian(jnp.zeros(f_struct.shape, f_struct.dtype), jnp.zeros_like(y), hess)
+        f_info_struct = eqx.filter_eval_shape(lambda: f_info)
+        return _LevenbergMarquardtState(
+            first_step=jnp.array(True), y_eval=y, search_state=self.search.init(y, f_info_struct), f_info=f_info,
+            aux=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), aux_struct), descent_state=self.descent.init(y, f_info_struct),
+            terminate=jnp.array(False), result=optx.RESULTS.successful, num_accepted_steps=jnp.array(0),
+        )
 
-    def update_hessian(self, y, y_eval, f_info, f_eval_info, hessian_update_state):
-        raise NotImplementedError("StructuredLevenbergMarquardt.step forms the normal equations itself")
+    def terminate(self, fn, y, args, options, state, tags):
+        return state.terminate, state.result
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        return y, aux, {}
 
     def step(self, fn, y, args, options, state, tags):
         """optimistix's quasi-Newton step (``AbstractQuasiNewton.step``) with the cost evaluated,
@@ -175,8 +207,7 @@ class StructuredLevenbergMarquardt(optx.AbstractQuasiNewton):
         y_descent, descent_result = self.descent.step(step_size, descent_state)
         result = optx.RESULTS.where(search_result == optx.RESULTS.successful, descent_result, search_result)
         prev_aux = jax.tree.map(lambda a, b: jnp.where(state.first_step, a, b), aux, state.aux)
-        state = dataclasses.replace(
-            state,
+        state = _LevenbergMarquardtState(
             first_step=jnp.array(False),
             y_eval=y + y_descent,
             search_state=search_state,
@@ -193,20 +224,20 @@ class StructuredLevenbergMarquardt(optx.AbstractQuasiNewton):
         """Whether to stop at the accepted point ``y_eval`` (``info``: its cost, Jᵀr and JᵀJ;
         ``y``, ``f``: the point before it and its cost).
 
-        optimistix's test (small change in y and in the cost, :func:`cauchy_termination`) —
+        optimistix's test (small change in y and in the cost, :func:`small_change`) —
         with ``gtol`` > 0 only where one more projected Gauss–Newton step promises less than
         ``stol`` relative decrease (steps that barely move can still be making progress: a
         parameter creeping along a bound, a cost set by differences of 1 − F0 ≈ 10⁻⁶) — or
         a point where that step promises less than ``gtol``: this ends the slow slides along
         directions the data does not determine (R_d growing as s → 1, keeping d·R_d fixed),
         where the iterate keeps moving but the cost does not change."""
-        small_change = cauchy_termination(self.rtol, self.atol, self.norm, y_eval, y_eval - y, info.f, info.f - f)
+        small = small_change(self.rtol, self.atol, self.norm, y_eval, y_eval - y, info.f, info.f - f)
         if isinstance(self.gtol, (int, float)) and self.gtol <= 0:  # a traced gtol is > 0
-            return small_change
+            return small
         lower = getattr(self.descent, "lower", None)
         upper = getattr(self.descent, "upper", None)
         free = jnp.ones_like(y_eval, dtype=bool) if lower is None else ~active_set(y_eval, info.grad, lower, upper)
         dec = predicted_decrease(info.hessian.as_matrix(), info.grad, free)
         scale = jnp.maximum(info.f, jnp.finfo(y_eval.dtype).tiny)
-        return (small_change & (dec <= self.stol * scale)) | (dec <= self.gtol * scale)
+        return (small & (dec <= self.stol * scale)) | (dec <= self.gtol * scale)
 

@@ -50,6 +50,7 @@ from collections.abc import Callable
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jax.experimental import serialize_executable
 
@@ -208,29 +209,25 @@ def kept_program(name: str, build: Callable[[], Callable], static: tuple = (), c
     return run if run is not None else _remember(key, build(), limit)
 
 
-_ready: list[bool] = []  # _runtime_ready's answer, once known
+_ready: list[bool] = []  # True once JAX's LAPACK kernels are registered
 _ready_lock = threading.Lock()
 
 
 def _runtime_ready() -> bool:
-    """Register the LAPACK kernels that compiled fits call (JAX does this when it lowers a
-    linear-algebra op, which a loaded executable skips: without it the call crashes). False
-    when this JAX has no such hook: then the store is not used. Threads asking at once wait
-    for the first."""
+    """Register JAX's LAPACK kernels, which compiled fits call. JAX registers them when it lowers
+    a linear-algebra operation, which a loaded executable skips (its call would crash): lowering
+    one small ``jnp.linalg.eigh`` (never compiled) does it through JAX's public API. Threads
+    asking at once wait for the first."""
     with _ready_lock:
         if not _ready:
-            try:
-                from jax._src.lax.linalg import initialize_lapack
-            except ImportError:
-                _ready.append(False)
-            else:
-                initialize_lapack()
-                _ready.append(True)
+            jax.jit(jnp.linalg.eigh).lower(np.eye(2))
+            _ready.append(True)
         return _ready[0]
 
 
 def prepare_runtime() -> None:
-    """Start :func:`_runtime_ready`'s work (0.15–0.2 s, mostly SciPy's BLAS import) in a thread of
+    """Start :func:`_runtime_ready`'s work (0.15–0.2 s, mostly SciPy's BLAS import, which JAX's
+    LAPACK kernels take their routines from) in a thread of
     its own, so that a command's first stored program need not wait for all of it (the command
     calls this when it sets JAX up, before it reads its files)."""
     threading.Thread(target=_runtime_ready, name="ctfit-runtime").start()
