@@ -174,7 +174,7 @@ def test_the_relative_losses_floor_at_the_typical_sample():
     """The floors come from the median sample, not the peak: a peak 5 decades above the diffuse
     part does not put the off-peak samples below the floor (the former 10⁻³ × max did); the
     log-ratio loss is ln((f + ε)/(y + ε)) with ε = 10⁻² × the median."""
-    from ctfit._fitting.problem import loss_floor
+    from ctfit._fitting.losses import loss_floor
 
     y = np.array([0.01, 0.1, 0.2, 0.3, 1e4])
     assert loss_floor(y, "log-ratio") == pytest.approx(0.01 * 0.2)

@@ -9,7 +9,9 @@ import pytest
 
 import ctfit
 from ctfit import fit, simulate
-from ctfit._fitting.problem import from_params, make_problem, residual, to_params
+from ctfit._fitting.coordinates import from_params, to_params
+from ctfit._fitting.jacobian import residual
+from ctfit._fitting.problem import make_problem
 
 WL8 = np.linspace(400.0, 700.0, 8)
 WL31 = np.linspace(400.0, 700.0, 31)
@@ -132,7 +134,8 @@ def test_gradient_of_fitted_parameters_wrt_data_matches_finite_differences():
 
 
 def test_custom_jvp_matches_plain_autodiff():
-    from ctfit._fitting.problem import loss_residuals, model_values
+    from ctfit._fitting.losses import loss_residuals
+    from ctfit._fitting.problem import model_values
 
     st = ctfit.Structure(lobes=2, geometry="smith", diffuse="spectrum")
     truth = material(st, WL8[:4], s=np.asarray(0.7), m=np.array([0.1, 0.3]), w=np.array([0.3, 0.7]), f0=np.full(4, 0.6), rd=np.full(4, 0.05))
@@ -155,7 +158,7 @@ def test_custom_jvp_matches_plain_autodiff():
 @pytest.mark.parametrize("n_pairs", [2000, 5000])
 def test_float32_normal_equations_match_float64(n_pairs):
     """Guards against XLA CPU's float32 reduction miscompile (jaxlib 0.10.2) in the fit's sums."""
-    from ctfit._fitting.problem import normal_equations
+    from ctfit._fitting.jacobian import normal_equations
 
     st = ctfit.Structure(lobes=2)
     truth = material(st, WL8, m=np.array([0.1, 0.3]), w=np.array([0.4, 0.6]), f0=np.linspace(0.5, 0.9, 8))
@@ -177,7 +180,9 @@ def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
     """½‖r‖², Jᵀr and JᵀJ of the fit's chunk kernel against J from ``jax.jacfwd`` of the plain residual."""
     from jax.flatten_util import ravel_pytree
 
-    from ctfit._fitting.problem import DENSE_BAND_COLUMNS, loss_residuals, model_values, normal_equations
+    from ctfit._fitting.jacobian import DENSE_BAND_COLUMNS, normal_equations
+    from ctfit._fitting.losses import loss_residuals
+    from ctfit._fitting.problem import model_values
 
     wl = np.linspace(400.0, 700.0, bands)
     if family == "metal":
@@ -203,6 +208,12 @@ def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
     np.testing.assert_allclose(cost, 0.5 * r @ r, rtol=1e-12)
     np.testing.assert_allclose(grad, jac.T @ r, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ r)))
     np.testing.assert_allclose(hess, jac.T @ jac, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ jac)))
+
+
+def test_every_loss_has_its_residual_in_the_table():
+    from ctfit._fitting.losses import LOSSES, RESIDUALS
+
+    assert tuple(RESIDUALS) == LOSSES
 
 
 def test_a_fit_result_names_its_values_and_errors_alike():

@@ -74,7 +74,7 @@ def test_groups_pad_to_the_largest_member_and_keep_layouts_apart():
     preps = {i: ctfit._fitting.least_squares.prepare_fit(d, ST, start=None, fixed=(), loss="auto", dtype=np.float64, starts=3) for i, d in enumerate(data)}
     groups = _fit_batch._groups(preps, "lm", 256)
     assert sorted(groups) == [[0, 1, 2], [3], [4]]
-    assert {preps[i].problem.y.shape for i in (0, 1, 2)} == {(ctfit._fitting.problem.bucket(300), 2)}
+    assert {preps[i].problem.y.shape for i in (0, 1, 2)} == {(ctfit._fitting.chunks.bucket(300), 2)}
     assert float(preps[0].problem.mask.sum()) == 200
     with pytest.raises(ValueError, match=r"pad_to=\(10, 10\) is smaller than the data \(100 direction pairs, 200 samples\)"):
         preps[0].padded((10, 10))

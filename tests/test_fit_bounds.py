@@ -7,7 +7,7 @@ import pytest
 
 import ctfit
 from ctfit import load_material, simulate
-from ctfit._fitting.problem import _stick_fractions, _weights
+from ctfit._fitting.coordinates import lobe_weights, stick_fractions
 from ctfit._fitting.solvers import active_set, predicted_decrease
 
 from conftest import ROOT
@@ -42,9 +42,9 @@ def test_a_lobe_weight_reaches_zero_and_is_reported():
 
 @pytest.mark.parametrize("w", [[0.5, 0.5], [0.2, 0.3, 0.5], [0.0, 0.4, 0.6], [0.7, 0.3, 0.0], [0.25] * 4])
 def test_stick_breaking_weights_round_trip(w):
-    v = _stick_fractions(w)
+    v = stick_fractions(w)
     assert np.all((v >= 0) & (v <= 1))
-    np.testing.assert_allclose(_weights(jnp.asarray(v), "box"), w, atol=1e-15)
+    np.testing.assert_allclose(lobe_weights(jnp.asarray(v), "box"), w, atol=1e-15)
 
 
 def test_active_set_holds_only_what_pushes_outward():

@@ -6,7 +6,8 @@ changes no result."""
 import numpy as np
 
 import ctfit
-from ctfit._fitting.problem import bucket, make_problem
+from ctfit._fitting.chunks import bucket
+from ctfit._fitting.problem import make_problem
 
 
 def _scattered(n, seed):

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._fitting import fit_report, least_squares as _fit, problem as _problem
-from ctfit._fitting.problem import CHUNK, bucket, half_squared_norm, make_problem, normal_equations
+from ctfit._fitting import chunks as _chunks, fit_report, least_squares as _fit
+from ctfit._fitting.chunks import CHUNK, bucket
+from ctfit._fitting.jacobian import half_squared_norm, normal_equations
+from ctfit._fitting.problem import make_problem
 
 SMALL_CHUNK = 64
 
@@ -36,7 +38,7 @@ def _fresh_fit_core():
 
 @pytest.fixture
 def small_chunks(monkeypatch):
-    monkeypatch.setattr(_problem, "CHUNK", SMALL_CHUNK)
+    monkeypatch.setattr(_chunks, "CHUNK", SMALL_CHUNK)
 
 
 def _problem_and_start(data, loss="relative"):
@@ -58,10 +60,10 @@ def test_chunked_sums_equal_the_whole(small_chunks, loss, layout):
     data = _grid(16 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(16 * 3 * SMALL_CHUNK - 40)
     prep = _problem_and_start(data, loss)
     problem, u = prep.problem, dict(prep.u0, m=jnp.log(jnp.array([0.3])))
-    assert problem.spec.grid == (layout == "grid") and _problem.chunk_count(problem) == (16 if layout == "grid" else 48)
+    assert problem.spec.grid == (layout == "grid") and _chunks.chunk_count(problem) == (16 if layout == "grid" else 48)
     chunked = (jax.jit(half_squared_norm)(problem, u), *jax.jit(normal_equations)(problem, u))
-    _problem.CHUNK = 10**9  # the same problem, summed at once
-    assert _problem.chunk_count(problem) == 1
+    _chunks.CHUNK = 10**9  # the same problem, summed at once
+    assert _chunks.chunk_count(problem) == 1
     at_once = (jax.jit(half_squared_norm)(problem, u), *jax.jit(normal_equations)(problem, u))
     for a, b in zip(chunked, at_once):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
@@ -74,7 +76,7 @@ def test_chunked_fit_equals_the_whole_fit(small_chunks, layout):
     rows = 16 if layout == "grid" else 48
     args = (prep.u0, prep.grid, *prep.options("lm", 256))
     chunked = jax.device_get(_fresh_fit_core()(prep.problem, *args))
-    _problem.CHUNK = 10**9
+    _chunks.CHUNK = 10**9
     whole = jax.device_get(_fresh_fit_core()(prep.problem, *args))
     cols = (3,) if layout == "grid" else ()
     assert chunked["rel"].shape == (rows, SMALL_CHUNK, *cols) and whole["rel"].shape == (1, rows * SMALL_CHUNK, *cols)
@@ -97,7 +99,7 @@ def test_the_fit_program_s_temporaries_do_not_grow_with_the_data(small_chunks):
         return lowered.compile().compiled.memory_analysis()
 
     chunked = memory()
-    _problem.CHUNK = 10**9
+    _chunks.CHUNK = 10**9
     whole = memory()
     assert chunked.temp_size_in_bytes < 0.5 * chunked.argument_size_in_bytes < whole.temp_size_in_bytes
     assert chunked.temp_size_in_bytes < 0.25 * whole.temp_size_in_bytes

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._fitting.problem import from_params, make_problem, to_params
+from ctfit._fitting.coordinates import from_params, to_params
+from ctfit._fitting.problem import make_problem
 from ctfit._model.evaluation import simulate
 from ctfit._sampling.chain_diagnostics import ChainTooShortWarning
 from ctfit._sampling.draw_colours import draw_colours
@@ -278,7 +279,7 @@ def test_log_prior_is_flat_in_the_constrained_parameters(diffuse_toy):
 
     @jax.jit
     def chi2_and_logdet(x):
-        r = ctfit._fitting.problem.residual(unravel(x), (problem.y, problem))
+        r = ctfit._fitting.jacobian.residual(unravel(x), (problem.y, problem))
         return jnp.sum(r * r), jnp.linalg.slogdet(jax.jacfwd(theta)(x))[1]
 
     rng = np.random.default_rng(0)

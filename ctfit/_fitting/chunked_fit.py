@@ -8,7 +8,7 @@ the grid layout) and cut into chunks of that one shape. Everything that reads th
 any file, each adding its share to a running sum on the device (calls are queued, not awaited):
 
 - ``fit_ne``: ½‖r‖², Jᵀr and JᵀJ at a flat parameter vector
-  (:func:`~ctfit._fitting.problem.normal_equations`);
+  (:func:`~ctfit._fitting.jacobian.normal_equations`);
 - ``fit_grid_sums`` and ``fit_grid_costs``: the two passes of the seeds' scores
   (:func:`~ctfit._fitting.starts.grid_sums`, :func:`~ctfit._fitting.starts.grid_costs`);
 - ``fit_summary``: residual summary and the cost of a zero model, per chunk;
@@ -46,7 +46,8 @@ from jax.flatten_util import ravel_pytree
 from .._model import Params, Structure
 from .._runtime import stored_program
 from .fit_report import combined_rms, light_report_core, report_core, summary_of_part, zero_model_cost
-from .problem import Problem, Spec, normal_equations
+from .jacobian import normal_equations
+from .problem import Problem, Spec
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver, stop_tolerances
 from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
 
@@ -54,14 +55,14 @@ __all__ = ["ROWS", "chunk_problems", "chunked_core", "prefetch"]
 
 ROWS = 2048
 """Cells per chunk: samples of the pairs layout; the grid layout takes a power of two of
-direction pairs with about this many cells (:func:`~ctfit._fitting.problem.chunk_rows`)."""
+direction pairs with about this many cells (:func:`~ctfit._fitting.chunks.chunk_rows`)."""
 
 
 def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
     """``problem`` (rows a multiple of the chunk's: ``make_problem(chunk=ROWS)``) cut into
     problems of one shape, on the host (the first ``limit`` of them). Pairs layout: each chunk's
     samples carry their own direction pair's geometry (``pair`` = 0, 1, …)."""
-    from .problem import chunk_rows
+    from .chunks import chunk_rows
 
     rows = chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
     host = lambda a: None if a is None else np.asarray(a)  # noqa: E731

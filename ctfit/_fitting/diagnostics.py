@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._model import Measurement
-from .problem import loss_floor
+from .losses import loss_floor
 
 __all__ = ["angle_lv_deg", "half_angle_deg", "relative_residual_structure", "residual_structure"]
 

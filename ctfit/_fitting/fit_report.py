@@ -15,7 +15,10 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .._model import PUBLIC_NAMES, Params, n_from_f0, normal_reflectance, parameter
-from .problem import Problem, loss_residuals, map_over_chunks, model_values, to_params
+from .chunks import map_over_chunks
+from .coordinates import to_params
+from .losses import loss_residuals
+from .problem import Problem, model_values
 from .seeded_solve import flat_bounds, gauss_newton_decrease
 from .solvers import active_set
 
@@ -51,7 +54,7 @@ def constrained_quantities(problem: Problem, unravel, f):
 
 def residual_summary(problem: Problem, u: dict) -> dict:
     """What the report needs of the model at ``u``, chunk by chunk on a large problem
-    (:func:`~ctfit._fitting.problem.map_over_chunks`): the relative residuals ``rel``, stacked by chunk
+    (:func:`~ctfit._fitting.chunks.map_over_chunks`): the relative residuals ``rel``, stacked by chunk
     (the host reshapes them to the problem's layout; 0 where nothing is measured; float32, for
     the residual diagnostics), ``rmse`` and ``rel_rmse`` (as max|e| · rms(e / max|e|), so that
     squares cannot overflow), and ``bad``, how many measured cells have a model value that is

@@ -11,7 +11,7 @@ The pieces live beside this module: starting points (``starts.py``), the seeded 
    vmapped pass over the data. The best ``starts`` grid points seed the solver.
 2. optimistix Levenberg–Marquardt from each seed in turn (``jax.lax.map``), with the
    Gauss–Newton matrix JᵀJ formed from the factored Jacobian, never the N × P matrix
-   (:class:`~ctfit._fitting.solvers.StructuredLevenbergMarquardt`, :func:`~ctfit._fitting.problem.normal_equations`);
+   (:class:`~ctfit._fitting.solvers.StructuredLevenbergMarquardt`, :func:`~ctfit._fitting.jacobian.normal_equations`);
    the lowest finite cost wins. optimistix Gauss–Newton, Dogleg (normal equations with
    Cholesky) or BFGS on request; float64 unless float32 is asked for. Seeding, solve and everything the report
    needs are one compiled program (``fit_core``), so a run compiles once; where JAX's
@@ -36,6 +36,8 @@ import numpy as np
 from .._model import Material, Measurement, Params, Structure
 from .._runtime import cached_call
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch
+from .chunks import sum_over_chunks
+from .coordinates import from_params, to_params
 from .diagnostics import half_angle_deg, relative_residual_structure
 from .fit_report import (
     PARAM_FIELDS,
@@ -49,7 +51,9 @@ from .fit_report import (
     undetermined,
     zero_model_cost,
 )
-from .problem import LOSSES, Problem, default_loss, from_params, make_problem, normal_equations, sum_over_chunks, to_params
+from .jacobian import normal_equations
+from .losses import LOSSES, default_loss
+from .problem import Problem, make_problem
 from .quality import peak_width_deg, quality_from_relative, quality_warning
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds
 from .starts import default_start, m_grid, seed_points

@@ -31,7 +31,7 @@ import numpy as np
 
 from .._model import Measurement, band_labels, evaluate, normal_reflectance
 from .diagnostics import angle_lv_deg, half_angle_deg
-from .problem import loss_floor
+from .losses import loss_floor
 
 __all__ = ["make_fit_figure", "make_fit_quality_figure", "plot_fit", "signed_in_plane_angle"]
 

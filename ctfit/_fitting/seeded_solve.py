@@ -2,7 +2,7 @@
 
 Levenberg–Marquardt runs on the structured normal equations (JᵀJ from the factored Jacobian,
 never the N × P matrix: :class:`~ctfit._fitting.solvers.StructuredLevenbergMarquardt`,
-:func:`~ctfit._fitting.problem.normal_equations`) from each seed in one scan; the lowest finite
+:func:`~ctfit._fitting.jacobian.normal_equations`) from each seed in one scan; the lowest finite
 cost wins. optimistix Gauss–Newton, Dogleg (normal equations with Cholesky) or BFGS on request.
 """
 
@@ -16,7 +16,9 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
-from .problem import Problem, bounds, half_squared_norm, normal_equations, residual
+from .coordinates import bounds
+from .jacobian import half_squared_norm, normal_equations, residual
+from .problem import Problem
 from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, predicted_decrease
 
 __all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "stop_tolerances", "RACE_STEPS", "RACE_MARGIN"]

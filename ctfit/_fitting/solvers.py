@@ -3,7 +3,7 @@
 optimistix's :class:`optimistix.LevenbergMarquardt` linearises the residual and materialises the
 (N + P) × P damped Jacobian every step. For a BRDF fit N is 10⁵–10⁶ samples and P a few dozen
 parameters, and JᵀJ (P × P) can be formed directly from the Jacobian's structure
-(:func:`ctfit._fitting.problem.normal_equations`) without ever building J.
+(:func:`ctfit._fitting.jacobian.normal_equations`) without ever building J.
 
 :class:`StructuredLevenbergMarquardt` is an :class:`optimistix.AbstractMinimiser` that steps as
 optimistix's quasi-Newton solvers do, with that Gauss–Newton matrix JᵀJ as the "Hessian

@@ -17,7 +17,9 @@ import numpy as np
 
 from .._io import MaterialError
 from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0
-from .problem import Problem, chunk_count, free_names, model_values, sum_over_chunks
+from .chunks import chunk_count, sum_over_chunks
+from .coordinates import free_names
+from .problem import Problem, model_values
 
 __all__ = ["default_start", "m_grid", "seed_points", "seeds_from_scores", "grid_sums", "grid_scales", "grid_costs", "start_from_material"]
 
@@ -95,7 +97,7 @@ def grid_costs(part: Problem, u0: dict, grid, scales):
 def _score_grid(problem: Problem, u0: dict, grid):
     """Loss of each grid point of log m after the best per-band amplitude (weighted linear LS):
     the per-band scale Σ w v y / Σ w v², then Σ w (scale · v − y)² — two passes, chunk by chunk,
-    on a large grid (:func:`~ctfit._fitting.problem.sum_over_chunks`), one pass otherwise."""
+    on a large grid (:func:`~ctfit._fitting.chunks.sum_over_chunks`), one pass otherwise."""
 
     def score(log_m):
         if chunk_count(problem) == 1:

@@ -31,8 +31,8 @@ from .._model import Material, Measurement, Params, Structure, value_rules
 from .._runtime import cached_call
 from .batch import default_width, mapped
 from .least_squares import FitResult, fit, fit_core, prepare_fit
+from .losses import row_floors
 from .options import takes_fit_options
-from .problem import row_floors
 from .status import judge_converged
 from .validate import representable_range
 

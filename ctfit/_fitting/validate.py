@@ -18,7 +18,7 @@ import math
 import numpy as np
 
 from .._model import Measurement, Structure
-from .problem import free_names
+from .coordinates import free_names
 
 __all__ = ["check_fittable", "n_free_parameters", "nonfinite_reason", "representable_range"]
 

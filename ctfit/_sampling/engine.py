@@ -2,7 +2,7 @@
 
 :class:`Engine` is emcee's vectorised log-probability (``vectorize=True``: one call per
 half-ensemble, a jit-compiled, vmapped JAX function), and gives the fit's normal equations
-(:func:`ctfit._fitting.problem.normal_equations`) and reported quantities
+(:func:`ctfit._fitting.jacobian.normal_equations`) and reported quantities
 (:func:`ctfit._fitting.fit_report.constrained_quantities`) at flat sampling vectors.
 
 Everything but the log-probability is ``eqx.filter_jit``-compiled (traced once per problem

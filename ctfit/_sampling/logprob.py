@@ -8,7 +8,7 @@ when the noise scale is sampled), laid out by :class:`Layout`. The posterior den
 with π from :mod:`ctfit._sampling.priors` (proper, cut to each value's physical range) and the
 log-Jacobian from the parameter table, so that the prior is the stated density in θ, not in u.
 
-Likelihood (Gaussian), on the fit's residual weighting (:func:`ctfit._fitting.problem.residual`) but
+Likelihood (Gaussian), on the fit's residual weighting (:func:`ctfit._fitting.jacobian.residual`) but
 for the relative loss:
 
 - "sigma": r_i = (R_i − y_i)/σ_i ~ N(0, 1), log L = −½ Σ r_i²;

@@ -3,7 +3,7 @@
 The optimum is the fit's (:func:`ctfit.fit`): a :class:`~ctfit.FitResult`, or a material saved
 from a fit with the same loss, is taken as it is; anything else (a material with other values,
 another loss) is fitted first, from its values. There is no second optimiser: the covariance
-is (JᵀJ)⁻¹ of the fit's normal equations (:func:`ctfit._fitting.problem.normal_equations`) at that
+is (JᵀJ)⁻¹ of the fit's normal equations (:func:`ctfit._fitting.jacobian.normal_equations`) at that
 optimum, in the sampler's coordinates, scaled by the residual variance unless the loss is
 sigma-weighted, and used only where the fit would report standard errors (cond(JᵀJ) ≤ 1e12 on
 the coordinates the data determine, :func:`ctfit._fitting.fit_report.standard_errors`); elsewhere the walkers start in

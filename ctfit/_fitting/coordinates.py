@@ -1,0 +1,138 @@
+"""The free coordinates of a fit: the map between a problem's free values ``u`` and the model's
+:class:`~ctfit.Params`, their bounds, and which parameters a structure frees.
+
+Free parameters live in a pytree ``u`` (a dict) of coordinates from the one parameter table
+(:mod:`ctfit._model.parameters`). A problem's ``spec.space`` says which:
+
+- "box" (the fit): s, F0, n, k, R_d themselves, log m, and stick-breaking fractions of the
+  lobe weights (:func:`lobe_weights`), each inside closed bounds that the projected
+  Levenberg–Marquardt solver keeps; a parameter may end on its bound (s = 1, F0 = 0, a weight 0).
+- "unconstrained" (the sampler): m = exp(u), w = softmax(0, u), s and F0 = sigmoid(u),
+  n = n_min + softplus(u), k and R_d = softplus(u).
+
+Parameters not free are taken from ``fixed`` (a :class:`~ctfit.Params`). Parameters the
+structure does not have are not in ``u`` at all.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._model import Params, Structure, box_bounds, clip_box, n_lower, parameter
+
+if TYPE_CHECKING:
+    from .problem import Spec
+
+__all__ = ["lobe_weights", "stick_fractions", "to_params", "from_params", "bounds", "free_names"]
+
+
+def lobe_weights(u_w, space: str):
+    """Lobe weights from J − 1 free values (see the module docstring).
+
+    Box: stick-breaking fractions v ∈ [0, 1]^(J−1), w_0 = 1 − v_1, w_j = v_1⋯v_j (1 − v_(j+1)),
+    w_(J−1) = v_1⋯v_(J−1): every lobe's weight reaches 0 on a bound of the box."""
+    if space == "box":
+        ones = jnp.ones((1,), u_w.dtype)
+        return jnp.cumprod(jnp.concatenate([ones, u_w])) * jnp.concatenate([1 - u_w, ones])
+    return jax.nn.softmax(jnp.concatenate([jnp.zeros((1,), u_w.dtype), u_w]))
+
+
+def stick_fractions(w) -> np.ndarray:
+    """Inverse of the box map of :func:`lobe_weights`: v_j = (Σ_(i≥j) w_i) / (Σ_(i≥j−1) w_i)."""
+    w = np.clip(np.asarray(w, dtype=float), 0, None)
+    w = w / np.sum(w)
+    rest = np.cumsum(w[::-1])[::-1]  # r_j = Σ_(i≥j) w_i
+    return np.clip(rest[1:] / np.maximum(rest[:-1], 1e-300), 0.0, 1.0)
+
+
+def to_params(spec: Spec, u: dict, fixed: Params) -> Params:
+    """Model parameters from the free coordinates ``u`` (``spec.space``: "box" or "unconstrained").
+
+    Box coordinates are held inside their bounds (:func:`~ctfit._model.parameters.clip_box`), so any
+    solver's trial point gives a valid model; the projected solver never leaves them anyway.
+    """
+    st = spec.structure
+
+    def pick(name):
+        if name not in u:
+            return getattr(fixed, name)
+        row = parameter(name)
+        if spec.space == "box":
+            lo, hi = box_bounds(name, st.fresnel, st.family)
+            value = row.box(clip_box(u[name], lo, hi))
+        else:
+            value = (n_lower(st.fresnel, st.family) if name == "n" else 0.0) + row.free(u[name])
+        if name == "n" and st.shared_index:  # a plastic: one free index, the same in every band
+            value = jnp.broadcast_to(value, jnp.shape(fixed.n))
+        return value
+
+    w = None
+    if st.has_specular:
+        if "w" in u:
+            w = lobe_weights(clip_box(u["w"], *box_bounds("w")) if spec.space == "box" else u["w"], spec.space)
+        elif st.lobes == 1 and fixed.w is None:
+            w = jnp.ones((1,), u["m"].dtype if "m" in u else jnp.result_type(float))
+        else:
+            w = fixed.w
+    return Params(
+        s=pick("s") if st.has_s else None,
+        m=pick("m") if st.has_specular else None,
+        w=w,
+        f0=pick("f0") if st.fresnel == "f0" and st.needs_fresnel_params else None,
+        n=pick("n") if st.fresnel != "f0" and st.needs_fresnel_params else None,
+        k=pick("k") if st.fresnel == "conductor" and st.needs_fresnel_params else None,
+        rd=pick("rd") if st.has_rd else None,
+    )
+
+
+def from_params(spec: Spec, params: Params) -> dict:
+    """Free coordinates ``u`` of ``params`` (inverse of :func:`to_params`; box coordinates are
+    clipped into their bounds)."""
+    u = {}
+    for name in spec.free:
+        v = np.asarray(getattr(params, name), dtype=float)
+        row = parameter(name)
+        if name == "w":
+            v = np.clip(v, 1e-12, None)
+            u[name] = stick_fractions(v) if spec.space == "box" else np.log(v[1:]) - np.log(v[0])
+            continue
+        if name == "n" and spec.structure.shared_index:
+            v = np.asarray(np.mean(v))  # a plastic's one index
+        if spec.space == "box":
+            lo, hi = box_bounds(name, spec.structure.fresnel, spec.structure.family)
+            u[name] = np.clip(row.box_inverse(np.maximum(v, 1e-300) if name == "m" else v), lo, hi)
+        else:
+            offset = n_lower(spec.structure.fresnel, spec.structure.family) if name == "n" else 0.0
+            u[name] = row.free_inverse(v - offset)
+    return u
+
+
+def bounds(spec: Spec, u: dict) -> tuple[dict, dict]:
+    """Lower and upper bounds of the box coordinates ``u`` (same pytree, arrays of u's shapes)."""
+    lo, hi = {}, {}
+    for name, v in u.items():
+        a, b = box_bounds(name, spec.structure.fresnel, spec.structure.family)
+        lo[name] = jnp.full(jnp.shape(v), a, jnp.result_type(v))
+        hi[name] = jnp.full(jnp.shape(v), b, jnp.result_type(v))
+    return lo, hi
+
+
+def free_names(structure: Structure, fixed: tuple[str, ...] = ()) -> tuple[str, ...]:
+    """The parameters a structure has, minus those held fixed, in a canonical order."""
+    names = []
+    if structure.has_s:
+        names.append("s")
+    if structure.has_specular:
+        names.append("m")
+        if structure.lobes > 1:
+            names.append("w")
+    if structure.needs_fresnel_params:
+        names += ["f0"] if structure.fresnel == "f0" else (["n", "k"] if structure.fresnel == "conductor" else ["n"])
+    if structure.has_rd:
+        names.append("rd")
+    return tuple(n for n in names if n not in fixed)
+

@@ -1,0 +1,184 @@
+"""The residual's Jacobian in factored form, the normal equations built from it, and the
+residual with a custom JVP.
+
+The residual's Jacobian has structure that a generic Jacobian ignores: R = s F(λ) S(m, w) +
+(1 − s) R_d(λ), where S (the D·G lobe sum) depends only on the direction and F only on V·H and
+the band. :func:`residual` therefore has a ``jax.custom_jvp`` that computes, once per
+evaluation, ∂S/∂(m, w) per *direction* and the derivative of each value with respect to its own
+band's parameters, and forms any Jacobian–vector product as a cheap contraction of these
+columns. ``jax.linearize`` (used by optimistix's Gauss–Newton family) then costs a few model
+passes instead of one per parameter; :func:`normal_equations` forms ½‖r‖², Jᵀr and JᵀJ from the
+same columns, never an N × P matrix of the whole data.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .chunks import sum_over_chunks
+from .losses import loss_residuals
+from .problem import SHAPE_PARAMETERS, Problem, model_values, per_direction, values_from_s
+
+__all__ = ["DENSE_BAND_COLUMNS", "normal_equations", "half_squared_norm", "residual"]
+
+
+def _split(u: dict):
+    return {k: v for k, v in u.items() if k in SHAPE_PARAMETERS}, {k: v for k, v in u.items() if k not in SHAPE_PARAMETERS}
+
+
+def _band_sum(problem: Problem, x):
+    """Σ over the samples of each band: (W, …) from a layout-shaped array (… its trailing axes)."""
+    if problem.spec.grid:
+        return jnp.sum(x, axis=0)
+    return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)
+
+
+def _columns(problem: Problem, u: dict, y):
+    """The residual and its Jacobian in factored form, all in the problem's layout.
+
+    Returns ``(res, values, cols)`` with ``res`` the flat residual and ``cols`` a dict name →
+    (kind, column): kind "shape" → (a, J_S) with ∂r/∂u_name = a · J_S[direction] (``a`` per
+    sample, ``J_S`` (D, size) per direction); kind "scalar" → c with ∂r/∂u_name = c; kind "band"
+    → e with ∂r_i/∂u_name[band_i] = e_i (a value depends only on its own band's entry).
+    One model pass, one batched JVP for the band and scalar parameters and ∂/∂S, and a
+    per-direction Jacobian of S — never an N × P matrix.
+    """
+    spec = problem.spec
+    u_shape, u_rest = _split(u)
+    has_spec = spec.structure.has_specular
+    s_dir = per_direction(problem, u_shape, u_rest) if has_spec else None
+
+    def f_rest(s, ur):
+        return values_from_s(problem, s, ur, u_shape)
+
+    # ∂v/∂S (tangent 1 on S) and ∂v/∂u_k for every band/scalar parameter k (tangent 1 on all
+    # of u_k: each value sees only its own entry), one JVP each.
+    names = tuple(sorted(u_rest))
+    zeros = {n: jnp.zeros_like(v) for n, v in u_rest.items()}
+    values = f_rest(s_dir, u_rest)
+    dvs = {}
+    if has_spec and u_shape:
+        dvs["__S__"] = jax.jvp(lambda s: f_rest(s, u_rest), (s_dir,), (jnp.ones_like(s_dir),))[1]
+    for k in names:
+        dvs[k] = jax.jvp(lambda ur: f_rest(s_dir, ur), (u_rest,), (dict(zeros, **{k: jnp.ones_like(u_rest[k])}),))[1]
+    res, g = jax.jvp(lambda v: loss_residuals(problem, v, y, flat=False), (values,), (jnp.ones_like(values),))
+    cols = {}
+    if "__S__" in dvs:
+        a = g * dvs["__S__"]
+        jac_s = jax.jacfwd(lambda us: per_direction(problem, us, u_rest))(u_shape)
+        for k in u_shape:
+            cols[k] = ("shape", (a, jac_s[k].reshape(s_dir.shape[0], -1)))
+    for k in names:
+        kind = "scalar" if jnp.ndim(u_rest[k]) == 0 else "band"
+        cols[k] = (kind, g * dvs[k])
+    return res.reshape(-1), values, cols
+
+
+def normal_equations(problem: Problem, u: dict):
+    """½‖r‖², Jᵀr and JᵀJ at ``u``, from the factored Jacobian (no N × P matrix), summed chunk by
+    chunk for a large grid (:func:`sum_over_chunks`); see :func:`_normal_equations`."""
+    return sum_over_chunks(problem, lambda part: _normal_equations(part, u))
+
+
+def half_squared_norm(problem: Problem, u: dict):
+    """½‖r‖² at ``u``, summed chunk by chunk for a large grid (:func:`sum_over_chunks`)."""
+
+    def one(part):
+        r = _residual(u, part.y, part)
+        return 0.5 * jnp.sum(r * r)
+
+    return sum_over_chunks(problem, one)
+
+
+DENSE_BAND_COLUMNS = 12
+"""The normal equations are one product JᵀJ of the stacked Jacobian columns while the band
+parameters' columns number at most this many (RGB: 3 per parameter); beyond (spectra), their
+blocks are per-band sums (:func:`_normal_equations`)."""
+
+
+def _normal_equations(problem: Problem, u: dict):
+    """½‖r‖², Jᵀr and JᵀJ at ``u``, from the factored Jacobian (:func:`_columns`).
+
+    The flat parameter order is that of ``jax.flatten_util.ravel_pytree(u)`` (sorted names,
+    each entry flattened). The columns of the shape and scalar parameters are few: they are
+    stacked (N × q, a shape parameter's J_S spread to its direction's samples). A band
+    parameter's column e has ∂r_i/∂u[b] = e_i for the samples i of band b: with few bands
+    (:data:`DENSE_BAND_COLUMNS`) it is spread into one column per band and the whole product
+    is one JᵀJ; with many, its blocks are per-band sums and its blocks with band parameters
+    diagonal, assembled and put into the flat order by a fixed permutation. Either way a
+    handful of operations: the compiled program stays small (it loads and compiles in a
+    fraction of the time of one operation per pair of parameters).
+    """
+    res, _, cols = _columns(problem, u, problem.y)
+    names = sorted(u)
+    banded = [k for k in names if cols[k][0] == "band"]
+    if len(banded) * problem.fixed_bands <= DENSE_BAND_COLUMNS:
+        jac = jnp.concatenate([_spread(problem, *cols[k]).reshape(res.shape[0], -1) for k in names] or [jnp.zeros((res.shape[0], 0), res.dtype)], axis=1)
+        return 0.5 * jnp.sum(res * res), jac.T @ res, jac.T @ jac
+    r = res.reshape(problem.y.shape)
+    stacked = [k for k in names if cols[k][0] != "band"]
+    jd = jnp.concatenate([_spread(problem, *cols[k]) for k in stacked] or [jnp.zeros((*r.shape, 0), r.dtype)], axis=-1)
+    flat_jd = jd.reshape(-1, jd.shape[-1])
+    grad = [flat_jd.T @ res] + [_band_sum(problem, cols[k][1] * r) for k in banded]
+    sides = [_band_sum(problem, jd * cols[k][1][..., None]) for k in banded]  # (W, q) each
+    rows = [jnp.concatenate([flat_jd.T @ flat_jd] + [side.T for side in sides], axis=1)]
+    for ki, side in zip(banded, sides):
+        rows.append(jnp.concatenate([side] + [jnp.diag(_band_sum(problem, cols[ki][1] * cols[kj][1])) for kj in banded], axis=1))
+    order = _flat_order(u, stacked + banded)
+    return 0.5 * jnp.sum(res * res), jnp.concatenate(grad)[order], jnp.concatenate(rows, axis=0)[order][:, order]
+
+
+def _spread(problem: Problem, kind: str, col):
+    """A parameter's Jacobian columns in the problem's layout + (size,): a shape parameter's J_S
+    at each sample's direction, a band parameter's column one per band (zero off its band)."""
+    if kind == "scalar":
+        return col[..., None]
+    if kind == "band":
+        one_hot = jnp.eye(problem.fixed_bands, dtype=col.dtype)
+        return col[..., None] * (one_hot[None] if problem.spec.grid else one_hot[problem.band])
+    a, js = col
+    return a[..., None] * (js[:, None, :] if problem.spec.grid else js[problem.pair])
+
+
+def _flat_order(u: dict, assembled: list[str]) -> np.ndarray:
+    """Indices into the blocks assembled in the order of ``assembled`` (each name's entries
+    flattened) that give ``ravel_pytree(u)``'s order (sorted names)."""
+    start, at = {}, 0
+    for k in assembled:
+        start[k], at = at, at + int(np.size(u[k]))
+    return np.concatenate([start[k] + np.arange(int(np.size(u[k]))) for k in sorted(u)] or [np.zeros(0, int)])
+
+
+@jax.custom_jvp
+def _residual(u: dict, y, problem: Problem):
+    return loss_residuals(problem, model_values(problem, u), y)
+
+
+@_residual.defjvp
+def _residual_jvp(primals, tangents):
+    u, y, problem = primals
+    tu, ty, _ = tangents  # the problem (geometry, weights) is data: no derivative through it
+    res, values, cols = _columns(problem, u, y)
+    dres = 0
+    for name, (kind, col) in cols.items():
+        t = tu[name]
+        if kind == "shape":
+            a, js = col
+            ds = js @ t.reshape(-1)
+            dres = dres + a * (ds[:, None] if problem.spec.grid else ds[problem.pair])
+        elif kind == "scalar":
+            dres = dres + col * t
+        else:
+            dres = dres + col * (t if problem.spec.grid else t[problem.band])
+    dres = jnp.reshape(dres, (-1,)) if cols else jnp.zeros_like(res)
+    # Data tangent: ∂r/∂y.
+    _, dres_dy = jax.jvp(lambda yy: loss_residuals(problem, values, yy), (y,), (ty,))
+    return res, dres + dres_dy
+
+
+def residual(u: dict, args):
+    """optimistix residual function: ``args = (y, problem)``; returns the flat residual vector."""
+    y, problem = args
+    return _residual(u, y, problem)
