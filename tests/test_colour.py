@@ -11,7 +11,7 @@ import pytest
 from colour.utilities import suppress_warnings
 
 import ctfit
-from ctfit._colour.colorimetry import (
+from ctfit._colour import (
     DEFAULT_OBSERVER,
     RGB_to_XYZ,
     SpectralResamplingWarning,

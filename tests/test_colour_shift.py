@@ -7,7 +7,7 @@ import pytest
 from test_colour import cu_f0, cu_nk
 
 import ctfit
-from ctfit._colour.colorimetry import XYZ_to_Lab, XYZ_to_RGB, delta_E_CIE2000, rgb_conversion, spectral_weights, spectrum_to_RGB, spectrum_to_XYZ
+from ctfit._colour import XYZ_to_Lab, XYZ_to_RGB, delta_E_CIE2000, rgb_conversion, spectral_weights, spectrum_to_RGB, spectrum_to_XYZ
 from ctfit._colour.colour_shift import (
     average_normal_reflectance,
     colour_shift_approximation,

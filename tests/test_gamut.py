@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from ctfit._colour.colorimetry import RGB_to_XYZ, XYZ_to_xy, dominant_wavelength, rgb_conversion
+from ctfit._colour import RGB_to_XYZ, XYZ_to_xy, dominant_wavelength, rgb_conversion
 from ctfit._colour.gamut import desaturate_to_gamut, in_gamut, scale_to_display, srgb_luminance
 
 CONV = rgb_conversion("sRGB")  # no adaptation: XYZ of RGB (1, 1, 1) is the display white

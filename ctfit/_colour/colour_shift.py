@@ -31,7 +31,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from .._model import fresnel_conductor, fresnel_dielectric, fresnel_dielectric_f0
-from .colorimetry import SpectralWeights, spectrum_to_XYZ
+from .tristimulus import SpectralWeights, spectrum_to_XYZ
 
 __all__ = [
     "average_normal_reflectance",

@@ -39,7 +39,7 @@ def srgb_luminance() -> np.ndarray:
     >>> [round(float(v), 4) for v in srgb_luminance()]
     [0.2126, 0.7152, 0.0722]
     """
-    from .colorimetry import colour_science
+    from .tristimulus import colour_science
 
     m_inv = np.linalg.inv(np.asarray(colour_science().RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, dtype=float))
     return m_inv[1] / m_inv[1].sum()

@@ -29,23 +29,10 @@ import numpy as np
 
 from .._io import float_list
 from .._model import Material, ambient_reflectance, fresnel
-from .colorimetry import (
-    DEFAULT_OBSERVER,
-    RGB_to_XYZ,
-    RGBConversion,
-    XYZ_to_display_RGB,
-    XYZ_to_RGB,
-    XYZ_to_xy,
-    colour_science,
-    dominant_wavelength,
-    encode_RGB,
-    excitation_purity,
-    observer_cmfs,
-    rgb_conversion,
-    spectral_weights,
-    spectrum_to_XYZ,
-)
+from .chromaticity import XYZ_to_xy, dominant_wavelength, excitation_purity
 from .gamut import in_gamut
+from .rgb import RGB_to_XYZ, RGBConversion, XYZ_to_display_RGB, XYZ_to_RGB, encode_RGB, rgb_conversion
+from .tristimulus import DEFAULT_OBSERVER, colour_science, observer_cmfs, spectral_weights, spectrum_to_XYZ
 
 __all__ = ["colour_report", "reflectance_spectrum"]
 

@@ -16,7 +16,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "intensity": ['Light', 'reflected_intensity'],
         "material": ['DISTRIBUTIONS', 'FAMILIES', 'FRESNELS', 'GEOMETRIES', 'MAX_LOBES', 'Material', 'NORMALIZATIONS', 'Params', 'Structure'],
         "measurement": ['Measurement', 'band_labels', 'check_samples', 'format_value', 'invalid_value', 'value_rules'],
-        "numerics": ['safe_sqrt'],
+        "numerics": ['float_dtype', 'safe_div', 'safe_sqrt'],
         "parameters": ['PARAMETERS', 'PARAMETER_AXES', 'PLASTIC_INDEX_RANGE', 'PUBLIC_NAMES', 'box_bounds', 'clip_box', 'n_lower', 'parameter', 'value_range'],
         "shadowing": ['smith_g1_reduced', 'v_cavity_reduced'],
     },

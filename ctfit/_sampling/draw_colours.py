@@ -1,6 +1,6 @@
 """The colour of each posterior draw: ``ctfit color``'s colour (sRGB, CIELAB) at normal incidence.
 
-Every conversion is :mod:`ctfit._colour.colorimetry`'s (colour-science's data, the package's gamut mapping),
+Every conversion is those of :mod:`ctfit._colour` (colour-science's data, the package's gamut mapping),
 applied to a batch of draws.
 """
 
