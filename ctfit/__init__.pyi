@@ -44,6 +44,7 @@ from ._export import (
 from ._fitting import (
     FitResult as FitResult,
     FitStatus as FitStatus,
+    FitWarning as FitWarning,
     TexelFits as TexelFits,
     choose_structure as choose_structure,
     fit as fit,

@@ -618,3 +618,18 @@ def test_a_note_nested_deeper_than_64_levels_is_refused_when_read(tmp_path, name
         load_text(tmp_path, text(900 if name.endswith(".json") else 300), name)
     material = load_text(tmp_path, text(60), name)
     assert load_material(save_material_json(material, tmp_path / "back.json")).meta == material.meta
+
+
+def test_a_plastic_with_no_specular_part_is_written_and_read_back():
+    """A plastic fit can end at s = 0 (the data shows no specular part): written without the
+    specular part (and so without its index, which a Lambertian R_d does not use), it reads back
+    as the same material. It used to be refused while saving, so the fit was lost."""
+    mat = Material(Structure(family="plastic", lobes=2, diffuse="spectrum"),
+                   Params(s=np.asarray(0.0), m=np.array([0.1, 0.3]), w=np.array([0.5, 0.5]), n=np.full(3, 1.5), rd=np.array([0.02, 0.06, 0.14])),
+                   channels=["R", "G", "B"], name="matte")
+    doc = material_to_dict(mat)
+    assert doc["s"] == 0.0 and "lobes" not in doc and "n" not in doc and doc["family"] == "plastic"
+    back = material_from_dict(doc)
+    assert back.structure.family == "plastic" and back.structure.diffuse == "spectrum"
+    geom = ctfit.geometry_from_angles_deg(np.array([10.0, 40.0]), np.zeros(2), np.array([20.0, 60.0]), np.array([180.0, 90.0]))
+    np.testing.assert_allclose(ctfit.brdf(back.structure, back.params, geom), ctfit.brdf(mat.structure, mat.params, geom), rtol=1e-12)

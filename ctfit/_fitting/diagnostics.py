@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._model import Measurement
+from .fit_warnings import FitWarning
 from .losses import loss_floor
 
 __all__ = ["angle_lv_deg", "half_angle_deg", "relative_residual_structure", "residual_structure"]
@@ -136,8 +137,8 @@ def relative_residual_structure(pairs, rel, *, index=None, mask=None, threshold:
             span = f"[{lo:g}°, {hi:g}°" + ("]" if hi == edges[-1] else ")")  # the last bin holds its upper edge
             wide = edges[:-1] >= 20  # the bins far from retro-reflection: the level a lobe stands out from
             baseline = float(np.sum(total[:-1][wide]) / max(np.sum(n[:-1][wide]), 1))
-            out.append(f"systematic residuals: the model is {abs(mean_k):.0%} {side} the data for {name} in {span} ({samples} samples)"
-                       f"{_explain(place, mean_k, lo, baseline - threshold)}")
+            out.append(FitWarning(f"systematic residuals: the model is {abs(mean_k):.0%} {side} the data for {name} in {span} ({samples} samples)"
+                                  f"{_explain(place, mean_k, lo, baseline - threshold)}", "systematic_residuals", region=f"{name} in {span}"))
     return out
 
 

@@ -17,6 +17,7 @@ from jax.flatten_util import ravel_pytree
 from .._model import PUBLIC_NAMES, Params, n_from_f0, normal_reflectance, parameter
 from .chunks import map_over_chunks
 from .coordinates import to_params
+from .fit_warnings import FitWarning
 from .losses import loss_residuals
 from .problem import Problem, model_values
 from .seeded_solve import flat_bounds, gauss_newton_decrease
@@ -156,7 +157,7 @@ def coordinate_names(u: dict) -> list[str]:
     return [k for k in sorted(u) for _ in range(int(np.size(u[k])))]
 
 
-def fit_warnings(params: Params, stderr, not_determined=()) -> list[str]:
+def fit_warnings(params: Params, stderr, not_determined=()) -> list[FitWarning]:
     """Plain-language notes on a degenerate or suspicious solution: lobes that merge or vanish, s
     or F0 on a bound, coordinates the data does not determine, standard errors not computed."""
     out = []
@@ -164,34 +165,36 @@ def fit_warnings(params: Params, stderr, not_determined=()) -> list[str]:
         m = np.asarray(params.m)
         for a, b in zip(m[:-1], m[1:]):
             if abs(b - a) <= 0.02 * max(a, b):
-                out.append(f"degenerate: two lobes with nearly equal m ({a:.4g}, {b:.4g}); one lobe may suffice")
+                out.append(FitWarning(f"degenerate: two lobes with nearly equal m ({a:.4g}, {b:.4g}); one lobe may suffice", "degenerate", "m"))
         for j, w in enumerate(np.asarray(params.w)):
             if w == 0.0:
-                out.append(f"degenerate: lobe {j} has weight 0 (on its bound): the data needs fewer lobes, and this lobe's m = {m[j]:.4g} means nothing")
+                out.append(FitWarning(f"degenerate: lobe {j} has weight 0 (on its bound): the data needs fewer lobes, and this lobe's m = {m[j]:.4g} means nothing",
+                                      "degenerate", "weight"))
             elif w < 1e-3:
-                out.append(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} → 0; fewer lobes may suffice")
+                out.append(FitWarning(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} → 0; fewer lobes may suffice", "degenerate", "weight"))
             elif stderr is not None and "weight" in stderr and w < 2 * np.asarray(stderr["weight"])[j]:
-                out.append(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} ± {np.asarray(stderr['weight'])[j]:.2g}, "
-                           "not significantly above 0; fewer lobes may suffice")
+                out.append(FitWarning(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} ± {np.asarray(stderr['weight'])[j]:.2g}, "
+                                      "not significantly above 0; fewer lobes may suffice", "degenerate", "weight"))
     if params.s is not None:
         s = float(params.s)
         if s == 0.0:
-            out.append("s = 0 (on its bound): the data shows no specular part, and m, F0 are not determined by it")
+            out.append(FitWarning("s = 0 (on its bound): the data shows no specular part, and m, F0 are not determined by it", "on_bound", "s"))
         elif s == 1.0:
-            out.append("s = 1 (on its bound): the data shows no diffuse part")
+            out.append(FitWarning("s = 1 (on its bound): the data shows no diffuse part", "on_bound", "s"))
         elif s < 1e-4:
-            out.append(f"s = {s:.2g} is near its lower bound: the data shows almost no specular part")
+            out.append(FitWarning(f"s = {s:.2g} is near its lower bound: the data shows almost no specular part", "on_bound", "s"))
         elif s > 1 - 1e-4:
-            out.append(f"s = {s:.6g} is near its upper bound: the data shows almost no diffuse part")
+            out.append(FitWarning(f"s = {s:.6g} is near its upper bound: the data shows almost no diffuse part", "on_bound", "s"))
     if params.f0 is not None:
         f0 = np.asarray(params.f0)
         if np.any(f0 < 1e-6) or np.any(f0 > 1 - 1e-6):
-            out.append("F0 at a bound (0 or 1) in some bands: the effective index is at its limit there")
+            out.append(FitWarning("F0 at a bound (0 or 1) in some bands: the effective index is at its limit there", "on_bound", "F0"))
     if not_determined:
         names = ", ".join(parameter(k).public for k in dict.fromkeys(not_determined))
-        out.append(f"degenerate: the data does not determine {names} (no standard error there): the model has more freedom than the data shows")
+        out.append(FitWarning(f"degenerate: the data does not determine {names} (no standard error there): the model has more freedom than the data shows",
+                               "degenerate", names))
     if stderr is None:
-        out.append("standard errors not computed: JᵀJ is singular or ill-conditioned (cond > 1e12)")
+        out.append(FitWarning("standard errors not computed: JᵀJ is singular or ill-conditioned (cond > 1e12)", "no_standard_errors"))
     return out
 
 

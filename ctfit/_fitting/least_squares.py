@@ -51,6 +51,7 @@ from .fit_report import (
     undetermined,
     zero_model_cost,
 )
+from .fit_warnings import FitWarning
 from .jacobian import normal_equations
 from .losses import LOSSES, default_loss
 from .problem import Problem, make_problem
@@ -88,7 +89,7 @@ class FitResult:
     material: Material
     stats: dict
     stderr: dict | None
-    warnings: list[str]
+    warnings: list[FitWarning]
     loss: str
     solver: str
 
@@ -409,17 +410,19 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     material = _fitted_material(prep, params)
     names = coordinate_names(u)
     not_determined = [names[i] for i in np.flatnonzero(loose)]
-    notes = ([not_finite] if not_finite else []) + fit_warnings(params, stderr, not_determined)
+    notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined)
     if status.converged and quality_warning(quality):  # "even at the best fit": only a fit that got there says so
         notes.append(quality_warning(quality))
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more max_steps=, or another start)"
-        notes.append(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}")
+        notes.append(FitWarning(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}", "not_a_minimum"))
     if explains_nothing:
-        notes.append(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
-                     "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another loss=")
+        notes.append(FitWarning(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
+                                "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another loss=",
+                                "explains_nothing"))
     if not bool(np.asarray(ok)[best]):
-        notes.append("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another start, or with fewer lobes")
+        notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another start, "
+                                "or with fewer lobes", "numerical_failure"))
     return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)
 
 

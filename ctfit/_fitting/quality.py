@@ -26,6 +26,7 @@ import numpy as np
 
 from .._model import Material, Measurement, Params, Structure
 from .diagnostics import half_angle_deg
+from .fit_warnings import FitWarning
 
 __all__ = ["MODEL_LIMIT", "TAIL_LIMIT", "GRAZING_DEG", "fit_quality", "quality_from_relative", "quality_warning"]
 
@@ -92,7 +93,7 @@ def fit_quality(material: Material, data: Measurement, model=None) -> dict:
     return quality_from_relative(err, half_angle_deg(data), top, peak_width_deg(material.structure, material.params))
 
 
-def quality_warning(quality: dict) -> str | None:
+def quality_warning(quality: dict) -> FitWarning | None:
     """One line when the median relative error is above :data:`MODEL_LIMIT` or its 90th percentile
     above :data:`TAIL_LIMIT`, naming the worst region."""
     median, tail = quality.get("median_relative_error"), quality.get("p90_relative_error")
@@ -102,8 +103,9 @@ def quality_warning(quality: dict) -> str | None:
     regions = [(r["median_relative_error"], k) for k, r in quality["regions"].items() if r["median_relative_error"] is not None]
     worst = max(regions)[1] if regions else None
     where = f"; it fails most {names[worst]} (median {max(regions)[0]:.0%})" if worst else ""
+    region = names[worst] if worst else None
     if median > MODEL_LIMIT:
-        return (f"the Cook–Torrance model does not represent this material: the typical sample is off by {median:.0%} "
-                f"even at the best fit{where}")
-    return (f"the Cook–Torrance model does not represent this material: a tenth of the samples are off by {tail:.0%} or more "
-            f"even at the best fit (the typical one by {median:.0%}){where}")
+        return FitWarning(f"the Cook–Torrance model does not represent this material: the typical sample is off by {median:.0%} "
+                          f"even at the best fit{where}", "not_represented", region=region)
+    return FitWarning(f"the Cook–Torrance model does not represent this material: a tenth of the samples are off by {tail:.0%} or more "
+                      f"even at the best fit (the typical one by {median:.0%}){where}", "not_represented", region=region)

@@ -13,6 +13,7 @@ import numpy as np
 
 from .._io import material_to_dict
 from .._model import Material
+from .fit_warnings import FitWarning
 
 __all__ = ["fit_result_to_dict", "format_fit_table", "stderr_block"]
 
@@ -48,7 +49,8 @@ def fit_result_to_dict(res, material_keys: bool = True) -> dict:
     """
     block = dict(res.stats)
     block["stderr"] = stderr_block(res)
-    block["warnings"] = list(res.warnings)
+    block["warnings"] = [str(w) for w in res.warnings]
+    block["warning_details"] = [w.as_dict() for w in res.warnings if isinstance(w, FitWarning)]
     block = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in block.items()}
     if not material_keys:
         return {"fit": block}

@@ -334,8 +334,9 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
             diffuse, rd = "spectrum", p.spectrum("Rd", nbands, band_key, 0, math.inf)
 
     family, diffuse, rd = _family(p, diffuse, rd, nbands)
-    fresnel, spectral = _fresnel(p, table, s > 0 or diffuse in ("F0/pi", "transmitted"), nbands, band_key)
-    if family == "plastic":
+    needed = s > 0 or diffuse in ("F0/pi", "transmitted")  # a Fresnel term in the model
+    fresnel, spectral = _fresnel(p, table, needed, nbands, band_key)
+    if family == "plastic" and needed:  # (a plastic of s = 0 with a Lambertian R_d has no index to give)
         if fresnel != "n":
             raise p.error("n", f'a plastic has one real index: give n (a number), not fresnel = "{fresnel}"')
         if np.ptp(spectral["n"]) > _TOL * np.max(spectral["n"]):

@@ -1,0 +1,56 @@
+"""A fit's warnings are values (``ctfit.FitWarning``): the text users read, with its kind, the
+parameter and the region of the data it is about; the fit JSON keeps both."""
+
+import copy
+import json
+import pickle
+
+import pytest
+
+import ctfit
+from ctfit._fitting.fit_warnings import WARNING_KINDS, FitWarning
+from ctfit._fitting.quality import quality_warning
+
+from conftest import ROOT
+
+
+@pytest.fixture(scope="module")
+def matte_plastic_fit():
+    """Two lobes of a plastic on the smooth-plastic test-bed file: s ends at 0 (no lobe fits the
+    mirror-like peak), so the lobes are not determined, and the residuals are systematic."""
+    data = ctfit.read_measurement(ROOT / "measurements" / "testbed" / "plastic.csv")
+    return ctfit.fit(data, ctfit.Structure(family="plastic", lobes=2, diffuse="spectrum"))
+
+
+def test_every_warning_of_a_fit_says_what_it_is_about(matte_plastic_fit):
+    res = matte_plastic_fit
+    assert res.warnings and all(isinstance(w, FitWarning) and w.kind in WARNING_KINDS for w in res.warnings)
+    by_kind = {w.kind: w for w in res.warnings}
+    assert by_kind["on_bound"].parameter == "s" and by_kind["on_bound"].startswith("s = 0 (on its bound)")
+    assert "m" in by_kind["degenerate"].parameter.split(", ")
+    regions = [w.region for w in res.warnings if w.kind == "systematic_residuals"]
+    assert regions and all(r and r in w for r, w in zip(regions, (w for w in res.warnings if w.kind == "systematic_residuals")))
+
+
+def test_the_fit_json_keeps_the_text_and_the_details(matte_plastic_fit):
+    doc = json.loads(json.dumps(ctfit.fit_result_to_dict(matte_plastic_fit)))
+    texts, details = doc["fit"]["warnings"], doc["fit"]["warning_details"]
+    assert texts == [str(w) for w in matte_plastic_fit.warnings]
+    assert [d["text"] for d in details] == texts and {d["kind"] for d in details} <= set(WARNING_KINDS)
+    assert {"kind", "parameter", "region", "text"} == set(details[0])
+
+
+def test_a_warning_survives_pickling_and_copying_with_its_fields():
+    w = FitWarning("systematic residuals: …", "systematic_residuals", region="max(θ_i, θ_o) in [85°, 90°]")
+    for again in (pickle.loads(pickle.dumps(w)), copy.deepcopy(w), copy.copy(w)):
+        assert again == w and (again.kind, again.parameter, again.region) == (w.kind, w.parameter, w.region)
+    with pytest.raises(ValueError, match="kind must be one of"):
+        FitWarning("?", "nonsense")
+
+
+def test_the_model_does_not_represent_warning_names_the_worst_region():
+    quality = {"median_relative_error": 0.45, "p90_relative_error": 0.9,
+               "regions": {"peak": {"median_relative_error": 0.2}, "off_peak": {"median_relative_error": 0.5}, "grazing": {"median_relative_error": None}}}
+    w = quality_warning(quality)
+    assert w.kind == "not_represented" and w.region == "off the peak" and "does not represent this material" in w
+    assert quality_warning({**quality, "median_relative_error": 0.05, "p90_relative_error": 0.1}) is None
