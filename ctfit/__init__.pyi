@@ -43,6 +43,7 @@ from ._export import (
 )
 from ._fitting import (
     FitResult as FitResult,
+    FitStats as FitStats,
     FitStatus as FitStatus,
     FitWarning as FitWarning,
     TexelFits as TexelFits,

@@ -1,5 +1,6 @@
 """A fit's warnings are values (``ctfit.FitWarning``): the text users read, with its kind, the
-parameter and the region of the data it is about; the fit JSON keeps both."""
+parameter and the region of the data it is about; the fit JSON keeps both. Its figures are typed
+(``ctfit.FitStats``)."""
 
 import copy
 import json
@@ -54,3 +55,26 @@ def test_the_model_does_not_represent_warning_names_the_worst_region():
     w = quality_warning(quality)
     assert w.kind == "not_represented" and w.region == "off the peak" and "does not represent this material" in w
     assert quality_warning({**quality, "median_relative_error": 0.05, "p90_relative_error": 0.1}) is None
+
+
+def test_every_figure_a_fit_reports_is_declared_in_fit_stats_with_its_type():
+    """``ctfit.FitStats`` names every key of ``FitResult.stats`` (reported, light and data-chosen
+    fits) with the type its value has."""
+    import typing
+
+    import numpy as np
+
+    from ctfit._fitting.least_squares import fit_to_tolerance
+
+    hints = typing.get_type_hints(ctfit.FitStats)
+    gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse="F0/pi"),
+                          ctfit.Params(s=np.asarray(0.7), m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+                          wavelength_nm=np.array([450.0, 650.0]))
+    data = ctfit.simulate(gold, n_pairs=300, noise=0.01, seed=1)
+    fits = [ctfit.fit(data, gold.structure), fit_to_tolerance(data, gold.structure, report=False), ctfit.fit(data)]
+    assert "structure_choice" in fits[2].stats and fits[1].stats["report"] is False
+    for res in fits:
+        for key, value in res.stats.items():
+            assert key in hints, key
+            kind = typing.get_origin(hints[key]) or hints[key]
+            assert isinstance(value, kind) and not (kind is int and isinstance(value, bool)), (key, value, hints[key])

@@ -25,6 +25,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "starts": ['start_from_material'],
         "status": ['FitStatus'],
         "fit_warnings": ['FitWarning', 'WARNING_KINDS'],
+        "fit_stats": ['FitStats'],
         "structure_selection": ['choose_structure', 'select_structure', 'structure_label'],
         "texel_maps": ['fit_texel_maps', 'read_texel_geometry', 'save_map_pngs'],
         "texels": ['TEXEL_STATUS', 'TexelFits', 'fit_texels', 'texel_status'],

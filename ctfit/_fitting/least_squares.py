@@ -51,6 +51,7 @@ from .fit_report import (
     undetermined,
     zero_model_cost,
 )
+from .fit_stats import FitStats
 from .fit_warnings import FitWarning
 from .jacobian import normal_equations
 from .losses import LOSSES, default_loss
@@ -87,7 +88,7 @@ class FitResult:
     """
 
     material: Material
-    stats: dict
+    stats: FitStats
     stderr: dict | None
     warnings: list[FitWarning]
     loss: str
@@ -337,7 +338,7 @@ def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance
     cost, zero_cost, gn_decrease = float(costs[best]), float(out["zero_cost"]), float(out["gn_decrease"])
     steps = int(np.asarray(out["steps"])[best])
     status = fit_status(np.asarray(ok)[best], math.isfinite(cost), gn_decrease, cost, zero_cost, dtype, tolerance, steps, max_steps)
-    stats = {"converged": status.converged, "fit_status": status.value, "steps": steps, "cost": cost, "time_s": time.perf_counter() - t0, "n_samples": n,
+    stats: FitStats = {"converged": status.converged, "fit_status": status.value, "steps": steps, "cost": cost, "time_s": time.perf_counter() - t0, "n_samples": n,
              "n_params": p, "bic": _bic(cost, zero_cost, n, p, prep.loss, dtype), "loss": prep.loss, "solver": solver, "dtype": jnp.dtype(dtype).name,
              "starts": int(np.asarray(costs).size), "relative_floor": float(problem.floor), "gauss_newton_decrease": gn_decrease,
              "on_bound": labelled(out["u"], np.asarray(out["on_bound"], bool)), "report": False}
@@ -386,7 +387,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     explains_nothing = bool(explains_none(cost, zero_cost))
     status = fit_status(np.asarray(ok)[best], not_finite is None, gn_decrease, cost, zero_cost, dtype, tolerance, int(np.asarray(steps)[best]), max_steps)
     bic = _bic(cost, zero_cost, n, p, loss, dtype)
-    stats = {
+    stats: FitStats = {
         "converged": status.converged,
         "fit_status": status.value,
         "steps": int(np.asarray(steps)[best]),
