@@ -17,6 +17,11 @@ class FitStats(TypedDict, total=False):
     data-chosen structure, ``report`` False) ``quality`` holds the median relative error alone,
     and a screened candidate also ``heldout_median_relative_error``; a fit whose structure the
     data chose, ``structure_choice`` and ``structure_screening``.
+
+    >>> import typing, ctfit
+    >>> hints = typing.get_type_hints(ctfit.FitStats)
+    >>> hints["converged"], hints["cost"], hints["on_bound"]
+    (<class 'bool'>, <class 'float'>, list[str])
     """
 
     converged: bool
