@@ -174,7 +174,7 @@ def test_float32_normal_equations_match_float64(n_pairs):
     assert np.max(np.abs(h32 - h64)) < 1e-4 * np.max(np.abs(h64))
 
 
-@pytest.mark.parametrize(("bands", "scattered", "family"),  # RGB: one JᵀJ of the spread columns; 16 bands: per-band blocks
+@pytest.mark.parametrize(("bands", "scattered", "family"),  # RGB, dense: one JᵀJ of the spread columns; else block by block
                          [(3, False, "metal"), (3, True, "metal"), (16, False, "metal"), (16, True, "plastic"), (3, False, "plastic")])
 def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
     """½‖r‖², Jᵀr and JᵀJ of the fit's chunk kernel against J from ``jax.jacfwd`` of the plain residual."""
@@ -201,13 +201,14 @@ def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
     assert problem.spec.grid is not scattered
     u = {k: jnp.asarray(v) * 0.97 + 0.01 for k, v in from_params(problem.spec, truth.params).items()}
     flat, unflat = ravel_pytree(u)
-    assert ((3 if family == "metal" else 1) * bands > DENSE_BAND_COLUMNS) is (bands == 16)  # n, k, R_d or R_d per band: both assemblies are tried
-    cost, grad, hess = eqx.filter_jit(normal_equations)(problem, u)
+    assert ((3 if family == "metal" else 1) * bands > DENSE_BAND_COLUMNS) is (bands == 16)  # n, k, R_d or R_d per band: dense only with RGB
     plain = lambda pr, f: loss_residuals(pr, model_values(pr, unflat(f)), pr.y)  # noqa: E731
     r, jac = eqx.filter_jit(lambda pr, f: (plain(pr, f), jax.jacfwd(lambda g: plain(pr, g))(f)))(problem, flat)
-    np.testing.assert_allclose(cost, 0.5 * r @ r, rtol=1e-12)
-    np.testing.assert_allclose(grad, jac.T @ r, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ r)))
-    np.testing.assert_allclose(hess, jac.T @ jac, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ jac)))
+    for dense in (False, True):  # block by block, and the chunk kernel's form
+        cost, grad, hess = eqx.filter_jit(lambda pr, uu, d=dense: normal_equations(pr, uu, dense=d))(problem, u)
+        np.testing.assert_allclose(cost, 0.5 * r @ r, rtol=1e-12)
+        np.testing.assert_allclose(grad, jac.T @ r, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ r)))
+        np.testing.assert_allclose(hess, jac.T @ jac, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ jac)))
 
 
 def test_every_loss_has_its_residual_in_the_table():

@@ -145,7 +145,7 @@ def _ne_kernel(acc, part: Problem, flat, u0: dict):
     """``acc`` + (½‖r‖², Jᵀr, JᵀJ) of ``part`` at ``flat`` (padded: :data:`PARAMETER_STEP`)."""
     unflat = ravel_pytree(u0)[1]
     p, extra = ravel_pytree(u0)[0].shape[0], flat.shape[0] - ravel_pytree(u0)[0].shape[0]
-    cost, grad, hess = normal_equations(part, unflat(flat[:p]))
+    cost, grad, hess = normal_equations(part, unflat(flat[:p]), dense=True)
     return [acc[0] + cost, acc[1] + jnp.pad(grad, (0, extra)), acc[2] + jnp.pad(hess, ((0, extra), (0, extra)))]
 
 
