@@ -541,3 +541,21 @@ def test_ctrl_c_while_sampling_says_how_to_resume_and_resuming_works(tmp_path):
     diag = json.loads(again.stdout)["uncertainty"]["diagnostics"]
     assert 0 < diag["resumed_from"] < 3000 and diag["resumed_from"] + diag["steps_run_now"] == diag["steps"] == 3000
     assert json.loads(post.read_text())["uncertainty"]["diagnostics"]["steps"] == 3000
+
+
+def test_a_cache_entry_cut_by_ctrl_c_is_removed_without_a_word(tmp_path, monkeypatch):
+    """A Ctrl-C during a write removes its temporary file; the line names the user's outputs that
+    were not written, never ctfit's own cache entries (``atomic_write(quiet=True)``), which the
+    program store writes from background threads at any moment of a cold fit."""
+    cut = []
+
+    def chunks(path):
+        yield b"part"
+        cut.append(_fileio.remove_temporaries())  # what the interrupt handler would say now
+        raise KeyboardInterrupt
+
+    for quiet, name in ((False, "fit.json"), (True, "entry.xla")):
+        with pytest.raises(KeyboardInterrupt):
+            _fileio.atomic_write(tmp_path / name, chunks(tmp_path / name), quiet=quiet)
+    assert cut == [[f"{tmp_path / 'fit.json'} was not created"], []]
+    assert not list(tmp_path.iterdir())  # no temporary file left, nothing created

@@ -187,7 +187,7 @@ def _write_in_place(path: str, chunks) -> None:
         raise _named(e, path, None) from None
 
 
-def atomic_write(path, chunks) -> None:
+def atomic_write(path, chunks, *, quiet: bool = False) -> None:
     """Write ``chunks`` (all ``str`` or all ``bytes``) to a new file beside ``path``, then rename it
     over ``path``: readers see the old file or the whole new one, never a part.
 
@@ -198,7 +198,8 @@ def atomic_write(path, chunks) -> None:
     permissions. Errors name ``path``, never the temporary file (:data:`TEMPORARY`), which is
     removed on any error; the first write into a folder removes stale ones
     (:func:`remove_stale_temporaries`). In the ``ctfit`` command a Ctrl-C during the write
-    removes the temporary file and keeps the old one, and says so (``_cli/interrupt.py``).
+    removes the temporary file and keeps the old one, and says so (``_cli/interrupt.py``);
+    ``quiet``: a write of ctfit's own (a cache entry), removed but not mentioned then.
     """
     path = os.fspath(path)
     if os.path.isdir(path):
@@ -220,7 +221,7 @@ def atomic_write(path, chunks) -> None:
         _swept.add(folder)
         remove_stale_temporaries(folder)
     tmp = os.path.join(folder, f".ctfit-{os.getpid()}-{os.urandom(4).hex()}.tmp")
-    _temporaries[tmp] = (path, mode is not None or os.path.lexists(target))
+    _temporaries[tmp] = (None if quiet else path, mode is not None or os.path.lexists(target))
     try:
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
         with os.fdopen(fd, "wb") as f:
@@ -230,7 +231,7 @@ def atomic_write(path, chunks) -> None:
                 f.write(chunk.encode("utf-8") if isinstance(chunk, str) else chunk)
             f.flush()
             os.fsync(f.fileno())
-        with deferred(done=f"{path} was written in full"):
+        with deferred(done=None if quiet else f"{path} was written in full"):
             os.replace(tmp, target)
             _temporaries.pop(tmp, None)
     except BaseException as e:

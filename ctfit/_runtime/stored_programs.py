@@ -251,7 +251,7 @@ def _save(path: pathlib.Path, key: str, compiled) -> None:
     then keep the store under :data:`STORE_LIMIT` (:func:`_prune`)."""
     entry = (hashlib.sha256(key.encode()).hexdigest(), *serialize_executable.serialize(compiled))
     data = pickle.dumps(entry, protocol=pickle.HIGHEST_PROTOCOL)
-    atomic_write(path, [data])
+    atomic_write(path, [data], quiet=True)  # a cache entry: a Ctrl-C removes it without a word
     _prune(path.parent, len(data))
 
 
