@@ -78,7 +78,7 @@ def _diffuse(o) -> str:
 
 def fit_command(o) -> int:
     """The ``fit`` command: options and outputs checked first, then every file; the exit status."""
-    from .._runtime import progress_enabled
+    from .._runtime import prepare_runtime, progress_enabled
     from .fit_cluster import TEXEL_SUFFIXES, fit_on_cluster, fit_texel_command
 
     _check_fit_options(o)
@@ -90,6 +90,7 @@ def fit_command(o) -> int:
         o.folders = dict.fromkeys(o.folders, True)  # several files, or a folder of them: results in folders
     plan = _fit_plan(files, o)
     setup_jax(o.float32)
+    prepare_runtime()  # LAPACK's kernels registered while the fit reads its files
     check_fit_choices(o)
     base = load_material_file(o.material) if o.material else None
     if o.workers is not None or o.scheduler is not None:

@@ -14,10 +14,9 @@ def setup_jax(float32: bool = False):
 
     if not float32:
         jax.config.update("jax_enable_x64", True)
-    from .._runtime import enable_compilation_cache, prepare_runtime
+    from .._runtime import enable_compilation_cache
 
     enable_compilation_cache()
-    prepare_runtime()  # LAPACK's kernels registered while the command reads its files
 
 
 def output_file(value: str | None, option: str = "-o") -> Path | None:

@@ -29,6 +29,8 @@ import functools
 import jax.numpy as jnp
 import numpy as np
 
+from .._model import float_dtype
+
 __all__ = ["desaturate_to_gamut", "in_gamut", "scale_to_display", "srgb_luminance"]
 
 
@@ -47,7 +49,7 @@ def srgb_luminance() -> np.ndarray:
 
 def _float(x):
     x = jnp.asarray(x)
-    return x.astype(x.dtype if jnp.issubdtype(x.dtype, jnp.floating) else jnp.result_type(float))
+    return x.astype(float_dtype(x))
 
 
 def _ratio(num, den, use):

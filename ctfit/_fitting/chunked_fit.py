@@ -338,8 +338,12 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
 
     def phase(budgets: list[int]) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
-        with concurrent.futures.ThreadPoolExecutor(max(1, min(len(go), os.cpu_count() or 1))) as pool:
-            runs = list(pool.map(lambda j: kern.run(values[j], lower, upper, budgets[j], tol), go))
+        run = lambda j: kern.run(values[j], lower, upper, budgets[j], tol)  # noqa: E731
+        if len(go) <= 1:  # one seed (a fit from its start alone): no thread
+            runs = [run(j) for j in go]
+        else:
+            with concurrent.futures.ThreadPoolExecutor(min(len(go), os.cpu_count() or 1)) as pool:
+                runs = list(pool.map(run, go))
         for j, (v, o, k, fine, c) in zip(go, runs):
             if k > 0:  # a seed that did not go on keeps what it had
                 values[j], ok[j], sound[j], costs[j] = v, o, fine, (c if math.isfinite(c) else math.inf)

@@ -18,20 +18,13 @@ import jax.numpy as jnp
 
 from .chunks import sum_over_chunks
 from .losses import loss_residuals
-from .problem import SHAPE_PARAMETERS, Problem, model_values, per_direction, values_from_s
+from .problem import SHAPE_PARAMETERS, Problem, band_sum, model_values, per_direction, values_from_s
 
 __all__ = ["DENSE_BAND_COLUMNS", "normal_equations", "half_squared_norm", "residual"]
 
 
 def _split(u: dict):
     return {k: v for k, v in u.items() if k in SHAPE_PARAMETERS}, {k: v for k, v in u.items() if k not in SHAPE_PARAMETERS}
-
-
-def _band_sum(problem: Problem, x):
-    """Σ over the samples of each band: (W, …) from a layout-shaped array (… its trailing axes)."""
-    if problem.spec.grid:
-        return jnp.sum(x, axis=0)
-    return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)
 
 
 def _columns(problem: Problem, u: dict, y):
@@ -141,18 +134,18 @@ def _blocks(problem: Problem, r, cols: dict, names: list[str]):
             return js.T @ _dir_sum(problem, a * rhs)
         if kind == "scalar":
             return jnp.sum(col * rhs)[None]
-        return _band_sum(problem, col * rhs)
+        return band_sum(problem, col * rhs)
 
     def block(ki, ci, kj, cj):
         if ki == "band" and kj == "band":
-            return jnp.diag(_band_sum(problem, ci * cj))
+            return jnp.diag(band_sum(problem, ci * cj))
         if ki == "band":
             return block(kj, cj, ki, ci).T
         if ki == "scalar":
             if kj == "scalar":
                 return jnp.sum(ci * cj)[None, None]
             if kj == "band":
-                return _band_sum(problem, ci * cj)[None, :]
+                return band_sum(problem, ci * cj)[None, :]
             return block(kj, cj, ki, ci).T
         a, js = ci
         if kj == "shape":

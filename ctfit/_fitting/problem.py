@@ -22,7 +22,7 @@ from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
 from .losses import LOSSES, loss_floor
 
-__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "make_problem", "model_values", "per_direction", "values_from_s"]
+__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "band_sum", "make_problem", "model_values", "per_direction", "values_from_s"]
 
 SHAPE_PARAMETERS = ("m", "w")
 """The parameters of S, the per-direction factor of the specular term (everything in R_s but F)."""
@@ -216,6 +216,13 @@ def values_from_s(problem: Problem, s_dir, u_rest: dict, u_shape: dict):
     spec_v = None if s_dir is None else s_dir[problem.pair]
     cos_lv = (geom.cos_l[problem.pair], geom.cos_v[problem.pair]) if transmitted else None
     return combine_parts(spec.structure, p, valid, spec_v, geom.cos_vh[problem.pair], cos_lv)
+
+
+def band_sum(problem: Problem, x):
+    """Σ over the samples of each band: (W, …) from a layout-shaped array (… its trailing axes)."""
+    if problem.spec.grid:
+        return jnp.sum(x, axis=0)
+    return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)
 
 
 def model_values(problem: Problem, u: dict):

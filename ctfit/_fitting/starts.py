@@ -19,7 +19,7 @@ from .._io import MaterialError
 from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0
 from .chunks import chunk_count, sum_over_chunks
 from .coordinates import free_names
-from .problem import Problem, model_values
+from .problem import Problem, band_sum, model_values
 
 __all__ = ["default_start", "m_grid", "seed_points", "seeds_from_scores", "grid_sums", "grid_scales", "grid_costs", "start_from_material"]
 
@@ -51,10 +51,6 @@ def m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
     return np.array(list(itertools.combinations(np.geomspace(0.01, 0.8, points), lobes)))
 
 
-def _band_sum(part: Problem, t):
-    return jnp.sum(t, axis=0) if part.spec.grid else jax.ops.segment_sum(t, part.band, num_segments=part.fixed_bands)
-
-
 def _weighted(part: Problem, u0: dict, log_m):
     v = model_values(part, dict(u0, m=log_m))
     return v, part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
@@ -73,7 +69,7 @@ def _cost_of(part: Problem, u0: dict, log_m, scale, v=None, wgt=None):
 
 def _amplitude_sums(part: Problem, u0: dict, log_m):
     v, wgt = _weighted(part, u0, log_m)
-    return _band_sum(part, wgt * v * part.y), _band_sum(part, wgt * v * v)
+    return band_sum(part, wgt * v * part.y), band_sum(part, wgt * v * v)
 
 
 def grid_sums(part: Problem, u0: dict, grid):
@@ -102,7 +98,7 @@ def _score_grid(problem: Problem, u0: dict, grid):
     def score(log_m):
         if chunk_count(problem) == 1:
             v, wgt = _weighted(problem, u0, log_m)
-            scale = _scale_of(_band_sum(problem, wgt * v * problem.y), _band_sum(problem, wgt * v * v))
+            scale = _scale_of(band_sum(problem, wgt * v * problem.y), band_sum(problem, wgt * v * v))
             cost = _cost_of(problem, u0, log_m, scale, v, wgt)
         else:
             scale = _scale_of(*sum_over_chunks(problem, lambda part: _amplitude_sums(part, u0, log_m)))

@@ -122,11 +122,13 @@ def _environment_digest() -> str:
 
 def _store() -> pathlib.Path | None:
     """The store's folder (:func:`~ctfit._runtime.compile_cache.program_store_folder`), made (mode
-    0700) on first use; None without a cache, or (with one
-    :class:`~ctfit._runtime.compile_cache.CacheWarning`) when the folder cannot be trusted."""
+    0700) on first use, JAX's LAPACK kernels registered (:func:`_register_lapack`); None without
+    a cache, or (with one :class:`~ctfit._runtime.compile_cache.CacheWarning`) when the folder
+    cannot be trusted."""
     folder = program_store_folder()
-    if folder is None or not _runtime_ready():
+    if folder is None:
         return None
+    _register_lapack()
     if folder not in _stores:
         _stores[folder] = _trusted(folder)
     return _stores[folder]
@@ -209,28 +211,28 @@ def kept_program(name: str, build: Callable[[], Callable], static: tuple = (), c
     return run if run is not None else _remember(key, build(), limit)
 
 
-_ready: list[bool] = []  # True once JAX's LAPACK kernels are registered
-_ready_lock = threading.Lock()
+_lapack_lock = threading.Lock()  # held while JAX's LAPACK kernels are registered
+_lapack_registered = False
 
 
-def _runtime_ready() -> bool:
+def _register_lapack() -> None:
     """Register JAX's LAPACK kernels, which compiled fits call. JAX registers them when it lowers
     a linear-algebra operation, which a loaded executable skips (its call would crash): lowering
     one small ``jnp.linalg.eigh`` (never compiled) does it through JAX's public API. Threads
     asking at once wait for the first."""
-    with _ready_lock:
-        if not _ready:
+    global _lapack_registered
+    with _lapack_lock:
+        if not _lapack_registered:
             jax.jit(jnp.linalg.eigh).lower(np.eye(2))
-            _ready.append(True)
-        return _ready[0]
+            _lapack_registered = True
 
 
 def prepare_runtime() -> None:
-    """Start :func:`_runtime_ready`'s work (0.15–0.2 s, mostly SciPy's BLAS import, which JAX's
+    """Start :func:`_register_lapack`'s work (0.15–0.2 s, mostly SciPy's BLAS import, which JAX's
     LAPACK kernels take their routines from) in a thread of
     its own, so that a command's first stored program need not wait for all of it (the command
     calls this when it sets JAX up, before it reads its files)."""
-    threading.Thread(target=_runtime_ready, name="ctfit-runtime").start()
+    threading.Thread(target=_register_lapack, name="ctfit-runtime").start()
 
 
 def _load(path: pathlib.Path, key: str):
