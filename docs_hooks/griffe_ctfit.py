@@ -89,7 +89,7 @@ class CtfitSite(griffe.Extension):
                 continue
             public = self.public.get(_final_path(found))
             if public is None:
-                return None
+                continue  # a member of a public class, or not on the site
             path = ".".join([public, *parts[cut:]])
             return path if self.documented(path) else None
         return None

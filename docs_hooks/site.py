@@ -19,7 +19,7 @@ from mkdocs.structure.files import File
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 STUB = ROOT / "ctfit" / "__init__.pyi"
 API_NAV = "API reference"
-TITLES = {  # the page of each concern; a new subpackage gets its folder's name until named here
+TITLES = {  # each concern's page, in the layers' order; a new subpackage comes last, under its folder's name
     "_model": "Model",
     "_io": "Files and formats",
     "_runtime": "Runtime",
@@ -43,7 +43,8 @@ def public_names() -> dict[str, list[str]]:
 def api_pages() -> dict[str, tuple[str, str]]:
     """``api/<concern>.md`` → (title, Markdown) for each subpackage with public names, and ``api/index.md``."""
     pages, rows = {}, []
-    for package, names in public_names().items():
+    order = list(TITLES)
+    for package, names in sorted(public_names().items(), key=lambda item: order.index(item[0]) if item[0] in order else len(order)):
         title = TITLES.get(package, package.strip("_").capitalize())
         summary = ast.get_docstring(ast.parse((ROOT / "ctfit" / package / "__init__.py").read_text(encoding="utf-8"))) or ""
         summary = summary.split("\n\n")[0].replace("\n", " ")

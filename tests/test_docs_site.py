@@ -54,6 +54,25 @@ def test_doctests_in_the_text_are_fenced_and_examples_sections_left_to_mkdocstri
     assert fence("a >>> b\n") == "a >>> b\n"  # only a paragraph that starts with >>>
 
 
+def test_the_griffe_extension_resolves_lazy_exports_and_links_only_what_the_site_shows():
+    import griffe
+
+    extension = _module("docs_griffe_ctfit", ROOT / "docs_hooks" / "griffe_ctfit.py")
+    ext = extension.CtfitSite()
+    pkg = griffe.load("ctfit", search_paths=[str(ROOT)], extensions=griffe.load_extensions(ext), resolve_aliases=False)
+    assert pkg["fit"].final_target.path == "ctfit._fitting.least_squares.fit"  # through ctfit._fitting's lazy table
+    assert Path(pkg["fit"].final_target.filepath).is_relative_to(ROOT)  # this checkout's code
+    model = pkg["_model"]
+    assert ext.site_path(model, "ctfit.fit") == "ctfit.fit"
+    assert ext.site_path(model, "Measurement.directions") == "ctfit.Measurement.directions"  # a documented method
+    assert ext.site_path(pkg, "ctfit._fitting.solvers.StructuredLevenbergMarquardt") is None  # private: not on the site
+    assert ext.site_path(model, "numpy.asarray") is None and ext.site_path(model, "no_such_name") is None
+    convert = lambda text: extension.ROLE.sub(lambda m: ext.role(model, m), text)
+    assert convert("see :func:`~ctfit.fit` and :class:`ctfit.Material`") == "see [`fit`][ctfit.fit] and [`ctfit.Material`][ctfit.Material]"
+    assert convert(":mod:`ctfit._io.files`, :func:`_private()`") == "`ctfit._io.files`, `_private`"
+    assert ":func:" not in pkg["_fitting"]["least_squares"]["fit"].docstring.value  # converted when loaded
+
+
 class _Links(html.parser.HTMLParser):
     def __init__(self):
         super().__init__()
