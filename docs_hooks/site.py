@@ -6,12 +6,16 @@
   to the nav under "API reference".
 - The notebooks of ``notebooks/`` are added as pages where they are (no copy in ``docs/``);
   mkdocs-jupyter renders them from their stored outputs.
+- The README, the changelog and the guides name each other by their path in the repository, as
+  code (`` `docs/fitting.md` ``, read as such on GitHub or in a terminal); on the site each such
+  name of a page becomes a link to it.
 """
 
 from __future__ import annotations
 
 import ast
 import pathlib
+import re
 
 from mkdocs.plugins import event_priority
 from mkdocs.structure.files import File
@@ -19,6 +23,7 @@ from mkdocs.structure.files import File
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 STUB = ROOT / "ctfit" / "__init__.pyi"
 API_NAV = "API reference"
+PAGE_PATH = re.compile(r'(?<!">)<code>((?:docs|notebooks)/[\w./-]+\.(?:md|ipynb))</code>')
 TITLES = {  # each concern's page, in the layers' order; a new subpackage comes last, under its folder's name
     "_model": "Model",
     "_io": "Files and formats",
@@ -75,3 +80,18 @@ def on_files(files, config):
         files.append(File(f"notebooks/{notebook.name}", src_dir=str(ROOT), dest_dir=config["site_dir"],
                           use_directory_urls=config["use_directory_urls"]))
     return files
+
+
+
+def on_page_content(html, page, config, files):
+    """Each ``<code>docs/<page>.md</code>`` or ``<code>notebooks/<name>.ipynb</code>`` that names a page
+    of the site and is not a link already, linked (in the HTML: the README and the changelog come in
+    through snippets, after the Markdown hooks, and the API pages through mkdocstrings)."""
+
+    def link(match):
+        target = files.get_file_from_path(match.group(1).removeprefix("docs/"))
+        if target is None or not target.is_documentation_page():
+            return match.group(0)
+        return f'<a href="{target.url_relative_to(page.file)}">{match.group(0)}</a>'
+
+    return PAGE_PATH.sub(link, html)

@@ -167,6 +167,10 @@ def test_the_site_holds_the_guides_the_notebooks_and_every_public_name(site):
     assert api.count('href="#ctfit.') + api.count('/#ctfit.') > 50  # roles became cross-references
     index = (site / "index.html").read_text(encoding="utf-8")
     assert "make docs" in index and "Set up on a fresh machine" in index  # the README
+    # its names of guides and notebooks link to their pages, in the guides and docstrings too
+    assert '<a href="fitting/"><code>docs/fitting.md</code></a>' in index
+    assert '<a href="notebooks/measured_data/"><code>notebooks/measured_data.ipynb</code></a>' in index
+    assert '<a href="../../export/"><code>docs/export.md</code></a>' in (site / "api" / "export" / "index.html").read_text(encoding="utf-8")
 
 
 @pytest.mark.slow
