@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 export JAX_COMPILATION_CACHE_DIR ?= $(CURDIR)/.jax_cache
 
-.PHONY: fit test install install-test report bench clean
+.PHONY: fit test docs install install-test install-docs report bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -17,10 +17,15 @@ $(VENV)/.installed: pyproject.toml | $(BIN)/python
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[test]'
-	touch $@ $(VENV)/.installed
+	touch $@ $(VENV)/.installed $(VENV)/.installed-docs
+
+$(VENV)/.installed-docs: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install -q -e '.[docs]'
+	touch $@
 
 install: $(VENV)/.installed
 install-test: $(VENV)/.installed-test
+install-docs: $(VENV)/.installed-docs
 
 # The main job on a bundled measurement.
 fit: install
@@ -29,8 +34,13 @@ fit: install
 	$(BIN)/ctfit fit out/copper-vase.csv --material configs/copper-vase.toml -o out/copper-vase.fit.json
 
 test: install-test
-	$(BIN)/ruff check ctfit tests scripts
+	$(BIN)/ruff check ctfit tests scripts docs_hooks
 	$(BIN)/python -m pytest -n 2 -q
+
+# The documentation site in site/ (open site/index.html): the guides of docs/, the API reference
+# and the notebooks with their stored outputs (mkdocs.yml). Strict: a warning stops the build.
+docs: install-docs
+	NO_MKDOCS_2_WARNING=1 $(BIN)/python -m mkdocs build --strict --site-dir site
 
 # Every measured report in docs/ (benchmarks, error against run time, stability) and the
 # notebooks, regenerated from one run each; takes about an hour on a 2-core machine.
@@ -38,4 +48,4 @@ report: install-test
 	$(BIN)/python scripts/report.py
 
 clean:
-	rm -rf $(VENV) out .jax_cache
+	rm -rf $(VENV) out .jax_cache site
