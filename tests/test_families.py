@@ -98,6 +98,37 @@ def test_plastic_material_files_round_trip_and_refuse_what_is_not_a_plastic():
 # --- fits ------------------------------------------------------------------------------------
 
 
+@pytest.mark.parametrize("s, m", [(0.3, 0.2), (0.2, 0.3), (0.1, 0.25)])
+def test_a_plastics_seeds_bracket_its_lobe_and_none_is_a_lobe_that_reaches_no_sample(s, m):
+    # Scored with one amplitude for the whole model, a lobe too narrow to reach the samples (the
+    # diffuse part alone, freely scaled) outranked the true width: every seed was m ≤ 0.015 here.
+    mat = plastic(s=s, m=m)
+    data = ctfit.simulate(mat, n_pairs=600, seed=3)
+    seeds = [float(p.m[0]) for p in ctfit.seed_params(data, mat.structure, starts=3)]
+    step = (1.0 / 0.005) ** (1 / 15)  # the one-lobe grid's spacing (starts.m_grid)
+    assert min(seeds) > 0.05
+    assert m / step <= seeds[0] <= m * step
+
+
+def test_grid_amplitudes_are_the_non_negative_least_squares_solution():
+    from scipy.optimize import nnls
+
+    from ctfit._fitting.starts import grid_amplitudes
+
+    rng = np.random.default_rng(0)
+    for trial in range(200):
+        a, b = rng.random(30) * rng.choice([1e-3, 1, 10]), rng.random(30)
+        if trial % 4 == 0:
+            a = 0 * a  # a lobe that reaches no sample
+        y = rng.normal(rng.normal(), 1, 30) * a + rng.normal(rng.normal(), 1, 30) * b + 0.1 * rng.normal(size=30)
+        num = np.array([a @ y, b @ y])
+        den = np.array([a @ a, a @ b, b @ b])
+        got = np.asarray(grid_amplitudes(num, den))
+        want = nnls(np.stack([a, b], 1), y)[0]
+        cost = lambda x: np.sum((x[0] * a + x[1] * b - y) ** 2)  # noqa: E731
+        assert (got >= 0).all() and cost(got) <= cost(want) * (1 + 1e-9) + 1e-12, (trial, got, want)
+
+
 def test_a_plastic_fit_recovers_its_index_and_keeps_it_in_range():
     truth = plastic()
     data = ctfit.simulate(truth, n_pairs=600, noise=0.01, seed=3)

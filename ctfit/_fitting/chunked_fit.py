@@ -49,7 +49,7 @@ from .fit_report import combined_rms, light_report_core, report_core, summary_of
 from .jacobian import normal_equations
 from .problem import Problem, Spec
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver, stop_tolerances
-from .starts import grid_costs, grid_scales, grid_sums, seeds_from_scores
+from .starts import grid_amplitudes, grid_costs, grid_scales, grid_sums, seeds_from_scores
 
 __all__ = ["ROWS", "chunk_problems", "chunked_core", "prefetch"]
 
@@ -154,7 +154,7 @@ def _sums_kernel(acc, part: Problem, u0: dict, grid):
 
 
 def _costs_kernel(acc, part: Problem, u0: dict, grid, num, den):
-    return acc + grid_costs(part, u0, grid, grid_scales(num, den))
+    return acc + grid_costs(part, u0, grid, grid_amplitudes(num, den))
 
 
 def _summary_kernel(part: Problem, u: dict):
@@ -284,7 +284,7 @@ def _seed_programs(template: Problem, u0: dict, k: int, grid, keep_start: bool):
     if "m" not in u0 or k < 1 or grid is None:
         return None, None, _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
     g = grid.shape[0]
-    acc = [np.zeros((g, template.fixed_bands), grid.dtype) for _ in range(2)]
+    acc = [np.zeros((g, template.fixed_bands, c), grid.dtype) for c in (2, 3)]
     total = np.zeros((g,), grid.dtype)
     return (_program("fit_grid_sums", _sums_kernel, acc, template, u0, grid), _program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc),
             _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start))
@@ -298,7 +298,7 @@ def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> di
     if sums is None:
         return jax.device_get(pick(*_leaves((template, u0))))
     u0l, g = _leaves(u0), grid.shape[0]
-    acc = [jax.device_put(np.zeros((g, template.fixed_bands), grid.dtype)) for _ in range(2)]
+    acc = [jax.device_put(np.zeros((g, template.fixed_bands, c), grid.dtype)) for c in (2, 3)]
     for leaves in chunks:
         acc = sums(*acc, *leaves, *u0l, grid)
     total = jax.device_put(np.zeros((g,), grid.dtype))

@@ -1,8 +1,8 @@
 """Where a fit starts: the default start, a start from a material file, and the grid seeds.
 
 The seeds (``seed_points``): a grid over the rms slopes (one value per lobe, ascending), each
-scored by the loss after the best per-band amplitude (a linear least-squares problem), one
-vmapped pass over the data; the best ``starts`` distinct grid points seed the solver.
+scored by the loss after the best non-negative per-band amplitudes of the model's specular and
+diffuse parts (a linear least-squares problem, :func:`grid_amplitudes`), one pass over the data; the best ``starts`` distinct grid points seed the solver.
 :func:`~ctfit.seed_params` gives them to analysis code as :class:`~ctfit.Params`.
 """
 
@@ -19,9 +19,9 @@ from .._io import MaterialError
 from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0
 from .chunks import chunk_count, sum_over_chunks
 from .coordinates import free_names
-from .problem import Problem, band_sum, model_values
+from .problem import SHAPE_PARAMETERS, Problem, band_sum, per_direction, values_from_s
 
-__all__ = ["default_start", "m_grid", "seed_points", "seeds_from_scores", "grid_sums", "grid_scales", "grid_costs", "start_from_material"]
+__all__ = ["default_start", "m_grid", "seed_points", "seeds_from_scores", "grid_sums", "grid_scales", "grid_amplitudes", "grid_costs", "start_from_material"]
 
 
 def default_start(structure: Structure, data: Measurement) -> Params:
@@ -51,59 +51,96 @@ def m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
     return np.array(list(itertools.combinations(np.geomspace(0.01, 0.8, points), lobes)))
 
 
-def _weighted(part: Problem, u0: dict, log_m):
-    v = model_values(part, dict(u0, m=log_m))
-    return v, part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
-
-
-def _scale_of(num, den):
-    return num / jnp.maximum(den, 1e-300)
-
-
-def _cost_of(part: Problem, u0: dict, log_m, scale, v=None, wgt=None):
-    if v is None:
-        v, wgt = _weighted(part, u0, log_m)
-    per_sample = scale if part.spec.grid else scale[part.band]
-    return jnp.sum(wgt * (per_sample * v - part.y) ** 2)
+def _parts(part: Problem, u0: dict, log_m):
+    """The model's two parts at every sample, (s R_s, d R_d) (Eq. 2's terms: the second is the
+    model with its specular factor zeroed, 0 where it has no diffuse part), and the loss's weights."""
+    u = dict(u0, m=log_m)
+    u_shape = {k: v for k, v in u.items() if k in SHAPE_PARAMETERS}
+    u_rest = {k: v for k, v in u.items() if k not in SHAPE_PARAMETERS}
+    s_dir = per_direction(part, u_shape, u_rest) if part.spec.structure.has_specular else None
+    v = values_from_s(part, s_dir, u_rest, u_shape)
+    diffuse = values_from_s(part, jnp.zeros_like(s_dir), u_rest, u_shape) if s_dir is not None else v
+    return (v - diffuse, diffuse), part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
 
 
 def _amplitude_sums(part: Problem, u0: dict, log_m):
-    v, wgt = _weighted(part, u0, log_m)
-    return band_sum(part, wgt * v * part.y), band_sum(part, wgt * v * v)
+    (a, b), wgt = _parts(part, u0, log_m)
+    num = jnp.stack([band_sum(part, wgt * a * part.y), band_sum(part, wgt * b * part.y)], axis=-1)
+    den = jnp.stack([band_sum(part, wgt * a * a), band_sum(part, wgt * a * b), band_sum(part, wgt * b * b)], axis=-1)
+    return num, den
+
+
+def _cost_of(part: Problem, u0: dict, log_m, amplitudes):
+    (a, b), wgt = _parts(part, u0, log_m)
+    amp = amplitudes if part.spec.grid else amplitudes[part.band]
+    return jnp.sum(wgt * (amp[..., 0] * a + amp[..., 1] * b - part.y) ** 2)
 
 
 def grid_sums(part: Problem, u0: dict, grid):
-    """Per grid point of log m, the per-band sums (Σ w v y, Σ w v²) of ``part``: the first pass of
-    the seeds' scores, summable over chunks; the scale is their ratio (:func:`grid_scales`)."""
+    """Per grid point of log m, the per-band sums of ``part`` over the model's two parts A = s R_s
+    and B = d R_d: (Σ w A y, Σ w B y) and (Σ w A², Σ w A B, Σ w B²), shapes (G, bands, 2) and
+    (G, bands, 3). The first pass of the seeds' scores, summable over chunks."""
     return jax.lax.map(lambda log_m: _amplitude_sums(part, u0, log_m), grid)
 
 
+def _divide(a, b, ok):
+    """a / b where ``ok``, else 0 (double-``where``: no inf or NaN in either branch)."""
+    return jnp.where(ok, a / jnp.where(ok, b, 1), 0)
+
+
 def grid_scales(num, den):
-    """The best per-band amplitude of each grid point from :func:`grid_sums`' totals."""
-    return _scale_of(num, den)
+    """The best per-band amplitude of the whole model A + B from :func:`grid_sums`' totals: the
+    seeds' scale of F0 (or of the normal reflectance)."""
+    total = den[..., 0] + 2 * den[..., 1] + den[..., 2]
+    return _divide(num[..., 0] + num[..., 1], total, total > 0)
 
 
-def grid_costs(part: Problem, u0: dict, grid, scales):
-    """Per grid point, the weighted loss of ``part`` after its amplitude ``scales`` (the second
-    pass; summable over chunks)."""
-    return jax.lax.map(lambda ms: _cost_of(part, u0, ms[0], ms[1]), (grid, scales))
+def grid_amplitudes(num, den):
+    """The best non-negative per-band amplitudes (α, β) of the two parts, α A + β B, from
+    :func:`grid_sums`' totals (a two-variable non-negative least-squares problem, solved in closed
+    form): what each grid point is scored with. Scoring with the whole model's one amplitude ranked
+    a lobe too narrow to reach any sample (the diffuse part alone, freely scaled) above every lobe
+    that is held to the start's mix of specular and diffuse light, a seed that then slid on a
+    plateau for over a hundred steps."""
+    ay, by = num[..., 0], num[..., 1]
+    aa, ab, bb = den[..., 0], den[..., 1], den[..., 2]
+    det = aa * bb - ab * ab
+    both_ok = det > jnp.sqrt(jnp.finfo(det.dtype).eps) * aa * bb  # the parts not (nearly) proportional
+    alpha = _divide(ay * bb - by * ab, det, both_ok)
+    beta = _divide(by * aa - ay * ab, det, both_ok)
+    both_ok = both_ok & (alpha >= 0) & (beta >= 0)
+    a_only = _divide(jnp.maximum(ay, 0), aa, aa > 0)  # 0 for a part that is 0 at every sample
+    b_only = _divide(jnp.maximum(by, 0), bb, bb > 0)
+    a_better = a_only * jnp.maximum(ay, 0) >= b_only * jnp.maximum(by, 0)  # the decrease of the loss, Σ w y² − cost
+    alpha = jnp.where(both_ok, alpha, jnp.where(a_better, a_only, 0.0))
+    beta = jnp.where(both_ok, beta, jnp.where(a_better, 0.0, b_only))
+    return jnp.stack([alpha, beta], axis=-1)
+
+
+def grid_costs(part: Problem, u0: dict, grid, amplitudes):
+    """Per grid point, the weighted loss of ``part`` after its parts' ``amplitudes``
+    (:func:`grid_amplitudes`; the second pass, summable over chunks)."""
+    return jax.lax.map(lambda ma: _cost_of(part, u0, ma[0], ma[1]), (grid, amplitudes))
 
 
 @eqx.filter_jit
 def _score_grid(problem: Problem, u0: dict, grid):
-    """Loss of each grid point of log m after the best per-band amplitude (weighted linear LS):
-    the per-band scale Σ w v y / Σ w v², then Σ w (scale · v − y)² — two passes, chunk by chunk,
-    on a large grid (:func:`~ctfit._fitting.chunks.sum_over_chunks`), one pass otherwise."""
+    """Loss of each grid point of log m after the best amplitudes of its two parts (weighted
+    linear least squares, :func:`grid_amplitudes`), and the whole model's best per-band scale —
+    two passes, chunk by chunk, on a large grid (:func:`~ctfit._fitting.chunks.sum_over_chunks`),
+    one pass otherwise."""
 
     def score(log_m):
         if chunk_count(problem) == 1:
-            v, wgt = _weighted(problem, u0, log_m)
-            scale = _scale_of(band_sum(problem, wgt * v * problem.y), band_sum(problem, wgt * v * v))
-            cost = _cost_of(problem, u0, log_m, scale, v, wgt)
+            num, den = _amplitude_sums(problem, u0, log_m)
         else:
-            scale = _scale_of(*sum_over_chunks(problem, lambda part: _amplitude_sums(part, u0, log_m)))
-            cost = sum_over_chunks(problem, lambda part: _cost_of(part, u0, log_m, scale))
-        return cost, scale
+            num, den = sum_over_chunks(problem, lambda part: _amplitude_sums(part, u0, log_m))
+        amplitudes = grid_amplitudes(num, den)
+        if chunk_count(problem) == 1:
+            cost = _cost_of(problem, u0, log_m, amplitudes)
+        else:
+            cost = sum_over_chunks(problem, lambda part: _cost_of(part, u0, log_m, amplitudes))
+        return cost, grid_scales(num, den)
 
     return jax.lax.map(score, grid)  # one grid point at a time: memory O(N), not O(grid × N)
 
