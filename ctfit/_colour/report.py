@@ -71,6 +71,7 @@ def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_
     """
     cos = _cos(angle_deg)
     st = material.structure
+    n_bands: int | None
     if material.is_rgb:
         params = material.params_at(channels=("R", "G", "B"))
         n_bands = 3

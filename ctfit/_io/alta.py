@@ -128,7 +128,9 @@ def read_alta(path, *, param_out: str | None = None, param_out_default: str | No
 
 def _split(text: str, path):
     """Header {KEY: (value, line)}, data lines and their line numbers."""
-    header, rows, lines = {}, [], []
+    header: dict[str, tuple[str, int]] = {}
+    rows: list[str] = []
+    lines: list[int] = []
     for k, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"), start=1):  # LF, CR LF or CR
         line = line.strip()
         if line.startswith("#"):

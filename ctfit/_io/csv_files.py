@@ -126,7 +126,7 @@ class _Header:
                 path=path,
                 line=line,
             )
-        seen = {}
+        seen: dict[str, int] = {}
         for i, name in enumerate(names):
             if not name:
                 raise err(f"column {i + 1} has no name")
@@ -363,7 +363,7 @@ def _measurement(values: dict, channel, meta: dict, path) -> Measurement:
     theta = {n: values[n] + 0.0 for n in ("theta_i", "theta_o")}  # -0.0 → 0.0
     if channel is not None:
         present, band = np.unique(channel, return_inverse=True)
-        bands = dict(channels=tuple(CHANNELS[c] for c in present))
+        bands: dict[str, object] = dict(channels=tuple(CHANNELS[c] for c in present))
     else:
         wavelength, band = np.unique(values["wavelength_nm"], return_inverse=True)
         bands = dict(wavelength_nm=wavelength)

@@ -68,8 +68,9 @@ _FRESNEL_KEYS = {"f0": ("F0",), "n": ("n",), "conductor": ("n", "k")}
 def _toml_position(err: tomllib.TOMLDecodeError, text: str) -> tuple[int, int, str]:
     """Line, column and message of a TOML syntax error (attributes only from Python 3.14)."""
     msg = err.args[0] if err.args else str(err)
-    if getattr(err, "lineno", None) is not None:
-        return err.lineno, err.colno, getattr(err, "msg", msg)
+    lineno, colno = getattr(err, "lineno", None), getattr(err, "colno", None)
+    if lineno is not None and colno is not None:
+        return lineno, colno, getattr(err, "msg", msg)
     found = re.search(r"\s*\(at line (\d+), column (\d+)\)$", msg)
     if found:
         return int(found[1]), int(found[2]), msg[: found.start()]
@@ -178,9 +179,12 @@ class _Parser:
             raise self.error("s", "missing: give the specular and diffuse fractions s and d (s + d = 1)")
         s = self.number(self.data["s"], "s", 0, 1) if has_s else None
         d = self.number(self.data["d"], "d", 0, 1) if has_d else None
-        if has_s and has_d and abs(s + d - 1) > _TOL:
+        if s is not None and d is not None and abs(s + d - 1) > _TOL:
             raise self.error("d", f"s + d = {s + d:.12g}, must be 1")
-        return (s, 1 - s) if has_s else (1 - d, d)
+        if s is not None:
+            return s, 1 - s
+        assert d is not None  # has_s or has_d
+        return 1 - d, d
 
     def lobes(self, s: float) -> tuple[list[float], list[float]]:
         raw = self.data.get("lobes", [])

@@ -77,7 +77,9 @@ def _bundled_table(name: str):
 
 def _parse(path, lines: list[str]) -> tuple[dict, list[str], list[list[float]]]:
     """``(meta, header, rows)`` of the table's lines."""
-    meta, header, rows = {}, None, []
+    meta: dict[str, str] = {}
+    header: list[str] | None = None
+    rows: list[list[float]] = []
     for lineno, line in enumerate(lines, 1):
         if not line.strip():
             continue
@@ -101,7 +103,7 @@ def _parse(path, lines: list[str]) -> tuple[dict, list[str], list[list[float]]]:
             rows.append([float(c) for c in cells])
         except ValueError:
             raise MaterialError(f"{path}:{lineno}: not a number in {quote(line)}") from None
-    if not rows:
+    if header is None or not rows:  # (no header: no rows either)
         raise MaterialError(f"{path}: no data rows")
     return meta, header, rows
 
@@ -127,7 +129,7 @@ def read_optical_constants(path) -> dict:
     path = _bundled_table(path) if is_table_name(path) else pathlib.Path(path)
     meta, header, rows = _parse(path, read_material_text(path).splitlines())
     table = np.asarray(rows, dtype=float)
-    out = {name: table[:, header.index(name)] for name in ("wavelength_nm", "n", "k")}
+    out: dict = {name: table[:, header.index(name)] for name in ("wavelength_nm", "n", "k")}
     out["F0"] = table[:, header.index("F0")] if "F0" in header else f0_from_nk(out["n"], out["k"])
     if not np.all(np.isfinite(table)):
         raise MaterialError(f"{path}: values must be finite")

@@ -160,7 +160,7 @@ def _shepard(points, logs):
         hull = None
 
     def regression(q):
-        d, j = tree.query(q, k=k)
+        d, j = (np.asarray(a) for a in tree.query(q, k=k))  # (len(q), k): k > 1
         far, d, j = d[:, -1:], d[:, :-1], j[:, :-1]
         w = (np.maximum(far - d, 0.0) / (far * np.maximum(d, 1e-9))) ** 2
         w = np.where(w.sum(axis=1, keepdims=True) > 0, w, 1.0)

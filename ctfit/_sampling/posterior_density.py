@@ -10,13 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .._fitting import LOSSES, from_params, make_problem
-from .._model import Material, Measurement
+from .._model import Material, Measurement, x64_enabled
 from .engine import Engine
 from .logprob import Layout
 from .priors import normalise_priors
@@ -55,7 +54,7 @@ def set_up_posterior(target, data: Measurement, *, loss=None, fixed=None, priors
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     material, loss, fixed, note = resolve_fit(target, data, loss, fixed)
     st = material.structure
-    dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+    dtype = jnp.float64 if x64_enabled() else jnp.float32
     start = start_params(material, data)
     problem = make_problem(st, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, space="unconstrained")
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
