@@ -167,7 +167,7 @@ def _groups(preps: dict[int, PreparedFit], solver: str, max_steps: int) -> list[
     groups = []
     for _, members in by_layout:
         if len(members) > 1:
-            target = tuple(max(_sizes(preps[i])[j] for i in members) for j in range(2))
+            target = (max(_sizes(preps[i])[0] for i in members), max(_sizes(preps[i])[1] for i in members))
             for i in members:
                 if _sizes(preps[i]) != target:
                     preps[i] = preps[i].padded(target)

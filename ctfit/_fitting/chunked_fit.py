@@ -35,6 +35,8 @@ import concurrent.futures
 import dataclasses
 import math
 import os
+from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -66,7 +68,8 @@ def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
 
     rows = chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
     host = lambda a: None if a is None else np.asarray(a)  # noqa: E731
-    y, sigma, cos_i, mask = (host(a) for a in (problem.y, problem.sigma, problem.cos_i, problem.mask))
+    y = np.asarray(problem.y)
+    sigma, cos_i, mask = (host(a) for a in (problem.sigma, problem.cos_i, problem.mask))
     geom = jax.tree.map(np.asarray, problem.geom)
     count = y.shape[0] // rows if limit is None else min(limit, y.shape[0] // rows)
     own = None if problem.spec.grid else jax.device_put(np.arange(rows, dtype=np.asarray(problem.pair).dtype))
@@ -74,7 +77,7 @@ def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
     out = []
     for c in range(count):
         cut = slice(c * rows, (c + 1) * rows)
-        at = (lambda a: a[cut]) if problem.spec.grid else (lambda a: a[pair[cut]])  # noqa: E731
+        at = (lambda a: a[cut]) if problem.spec.grid else (lambda a: a[pair[cut]])  # type: ignore[index]  # set when not grid
         cells = {k: None if a is None else a[cut] for k, a in dict(y=y, sigma=sigma, cos_i=cos_i, mask=mask, band=band).items()}
         g, cells = jax.device_put((jax.tree.map(at, geom), cells))  # one transfer per chunk
         if problem.spec.grid:
@@ -224,9 +227,9 @@ class _Kernels:
     parts: list[list]
     template: Problem
     u0: dict
-    ne: object
-    init: object
-    step: object
+    ne: Callable[..., Any]
+    init: Callable[..., Any]
+    step: Callable[..., Any]
     zeros: list  # the sums' starting values, on the device once (programs do not donate their inputs)
 
     def normal_equations(self, flat):

@@ -90,15 +90,14 @@ def _parts(problem: Problem, k: int):
 
     cells = (split(problem.y), split(problem.sigma), split(problem.cos_i), split(problem.mask))
     if problem.spec.grid:
-        rows = (jax.tree.map(split, problem.geom), *cells)
 
-        def part(x):
+        def grid_part(x):
             geom, y, sigma, cos_i, mask = x
             return dataclasses.replace(problem, geom=geom, y=y, sigma=sigma, cos_i=cos_i, mask=mask)
 
-        return rows, part
+        return (jax.tree.map(split, problem.geom), *cells), grid_part
     rows = (split(problem.pair), split(problem.band), *cells)
-    own = jnp.arange(CHUNK, dtype=problem.pair.dtype)
+    own = jnp.arange(CHUNK, dtype=problem.pair.dtype)  # type: ignore[union-attr]  # set when not grid
 
     def part(x):
         pair, band, y, sigma, cos_i, mask = x

@@ -73,7 +73,7 @@ _GROUPS = (
 
 def residual_structure(
     data: Measurement, model: np.ndarray, *, floor: float | None = None, threshold: float = 0.1, min_count: int = 20
-) -> list[str]:
+) -> list[FitWarning]:
     """Plain-language warnings about systematic residual structure (empty when there is none).
 
     >>> import dataclasses, numpy as np, ctfit
@@ -95,7 +95,7 @@ def residual_structure(
     return relative_residual_structure(pairs, e, index=index, threshold=threshold, min_count=min_count)
 
 
-def relative_residual_structure(pairs, rel, *, index=None, mask=None, threshold: float = 0.1, min_count: int = 20) -> list[str]:
+def relative_residual_structure(pairs, rel, *, index=None, mask=None, threshold: float = 0.1, min_count: int = 20) -> list[FitWarning]:
     """:func:`residual_structure` from relative residuals: ``rel`` (N,) per sample with ``index``
     each sample's direction pair, or (D, W) per direction pair and band with ``mask`` (True where
     measured; other cells are ignored). ``pairs`` (D, 4): the direction pairs in degrees.

@@ -32,8 +32,9 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import DTypeLike
 
-from .._model import Material, Measurement, Params, Structure
+from .._model import Material, Measurement, Params, Structure, x64_enabled
 from .._runtime import cached_call
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch
 from .chunks import sum_over_chunks
@@ -146,12 +147,12 @@ class PreparedFit:
     data: Measurement
     structure: Structure
     loss: str
-    dtype: object
+    dtype: DTypeLike
     start: Params
     fixed: tuple[str, ...]
     problem: Problem
     u0: dict
-    grid: object
+    grid: np.ndarray | None
     k: int
     given_start: bool
     chunked: bool = False
@@ -180,7 +181,7 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
     """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
     samples), or with ``chunk`` to a multiple of the chunks' rows), free start ``u0`` and m grid of a fit."""
     check_fit_arguments(data, structure)
-    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
+    if dtype == jnp.float64 and not x64_enabled():
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
     structure = structure or Structure()
     if loss == "auto":
@@ -412,8 +413,9 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     names = coordinate_names(u)
     not_determined = [names[i] for i in np.flatnonzero(loose)]
     notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined)
-    if status.converged and quality_warning(quality):  # "even at the best fit": only a fit that got there says so
-        notes.append(quality_warning(quality))
+    worst = quality_warning(quality)
+    if status.converged and worst:  # "even at the best fit": only a fit that got there says so
+        notes.append(worst)
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more max_steps=, or another start)"
         notes.append(FitWarning(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}", "not_a_minimum"))

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -150,6 +152,7 @@ def make_problem(
     geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)), on_host=bool(chunk))
     floor = loss_floor(data.brdf, loss)
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
+    sig: np.ndarray | None = None
     if grid:
         shape = (len(pairs), n_bands)
         y = np.zeros(shape)
@@ -170,7 +173,7 @@ def make_problem(
         pair, band = put(padded(index, 0)), put(padded(data.band, 0))  # no conversion program
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
-    rows = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if chunk else to  # noqa: E731
+    rows: Callable[[Any], Any] = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if chunk else to  # noqa: E731
     return Problem(
         spec=spec,
         geom=geom,
@@ -222,7 +225,7 @@ def band_sum(problem: Problem, x):
     """Σ over the samples of each band: (W, …) from a layout-shaped array (… its trailing axes)."""
     if problem.spec.grid:
         return jnp.sum(x, axis=0)
-    return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)
+    return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)  # type: ignore[arg-type]  # set when not grid
 
 
 def model_values(problem: Problem, u: dict):

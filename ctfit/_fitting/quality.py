@@ -97,7 +97,7 @@ def quality_warning(quality: dict) -> FitWarning | None:
     """One line when the median relative error is above :data:`MODEL_LIMIT` or its 90th percentile
     above :data:`TAIL_LIMIT`, naming the worst region."""
     median, tail = quality.get("median_relative_error"), quality.get("p90_relative_error")
-    if median is None or (median <= MODEL_LIMIT and tail <= TAIL_LIMIT):
+    if median is None or tail is None or (median <= MODEL_LIMIT and tail <= TAIL_LIMIT):
         return None
     names = {"peak": "near the specular peak", "off_peak": "off the peak", "grazing": "at grazing angles"}
     regions = [(r["median_relative_error"], k) for k, r in quality["regions"].items() if r["median_relative_error"] is not None]

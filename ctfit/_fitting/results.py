@@ -23,7 +23,7 @@ def stderr_block(res) -> dict | None:
     se = res.stderr
     if se is None:
         return None
-    out = {}
+    out: dict[str, object] = {}
     if "s" in se:
         out["s"] = float(np.asarray(se["s"]).reshape(-1)[0])
     if "m" in se:

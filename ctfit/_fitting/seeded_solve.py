@@ -190,6 +190,7 @@ def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int)
     solver = _solver(solver_name, problem.y.dtype)
 
     def one(u0):
+        sol: optx.Solution
         if solver_name == "bfgs":
             fn = lambda u, a: 0.5 * jnp.sum(residual(u, a) ** 2)  # noqa: E731
             sol = optx.minimise(fn, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)

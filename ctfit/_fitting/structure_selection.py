@@ -9,7 +9,7 @@ import queue
 import jax
 import numpy as np
 
-from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg
+from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg, x64_enabled
 from .._runtime import cached_call
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
@@ -370,7 +370,7 @@ def model_median_error(res: FitResult, data: Measurement) -> float:
     stored program per structure serves every file."""
     pairs, index = data.directions()
     size = -(-len(pairs) // HELDOUT_PAIRS) * HELDOUT_PAIRS
-    dt = np.float64 if jax.config.jax_enable_x64 else np.float32
+    dt = np.float64 if x64_enabled() else np.float32
     padded = np.concatenate([pairs, np.repeat(pairs[:1], size - len(pairs), axis=0)]).astype(dt)
     params = jax.tree.map(lambda a: np.asarray(a, dtype=dt), res.material.params)
     values = np.concatenate([np.asarray(cached_call("heldout_values", _values_at_pairs, res.material.structure, params, padded[i: i + HELDOUT_PAIRS],

@@ -30,6 +30,7 @@ import hashlib
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -54,7 +55,8 @@ def _open(path):
     path = os.fspath(path)
     engine = "zarr" if path.rstrip("/").endswith(".zarr") else "h5netcdf"
     try:
-        return xr.open_dataset(path, engine=engine, chunks=None, **({"consolidated": False} if engine == "zarr" else {}))
+        backend: dict[str, Any] = {"consolidated": False} if engine == "zarr" else {}
+        return xr.open_dataset(path, engine=engine, chunks=None, **backend)
     except (OSError, ValueError, KeyError) as e:
         raise TexelMapError(f"{path}: cannot be opened as texel data ({engine}): {e}") from None
 

@@ -74,7 +74,7 @@ class TexelFits:
     structure: Structure
     params: Params
     stats: dict
-    values: object = dataclasses.field(repr=False)
+    values: np.ndarray = dataclasses.field(repr=False)
     options: dict = dataclasses.field(repr=False, default_factory=dict)
 
     def __len__(self) -> int:
