@@ -80,7 +80,7 @@ def colour_science():
     """The colour-science package, imported on first use (it takes a while). Its import sets
     NumPy's print options to ``legacy="1.13"``; ctfit keeps the user's settings as they were."""
     with np.printoptions():
-        import colour  # noqa: PLC0415  (heavy; imported on first use)
+        import colour  # heavy; imported on first use
 
     return colour
 

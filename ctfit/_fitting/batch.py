@@ -101,14 +101,16 @@ def fit_batch(
         if isinstance(got, Exception):
             results[i] = got
         elif chunked:
-            results[i] = _caught(lambda: finish_fit(got, solve_prepared(got, solver, max_steps), solver, time.perf_counter(), max_steps=max_steps), return_errors)
+            results[i] = _caught(lambda: finish_fit(got, solve_prepared(got, solver, max_steps), solver, time.perf_counter(), max_steps=max_steps),
+                                 return_errors)
         else:
             preps[i] = got
     for group in _groups(preps, solver, max_steps):
         for call in _calls(group, preps):
             outs = _caught(lambda: _solve([preps[i] for i in call], solver, max_steps, width), return_errors)
             for i, out in zip(call, outs if isinstance(outs, list) else [outs] * len(call)):
-                results[i] = out if isinstance(out, Exception) else _caught(lambda: finish_fit(preps[i], out, solver, time.perf_counter(), max_steps=max_steps), return_errors)
+                results[i] = out if isinstance(out, Exception) else _caught(
+                    lambda: finish_fit(preps[i], out, solver, time.perf_counter(), max_steps=max_steps), return_errors)
     share = (time.perf_counter() - t0) / max(len(measurements), 1)
     for r in results:
         if isinstance(r, FitResult):
@@ -141,7 +143,7 @@ def _sizes(prep: PreparedFit) -> tuple[int, int]:
 
 def _layout(prep: PreparedFit, solver: str, max_steps: int):
     """What must be equal for two fits to share a program, up to the padded sizes."""
-    shapes = lambda tree: tuple((a.shape, a.dtype.name) for a in jax.tree.leaves(tree))  # noqa: E731
+    shapes = lambda tree: tuple((a.shape, a.dtype.name) for a in jax.tree.leaves(tree))
     grid = None if prep.grid is None else prep.grid.shape
     return (jax.tree.structure(prep.problem), shapes(prep.problem.fixed), jax.tree.structure(prep.u0), shapes(prep.u0), grid,
             prep.options(solver, max_steps))
@@ -227,7 +229,7 @@ def _solve(preps: list[PreparedFit], solver: str, max_steps: int, width: int) ->
         return [jax.device_get(cached_call("fit", fit_core, first.problem, first.u0, first.grid, *options))]
     size = batch_size(len(preps))
     members = preps + [first] * (size - len(preps))
-    stack = lambda *xs: np.stack(xs)  # noqa: E731 — on the host: no small programs to compile
+    stack = lambda *xs: np.stack(xs)  # on the host: no small programs to compile
     problems = jax.tree.map(stack, *(p.problem for p in members))
     u0s = jax.tree.map(stack, *(p.u0 for p in members))
     active = np.arange(size) < len(preps)

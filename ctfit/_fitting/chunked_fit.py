@@ -67,7 +67,7 @@ def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
     from .chunks import chunk_rows
 
     rows = chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
-    host = lambda a: None if a is None else np.asarray(a)  # noqa: E731
+    host = lambda a: None if a is None else np.asarray(a)
     y = np.asarray(problem.y)
     sigma, cos_i, mask = (host(a) for a in (problem.sigma, problem.cos_i, problem.mask))
     geom = jax.tree.map(np.asarray, problem.geom)
@@ -341,7 +341,7 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
 
     def phase(budgets: list[int]) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
-        run = lambda j: kern.run(values[j], lower, upper, budgets[j], tol)  # noqa: E731
+        run = lambda j: kern.run(values[j], lower, upper, budgets[j], tol)
         if len(go) <= 1:  # one seed (a fit from its start alone): no thread
             runs = [run(j) for j in go]
         else:

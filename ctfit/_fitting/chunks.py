@@ -109,7 +109,8 @@ def _parts(problem: Problem, k: int):
 
 def sum_over_chunks(problem: Problem, fn):
     """Σ ``fn(part)`` over the parts of ``problem`` of ``CHUNK`` rows each (:func:`chunk_count`), as a
-    ``lax.scan`` — or ``fn(problem)`` when it is not chunked. ``fn`` returns a pytree of arrays that add up: sums over samples (½‖r‖², Jᵀr, JᵀJ, per-band sums)."""
+    ``lax.scan`` — or ``fn(problem)`` when it is not chunked. ``fn`` returns a pytree of arrays that
+    add up: sums over samples (½‖r‖², Jᵀr, JᵀJ, per-band sums)."""
     k = chunk_count(problem)
     if k == 1:
         return fn(problem)

@@ -339,7 +339,8 @@ def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance
     cost, zero_cost, gn_decrease = float(costs[best]), float(out["zero_cost"]), float(out["gn_decrease"])
     steps = int(np.asarray(out["steps"])[best])
     status = fit_status(np.asarray(ok)[best], math.isfinite(cost), gn_decrease, cost, zero_cost, dtype, tolerance, steps, max_steps)
-    stats: FitStats = {"converged": status.converged, "fit_status": status.value, "steps": steps, "cost": cost, "time_s": time.perf_counter() - t0, "n_samples": n,
+    stats: FitStats = {"converged": status.converged, "fit_status": status.value, "steps": steps, "cost": cost, "time_s": time.perf_counter() - t0,
+                       "n_samples": n,
              "n_params": p, "bic": _bic(cost, zero_cost, n, p, prep.loss, dtype), "loss": prep.loss, "solver": solver, "dtype": jnp.dtype(dtype).name,
              "starts": int(np.asarray(costs).size), "relative_floor": float(problem.floor), "gauss_newton_decrease": gn_decrease,
              "on_bound": labelled(out["u"], np.asarray(out["on_bound"], bool)), "report": False}
@@ -418,13 +419,15 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
         notes.append(worst)
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more max_steps=, or another start)"
-        notes.append(FitWarning(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}", "not_a_minimum"))
+        notes.append(FitWarning(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower "
+                                f"cost{hint}", "not_a_minimum"))
     if explains_nothing:
         notes.append(FitWarning(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
                                 "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another loss=",
                                 "explains_nothing"))
     if not bool(np.asarray(ok)[best]):
-        notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another start, "
+        notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another "
+                                "start, "
                                 "or with fewer lobes", "numerical_failure"))
     return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)
 

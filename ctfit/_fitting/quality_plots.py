@@ -45,8 +45,8 @@ def _new_figure(size):
     from .._runtime import need
 
     need("plots", "a plot of a fit")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
-    from matplotlib.figure import Figure  # noqa: PLC0415
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     fig = Figure(figsize=size, layout="constrained")
     FigureCanvasAgg(fig)
@@ -55,7 +55,7 @@ def _new_figure(size):
 
 def _save(fig, path) -> None:
     if path is not None:
-        from .._io import atomic_save  # noqa: PLC0415
+        from .._io import atomic_save
 
         atomic_save(path, lambda buffer: fig.savefig(buffer, format="png", dpi=110))
 
@@ -265,7 +265,7 @@ def residual_cells(material, data, bins: int = 30, band=None):
     th, td = th[index], td[index]
     use = np.ones(len(data), bool) if band is None else np.asarray(data.band) == int(band)
     ok = use & np.isfinite(model) & np.isfinite(measured) & (model > 0) & (measured > 0)
-    from scipy.stats import binned_statistic_2d  # noqa: PLC0415
+    from scipy.stats import binned_statistic_2d
 
     edges = np.linspace(0.0, 90.0, int(bins) + 1)
     th_ok, td_ok, r = np.clip(th[ok], 0.0, 90.0), np.clip(td[ok], 0.0, 90.0), np.log(model[ok] / measured[ok])

@@ -135,7 +135,7 @@ def _band_rows(mat: Material, se: dict) -> list[str]:
     if len(cols) > 1:
         lines.append("  " + "  ".join(f"{c:>18}" for c in cols))
         for i, lab in enumerate(mat.band_labels):
-            err = lambda name: _at(se.get(name), 0 if (name == "Rd" and st.diffuse == "constant") else i)  # noqa: E731
+            err = lambda name: _at(se.get(name), 0 if (name == "Rd" and st.diffuse == "constant") else i)
             lines.append("  " + "  ".join(f"{c:>18}" for c in [lab] + [_pm(v[i], err(name)) for v, name in values]))
     return lines
 

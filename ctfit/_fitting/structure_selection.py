@@ -14,7 +14,8 @@ from .._runtime import cached_call
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
 
-__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error", "DIFFUSE_FORMS",
+__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error",
+           "DIFFUSE_FORMS",
            "SCREEN_SAMPLES", "SCREEN_TOLERANCE", "HELDOUT_PAIRS", "CHOICE_GAIN"]
 
 
@@ -173,12 +174,12 @@ def choose_structure(
         tried.append((st, fit_screen(st, start, seeded)))
         return tried[-1][1]
 
-    better = lambda new, old: _better(new, old, n_full, held is not None)  # noqa: E731
+    better = lambda new, old: _better(new, old, n_full, held is not None)
 
     # Each stage's later fits have their programs made (loaded or compiled) in the background
     # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
     with concurrent.futures.ThreadPoolExecutor(2) as background:
-        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, report=False,  # noqa: E731
+        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, report=False,
                                                           **_seeding(kwargs, given and not seeded))
         tried.extend(_first_stage(combos, fit_screen, background, screen, given, kwargs, progress))
         best_st, best = _preferred(tried, better)

@@ -228,7 +228,7 @@ def _fit_rows(source: tuple[str, str], span: tuple[int, int], **task) -> dict | 
     to raise (raised here, the worker would print its traceback before the client's one line)."""
     try:
         return _fit_span(source, span, **task)
-    except Exception as e:  # noqa: BLE001 — a corrupt chunk raises whatever its codec raises
+    except Exception as e:  # a corrupt chunk raises whatever its codec raises
         return {"error": f"{source[0]}, rows {span[0]}–{span[1] - 1}: {type(e).__name__}: {e}"}
 
 

@@ -240,7 +240,7 @@ def _result(measurement, structure: Structure, out, values, n_texels: int, t0: f
     if p["m"] is not None:  # lobes in ascending m, per texel
         order = np.argsort(p["m"], axis=1)
         p["m"], p["w"] = np.take_along_axis(p["m"], order, 1), np.take_along_axis(p["w"], order, 1)
-    get = lambda k: np.where(bad, np.nan, np.asarray(out[k], dtype=float))  # noqa: E731  (no fit: NaN)
+    get = lambda k: np.where(bad, np.nan, np.asarray(out[k], dtype=float))  # no fit: NaN
     cost, rmse = get("cost"), get("rmse")
     decrease = get("gauss_newton_decrease")
     finite = np.isfinite(cost) & np.isfinite(rmse) & np.asarray(out["finite"]).astype(bool)

@@ -173,7 +173,8 @@ def check_output_folder(path, option: str = "-o") -> Path:
     return path
 
 
-def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--resume", "--overwrite"), option: str = "--backend", chosen: bool = False) -> Path:
+def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--resume", "--overwrite"), option: str = "--backend",
+                  chosen: bool = False) -> Path:
     """Check an HDF5 chain file before sampling: a stored chain is never wiped unasked.
 
     An existing, non-empty ``path`` needs ``resume`` (continue the chain there; refused when

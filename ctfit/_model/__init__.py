@@ -8,11 +8,13 @@ import lazy_loader
 __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
-        "cook_torrance": ['ambient_reflectance', 'brdf', 'brdf_pairs', 'combine_parts', 'diffuse_reflectance', 'fresnel', 'normal_reflectance', 'specular_constant', 'specular_geometric', 'transmitted_diffuse_factor'],
+        "cook_torrance": ['ambient_reflectance', 'brdf', 'brdf_pairs', 'combine_parts', 'diffuse_reflectance', 'fresnel', 'normal_reflectance',
+                          'specular_constant', 'specular_geometric', 'transmitted_diffuse_factor'],
         "directions": ['Geometry', 'direction_from_angles_deg', 'geometry', 'geometry_from_angles_deg'],
         "distribution": ['beckmann', 'gaussian'],
         "evaluation": ['evaluate', 'evaluate_at', 'goniometer_directions', 'simulate'],
-        "fresnel_equations": ['f0_from_n', 'f0_from_nk', 'fresnel_conductor', 'fresnel_dielectric', 'fresnel_dielectric_f0', 'fresnel_diffuse_reflectance', 'n_from_f0'],
+        "fresnel_equations": ['f0_from_n', 'f0_from_nk', 'fresnel_conductor', 'fresnel_dielectric', 'fresnel_dielectric_f0', 'fresnel_diffuse_reflectance',
+                              'n_from_f0'],
         "intensity": ['Light', 'reflected_intensity'],
         "material": ['DISTRIBUTIONS', 'FAMILIES', 'FRESNELS', 'GEOMETRIES', 'MAX_LOBES', 'Material', 'NORMALIZATIONS', 'Params', 'Structure', 'used'],
         "measurement": ['Measurement', 'band_labels', 'check_samples', 'format_value', 'invalid_value', 'value_rules'],

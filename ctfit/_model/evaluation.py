@@ -217,7 +217,7 @@ def simulate(
         channels = None
     ti, pi, to, po = goniometer_directions(n_pairs, spread=_spread(material), max_theta=max_theta, seed=seed)
     n_bands = len(channels) if channels is not None else len(wl if wl is not None else ())
-    rep = lambda a: np.repeat(a, n_bands)  # noqa: E731
+    rep = lambda a: np.repeat(a, n_bands)
     band = np.tile(np.arange(n_bands), n_pairs)
     base = Measurement(
         theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=band,

@@ -150,7 +150,7 @@ def _shepard(points, logs):
     (Franke & Nielson 1980): a weight falls to 0 before its point leaves the neighbourhood, so the
     result is continuous, exact at the samples and exact for linear functions. NaN outside the
     convex hull of the points (the measured domain)."""
-    from scipy.spatial import ConvexHull, QhullError, cKDTree  # noqa: PLC0415
+    from scipy.spatial import ConvexHull, QhullError, cKDTree
 
     tree = cKDTree(points)
     k = min(NEIGHBOURS + 1, len(points))
@@ -245,7 +245,7 @@ def _evaluate_padded(material, theta_i, theta_o, dphi, **options):
     program serves every number of lit pixels of that order."""
     n = len(theta_i)
     size = 1 << max(n - 1, 1).bit_length()
-    pad = lambda a: np.concatenate([a, np.zeros(size - n)])  # noqa: E731
+    pad = lambda a: np.concatenate([a, np.zeros(size - n)])
     return evaluate_at(material, theta_i=pad(theta_i), theta_o=pad(theta_o), phi_o=pad(dphi), **options)[:n]
 
 
@@ -256,7 +256,7 @@ def _local_angles_deg(normals, light, view):
     den = np.linalg.norm(tl, axis=-1) * np.linalg.norm(tv, axis=-1)
     ok = den > 1e-12
     cos_dphi = np.where(ok, np.sum(tl * tv, axis=-1) / np.where(ok, den, 1.0), 1.0)
-    angle = lambda c: np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))  # noqa: E731
+    angle = lambda c: np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
     return angle(cl), angle(cv), angle(cos_dphi), (cl > 0) & (cv > 0)
 
 
@@ -323,7 +323,7 @@ def render_comparison(material, data, path=None, *, size: int = 128, shape: str 
     for name, intensity in (("fitted", fit_i), ("measured", meas_i)):
         samples[name] = np.zeros(surface.mask.shape + (3,))
         samples[name][surface.mask] = intensity @ to_rgb
-    on = lambda flags: _per_pixel(np.where(surface.mask, _scatter(surface.mask, flags), False).astype(float), supersample)  # noqa: E731
+    on = lambda flags: _per_pixel(np.where(surface.mask, _scatter(surface.mask, flags), False).astype(float), supersample)
     full = _per_pixel(surface.mask.astype(float), supersample) == 1
     lit_px, missing_px = full & (on(lit) == 1), full & (on(missing) > 0)
     compared = lit_px & ~missing_px
@@ -340,7 +340,7 @@ def render_comparison(material, data, path=None, *, size: int = 128, shape: str 
     fig = _comparison_figure(material, data, (right, left, de, full & ~compared & missing_px), (median, p95, int(compared.sum()), coverage),
                              measured_fn.note, max_delta_e)
     if path is not None:
-        from .._io import atomic_save  # noqa: PLC0415
+        from .._io import atomic_save
 
         atomic_save(path, lambda buffer: fig.savefig(buffer, format="png", dpi=110))
     return Comparison(fig, de, median, p95, coverage, measured, fitted, measured_fn.note)
@@ -354,14 +354,14 @@ def _scatter(mask, flags):
 
 def _comparison_figure(material, data, images, stats, note, max_delta_e):
     """The three panels: measured (grey outside the measured domain), fitted, ΔE2000 with its colourbar."""
-    import textwrap  # noqa: PLC0415
+    import textwrap
 
     from .._runtime import need
 
     need("plots", "a rendered comparison")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
-    from matplotlib.colors import ListedColormap  # noqa: PLC0415
-    from matplotlib.figure import Figure  # noqa: PLC0415
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import ListedColormap
+    from matplotlib.figure import Figure
 
     measured, fitted, de, outside = images
     median, p95, n, coverage = stats

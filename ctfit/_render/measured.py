@@ -93,7 +93,7 @@ def measured_tile(material: Material, data: Measurement, scene: Scene, surface: 
     the hemispherical reflectance the data does not give, is the material's R_a = π R_d.
     ``coverage`` is the fraction of object samples with data. ``scene`` is on the data's bands.
     """
-    from scipy.spatial import cKDTree  # noqa: PLC0415
+    from scipy.spatial import cKDTree
 
     normals = surface.normal[surface.mask]
     view = np.asarray(VIEW_DIRECTION)

@@ -25,7 +25,7 @@ def save_png(image: np.ndarray, path) -> Path:
     from .._runtime import need
 
     need("plots", "a rendered picture")
-    from PIL import Image  # noqa: PLC0415
+    from PIL import Image
 
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[-1] not in (3, 4) or a.dtype != np.uint8:

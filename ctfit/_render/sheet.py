@@ -46,10 +46,10 @@ def _label_height(size: int) -> int:
 
 def _font(px: int):
     """DejaVu Sans (shipped with matplotlib, as in the other figures), else Pillow's default."""
-    from PIL import ImageFont  # noqa: PLC0415
+    from PIL import ImageFont
 
     try:
-        from matplotlib import font_manager  # noqa: PLC0415
+        from matplotlib import font_manager
 
         return ImageFont.truetype(font_manager.findfont("DejaVu Sans", fallback_to_default=True), px)
     except (ImportError, OSError, ValueError):
@@ -74,7 +74,7 @@ def assemble_sheet(tiles: list[np.ndarray], names: list[str] | None, size: int, 
     from .._runtime import need
 
     need("plots", "a rendered picture")  # and for _font below
-    from PIL import Image, ImageDraw  # noqa: PLC0415
+    from PIL import Image, ImageDraw
 
     height, width, boxes = grid_layout(len(tiles), size, columns, labels=names is not None)
     bg = np.clip(np.round(np.asarray(eotf_inverse_sRGB(np.asarray(background, dtype=float))) * 255), 0, 255)

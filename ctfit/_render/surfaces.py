@@ -56,7 +56,7 @@ def _pixel_centres(n: int) -> np.ndarray:
 
 @functools.cache
 def _vase_spline():
-    from scipy.interpolate import CubicSpline  # noqa: PLC0415
+    from scipy.interpolate import CubicSpline
 
     y, r = np.asarray(_VASE_POINTS).T
     return CubicSpline(y, r, bc_type="natural")

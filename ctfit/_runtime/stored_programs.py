@@ -405,7 +405,7 @@ def _load_or_compile(name: str, fn: Callable, static, in_def, leaves: list, key:
             out = jax.block_until_ready(run(*leaves))  # a damaged program fails here, not later
         except FileNotFoundError:
             pass  # deleted meanwhile (another process kept its store under STORE_LIMIT): compiled below
-        except Exception as err:  # noqa: BLE001 — a stale or damaged entry: trace instead
+        except Exception as err:  # a stale or damaged entry: trace instead
             warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=3)
             path.unlink(missing_ok=True)
         else:
@@ -437,6 +437,6 @@ def _load_or_compile(name: str, fn: Callable, static, in_def, leaves: list, key:
     if path is not None and getattr(_thread_hits, "count", 0) == hits:
         try:
             _save(path, key, run)
-        except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
+        except Exception as err:  # the cache is an optimisation; never fail a fit over it
             warnings.warn(f"could not write the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=3)
     return run, None
