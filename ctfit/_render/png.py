@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
+from jaxtyping import UInt8
 
 from .._io import atomic_save
 
 __all__ = ["save_png"]
 
 
-def save_png(image: np.ndarray, path) -> Path:
+def save_png(image: UInt8[np.ndarray, "height width 3"], path: str | os.PathLike[str]) -> Path:
     """Write an (H, W, 3) uint8 image as PNG (Pillow), atomically; the parent folder is created.
 
     >>> import numpy as np

@@ -13,8 +13,9 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
+from jaxtyping import ArrayLike, Float
 
-from .._fitting import LOSSES, from_params, make_problem
+from .._fitting import LOSSES, FitResult, from_params, make_problem
 from .._model import Material, Measurement, x64_enabled
 from .engine import Engine
 from .logprob import Layout
@@ -45,7 +46,10 @@ class PosteriorSetup:
     walkers: int
 
 
-def set_up_posterior(target, data: Measurement, *, loss=None, fixed=None, priors=None, walkers=None) -> PosteriorSetup:
+def set_up_posterior(
+    target: FitResult | Material, data: Measurement, *, loss: str | None = None, fixed: tuple[str, ...] | None = None,
+    priors: dict | None = None, walkers: int | None = None,
+) -> PosteriorSetup:
     """The sampling problem of ``target`` (a FitResult or a Material) on ``data``; the arguments
     are :func:`ctfit.sample`'s."""
     if not isinstance(data, Measurement):
@@ -96,11 +100,11 @@ class LogProbability:
         """The number of sampled coordinates."""
         return len(self.labels)
 
-    def __call__(self, coords) -> np.ndarray:
+    def __call__(self, coords: Float[ArrayLike, "*batch dim"]) -> Float[np.ndarray, "*batch"]:
         return self._engine(coords)
 
 
-def log_probability(target, data: Measurement, *, loss: str | None = None, fixed: tuple[str, ...] | None = None,
+def log_probability(target: FitResult | Material, data: Measurement, *, loss: str | None = None, fixed: tuple[str, ...] | None = None,
                     priors: dict | None = None, walkers: int | None = None) -> LogProbability:
     """The log-posterior of the parameters of ``target`` (a :class:`~ctfit.FitResult` or a
     :class:`~ctfit.Material`) given ``data``, the function :func:`ctfit.sample` hands to emcee.
