@@ -30,6 +30,7 @@ fit: install
 
 test: install-test
 	$(BIN)/ruff check ctfit tests scripts
+	$(BIN)/mypy ctfit
 	$(BIN)/python -m pytest -n 2 -q
 
 # Every measured report in docs/ (benchmarks, error against run time, stability) and the
@@ -38,4 +39,4 @@ report: install-test
 	$(BIN)/python scripts/report.py
 
 clean:
-	rm -rf $(VENV) out .jax_cache
+	rm -rf $(VENV) out .jax_cache .mypy_cache

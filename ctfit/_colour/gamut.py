@@ -36,7 +36,7 @@ __all__ = ["desaturate_to_gamut", "in_gamut", "scale_to_display", "srgb_luminanc
 
 
 @functools.cache
-def srgb_luminance() -> np.ndarray:
+def srgb_luminance() -> Float[np.ndarray, " 3"]:
     """Luminance of sRGB's linear channels (Y row of its RGB → XYZ matrix, summing to 1).
 
     >>> [round(float(v), 4) for v in srgb_luminance()]

@@ -147,7 +147,7 @@ def _dominant(xy: ArrayLike, white_xy: ArrayLike, observer: str, eps: float) -> 
 def colour_report(
     material: Material,
     angle_deg: float = 0.0,
-    illuminant: str | tuple[ArrayLike, ArrayLike] = "D65",
+    illuminant: str | tuple[Float[ArrayLike, " wavelengths"], Float[ArrayLike, " wavelengths"]] = "D65",
     colourspace: str = "sRGB",
     observer: str = DEFAULT_OBSERVER,
     chromatic_adaptation: str | None = "CAT02",

@@ -42,13 +42,13 @@ class RGBConversion(eqx.Module):
     ('sRGB', [0.2126, 0.7152, 0.0722])
     """
 
-    matrix: np.ndarray
-    luminance: np.ndarray
+    matrix: Float[np.ndarray, "3 3"]
+    luminance: Float[np.ndarray, " 3"]
     colourspace: str = eqx.field(static=True)
     chromatic_adaptation: str | None = eqx.field(static=True)
 
     @property
-    def white_XYZ(self) -> np.ndarray:
+    def white_XYZ(self) -> Float[np.ndarray, " 3"]:
         """The scene white that maps to RGB (1, 1, 1)."""
         return np.linalg.solve(np.asarray(self.matrix), np.ones(3))
 

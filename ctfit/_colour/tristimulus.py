@@ -102,7 +102,7 @@ def observer_cmfs(observer: str) -> Any:
     return table_entry("MSDS_CMFS", observer, "observer", names)
 
 
-def _illuminant_sd(illuminant: str | tuple[ArrayLike, ArrayLike]) -> tuple[str, Any, bool]:
+def _illuminant_sd(illuminant: str | tuple[Float[ArrayLike, " wavelengths"], Float[ArrayLike, " wavelengths"]]) -> tuple[str, Any, bool]:
     """(name, SpectralDistribution, user_supplied) from a name, an SD or (wavelengths, values)."""
     colour = colour_science()
     if isinstance(illuminant, str):
@@ -164,20 +164,22 @@ class SpectralWeights(eqx.Module):
     ((31, 3), 'D65', [0.3127, 0.3293])
     """
 
-    wavelength_nm: np.ndarray
-    weights: np.ndarray
-    white_XYZ: np.ndarray
+    wavelength_nm: Float[np.ndarray, " bands"]
+    weights: Float[np.ndarray, "bands 3"]
+    white_XYZ: Float[np.ndarray, " 3"]
     illuminant: str = eqx.field(static=True)
     observer: str = eqx.field(static=True)
 
     @property
-    def white_xy(self) -> np.ndarray:
+    def white_xy(self) -> Float[np.ndarray, " 2"]:
         w = np.asarray(self.white_XYZ)
         return w[:2] / w.sum()
 
 
 def spectral_weights(
-    wavelength_nm: Float[ArrayLike, " bands"], illuminant: str | tuple[ArrayLike, ArrayLike] = "D65", observer: str = DEFAULT_OBSERVER
+    wavelength_nm: Float[ArrayLike, " bands"],
+    illuminant: str | tuple[Float[ArrayLike, " wavelengths"], Float[ArrayLike, " wavelengths"]] = "D65",
+    observer: str = DEFAULT_OBSERVER,
 ) -> SpectralWeights:
     """Weights that integrate a reflectance spectrum on ``wavelength_nm`` to XYZ (Y(white) = 1).
 

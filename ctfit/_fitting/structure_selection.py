@@ -126,10 +126,8 @@ def structure_label(st: Structure) -> str:
 
 
 def choose_structure(
-    data: Measurement, *, families: Sequence[str] = DEFAULT_FAMILIES, lobes: Sequence[int] = DEFAULT_LOBES,
-    diffuse: Sequence[str | None] | None = None, geometry: str = "v-cavity", fresnel: str | None = None,
-    progress: Callable[[Iterable], Iterable] | None = None,
-    **kwargs: Any,
+    data: Measurement, *, families: Sequence[str] = DEFAULT_FAMILIES, lobes: Sequence[int] = DEFAULT_LOBES, diffuse: Sequence[str | None] | None = None,
+    geometry: str = "v-cavity", fresnel: str | None = None, progress: Callable[[Iterable], Iterable] | None = None, **kwargs: Any,
 ) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
     """The data-chosen default structure: family × diffuse part × lobe count, by BIC or, on large
     data, by the median relative error on held-out direction pairs.

@@ -1,6 +1,12 @@
 """The Cook–Torrance model: directions, the terms D, G and F, the BRDF, materials and measurements.
 
 The names the rest of the package uses, loaded on first use (``lazy_loader``).
+
+Array annotations (jaxtyping) name their dimensions as ``docs/conventions.md`` ("Array shapes in
+annotations") defines them: ``*batch`` any leading shape shared by one call's arguments (``*#batch``:
+broadcast), ``3`` a direction's (x, y, z) or a colour's components, ``bands`` the material's bands
+(last axis; ``*bands``: or a scalar), ``samples`` a measurement's rows, ``pairs`` distinct direction
+pairs. Inputs are ``ArrayLike``, results ``Array`` (or ``np.ndarray`` where NumPy stays NumPy).
 """
 
 import lazy_loader

@@ -150,13 +150,13 @@ class Params(eqx.Module):
     (True, 3)
     """
 
-    s: Array | np.ndarray | None = None
-    m: Array | np.ndarray | None = None
-    w: Array | np.ndarray | None = None
-    f0: Array | np.ndarray | None = None
-    n: Array | np.ndarray | None = None
-    k: Array | np.ndarray | None = None
-    rd: Array | np.ndarray | None = None
+    s: Float[Array | np.ndarray, ""] | None = None
+    m: Float[Array | np.ndarray, " lobes"] | None = None
+    w: Float[Array | np.ndarray, " lobes"] | None = None
+    f0: Float[Array | np.ndarray, " bands"] | None = None
+    n: Float[Array | np.ndarray, "*bands"] | None = None
+    k: Float[Array | np.ndarray, " bands"] | None = None
+    rd: Float[Array | np.ndarray, "*bands"] | None = None
 
 
 _SPECTRAL_FIELDS = ("f0", "n", "k", "rd")
@@ -197,7 +197,7 @@ class Material:
 
     structure: Structure
     params: Params
-    wavelength_nm: np.ndarray | None = None
+    wavelength_nm: Float[np.ndarray, " bands"] | None = None
     channels: tuple[str, ...] | None = None
     name: str = ""
     meta: dict = dataclasses.field(default_factory=dict)

@@ -146,15 +146,15 @@ class Measurement:
     (4, ['450 nm', '650 nm'], [0, 0, 1, 1])
     """
 
-    theta_i: np.ndarray
-    phi_i: np.ndarray
-    theta_o: np.ndarray
-    phi_o: np.ndarray
-    band: np.ndarray
-    wavelength_nm: np.ndarray | None = None
+    theta_i: Float[np.ndarray, " samples"]
+    phi_i: Float[np.ndarray, " samples"]
+    theta_o: Float[np.ndarray, " samples"]
+    phi_o: Float[np.ndarray, " samples"]
+    band: Int[np.ndarray, " samples"]
+    wavelength_nm: Float[np.ndarray, " bands"] | None = None
     channels: tuple[str, ...] | None = None
-    brdf: np.ndarray | None = None
-    sigma: np.ndarray | None = None
+    brdf: Float[np.ndarray, " samples"] | None = None
+    sigma: Float[np.ndarray, " samples"] | None = None
     meta: dict = dataclasses.field(default_factory=dict)
     source: str = "<memory>"
     band_unknown: bool = False
@@ -184,7 +184,7 @@ class Measurement:
         """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""
         return band_labels(self.wavelength_nm, self.channels, self.band_unknown)
 
-    def directions(self) -> tuple[np.ndarray, np.ndarray]:
+    def directions(self) -> tuple[Float[np.ndarray, "pairs 4"], Int[np.ndarray, " samples"]]:
         """Unique direction pairs (D, 4) as (θ_i, φ_i, θ_o, φ_o) and each sample's pair index (N,).
 
         The pairs are in lexicographic order (a lexsort of the four columns, ~10× faster than
