@@ -18,6 +18,7 @@ import contextlib
 import os
 import threading
 from collections.abc import Callable
+from typing import TypedDict
 
 __all__ = ["deferred", "note_resumable", "on_interrupt", "resumable", "run_cleanups", "set_exit", "sigint", "wait_for_writes"]
 
@@ -29,40 +30,40 @@ def _interrupt(notes: list[str]) -> None:
     raise KeyboardInterrupt  # no command's exit set: what Ctrl-C does by default
 
 
-class _State:
+class _State(TypedDict):
     """What :func:`deferred` and the command's handler share."""
 
-    depth: int = 0  # deferred blocks under way
-    pending: bool = False  # a SIGINT held back until they end
-    resumable: str | None = None  # the chain file being written (note_resumable)
-    exit: Callable[[list[str]], None] = _interrupt  # the command's exit (set_exit)
+    depth: int  # deferred blocks under way
+    pending: bool  # a SIGINT held back until they end
+    resumable: str | None  # the chain file being written (note_resumable)
+    exit: Callable[[list[str]], None]  # the command's exit (set_exit)
 
 
-_state = _State()
+_state: _State = {"depth": 0, "pending": False, "resumable": None, "exit": _interrupt}
 
 
 def note_resumable(path) -> None:
     """Record that a chain is being written to ``path``: an interruption can be resumed."""
-    _state.resumable = os.fspath(path)
+    _state["resumable"] = os.fspath(path)
 
 
 def resumable():
     """The chain file recorded by :func:`note_resumable`, or None."""
-    return _state.resumable
+    return _state["resumable"]
 
 
 def set_exit(exit_now: Callable[[list[str]], None]) -> None:
     """The command's exit on SIGINT, ``exit_now(notes)``: called by :func:`sigint`, or when the
     :func:`deferred` block under way ends (with what it adds to the line)."""
-    _state.exit = exit_now
+    _state["exit"] = exit_now
 
 
 def sigint() -> None:
     """A SIGINT arrived (the command's handler): exit now, or when the deferred write ends."""
-    if _state.depth:
-        _state.pending = True
+    if _state["depth"]:
+        _state["pending"] = True
         return
-    _state.exit([])
+    _state["exit"]([])
 
 
 def wait_for_writes(timeout: float) -> None:
@@ -76,15 +77,15 @@ def deferred(done: str | None = None):
     the interrupted line adds when the block ended normally (``"X was written in full"``).
     Without the command's handler (a library user), Ctrl-C behaves as usual."""
     with _guard:
-        _state.depth += 1
+        _state["depth"] += 1
         ended = False
         try:
             yield
             ended = True
         finally:
-            _state.depth -= 1
-            if not _state.depth and _state.pending and threading.current_thread() is threading.main_thread():
-                _state.exit([done] if ended and done else [])
+            _state["depth"] -= 1
+            if not _state["depth"] and _state["pending"] and threading.current_thread() is threading.main_thread():
+                _state["exit"]([done] if ended and done else [])
 
 
 def on_interrupt(cleanup: Callable[[], None]) -> Callable[[], None]:
