@@ -35,6 +35,7 @@ fit: install
 
 test: install-test
 	$(BIN)/ruff check ctfit tests scripts docs_hooks
+	$(BIN)/mypy ctfit
 	$(BIN)/python -m pytest -n 2 -q
 
 # The documentation site in site/ (open site/index.html): the guides of docs/, the API reference
@@ -48,4 +49,4 @@ report: install-test
 	$(BIN)/python scripts/report.py
 
 clean:
-	rm -rf $(VENV) out .jax_cache site
+	rm -rf $(VENV) out .jax_cache site .mypy_cache

@@ -89,7 +89,7 @@ def default_start_x0(lobes: int, n_bands: int, diffuse: bool) -> list[float]:
 def write_merl_file(path: Path, pairs: int | None, seed: int) -> int:
     """A MERL table of the one-lobe RGB metal; ``pairs`` cells above the horizon measured (all
     when None), the rest marked unmeasured. Returns the number of samples a reader gets."""
-    angles = lambda th, td, pd: ctfit.half_diff_deg_to_angles_deg(*(np.degrees(a) for a in (th, td, pd)))  # noqa: E731 — every cell's directions, in file order
+    angles = lambda th, td, pd: ctfit.half_diff_deg_to_angles_deg(*(np.degrees(a) for a in (th, td, pd)))  # every cell's directions, in file order
     ti, pi, to = (a.reshape(-1) for a in ctfit.merl_table(lambda *c: angles(*c)[:3]))
     po = ctfit.merl_table(lambda *c: angles(*c)[3])[0].reshape(-1)
     above = (ti < 90) & (to < 90)
@@ -98,7 +98,7 @@ def write_merl_file(path: Path, pairs: int | None, seed: int) -> int:
     if pairs is not None:
         cells = np.sort(rng.choice(cells, size=min(pairs, cells.size), replace=False))
     mat = Material(METAL, Params(m=np.array([MERL_TRUTH["m"]]), w=np.ones(1), f0=np.array(MERL_TRUTH["f0"])), channels=RGB)
-    rep = lambda a: np.repeat(a[cells], 3)  # noqa: E731
+    rep = lambda a: np.repeat(a[cells], 3)
     geometry = Measurement(theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=np.tile(np.arange(3), cells.size), channels=RGB)
     values = noisy(mat, geometry, seed).brdf
     table = np.full((3, ti.size), np.nan)
@@ -111,7 +111,7 @@ def texel_case(n_texels: int, n_pairs: int, seed: int):
     """(geometry: ``n_pairs`` direction pairs × R, G, B; values (texels, samples); truth m
     (texels,), F0 (texels, 3)) for a one-lobe RGB metal varying over the texels."""
     ti, pi, to, po = goniometer_directions(n_pairs, spread=0.75, seed=seed)
-    rep = lambda a: np.repeat(a, 3)  # noqa: E731
+    rep = lambda a: np.repeat(a, 3)
     geometry = Measurement(theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=np.tile(np.arange(3), n_pairs), channels=RGB,
                            source="<texels>")
     rng = np.random.default_rng([seed, 11])
@@ -142,7 +142,7 @@ def mitsuba_case(folder: Path, n_pairs: int, seed: int, env: dict) -> dict:
     npz = folder / "mitsuba-peer.npz"
     np.savez(npz, light=light, view=view, value=value)
     csv = folder / "mitsuba.csv"
-    rep = lambda a: np.repeat(a, 3)  # noqa: E731
+    rep = lambda a: np.repeat(a, 3)
     write_csv(Measurement(theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=np.tile(np.arange(3), n_pairs), channels=RGB,
                           brdf=(value / view[:, 2]).T.reshape(-1)), csv)
     eta, k = r["eta"], r["k"]

@@ -46,7 +46,7 @@ MATERIALS = ("copper", "gold", "rust")
 
 
 def _setup(x64: bool):
-    import jax  # noqa: PLC0415
+    import jax
 
     jax.config.update("jax_platforms", "cpu")
     if x64:
@@ -57,10 +57,10 @@ def _setup(x64: bool):
 def spectral_methods(jax, material, directions, solid_angles, ambient):
     """{method: (jitted fn(params, normals) -> linear sRGB, params)}: the renderer's shading
     (``ctfit.render_scene``, ``ctfit.shade_linear``) at 1 nm (the reference), 5, 10 and 20 nm."""
-    import equinox as eqx  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import equinox as eqx
+    import jax.numpy as jnp
 
-    from ctfit import render_scene, shade_linear  # noqa: PLC0415
+    from ctfit import render_scene, shade_linear
 
     def spectral(wl):
         scene = render_scene(material, directions=directions, solid_angles=solid_angles, ambient=ambient, wavelength_nm=wl)
@@ -80,10 +80,10 @@ def spectral_methods(jax, material, directions, solid_angles, ambient):
 def rgb_shader(structure, directions, solid_angles, ambient, ra_rgb, rd_rgb, fresnel_rgb):
     """Jitted fn(params, normals) -> linear sRGB of eq. 1 in three channels: the ambient and
     diffuse parts with the colours of R_a and R_d, the specular part with ``fresnel_rgb(V·H)``."""
-    import equinox as eqx  # noqa: PLC0415
-    import jax.numpy as jnp  # noqa: PLC0415
+    import equinox as eqx
+    import jax.numpy as jnp
 
-    from ctfit import VIEW_DIRECTION, geometry, specular_geometric  # noqa: PLC0415
+    from ctfit import VIEW_DIRECTION, geometry, specular_geometric
 
     st = structure
     view = jnp.asarray(VIEW_DIRECTION)
@@ -115,9 +115,9 @@ def rgb_methods(jax, material, directions, solid_angles, ambient):
     """{method: (fn, params)} of the RGB methods (reflectance colours under D65 at 1 nm, white
     lights of Y = 1): the paper's approximation and, with a specular part, the 256-angle table;
     and the table's set-up time in ms (None without a specular part)."""
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
-    from ctfit import (  # noqa: PLC0415
+    from ctfit import (
         XYZ_to_RGB,
         ambient_reflectance,
         average_normal_reflectance,
@@ -173,9 +173,9 @@ def rgb_methods(jax, material, directions, solid_angles, ambient):
 
 
 def delta_e(jax, rgb, ref, scale):
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
-    from ctfit import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion, spectral_weights  # noqa: PLC0415
+    from ctfit import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion, spectral_weights
 
     w = spectral_weights(np.arange(360.0, 831.0, 1.0), "D65")
     conv = rgb_conversion("sRGB", w.white_XYZ, "CAT02")
@@ -198,8 +198,8 @@ def best_time(fn, args, repeat):
 
 def run(args):
     jax = _setup(args.x64)
-    import ctfit  # noqa: PLC0415
-    from ctfit import AMBIENT_FRACTION, LIGHT_DIRECTIONS, SOLID_ANGLES, surface_normals  # noqa: PLC0415
+    import ctfit
+    from ctfit import AMBIENT_FRACTION, LIGHT_DIRECTIONS, SOLID_ANGLES, surface_normals
 
     surf = surface_normals("sphere", args.size)
     normals = surf.normal[surf.mask]
@@ -238,7 +238,7 @@ def run(args):
 
 
 def table(rows, setup, n_pixels, args) -> str:
-    import jax  # noqa: PLC0415
+    import jax
 
     lines = [
         SECTION,

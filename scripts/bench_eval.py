@@ -231,7 +231,8 @@ def run(args):
     t = interleaved_best(jax_runs, max(5, args.repeat))
     t.update(interleaved_best(np_runs, max(2, args.repeat // 4)))
     rows = [
-        dict(dtype=dt, lobes=lobes, grid=N / t[(dt, lobes, "grid")], pairs=N / t[(dt, lobes, "pairs")], np=N / t[(dt, lobes, "np")], npg=N / t[(dt, lobes, "npg")], err=errs[(dt, lobes)])
+        dict(dtype=dt, lobes=lobes, grid=N / t[(dt, lobes, "grid")], pairs=N / t[(dt, lobes, "pairs")], np=N / t[(dt, lobes, "np")],
+             npg=N / t[(dt, lobes, "npg")], err=errs[(dt, lobes)])
         for dt in ("float32", "float64")
         for lobes in (1, 2)
     ]
@@ -268,13 +269,16 @@ def report(rows, extra, N, args, markdown) -> str:
 
     import ctfit
 
-    head = f"{N:,} values = {args.pairs:,} direction pairs x {args.bands} bands; {machine()}; jax {jax.__version__}, numpy {np.__version__}, ctfit {ctfit.__version__}"
+    head = (f"{N:,} values = {args.pairs:,} direction pairs x {args.bands} bands; {machine()}; jax {jax.__version__}, numpy {np.__version__}, ctfit "
+            f"{ctfit.__version__}")
     lines = []
     if markdown:
-        lines += [head, "", "| dtype | lobes | ctfit grid | ctfit pairs | NumPy per value | NumPy grid | ctfit grid / NumPy per value | ctfit grid / NumPy grid | max rel. diff. |", "|---|---|---|---|---|---|---|---|---|"]
+        lines += [head, "", "| dtype | lobes | ctfit grid | ctfit pairs | NumPy per value | NumPy grid | ctfit grid / NumPy per value | ctfit grid / NumPy "
+                            "grid | max rel. diff. |", "|---|---|---|---|---|---|---|---|---|"]
         for r in rows:
             lines.append(
-                f"| {r['dtype']} | {r['lobes']} | {r['grid'] / 1e6:.1f} M/s | {r['pairs'] / 1e6:.1f} M/s | {r['np'] / 1e6:.1f} M/s | {r['npg'] / 1e6:.1f} M/s | {r['grid'] / r['np']:.1f}x | {r['grid'] / r['npg']:.1f}x | {r['err']:.1e} |"
+                f"| {r['dtype']} | {r['lobes']} | {r['grid'] / 1e6:.1f} M/s | {r['pairs'] / 1e6:.1f} M/s | {r['np'] / 1e6:.1f} M/s | {r['npg'] / 1e6:.1f} M/s "
+                f"| {r['grid'] / r['np']:.1f}x | {r['grid'] / r['npg']:.1f}x | {r['err']:.1e} |"
             )
         lines += ["", "Leaving terms out (ctfit grid, one lobe, time per batch):", "", "| dtype | structure | time | values/s |", "|---|---|---|---|"]
         for dt, times in extra:
@@ -285,10 +289,12 @@ def report(rows, extra, N, args, markdown) -> str:
             lines.append(f"- {dt}: " + _saved(times))
     else:
         lines.append(head)
-        lines.append(f"{'dtype':8} {'lobes':>5} {'ctfit grid':>14} {'ctfit pairs':>14} {'numpy/value':>14} {'numpy grid':>14} {'x/value':>8} {'x/grid':>8} {'max rel diff':>12}")
+        lines.append(f"{'dtype':8} {'lobes':>5} {'ctfit grid':>14} {'ctfit pairs':>14} {'numpy/value':>14} {'numpy grid':>14} {'x/value':>8} {'x/grid':>8} "
+                     f"{'max rel diff':>12}")
         for r in rows:
             lines.append(
-                f"{r['dtype']:8} {r['lobes']:5d} {r['grid']:14.3e} {r['pairs']:14.3e} {r['np']:14.3e} {r['npg']:14.3e} {r['grid'] / r['np']:8.1f} {r['grid'] / r['npg']:8.1f} {r['err']:12.1e}"
+                f"{r['dtype']:8} {r['lobes']:5d} {r['grid']:14.3e} {r['pairs']:14.3e} {r['np']:14.3e} {r['npg']:14.3e} {r['grid'] / r['np']:8.1f} "
+                f"{r['grid'] / r['npg']:8.1f} {r['err']:12.1e}"
             )
         lines.append("values/s; x/value = ctfit grid over NumPy per value, x/grid = ctfit grid over NumPy grid")
         for dt, times in extra:

@@ -28,7 +28,8 @@ scratch folder (``_bench_fit_data.py`` describes them).
 - **Mitsuba**: Mitsuba 3's ``roughconductor`` (Dr.Jit ``llvm_ad_rgb``, Adam, log loss, lr 0.05,
   1,000 iterations; ``_mitsuba_fit.py``) on 20,000 RGB direction pairs Mitsuba rendered (Cu,
   α = 0.15) against ``ctfit fit FILE --fresnel conductor --geometry G --no-diffuse`` (warm) with
-  G = ``smith-rational`` (Mitsuba's own G1) and ``smith`` (the exact G1): time and accuracy. Skipped with the reason printed where Dr.Jit cannot run, and in ``--small``.
+  G = ``smith-rational`` (Mitsuba's own G1) and ``smith`` (the exact G1): time and accuracy.
+  Skipped with the reason printed where Dr.Jit cannot run, and in ``--small``.
 
 Run: ``.venv/bin/python scripts/bench_fit.py [--small] [--repeat N] [--docs DIR] [--no-merl]
 [--no-mitsuba] [--no-texels] [--no-batch]``.
@@ -176,7 +177,8 @@ def primed_by(b: Bench, n: int, seed: int) -> Path:
     folder = b.folder(f"prime-{n}")
     path = data.write_scattered(folder / f"scattered-{n}.csv", n, seed)
     cache = b.folder("primed-cache")
-    b.ctfit(["fit", str(path), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "--json", "-q"], cache, f"ctfit (priming with {n:,} samples)")
+    b.ctfit(["fit", str(path), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "--json", "-q"], cache,
+            f"ctfit (priming with {n:,} samples)")
     return cache
 
 
@@ -212,7 +214,8 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
             runs["cold"].append(r.wall_s)
             runs["cold_fit_s"].append(doc["fit"]["time_s"])
         if other:
-            r, res["new"] = b.ctfit(["fit", str(other), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "--json", "-q"], warm_cache, "ctfit (new size)")
+            r, res["new"] = b.ctfit(["fit", str(other), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "--json", "-q"],
+                                    warm_cache, "ctfit (new size)")
             runs["new"].append(r.wall_s)
             runs["new_fit_s"].append(res["new"]["fit"]["time_s"])
             b.restore(primed, warm_cache)  # what the new size added is gone for the next round
@@ -224,7 +227,8 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
     for _ in range(2):  # the first may store its own program (the library's key can differ from the command's)
         inproc = run([PY, "-c", IN_PROCESS, str(path)], env=dict(b.env, JAX_COMPILATION_CACHE_DIR=str(warm_cache))).check("ctfit.fit in process")
     out = {k: median(v) for k, v in runs.items() if v}
-    out.update(n=n, new_n=new_n, in_process=json.loads(inproc.stdout.strip().splitlines()[-1]), scipy_cost=res["scipy"]["cost"], scipy_nfev=res["scipy"]["nfev"],
+    out.update(n=n, new_n=new_n, in_process=json.loads(inproc.stdout.strip().splitlines()[-1]), scipy_cost=res["scipy"]["cost"],
+               scipy_nfev=res["scipy"]["nfev"],
                ctfit_cost=res["warm"]["fit"]["cost"], ctfit_steps=res["warm"]["fit"]["steps"], converged=res["warm"]["fit"]["converged"],
                scipy_rec=recovery(res["scipy"]), ctfit_rec=recovery(_ctfit_params(res["warm"])), peak_mb=res["warm_peak_mb"],
                scipy_fit_s=res["scipy"]["fit_s"], runs=len(runs["warm"]))
@@ -244,13 +248,15 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     files = data.write_batch(folder / "files", n_files, n_samples, seed)
     start = scipy_start(folder / "start.json", 2, len(data.WL31), True)
     cache = b.folder("batch-cache")
-    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
+    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o",
+             str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
     t_scipy, t_ctfit = [], []
     for _ in range(b.repeat):
         r, sp = scipy_run(b, start, files)
         t_scipy.append(r.wall_s)
         out = b.folder("batch-out")
-        r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o", str(out)], cache, "ctfit fit DIR")
+        r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o", str(out)],
+                       cache, "ctfit fit DIR")
         t_ctfit.append(r.wall_s)
         peak = r.peak_mb
     docs = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.fit.json"))}
@@ -414,7 +420,8 @@ def targets(fl: dict, cases: list[dict], bat: dict | None, mer: dict | None, mit
                  max(c["warm"] - c["warm_fit_s"] - fl["jax"], 0.0), "fit()'s set-up and loading the stored program": c["warm_fit_s"] - solve,
                  "the solve": solve}
         name = max(parts, key=parts.get)
-        return f"{name}: {parts[name]:.2f} s of {c['warm']:.2f} s (" + ", ".join(f"{k.removeprefix('the ')} {v:.2f} s" for k, v in parts.items() if k != name) + ")"
+        return (f"{name}: {parts[name]:.2f} s of {c['warm']:.2f} s "
+                "(") + ", ".join(f"{k.removeprefix('the ')} {v:.2f} s" for k, v in parts.items() if k != name) + ")"
 
     def failed(target, case):
         if case is not None and "failed" in case:
@@ -442,7 +449,8 @@ def targets(fl: dict, cases: list[dict], bat: dict | None, mer: dict | None, mit
         if "new" in c:
             d = c["new"] - c["warm"]
             rows.append((f"new sample count ({c['new_n']:,}): within 0.3 s of warm", f"{d:+.2f} s ({_s(c['new'])} vs {_s(c['warm'])})",
-                         "yes" if d <= 0.3 else f"no: {d - 0.3:.2f} s over", "" if d <= 0.3 else f"fit(): {c['new_fit_s']:.2f} s against {c['warm_fit_s']:.2f} s warm"))
+                         "yes" if d <= 0.3 else f"no: {d - 0.3:.2f} s over", "" if d <= 0.3 else
+                         f"fit(): {c['new_fit_s']:.2f} s against {c['warm_fit_s']:.2f} s warm"))
     c = next(c for c in cases if c["n"] == big)
     if "failed" not in c:
         r = _step_ratio(c)
@@ -463,7 +471,8 @@ def targets(fl: dict, cases: list[dict], bat: dict | None, mer: dict | None, mit
     if mit is not None and "skipped" not in mit and not failed(target, mit):
         fast = mit["ctfit"] < mit["peer"]
         acc_f0, acc_a = mit["peer_df0"] / max(mit["ctfit_df0"], 1e-300), mit["peer_da"] / max(mit["ctfit_da"], 1e-300)
-        bad = [x for x, good in (("slower", fast), (f"α only {acc_a:.1f}× as accurate", acc_a >= 10), (f"F0 only {acc_f0:.1f}× as accurate", acc_f0 >= 10)) if not good]
+        bad = [x for x, good in (("slower", fast), (f"α only {acc_a:.1f}× as accurate", acc_a >= 10),
+                                 (f"F0 only {acc_f0:.1f}× as accurate", acc_f0 >= 10)) if not good]
         rows.append((target, f"peer / ctfit time {_ratio(mit['peer'] / mit['ctfit'])} ({_s(mit['ctfit'])} vs {_s(mit['peer'])}); errors of the peer / "
                      f"ctfit: F0 {acc_f0:.0f}×, α {acc_a:.0f}×", "yes" if not bad else "no: " + ", ".join(bad), ""))
     return rows
@@ -504,7 +513,8 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
          f"`scripts/bench_fit.py{' --small' if args.small else ''} --repeat {reps}` ({datetime.date.today().isoformat()}; {os.cpu_count()}-core "
          f"{cpu}, shared with other jobs: load average {load:.1f} at the end; Python {platform.python_version()}, JAX {jax.__version__} on CPU, NumPy "
          f"{np.__version__}, SciPy {scipy.__version__}; the run took {(time.perf_counter() - started) / 60:.0f} min). Every time is a **whole process** "
-         f"(interpreter start to exit, measured from outside), {'the median of ' + str(reps) + ' runs' if reps > 1 else 'one run'}; the columns of a case alternate run by run. ctfit runs "
+         f"(interpreter start to exit, measured from outside), {'the median of ' + str(reps) + ' runs' if reps > 1 else 'one run'}; the columns of a case "
+         "alternate run by run. ctfit runs "
          "as users run it, `ctfit fit FILE`, float64, with its cache folder (`JAX_COMPILATION_CACHE_DIR`: JAX's compilation cache and "
          "ctfit's store of compiled fit programs) empty (**cold**: a new folder for every run, the first run on a machine) or filled by an "
          "earlier run (**warm**). SciPy runs as its users would write it: a process that reads the same CSV with NumPy and calls "
@@ -522,7 +532,8 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
           f"| `ctfit --version` | {_s(fl['version'])} |", ""]
     L += ["### Scattered samples", "",
           "Every row its own direction pair, one of 31 bands (400–700 nm) at random; two lobes (m = 0.2, 0.4; w = 0.6, 0.4), s = 0.9 with "
-          "R_d = F0/π, F0 0.5 → 0.95, 2 % noise, relative loss (`ctfit fit FILE --lobes 2 --loss relative`: the same least-squares problem as the SciPy peer).", ""]
+          "R_d = F0/π, F0 0.5 → 0.95, 2 % noise, relative loss (`ctfit fit FILE --lobes 2 --loss relative`: the same least-squares problem as the SciPy "
+          "peer).", ""]
     L += [f"Failed, {c['n']:,} samples: {c['failed']}" for c in cases if "failed" in c]
     ok = [c for c in cases if "failed" not in c]
     L += ["| | " + " | ".join(f"{c['n']:,} samples" for c in ok) + " |", "|---|" + "---|" * len(ok)] if ok else []
@@ -540,7 +551,8 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
     row("ctfit, new sample count, warm cache", lambda c: f"{_s(c['new'])} ({c['new_n']:,} samples)" if "new" in c else "—")
     row("ctfit, warm from another size (the cache one fit of another file size left)",
         lambda c: f"{_s(c['other'])} (fit() {c['other_fit_s']:.2f} s; cache from {c['prime_n']:,} samples)" if "other" in c else "—")
-    row("in one warm process: `ctfit.fit` first call (loads the stored program) / second call", lambda c: f"{c['in_process']['first_s']:.2f} s / {c['in_process']['second_s']:.2f} s")
+    row("in one warm process: `ctfit.fit` first call (loads the stored program) / second "
+        "call", lambda c: f"{c['in_process']['first_s']:.2f} s / {c['in_process']['second_s']:.2f} s")
     row("one Levenberg–Marquardt step (a one-start fit's time / its steps) / one evaluation of residual, Jᵀr and JᵀJ alone",
         lambda c: f"{_step_ratio(c):.2f}× ({_step_s(c) * 1e3:.1f} ms / {c['in_process']['normal_s'] * 1e3:.1f} ms)")
     row("speed-up, warm (SciPy / ctfit)", lambda c: _ratio(c["scipy"] / c["warm"]))
@@ -555,7 +567,8 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
         L += ["", "### Many files", "",
               f"{bat['files']} files × {bat['samples']:,} scattered samples of one geometry (each its own truth and noise): one `ctfit fit DIR -o OUT "
               "--lobes 2` process (warm) against one SciPy process looping over the files.", "",
-              "| SciPy loop | ctfit fit DIR | speed-up | ctfit peak memory | results | same cost (10⁻⁶) | lower cost: ctfit / SciPy |", "|---|---|---|---|---|---|---|",
+              "| SciPy loop | ctfit fit DIR | speed-up | ctfit peak memory | results | same cost (10⁻⁶) | lower cost: ctfit / SciPy "
+              "|", "|---|---|---|---|---|---|---|",
               f"| {_s(bat['scipy'])} | {_s(bat['ctfit'])} | {_ratio(bat['scipy'] / bat['ctfit'])} | {bat['peak_mb']:.0f} MB | {bat['results']} "
               f"({bat['converged']} converged) | {bat['same']} | {bat['ctfit_lower']} / {bat['scipy_lower']} |"]
     if mer and "failed" in mer:
@@ -563,10 +576,12 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
     elif mer:
         L += ["", "### MERL-sized", "",
               f"A MERL `.binary` table of a one-lobe RGB metal (m = 0.15, F0 = 0.9, 0.7, 0.5, 2 % noise), {mer['pairs']:,} cells measured "
-              f"(× R, G, B = {mer['samples']:,} samples{'; a full table has 1,096,216 cells above the horizon' if mer['pairs'] < 1_000_000 else ', every cell above the horizon'}): "
+              f"(× R, G, B = {mer['samples']:,} "
+              f"samples{'; a full table has 1,096,216 cells above the horizon' if mer['pairs'] < 1_000_000 else ', every cell above the horizon'}): "
               "`ctfit fit FILE --lobes 1 --no-diffuse`.", "",
               "| run | wall time | fit() | peak memory | m | F0 (R, G, B) | converged |", "|---|---|---|---|---|---|---|",
-              f"| warm | {_s(mer['warm'])} | {mer['fit_s']:.2f} s | {mer['peak_mb']:.0f} MB | {mer['m']:.5f} | {', '.join(f'{x:.4f}' for x in mer['f0'])} | {mer['converged']} |",
+              f"| warm | {_s(mer['warm'])} | {mer['fit_s']:.2f} s | {mer['peak_mb']:.0f} MB | {mer['m']:.5f} | {', '.join(f'{x:.4f}' for x in mer['f0'])} | "
+              f"{mer['converged']} |",
               f"| cold | {_s(mer['cold'])} | | {mer['cold_peak_mb']:.0f} MB | | | |"]
     L += ["", "### Per texel", ""]
     if tex is None or "skipped" in tex or "failed" in tex:
@@ -576,9 +591,11 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
         L += [f"`ctfit.fit_batch(geometry, values=...)` in one process: {r0['texels']:,} texels × {r0['samples']} samples (67 direction pairs × R, G, B), "
               "one lobe, no diffuse part, F0 per channel; each texel its own m (0.1–0.3) and F0 (0.3–0.95), 2 % noise. Time of a call after a first, "
               f"compiling one on {r0['warmup']:,} texels.", "",
-              "| dtype | texels per second | time | first call (compiles) | converged | median rel. error of m | median max ΔF0 |", "|---|---|---|---|---|---|---|"]
+              "| dtype | texels per second | time | first call (compiles) | converged | median rel. error of m | median max ΔF0 "
+              "|", "|---|---|---|---|---|---|---|"]
         for r in tex["rows"]:
-            L.append(f"| {r['dtype']} | {r['per_s']:,.0f} | {_s(r['time_s'])} | {_s(r['first_s'])} | {r['converged']:.1%} | {r['m_err']:.1e} | {r['f0_err']:.1e} |")
+            L.append(f"| {r['dtype']} | {r['per_s']:,.0f} | {_s(r['time_s'])} | {_s(r['first_s'])} | {r['converged']:.1%} | {r['m_err']:.1e} | "
+                     f"{r['f0_err']:.1e} |")
     L += ["", "### Against Mitsuba 3", ""]
     if mit is None or "skipped" in mit or "failed" in mit:
         L.append(f"Failed: {mit['failed']}." if mit and "failed" in mit else f"Skipped: {mit['skipped'] if mit else 'not run (--no-mitsuba)'}.")
@@ -624,7 +641,8 @@ def _source_digest() -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", "--small", dest="small", action="store_true", help="small version (2,000 samples, 8 files, MERL 100,000 pairs, 2,000 texels, no Mitsuba)")
+    ap.add_argument("--quick", "--small", dest="small", action="store_true", help="small version (2,000 samples, 8 files, MERL 100,000 pairs, 2,000 texels, "
+                                                                                  "no Mitsuba)")
     ap.add_argument("--repeat", type=int, default=None, help="runs per figure (median); default 3, 1 with --small")
     ap.add_argument("--no-merl", action="store_true", help="skip the MERL-sized case")
     ap.add_argument("--no-batch", action="store_true", help="skip the many-files case")
@@ -673,7 +691,7 @@ def attempt(what: str, fn, *args, **kwargs) -> dict:
     fails or hangs (killed at the time limit) does not cost the others."""
     try:
         return fn(*args, **kwargs)
-    except Exception as e:  # noqa: BLE001 — reported in the section, and in the exit status
+    except Exception as e:  # reported in the section, and in the exit status
         reason = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         print(f"{what}: failed: {reason}", flush=True)
         return dict(failed=reason)

@@ -51,7 +51,8 @@ import ctfit  # noqa: E402
 
 SECTION = "## Results"
 MAX_THETA = 80.0
-FILES = [*sorted((ROOT / "measurements" / "testbed").glob("*.csv")), *(ROOT / "measurements" / "brdf" / n for n in ("retro-gray-tape.dat", "retro-3M-jaune.dat", "pink-felt-1d.alta"))]
+FILES = [*sorted((ROOT / "measurements" / "testbed").glob("*.csv")),
+         *(ROOT / "measurements" / "brdf" / n for n in ("retro-gray-tape.dat", "retro-3M-jaune.dat", "pink-felt-1d.alta"))]
 QUICK_FILES = [ROOT / "measurements" / "brdf" / "pink-felt-1d.alta"]
 PARAM_OUT = {"retro-gray-tape.dat": "INV_STERADIAN_COSINE_FACTOR"}  # its README: the file lacks the line
 METAL_FRESNELS, METAL_DIFFUSES = ("f0", "conductor"), (None, "F0/pi", "spectrum", "constant")
@@ -203,7 +204,7 @@ def reference_errors(doc: Path) -> dict:
     if head is None:
         return {}
     names = [c.strip() for c in head.strip("|").split("|")]
-    pct = lambda c: float(c.split("%")[0]) / 100 if "%" in c else float("nan")  # noqa: E731
+    pct = lambda c: float(c.split("%")[0]) / 100 if "%" in c else float("nan")
     out = {}
     for ln in lines:
         cells = [c.strip() for c in ln.strip("|").split("|")]
@@ -234,7 +235,7 @@ def default_section(rows: list[dict], refs: dict, args, started: float, load: tu
 def cells(row: dict) -> list[str]:
     """The row's cells in the order of ``COLUMNS``."""
     d, b, s, m = row["default"], row["best"], row["scipy"], row["mitsuba"]
-    pct = lambda x: f"{100 * x:.2f} %"  # noqa: E731
+    pct = lambda x: f"{100 * x:.2f} %"
     mits = [pct(m["median"]), pct(m["p90"]), f"{m['wall_s']:.1f}"] if "skipped" not in m else ["skipped", "skipped", "skipped"]
     return [row["file"], f"{row['samples']:,}", pct(d["median"]), pct(d["p90"]), f"{d['cold_s']:.1f}", f"{d['warm_s']:.1f}", pct(b["median"]),
             pct(b["p90"]), b["structure"], f"{b['search_s']:.0f}", pct(s["median"]), pct(s["p90"]), f"{s['wall_s']:.1f}", *mits]
@@ -258,7 +259,8 @@ def section(rows: list[dict], args, started: float, load: tuple[float, float], p
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("files", type=Path, nargs="*", help="data files (default: the test-bed and the three ALTA files)")
-    ap.add_argument("--quick", "--small", dest="quick", action="store_true", help="smoke run: the pink felt only, one search structure per family, 2 starts, 20 Adam steps")
+    ap.add_argument("--quick", "--small", dest="quick", action="store_true", help="smoke run: the pink felt only, one search structure per family, 2 starts, "
+                                                                                  "20 Adam steps")
     ap.add_argument("--starts", type=int, default=None, help="starts per search fit (default 20; --quick: 2)")
     ap.add_argument("--losses", default=None, help=f"comma-separated losses for the search (default: {','.join(SEARCH_LOSSES)}; --quick: log)")
     ap.add_argument("--steps", type=int, default=None, help="Adam steps of the Mitsuba peer (default 1000; --quick: 20)")

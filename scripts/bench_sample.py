@@ -66,7 +66,7 @@ class NumpyLogProb:
 
         pairs, index = data.directions()
         g = ctfit.geometry_from_angles_deg(*pairs.T)
-        a = lambda x: np.asarray(x, dtype=float)  # noqa: E731
+        a = lambda x: np.asarray(x, dtype=float)
         self.valid = a(g.valid)[:, None] > 0
         self.tan2 = a(g.tan2_h)
         self.cos_vh = np.clip(a(g.cos_vh), 0, 1)[:, None]

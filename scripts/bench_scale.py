@@ -131,7 +131,8 @@ def database(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
         "scipy": lambda fs: scipy_cmd(start, fs, 2, True),
         "fit loop": lambda fs: [PY, "-c", LOOP, "2", "F0/pi", *map(str, fs)],
         "fit_batch": lambda fs: [CTFIT, "fit", *map(str, fs), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(out)],
-        "--workers 2": lambda fs: [CTFIT, "fit", *map(str, fs), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(out), "--workers", "2"],
+        "--workers 2": lambda fs: [CTFIT, "fit", *map(str, fs), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "-q", "-o", str(out), "--workers",
+                                   "2"],
     }
     res = {}
     for name, cmd in modes.items():

@@ -74,7 +74,7 @@ def cos_of(deg):
 def compute():
     """The figure's data: swatch angles, their sRGB (3 rows), the display scale, F0_avg, the fine
     angles and the ΔE00 between the rows there, and the data's source."""
-    import colour  # noqa: PLC0415
+    import colour
 
     wl_data, n_data, k_data, source = load_copper()
     wl = np.arange(360.0, 831.0)  # the observer's 1 nm grid; n, k linear, held at the ends
@@ -103,11 +103,11 @@ def compute():
 
 def plot(path, swatch_deg, srgb, f0_mean, fine_deg, de, source) -> None:
     """The swatches (three rows against angle) above the ΔE00 curves, written to ``path``."""
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-    from matplotlib.patches import Rectangle  # noqa: PLC0415
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
 
     fig = plt.figure(figsize=(11, 6.4))
     grid = fig.add_gridspec(2, 1, height_ratios=[1.25, 1], hspace=0.28, left=0.2, right=0.97, top=0.9, bottom=0.09)

@@ -32,13 +32,13 @@ def main():
     ap.add_argument("--size", type=int, default=192, help="tile side in pixels")
     args = ap.parse_args()
 
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
-    import ctfit  # noqa: PLC0415
-    from ctfit import LIGHT_DIRECTIONS, SOLID_ANGLES, render_materials  # noqa: PLC0415
+    import ctfit
+    from ctfit import LIGHT_DIRECTIONS, SOLID_ANGLES, render_materials
 
     names = METALS + NONMETALS
     materials = [ctfit.load_material(ROOT / "configs" / f"{n}.toml") for n in names]

@@ -23,11 +23,11 @@ FIGURES = ROOT / "docs" / "figures"
 
 
 def main():
-    import jax  # noqa: PLC0415
+    import jax
 
     jax.config.update("jax_enable_x64", True)
-    import ctfit  # noqa: PLC0415
-    from ctfit import render_compare, render_materials, save_png  # noqa: PLC0415
+    import ctfit
+    from ctfit import render_compare, render_materials, save_png
 
     names = ("copper", "gold", "obsidian", "rust", "lunar-dust")
     mats = [ctfit.load_material(ROOT / "configs" / f"{n}.toml") for n in names]

@@ -131,8 +131,8 @@ def f0_true(wl):
 
 
 def make_case(case: Case):
-    import ctfit  # noqa: PLC0415
-    from ctfit import evaluate, simulate  # noqa: PLC0415
+    import ctfit
+    from ctfit import evaluate, simulate
 
     wl = np.linspace(400.0, 700.0, case.bands)
     st = ctfit.Structure(lobes=case.lobes)
@@ -148,8 +148,8 @@ def _rel_rms(f, ref):
 
 def errors(d, m, w, f0, cost) -> dict:
     """Error measures of fitted (m, w, F0) on data set ``d`` (model evaluated by ctfit in float64)."""
-    import ctfit  # noqa: PLC0415
-    from ctfit import evaluate  # noqa: PLC0415
+    import ctfit
+    from ctfit import evaluate
 
     m, w, f0 = (np.asarray(a, dtype=float).reshape(-1) for a in (m, w, f0))
     order = np.argsort(m)
@@ -157,7 +157,8 @@ def errors(d, m, w, f0, cost) -> dict:
     nonfinite = int(np.sum(~np.isfinite(m)) + np.sum(~np.isfinite(w)) + np.sum(~np.isfinite(f0)) + (0 if np.isfinite(cost) else 1))
     out = dict(m=m.tolist(), w=w.tolist())
     if nonfinite:
-        return dict(out, nonfinite=nonfinite, rel_rms_truth=float("nan"), rel_rms_data=float("nan"), m_err=float("nan"), w_err=float("nan"), f0_err=float("nan"), param_err=float("nan"))
+        return dict(out, nonfinite=nonfinite, rel_rms_truth=float("nan"), rel_rms_data=float("nan"), m_err=float("nan"), w_err=float("nan"),
+                    f0_err=float("nan"), param_err=float("nan"))
     fitted = ctfit.Material(d["structure"], ctfit.Params(m=m, w=w, f0=f0), wavelength_nm=d["wl"], name="fit")
     f = evaluate(fitted, d["data"])
     nonfinite += int(np.sum(~np.isfinite(f)))
@@ -174,9 +175,9 @@ def errors(d, m, w, f0, cost) -> dict:
 
 
 def run_ctfit(d, cfg: Config) -> dict:
-    import jax.numpy as jnp  # noqa: PLC0415
+    import jax.numpy as jnp
 
-    from ctfit import fit  # noqa: PLC0415
+    from ctfit import fit
 
     dtype = getattr(jnp, cfg.dtype)
 
@@ -194,7 +195,8 @@ def run_ctfit(d, cfg: Config) -> dict:
         spent += t
     p = r2.material.params
     same = bool(np.array_equal(np.asarray(p.f0), np.asarray(r.material.params.f0)))
-    row = dict(first_s=first, warm_s=min(warm), converged=r2.converged, steps=r2.stats["steps"], nfev=None, cost=r2.stats["cost"], loss_used=r2.loss, warm_same_as_first=same)
+    row = dict(first_s=first, warm_s=min(warm), converged=r2.converged, steps=r2.stats["steps"], nfev=None, cost=r2.stats["cost"], loss_used=r2.loss,
+               warm_same_as_first=same)
     return row | errors(d, p.m, p.w, p.f0, r2.stats["cost"])
 
 
@@ -202,7 +204,7 @@ def scipy_start(d):
     """ctfit's best grid seed (the start of its best-ranked solve, ``ctfit.seed_params``), as
     SciPy's flat vector: logit F0, log m and the weights' logits against w_0 (the sampler's
     unconstrained coordinates)."""
-    import ctfit  # noqa: PLC0415
+    import ctfit
 
     seed = ctfit.seed_params(d["data"], d["structure"], starts=1, loss="sigma")[0]
     f0, m = np.asarray(seed.f0, dtype=float), np.asarray(seed.m, dtype=float)
@@ -214,7 +216,7 @@ def scipy_start(d):
 
 
 def run_scipy(d, method: str, loss: str, x0) -> dict:
-    from scipy.optimize import least_squares  # noqa: PLC0415
+    from scipy.optimize import least_squares
 
     loss = "sigma" if loss == "auto" else loss
     prob = NumpyProblem(d["data"], lobes=d["case"].lobes, loss=loss)
@@ -223,13 +225,14 @@ def run_scipy(d, method: str, loss: str, x0) -> dict:
     sol = least_squares(prob.residual, x0, method=method)
     el = time.perf_counter() - t
     f0, m, w = prob.params(sol.x)
-    row = dict(first_s=el, warm_s=el, converged=bool(sol.status > 0), steps=None, nfev=int(sol.nfev), cost=float(sol.cost), loss_used=loss, warm_same_as_first=True)
+    row = dict(first_s=el, warm_s=el, converged=bool(sol.status > 0), steps=None, nfev=int(sol.nfev), cost=float(sol.cost), loss_used=loss,
+               warm_same_as_first=True)
     return row | errors(d, m, w, f0, sol.cost)
 
 
 def machine() -> dict:
-    import jax  # noqa: PLC0415
-    import scipy  # noqa: PLC0415
+    import jax
+    import scipy
 
     return dict(
         date=datetime.date.today().isoformat(),
@@ -253,7 +256,7 @@ def warm_up():
 
 
 def run(small: bool, log=print) -> dict:
-    import jax  # noqa: PLC0415
+    import jax
 
     jax.config.update("jax_platforms", "cpu")
     jax.config.update("jax_enable_x64", True)
@@ -319,7 +322,8 @@ def run(small: bool, log=print) -> dict:
     rec = recommend(rows, std, robust, challengers, best)
     info["load_end"] = os.getloadavg()
     info["total_s"] = time.perf_counter() - t_start
-    return dict(machine=info, small=small, standard=dataclasses.asdict(std), robust=[dataclasses.asdict(c) for c in robust], rows=rows, recommendation=rec, tolerance=TOL, speed_margin=SPEED_MARGIN)
+    return dict(machine=info, small=small, standard=dataclasses.asdict(std), robust=[dataclasses.asdict(c) for c in robust], rows=rows, recommendation=rec,
+                tolerance=TOL, speed_margin=SPEED_MARGIN)
 
 
 def key(case_or_row):
@@ -385,11 +389,11 @@ def recommend(rows, std: Case, robust, challengers, best) -> dict:
 
 def ctfit_defaults() -> dict:
     """Defaults of ``ctfit.fit`` and of ``ctfit fit`` (the CLI) as (solver, precision, loss)."""
-    import jax.numpy as jnp  # noqa: PLC0415
-    import typer.main  # noqa: PLC0415
+    import jax.numpy as jnp
+    import typer.main
 
-    import ctfit  # noqa: PLC0415
-    from ctfit.cli import app  # noqa: PLC0415
+    import ctfit
+    from ctfit.cli import app
 
     sig = inspect.signature(ctfit.fit).parameters
     lib = (sig["solver"].default, jnp.dtype(sig["dtype"].default).name, sig["loss"].default)
@@ -431,13 +435,14 @@ def short(r) -> str:
 
 
 def plot(res, path: pathlib.Path):
-    import matplotlib  # noqa: PLC0415
+    import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt
 
     rows = [r for r in res["rows"] if r["nonfinite"] == 0 and np.isfinite(r["param_err"])]
-    colours = {"standard": "k", "solver": "tab:red", "precision": "tab:purple", "bands": "tab:blue", "samples": "tab:green", "lobes": "tab:orange", "loss": "tab:brown"}
+    colours = {"standard": "k", "solver": "tab:red", "precision": "tab:purple", "bands": "tab:blue", "samples": "tab:green", "lobes": "tab:orange",
+               "loss": "tab:brown"}
     markers = {"ctfit f64": "o", "ctfit f32": "s", "SciPy lm": "^", "SciPy trf": "v"}
 
     def marker(r):
@@ -446,7 +451,8 @@ def plot(res, path: pathlib.Path):
         return markers["ctfit f32"] if r["dtype"] == "float32" else markers["ctfit f64"]
 
     fig, axs = plt.subplots(1, 2, figsize=(13, 5.5))
-    for ax, field, name in ((axs[0], "rel_rms_truth", "relative RMS error against the noise-free truth"), (axs[1], "param_err", "parameter error max(|Δm|/m, |Δw|, |ΔF0|)")):
+    for ax, field, name in ((axs[0], "rel_rms_truth", "relative RMS error against the noise-free "
+                                                      "truth"), (axs[1], "param_err", "parameter error max(|Δm|/m, |Δw|, |ΔF0|)")):
         for r in rows:
             scipy_pt = r["impl"].startswith("SciPy")
             c = colours.get(r["axis"], "grey")
@@ -468,7 +474,8 @@ def plot(res, path: pathlib.Path):
         ax.grid(True, which="both", alpha=0.25)
         ax.xaxis.label.set_fontsize(8)
     handles = [plt.Line2D([], [], ls="", marker="o", color=c, label=f"axis: {a}") for a, c in colours.items()]
-    handles += [plt.Line2D([], [], ls="", marker=m, color="0.3", markerfacecolor=("white" if k.startswith("SciPy") else "0.3"), label=k) for k, m in markers.items()]
+    handles += [plt.Line2D([], [], ls="", marker=m, color="0.3", markerfacecolor=("white" if k.startswith("SciPy") else "0.3"), label=k) for k,
+                m in markers.items()]
     handles.append(plt.Line2D([], [], ls="--", color="0.3", marker="o", markerfacecolor="none", markersize=10, label="Pareto front (warm times)"))
     axs[1].legend(handles=handles, fontsize=7, loc="upper right")
     fig.suptitle("ctfit.fit and SciPy least_squares on synthetic Cook–Torrance data (2 % noise): error against wall time", fontsize=10)
@@ -515,7 +522,8 @@ def markdown(res, doc: pathlib.Path, fig: pathlib.Path) -> str:
         "steps for the best of its seeds; for SciPy the number of residual evaluations (nfev, including the finite-difference Jacobian's)."
     )
     lines.append("")
-    lines.append("| axis | value | run | samples (pairs × bands) | first call, s | warm, s | converged | steps | rel. RMS vs truth | rel. RMS vs data | max \\|Δm\\|/m | max \\|Δw\\| | max \\|ΔF0\\| | non-finite |")
+    lines.append("| axis | value | run | samples (pairs × bands) | first call, s | warm, s | converged | steps | rel. RMS vs truth | rel. RMS vs data | max "
+                 "\\|Δm\\|/m | max \\|Δw\\| | max \\|ΔF0\\| | non-finite |")
     lines.append("|---|---|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         steps = str(r["steps"]) if r["steps"] is not None else f"nfev {r['nfev']}"
@@ -562,7 +570,8 @@ def markdown(res, doc: pathlib.Path, fig: pathlib.Path) -> str:
     if losses:
         obs.append("Losses on the standard data (relative RMS error against the truth, parameter error, warm time): default `auto` (σ) "
                    f"{d_std['rel_rms_truth']:.2e}, {d_std['param_err']:.2e}, {_t(d_std['warm_s'])} s; "
-                   + "; ".join(f"`{r['loss']}` {r['rel_rms_truth']:.2e}, {r['param_err']:.2e}, {_t(r['warm_s'])} s{'' if within(r, best) else ' (outside the tolerance)'}"
+                   + "; ".join(f"`{r['loss']}` {r['rel_rms_truth']:.2e}, {r['param_err']:.2e}, {_t(r['warm_s'])} "
+                               f"s{'' if within(r, best) else ' (outside the tolerance)'}"
                                for r in losses)
                    + ". The noise is relative, so σ weighting is the maximum-likelihood choice.")
     for v in rec["challengers"]:
@@ -588,9 +597,11 @@ def markdown(res, doc: pathlib.Path, fig: pathlib.Path) -> str:
         f"Rule for the recommendation: ctfit's current default (solver `lm`, float64, loss `auto`) stays unless another configuration is within the "
         f"tolerance on the standard case (converged, no non-finite values, relative RMS error against the truth and parameter error each ≤ {TOL}× the "
         f"best of any run on the same data) and at least {SPEED_MARGIN:.0%} faster warm there, and then, run over the bands, samples and lobes axes, "
-        f"within the tolerance everywhere and nowhere more than {SPEED_MARGIN:.0%} slower than the default; among several such, the smallest total warm time wins."
+        f"within the tolerance everywhere and nowhere more than {SPEED_MARGIN:.0%} slower than the default; among several such, the smallest total warm time "
+        "wins."
         + (" (`--small` runs no robustness points: its recommendation rests on the standard case alone.)" if res["small"] else
-           " Robustness points (run for every challenger): " + ", ".join(f"{c['lobes']} lobe(s) × {c['bands']} bands × {c['pairs']:,} pairs" for c in res["robust"])
+           " Robustness points (run for every challenger): "
+           + ", ".join(f"{c['lobes']} lobe(s) × {c['bands']} bands × {c['pairs']:,} pairs" for c in res["robust"])
            + ("." if rec["challengers"] else "; there was no challenger, so none ran."))
     )
     lines.append("")

@@ -107,7 +107,7 @@ def measurement(name: str, n_pairs: int = N_PAIRS) -> ctfit.Measurement:
                   f"(sin t cos p, sin t sin p, cos t) computed in float64 from the rounded angles, rounded to {DIGITS} significant digits",
         "noise": "none",
     }
-    rep = lambda a: np.repeat(a, 3)  # noqa: E731
+    rep = lambda a: np.repeat(a, 3)
     return ctfit.Measurement(theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=np.tile(np.arange(3), n_pairs), channels=CHANNELS,
                              brdf=values.reshape(-1), meta=meta, source=f"<testbed {name}>")
 

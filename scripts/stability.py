@@ -56,7 +56,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _docs import DOCS, write_section  # noqa: E402
+from _docs import DOCS, write_section
 
 SECTION = "## Stability: stiff and extreme cases"
 TITLE = "# Stability\n\nWritten by `scripts/stability.py`; do not edit by hand.\n\n"
@@ -198,7 +198,7 @@ def _measure(material, ti, pi, to, po, seed: int):
     import ctfit
 
     nb = len(WL)
-    rep = lambda a: np.repeat(np.asarray(a, dtype=float), nb)  # noqa: E731
+    rep = lambda a: np.repeat(np.asarray(a, dtype=float), nb)
     base = ctfit.Measurement(
         theta_i=rep(ti), phi_i=rep(pi) % 360, theta_o=rep(to), phi_o=rep(po) % 360, band=np.tile(np.arange(nb), len(ti)),
         wavelength_nm=np.asarray(WL), source="<stability case>",
@@ -467,7 +467,8 @@ def report(rows: list[dict], extremes: dict, *, small: bool, elapsed: float) -> 
             "The model itself at the extremes (m from 1e-4 to 3, θ_i, θ_o up to 90° in the mirror, retro and 90° planes, "
             "F0 from 0 to 1; Beckmann/V-cavity and Gaussian/Smith with a diffuse spectrum), values and gradients with respect "
             "to every parameter: "
-            + "; ".join(f"{d}: {e['values']} values, {e['gradients']} gradient entries, {e['nonfinite_values'] + e['nonfinite_gradients']} non-finite" for d, e in extremes.items())
+            + "; ".join(f"{d}: {e['values']} values, {e['gradients']} gradient entries, {e['nonfinite_values'] + e['nonfinite_gradients']} "
+                        "non-finite" for d, e in extremes.items())
             + ".",
         ]
     lines += [

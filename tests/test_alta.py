@@ -113,7 +113,8 @@ BAD = [
     (OUT + "#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n" + GOOD_ROW, r"data\.alta: no #DIM line"),
     ("#DIM three 1\n#PARAM_IN COS_TH\n" + OUT + GOOD_ROW, r"data\.alta:1: #DIM 'three 1': expected two integers"),
     ("#DIM 3 1\n" + OUT + GOOD_ROW, r"data\.alta: no #PARAM_IN line"),
-    ("#DIM 3 1\n#PARAM_IN RUSIN_TH_TD_PD\n" + OUT + GOOD_ROW, r"data\.alta:2: #PARAM_IN RUSIN_TH_TD_PD: not supported \(supported: ISOTROPIC_TL_TV_PROJ_DPHI, COS_TH\)"),
+    ("#DIM 3 1\n#PARAM_IN RUSIN_TH_TD_PD\n" + OUT + GOOD_ROW, r"data\.alta:2: #PARAM_IN RUSIN_TH_TD_PD: not supported \(supported: ISOTROPIC_TL_TV_PROJ_DPHI, "
+                                                              r"COS_TH\)"),
     ("#DIM 2 1\n#PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI\n" + OUT + GOOD_ROW, r"data\.alta:1: #DIM says 2 inputs, #PARAM_IN ISOTROPIC_TL_TV_PROJ_DPHI has 3"),
     (HEAD_3D + "#PARAM_OUT XYZ_COLOR\n" + GOOD_ROW, r"data\.alta:3: output XYZ_COLOR: not supported"),
     ("#DIM 1 1\n#PARAM_IN COS_TH\n#PARAM_OUT RGB_COLOR\n0.5 0.1\n", r"data\.alta:1: #DIM says 1 outputs, RGB_COLOR has 3"),
@@ -127,7 +128,8 @@ BAD = [
     (HEAD_3D + OUT + GOOD_ROW + "0.3 0.1 0.2 nan\n", r"data\.alta:5: column 'value' \(4\): NaN is not allowed"),
     (HEAD_3D + OUT + GOOD_ROW + "0.3 0.1 0.2 -1e-3\n", r"data\.alta:5: column 'value' \(4\): -0\.001 is negative"),
     (HEAD_3D + OUT + "1.6 0.1 0.2 0.5\n", r"data\.alta:4: column 'theta_l' \(1\): 1\.6 rad: the light is below the horizon"),
-    (HEAD_3D + OUT + "0.3 1.2 1.2 0.5\n", r"data\.alta:4: column 'theta_v\*cos\(dphi\), theta_v\*sin\(dphi\)' \(2\): θ_v = hypot\(1\.2, 1\.2\) = 1\.69.* rad > π/2"),
+    (HEAD_3D + OUT + "0.3 1.2 1.2 0.5\n", r"data\.alta:4: column 'theta_v\*cos\(dphi\), theta_v\*sin\(dphi\)' \(2\): θ_v = hypot\(1\.2, 1\.2\) = 1\.69.* rad "
+                                          r"> π/2"),
     ("#DIM 1 1\n#PARAM_IN COS_TH\n" + OUT + "1.5 0.1\n", r"data\.alta:4: column 'cos\(theta_h\)' \(1\): 1\.5 is not the cosine"),
     (HEAD_3D + OUT + "#VS 1\n0.3 0.1 0.2 0.5 0\n", r"data\.alta:5: column 'value_halfwidth' \(5\): 0\.0: the half-width must be positive"),
     (HEAD_3D + OUT + "#VS 2\n0.3 0.1 0.2 0.5 0.6 0.7\n", r"data\.alta:5: column 'value_lower' \(5\): 0\.6: the lower bound exceeds the value"),

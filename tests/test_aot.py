@@ -177,7 +177,7 @@ def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_p
     import sys
 
     cache = tmp_path / "cache"
-    run = lambda: subprocess.run([sys.executable, "-c", _FIT_SCRIPT, str(cache)], capture_output=True, text=True, timeout=300)  # noqa: E731
+    run = lambda: subprocess.run([sys.executable, "-c", _FIT_SCRIPT, str(cache)], capture_output=True, text=True, timeout=300)
     first = run()
     assert first.returncode == 0, first.stderr
     for pattern in ("fit_*.xla", "lm_*.xla"):  # the fit's programs
@@ -301,7 +301,7 @@ def test_an_entry_copied_over_another_programs_name_is_not_run(store, monkeypatc
     box, x, _ = _args()
     _aot.cached_call("toy", _fn, box, x, 2)
     _aot.cached_call("toy", _fn, box, x, 3)
-    name = lambda power: store / f"toy-{_aot._key('toy', ('run', box, x, power))[:32]}.xla"  # noqa: E731 (the key: effort, then arguments)
+    name = lambda power: store / f"toy-{_aot._key('toy', ('run', box, x, power))[:32]}.xla"  # the key: effort, then arguments
     name(3).write_bytes(name(2).read_bytes())  # the square's program where the cube's belongs
     monkeypatch.setattr(_aot, "_memory", {})
     with pytest.warns(RuntimeWarning, match="holds another program"):

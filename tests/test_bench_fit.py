@@ -14,9 +14,9 @@ from ctfit._fitting.starts import default_start
 from conftest import ROOT, load_script
 
 sys.path.insert(0, str(ROOT / "scripts"))  # the scripts import their helpers by name
-import _bench_fit_data as data  # noqa: E402
-import _numpy_model as model  # noqa: E402
-import _whole_process as proc  # noqa: E402
+import _bench_fit_data as data
+import _numpy_model as model
+import _whole_process as proc
 
 bench = load_script("bench_fit")
 
@@ -98,7 +98,8 @@ def test_whole_process_accounting():
 
 
 def _case(n, scipy, warm, cold, new=None):
-    c = dict(n=n, scipy=scipy, warm=warm, cold=cold, warm_fit_s=0.5, cold_fit_s=cold - warm + 0.5, in_process=dict(first_s=0.5, second_s=0.1, normal_s=0.01, one_start_s=0.2, one_start_steps=10))
+    c = dict(n=n, scipy=scipy, warm=warm, cold=cold, warm_fit_s=0.5, cold_fit_s=cold - warm + 0.5,
+             in_process=dict(first_s=0.5, second_s=0.1, normal_s=0.01, one_start_s=0.2, one_start_steps=10))
     if new is not None:
         c.update(new=new, new_n=n - n // 20, new_fit_s=new - warm + 0.5)
     return c

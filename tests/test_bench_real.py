@@ -12,7 +12,7 @@ import ctfit
 from conftest import ROOT, load_script
 
 sys.path.insert(0, str(ROOT / "scripts"))  # the scripts import their helpers by name
-import _numpy_model as model  # noqa: E402
+import _numpy_model as model
 
 bench = load_script("bench_real")
 

@@ -31,7 +31,8 @@ def simulated(tmp_path_factory):
 
 def test_version_is_fast_and_does_not_import_jax():
     out = subprocess.run(
-        [sys.executable, "-c", "import sys; from ctfit.cli import main; sys.argv=['ctfit','--version']\ntry: main()\nexcept SystemExit: pass\nprint('jax' in sys.modules)"],
+        [sys.executable, "-c", "import sys; from ctfit.cli import main; sys.argv=['ctfit','--version']\ntry: main()\nexcept SystemExit: pass\nprint('jax' in "
+                               "sys.modules)"],
         capture_output=True, text=True, check=True,
     )
     assert out.stdout.strip().splitlines() == [f"ctfit {ctfit.__version__}", "False"]

@@ -68,7 +68,8 @@ def test_batch_goes_on_after_a_bad_file_and_summarises(tmp_path):
     assert "theta_o" in lines[1]
     assert sorted(p.name for p in out.iterdir()) == ["a.fit.json", "c.fit.json", "summary.json"]
     rows = json.loads((out / "summary.json").read_text())["results"]
-    assert [(row["outcome"], row["result"]) for row in rows] == [("converged", str(out / "a.fit.json")), ("failed", None), ("converged", str(out / "c.fit.json"))]
+    assert [(row["outcome"], row["result"]) for row in rows] == [
+        ("converged", str(out / "a.fit.json")), ("failed", None), ("converged", str(out / "c.fit.json"))]
     assert r.stdout.count("fit of ") == 2
 
 

@@ -164,7 +164,8 @@ def test_an_interrupted_run_keeps_its_results_and_the_rerun_fits_the_rest(cluste
         assert results(out)[name] == doc
 
 
-@pytest.mark.parametrize("text, words", [("garbage\n", "JSON syntax error"), ("{}", "not a Dask scheduler file"), ("[1, 2]", "not a Dask scheduler file"), (None, "no such file")])
+@pytest.mark.parametrize("text, words", [("garbage\n", "JSON syntax error"), ("{}", "not a Dask scheduler file"),
+                                         ("[1, 2]", "not a Dask scheduler file"), (None, "no such file")])
 def test_a_scheduler_file_that_is_not_one_is_one_error_line(tmp_path, text, words):
     """--scheduler FILE.json: a missing file is refused at once (distributed waits for it to appear),
     garbage or an object without 'address' in one line (distributed asserts)."""

@@ -93,7 +93,7 @@ def _figure5(cos, weights, conv):
     approx = colour_shift_approximation(xyz_f0[0], weights.white_XYZ, f0_mean, cos)
     rgb = colour_shift_approximation(XYZ_to_RGB(xyz_f0[0], conv), jnp.ones(3), f0_mean, cos)
     f_avg = ctfit.fresnel_dielectric_f0(cos, f0_mean)
-    lab = lambda x: XYZ_to_Lab(x, weights.white_XYZ)  # noqa: E731
+    lab = lambda x: XYZ_to_Lab(x, weights.white_XYZ)
     de_approx = delta_E_CIE2000(lab(approx), lab(xyz_f0))
     de_nk = delta_E_CIE2000(lab(xyz_nk), lab(xyz_f0))
     return xyz_f0, xyz_nk, f0_mean, approx, XYZ_to_RGB(approx, conv), rgb, f_avg, de_approx, de_nk

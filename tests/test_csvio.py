@@ -171,14 +171,16 @@ BAD = [
     (f"{HEADER}\n{ROW}10,0,10,180,0,0.5\n", r"data\.csv:3: column 'wavelength_nm' \(5\): 0\.0 is not a positive wavelength"),
     (f"{HEADER},sigma\n10,0,10,180,550,0.5,0.1\n10,0,10,180,550,0.5,0\n", r"data\.csv:3: column 'sigma' \(7\): 0\.0: sigma must be positive"),
     (f"{HEADER},sigma\n10,0,10,180,550,0.5,-0.1\n", r"data\.csv:2: column 'sigma' \(7\): -0\.1: sigma must be positive"),
-    ("theta_i,phi_i,theta_o,phi_o,channel,brdf\n10,0,10,180,R,0.5\n10,0,10,180,X,0.5\n", r"data\.csv:3: column 'channel' \(5\): 'X' is not a channel \(R, G or B\)"),
+    ("theta_i,phi_i,theta_o,phi_o,channel,brdf\n10,0,10,180,R,0.5\n10,0,10,180,X,0.5\n",
+     r"data\.csv:3: column 'channel' \(5\): 'X' is not a channel \(R, G or B\)"),
     ("theta_i,phi_i,theta_o,phi_o,channel,brdf\n10,0,10,180,r,0.5\n", r"data\.csv:2: column 'channel' \(5\): 'r' is not a channel"),
     ("theta_i,phi_i,theta_o,phi_o,channel,brdf\n10,0,10,180,,0.5\n", r"data\.csv:2: column 'channel' \(5\): '' is not a channel"),
     (f"{HEADER}\n{ROW}\n{ROW}", r"data\.csv:3: empty line"),
     (f"{HEADER}\n{ROW}# late: comment\n{ROW}", r"data\.csv:3: a # line after the header"),
     (b"# caf\xe9\n" + HEADER.encode() + b"\n", r"data\.csv:1: byte 0xe9 at byte offset 5 \(byte 6 of the line\) is not UTF-8"),
     (f"{HEADER}\n{ROW}".encode() + b"10,0,10,180,550,0.5\xff\n", r"data\.csv:3: byte 0xff at byte offset 86 \(byte 20 of the line\)"),
-    (f"{HEADER}\n" + "0.5,0,0.5,3.1,550,0.5\n" * 4, r"data\.csv:1: column 'theta_i' \(1\): every theta_i and theta_o is ≤ 1\.5708 .*look like radians.*# angle_unit: degrees"),
+    (f"{HEADER}\n" + "0.5,0,0.5,3.1,550,0.5\n" * 4, r"data\.csv:1: column 'theta_i' \(1\): every theta_i and theta_o is ≤ 1\.5708 .*look like radians.*# "
+                                                    r"angle_unit: degrees"),
     (f"# angle_unit: radians\n{HEADER}\n{ROW}", r"data\.csv:1: angle_unit 'radians' is not supported"),
 ]
 

@@ -119,7 +119,8 @@ def tiny_measurement(n=3, bands=3, brdf=0.5):
 
 def test_fewer_samples_than_free_parameters():
     # The library speaks of its own arguments; the command line shows its options.
-    with pytest.raises(ValueError, match=r"few\.csv: 3 samples, 5 free parameters \(1 lobe, diffuse\): measure more or fit fewer \(structure=: fewer lobes, no diffuse part\)") as e:
+    with pytest.raises(ValueError, match=r"few\.csv: 3 samples, 5 free parameters \(1 lobe, diffuse\): measure more or fit fewer \(structure=: fewer lobes, "
+                                         r"no diffuse part\)") as e:
         ctfit.fit(tiny_measurement(), Structure(lobes=1, diffuse="F0/pi"))
     assert cli_message(str(e.value)).endswith("measure more or fit fewer (--lobes, --no-diffuse)")
     assert n_free_parameters(Structure(lobes=3, fresnel="conductor", diffuse="spectrum"), 4) == 1 + 3 + 2 + 4 + 4 + 4
@@ -224,7 +225,8 @@ def test_float32_weights_read_back(tmp_path):
 
 
 def test_a_conductor_on_its_bound_n_0_reads_back(tmp_path):
-    m = Material(Structure(lobes=1, fresnel="conductor"), Params(m=np.array([0.2]), w=np.array([1.0]), n=np.array([0.0, 0.3]), k=np.array([2.0, 3.0])), wavelength_nm=WL)
+    m = Material(Structure(lobes=1, fresnel="conductor"), Params(m=np.array([0.2]), w=np.array([1.0]), n=np.array([0.0, 0.3]), k=np.array([2.0, 3.0])),
+                 wavelength_nm=WL)
     np.testing.assert_array_equal(load_material(save_material_json(m, tmp_path / "r.json")).params.n, [0.0, 0.3])
 
 
@@ -302,7 +304,8 @@ def test_what_save_writes_load_reads(tmp_path, material):
 def test_semicolon_or_tab_separated_file_gets_a_hint(tmp_path, sep, word):
     path = tmp_path / "d.csv"
     path.write_text(sep.join(["theta_i", "phi_i", "theta_o", "phi_o", "wavelength_nm", "brdf"]) + "\n" + sep.join("10 0 10 180 550 0.5".split()) + "\n")
-    with pytest.raises(DataError, match=rf"d\.csv:1: .*the file seems to be {word}-separated; ctfit reads comma-separated CSV \(docs/measurement-formats\.md\)"):
+    with pytest.raises(DataError, match=rf"d\.csv:1: .*the file seems to be {word}-separated; ctfit reads comma-separated CSV "
+                                        r"\(docs/measurement-formats\.md\)"):
         ctfit.read_measurement(path)
     r = cli("fit", path)
     assert r.exit_code == 2 and len(error_lines(r)) == 1 and f"{word}-separated" in error_lines(r)[0]
@@ -319,7 +322,8 @@ def phi_file(path, phi_i, phi_o, meta=""):
 
 def test_phi_in_radians_beside_theta_in_degrees_is_refused(tmp_path):
     phi_o = [math.pi, 0.5, -1.2, 2.0, 3.0, math.pi / 2]
-    with pytest.raises(DataError, match=r"d\.csv:2: column 'phi_o' \(4\): 3\.14159\d+: every phi_i and phi_o is within ±2π .*\(degrees = radians × 180/π ≈ radians × 57\.2958"):
+    with pytest.raises(DataError, match=r"d\.csv:2: column 'phi_o' \(4\): 3\.14159\d+: every phi_i and phi_o is within ±2π .*\(degrees = radians × 180/π ≈ "
+                                        r"radians × 57\.2958"):
         ctfit.read_measurement(phi_file(tmp_path / "d.csv", [0] * 6, phi_o))
     confirmed = ctfit.read_measurement(phi_file(tmp_path / "d.csv", [0] * 6, phi_o, "# angle_unit: degrees\n"))
     assert confirmed.phi_o[0] == pytest.approx(math.pi)

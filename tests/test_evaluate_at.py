@@ -14,7 +14,7 @@ def test_angles_match_evaluate_on_a_measurement():
     ti, to = rng.uniform(0, 85, 50), rng.uniform(0, 85, 50)
     pi, po = rng.uniform(0, 360, 50), rng.uniform(0, 360, 50)
     got = ctfit.evaluate_at(GOLD, theta_i=ti, phi_i=pi, theta_o=to, phi_o=po)
-    rep = lambda a: np.repeat(a, 2)  # noqa: E731
+    rep = lambda a: np.repeat(a, 2)
     m = ctfit.Measurement(theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=np.tile([0, 1], 50), wavelength_nm=GOLD.wavelength_nm)
     np.testing.assert_allclose(got.reshape(-1), ctfit.evaluate(GOLD, m), rtol=1e-12)
 

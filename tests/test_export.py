@@ -119,7 +119,8 @@ def test_roughplastic_is_not_the_transmitted_plastic_but_its_specular_part_is():
         return mi.load_dict({"type": "roughplastic", "distribution": "beckmann", "alpha": 0.2, "int_ior": 1.5, "ext_ior": 1.0,
                              "nonlinear": False, "specular_reflectance": s, "diffuse_reflectance": {"type": "rgb", "value": list(diffuse)}})
 
-    specular = ctfit.Material(ctfit.Structure(family="plastic", geometry="smith-rational"), ctfit.Params(m=np.array([0.2]), w=np.ones(1), n=np.array(1.5)), channels=RGB)
+    specular = ctfit.Material(ctfit.Structure(family="plastic", geometry="smith-rational"), ctfit.Params(m=np.array([0.2]), w=np.ones(1), n=np.array(1.5)),
+                              channels=RGB)
     assert relative(mitsuba_values(rough([0.0, 0.0, 0.0]), grid()), s * ctfit_values(specular, grid()) * np.ones(3))[1] < 1e-4
     median, worst = relative(mitsuba_values(rough(rho), grid()), ctfit_values(mat, grid()))
     assert median > 1e-3 and worst > 0.1  # docs/export.md gives the figures
@@ -310,6 +311,6 @@ def test_gltf_brdf_is_the_specifications_ggx():
     assert peak == pytest.approx(1 / (4 * np.pi * 0.25**2), rel=1e-12)
     albedo = []
     for rough in (0.3, 0.6):
-        f = lambda phi, theta: gltf_brdf(white(rough), 30.0, 0.0, np.degrees(theta), np.degrees(phi))[0] * np.cos(theta) * np.sin(theta)  # noqa: E731
+        f = lambda phi, theta: gltf_brdf(white(rough), 30.0, 0.0, np.degrees(theta), np.degrees(phi))[0] * np.cos(theta) * np.sin(theta)
         albedo.append(dblquad(f, 0, np.pi / 2, 0, 2 * np.pi, epsabs=1e-5)[0])
     assert 0.7 < albedo[1] < 0.9 and 0.97 < albedo[0] < 1.0

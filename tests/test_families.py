@@ -125,7 +125,7 @@ def test_grid_amplitudes_are_the_non_negative_least_squares_solution():
         den = np.array([a @ a, a @ b, b @ b])
         got = np.asarray(grid_amplitudes(num, den))
         want = nnls(np.stack([a, b], 1), y)[0]
-        cost = lambda x: np.sum((x[0] * a + x[1] * b - y) ** 2)  # noqa: E731
+        cost = lambda x: np.sum((x[0] * a + x[1] * b - y) ** 2)
         assert (got >= 0).all() and cost(got) <= cost(want) * (1 + 1e-9) + 1e-12, (trial, got, want)
 
 

@@ -202,7 +202,7 @@ def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
     u = {k: jnp.asarray(v) * 0.97 + 0.01 for k, v in from_params(problem.spec, truth.params).items()}
     flat, unflat = ravel_pytree(u)
     assert ((3 if family == "metal" else 1) * bands > DENSE_BAND_COLUMNS) is (bands == 16)  # n, k, R_d or R_d per band: dense only with RGB
-    plain = lambda pr, f: loss_residuals(pr, model_values(pr, unflat(f)), pr.y)  # noqa: E731
+    plain = lambda pr, f: loss_residuals(pr, model_values(pr, unflat(f)), pr.y)
     r, jac = eqx.filter_jit(lambda pr, f: (plain(pr, f), jax.jacfwd(lambda g: plain(pr, g))(f)))(problem, flat)
     for dense in (False, True):  # block by block, and the chunk kernel's form
         cost, grad, hess = eqx.filter_jit(lambda pr, uu, d=dense: normal_equations(pr, uu, dense=d))(problem, u)

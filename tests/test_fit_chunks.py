@@ -21,7 +21,7 @@ def _grid(pairs: int, seed: int = 0):
     rng = np.random.default_rng(seed)
     ti, to = rng.uniform(0, 80, pairs), rng.uniform(0, 80, pairs)
     pi, po = rng.uniform(0, 360, pairs), rng.uniform(0, 360, pairs)
-    rep = lambda a: np.repeat(a, 3)  # noqa: E731
+    rep = lambda a: np.repeat(a, 3)
     wl = np.array([450.0, 550.0, 650.0])
     geometry = ctfit.Measurement(theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=np.tile(np.arange(3), pairs),
                                  wavelength_nm=wl)

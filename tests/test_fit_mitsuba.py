@@ -7,7 +7,7 @@ import ctfit
 from ctfit import fit
 
 pytest.importorskip("mitsuba")
-from mitsuba_render import render  # noqa: E402
+from mitsuba_render import render
 
 pytestmark = pytest.mark.mitsuba
 

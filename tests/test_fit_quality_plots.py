@@ -28,7 +28,7 @@ def _grid_data(material):
     """A goniometer grid: θ_i 15–60°, θ_o every 5°, φ_o in five azimuths, every pair in R, G, B."""
     pairs = np.array([(ti, 0.0, to, po) for ti in (15.0, 30.0, 45.0, 60.0) for to in np.arange(0.0, 86.0, 5.0)
                       for po in (0.0, 45.0, 90.0, 135.0, 180.0)])
-    rep = lambda a: np.repeat(a, 3)  # noqa: E731
+    rep = lambda a: np.repeat(a, 3)
     data = ctfit.Measurement(theta_i=rep(pairs[:, 0]), phi_i=rep(pairs[:, 1]), theta_o=rep(pairs[:, 2]), phi_o=rep(pairs[:, 3]),
                              band=np.tile(np.arange(3), len(pairs)), channels=("R", "G", "B"), source="grid.csv")
     return data.replace(brdf=ctfit.evaluate(material, data))
@@ -189,7 +189,7 @@ def test_delta_e_is_zero_when_the_fit_is_the_data_generating_material():
 
 def _steps(c, compared):
     """The 99th percentile of the jumps between neighbouring pixels of ln(measured / fitted) luminance."""
-    lum = lambda rgb: np.log(np.maximum(rgb @ np.array([0.2126, 0.7152, 0.0722]), 1e-12))  # noqa: E731
+    lum = lambda rgb: np.log(np.maximum(rgb @ np.array([0.2126, 0.7152, 0.0722]), 1e-12))
     err = lum(c.measured) - lum(c.fitted)
     both = compared[:, 1:] & compared[:, :-1]
     return float(np.quantile(np.abs(np.diff(err, axis=1)[both]), 0.99))

@@ -459,7 +459,7 @@ def materials(draw):
     fresnel = draw(st.sampled_from(["f0", "n", "conductor"]))
     rgb = draw(st.booleans())
     nb = 3 if rgb else draw(st.integers(1, 4))
-    bands = lambda el: np.asarray(draw(st.lists(el, min_size=nb, max_size=nb)))  # noqa: E731
+    bands = lambda el: np.asarray(draw(st.lists(el, min_size=nb, max_size=nb)))
     structure = Structure(
         lobes=lobes,
         distribution=draw(st.sampled_from(["beckmann", "gaussian"])),

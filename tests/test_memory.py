@@ -15,7 +15,8 @@ PROBE = (
     "import ctypes, sys, numpy as np\n"
     "from ctfit._runtime.memory import return_large_blocks\n"
     "class Info(ctypes.Structure):\n"
-    "    _fields_ = [(f, ctypes.c_size_t) for f in ('arena', 'ordblks', 'smblks', 'hblks', 'hblkhd', 'usmblks', 'fsmblks', 'uordblks', 'fordblks', 'keepcost')]\n"
+    "    _fields_ = [(f, ctypes.c_size_t) for f in ('arena', 'ordblks', 'smblks', 'hblks', 'hblkhd', 'usmblks', 'fsmblks', 'uordblks', 'fordblks', "
+    "'keepcost')]\n"
     "libc = ctypes.CDLL('libc.so.6'); libc.mallinfo2.restype = Info\n"
     "if sys.argv[1] == 'fixed': assert return_large_blocks()\n"
     "np.ones(16 << 20 >> 3)\n"  # a freed 16 MiB block raises glibc's dynamic threshold to 16 MiB

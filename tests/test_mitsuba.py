@@ -44,7 +44,7 @@ def _variant():
 
 def _directions():
     ti, to, po = (x.ravel() for x in np.meshgrid(THETAS, THETAS, PHIS, indexing="ij"))
-    d = lambda t, p: np.stack([np.sin(np.deg2rad(t)) * np.cos(np.deg2rad(p)), np.sin(np.deg2rad(t)) * np.sin(np.deg2rad(p)), np.cos(np.deg2rad(t))], -1)  # noqa: E731
+    d = lambda t, p: np.stack([np.sin(np.deg2rad(t)) * np.cos(np.deg2rad(p)), np.sin(np.deg2rad(t)) * np.sin(np.deg2rad(p)), np.cos(np.deg2rad(t))], -1)
     # Mitsuba works in float32: both sides get the same float32-rounded vectors.
     return d(ti, np.zeros_like(ti)).astype(np.float32).astype(np.float64), d(to, po).astype(np.float32).astype(np.float64)
 
@@ -70,7 +70,7 @@ def _mitsuba(m, eta, k, l, v):
 def _ctfit(m, eta, k, l, v):
     p = Params(m=jnp.asarray([m]), w=jnp.asarray([1.0]), n=jnp.asarray([eta]), k=jnp.asarray([k]))
     r = np.asarray(ctfit.brdf(STRUCTURE, p, ctfit.geometry(jnp.asarray(l), jnp.asarray(v))))[:, 0]
-    g1 = lambda d: np.asarray(ctfit.smith_g1_reduced(jnp.asarray(d[:, 2]), jnp.asarray(np.hypot(d[:, 0], d[:, 1])), m)) * d[:, 2]  # noqa: E731
+    g1 = lambda d: np.asarray(ctfit.smith_g1_reduced(jnp.asarray(d[:, 2]), jnp.asarray(np.hypot(d[:, 0], d[:, 1])), m)) * d[:, 2]
     return r, g1(l), g1(v)
 
 

@@ -18,9 +18,9 @@ pytest.importorskip("nbclient")
 pytest.importorskip("nbformat")
 pytest.importorskip("ipykernel")
 
-import nbformat  # noqa: E402
-from nbclient import NotebookClient  # noqa: E402
-from nbclient.exceptions import CellExecutionError, CellTimeoutError  # noqa: E402
+import nbformat
+from nbclient import NotebookClient
+from nbclient.exceptions import CellExecutionError, CellTimeoutError
 
 pytestmark = pytest.mark.slow
 

@@ -213,7 +213,8 @@ def test_command_body_writes_png(tmp_path, simulated):
     from PIL import Image
 
     out = tmp_path / "grid.png"
-    info = render_command_body([ROOT / "configs" / "lunar-dust.toml", ROOT / "configs" / "rust.toml"], out, 16, "sphere", None, True, supersample=1, wavelength_step=20)
+    info = render_command_body([ROOT / "configs" / "lunar-dust.toml", ROOT / "configs" / "rust.toml"], out, 16, "sphere", None, True, supersample=1,
+                               wavelength_step=20)
     assert out.exists() and info["image_shape"] == list(np.asarray(Image.open(out)).shape)
     assert info["image_shape"][1] == 32
     mat, data = simulated

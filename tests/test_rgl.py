@@ -234,9 +234,11 @@ def test_negative_rgb_values_are_dropped_with_a_warning(tmp_path):
         (lambda raw, f: b"TENSOR" + raw[6:], r"not a tensor file: it does not start with 'tensor_file\\0'"),
         (lambda raw, f: raw[:12] + b"\x02" + raw[13:], r"tensor file version 2\.0: only version 1\.0 is known"),
         (lambda raw, f: _rewritten(f, rgb=None, unknown=np.zeros(2, np.float32)), r"a tensor file, but not an RGL BRDF: no field 'rgb'"),
-        (lambda raw, f: _rewritten(f, rgb=f["rgb"][:, :, :2]), r"field 'rgb' is float32 of shape \(1, 4, 2, 6, 6\); an RGL BRDF has float32 with 5 axes of shape \(1, 4, 3, 6, 6\)"),
+        (lambda raw, f: _rewritten(f, rgb=f["rgb"][:, :, :2]), r"field 'rgb' is float32 of shape \(1, 4, 2, 6, 6\); an RGL BRDF has float32 with 5 axes of "
+                                                               r"shape \(1, 4, 3, 6, 6\)"),
         (lambda raw, f: _rewritten(f, theta_i=f["theta_i"].astype(np.uint8)), r"field 'theta_i' is uint8"),
-        (lambda raw, f: _rewritten(f, rgb=np.where(np.arange(6) == 3, np.nan, f["rgb"]).astype(np.float32)), r"field 'rgb', index \(0, 0, 0, 0, 3\): nan is not a finite number"),
+        (lambda raw, f: _rewritten(f, rgb=np.where(np.arange(6) == 3, np.nan, f["rgb"]).astype(np.float32)),
+         r"field 'rgb', index \(0, 0, 0, 0, 3\): nan is not a finite number"),
         (lambda raw, f: _rewritten(f, vndf=-f["vndf"]), r"field 'vndf' has negative values: it is a density"),
     ],
 )

@@ -358,7 +358,8 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     fit_json = tmp_path / "metal.fit.json"
     save_material_json(fitted.material, fit_json, extra=fit_result_to_dict(fitted, material_keys=False))
     before = fit_json.read_bytes()
-    doc = sample_command_body(fit_json, csv, walkers=None, steps=200, burn=None, thin=2, seed=0, backend=None, resume=False, plot_dir=tmp_path / "plots", output=None)
+    doc = sample_command_body(fit_json, csv, walkers=None, steps=200, burn=None, thin=2, seed=0, backend=None, resume=False, plot_dir=tmp_path / "plots",
+                              output=None)
     assert fit_json.read_bytes() == before  # the input is not written: the result goes beside it
     posterior = tmp_path / "metal.fit.posterior.json"
     on_disk = json.loads(posterior.read_text())

@@ -36,7 +36,8 @@ def test_the_real_measurements_are_in_the_repository():
         assert (MEASURED / name).relative_to(ROOT).as_posix() in files, name
     # optical-constant tables belong in ctfit/data; the only CSVs under measurements/ are the
     # model-mismatch test-bed's renders (measurements/testbed/README.md)
-    assert not any(f.startswith("measurements/") and f.endswith(".csv") and not f.startswith("measurements/testbed/") for f in files), "tables belong in ctfit/data"
+    assert not any(f.startswith("measurements/") and f.endswith(".csv") and not f.startswith("measurements/testbed/") for f in files), (
+        "tables belong in ctfit/data")
 
 
 def test_nothing_refers_to_files_beside_the_repository():

@@ -52,7 +52,7 @@ def _sid(st):
 
 def _band_params(st, dtype):
     """Per-band Fresnel parameters: every hard F0 / n / (n, k) value is one band."""
-    a = lambda x: jnp.asarray(np.asarray(x, np.float64), dtype)  # noqa: E731
+    a = lambda x: jnp.asarray(np.asarray(x, np.float64), dtype)
     if st.fresnel == "f0":
         bands = dict(f0=a(F0S))
     elif st.fresnel == "n":
@@ -75,7 +75,7 @@ def _directions(dtype):
     """
     ti, to, dp = (x.ravel() for x in np.meshgrid(THETAS, THETAS, [180.0, 0.0, 90.0], indexing="ij"))
     pi = np.full_like(ti, 33.0)
-    d = lambda t, p: ctfit.direction_from_angles_deg(jnp.asarray(t, dtype), jnp.asarray(p, dtype))  # noqa: E731
+    d = lambda t, p: ctfit.direction_from_angles_deg(jnp.asarray(t, dtype), jnp.asarray(p, dtype))
     l, v = d(ti, pi), d(to, pi + dp)
     lm = d(np.asarray(THETAS), np.full(len(THETAS), 33.0))
     horizon = (ti >= 90) | (to >= 90)
@@ -189,7 +189,7 @@ def test_hypothesis_sweep(data, st_index, dtype):
     k = arr(hs.one_of(hs.sampled_from([0.0, 20.0]), hs.floats(0, 20)))
     s = arr(hs.floats(0, 1))
     rd = arr(hs.floats(0, 1 / np.pi))
-    a = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    a = lambda x: jnp.asarray(x, dtype)
     vals, f, grads = _evaluate_batch(st, a(ti), a(pi), a(to), a(pi + dphi), a(m), a(f0), a(n), a(k), a(s), a(rd))
     horizon = (np.asarray(a(ti)) >= 90) | (np.asarray(a(to)) >= 90)
     _check(np.asarray(vals)[:, None], np.asarray(f), grads, horizon, f"{_sid(st)} {jnp.dtype(dtype).name}")

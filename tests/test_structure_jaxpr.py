@@ -149,7 +149,8 @@ def test_no_retrace_for_new_values_and_equal_structures():
     rng = np.random.default_rng(0)
     outs = []
     for _ in range(4):
-        p = make_params(Structure(lobes=2, geometry="smith", fresnel="conductor", diffuse="spectrum"), m=tuple(rng.uniform(0.05, 0.5, 2)), s=rng.uniform(), rd=tuple(rng.uniform(0, 0.3, 3)))
+        p = make_params(Structure(lobes=2, geometry="smith", fresnel="conductor", diffuse="spectrum"), m=tuple(rng.uniform(0.05, 0.5, 2)), s=rng.uniform(),
+                        rd=tuple(rng.uniform(0, 0.3, 3)))
         outs.append(np.asarray(f(st, p, GEOM)))
     assert not np.allclose(outs[0], outs[1])  # the values did change
     # Another structure is another program (one more trace of the same function would raise).

@@ -107,22 +107,28 @@ def simulate(
 @app.command()
 def fit(
     data: list[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary, RGL .bsdf) or folders of them."),
-    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several, a folder of them, a name ending in / or an existing folder: a folder, with summary.json)."),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several, a folder of them, a name "
+                                                                      "ending in / or an existing folder: a folder, with summary.json)."),
     as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
     material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),
-    family: str = typer.Option("auto", "--family", help="metal (F0(λ), or n, k), plastic (one real index n, its own R_d(λ)) or auto (chosen by the data: docs/fitting.md)."),
-    lobes: str = typer.Option("auto", "--lobes", help="Number of lobes, or auto (1–3, chosen by the data: by BIC, or above 4,096 samples by the error on held-out direction pairs)."),
+    family: str = typer.Option("auto", "--family", help="metal (F0(λ), or n, k), plastic (one real index n, its own R_d(λ)) or auto (chosen by the data: "
+                                                        "docs/fitting.md)."),
+    lobes: str = typer.Option("auto", "--lobes", help="Number of lobes, or auto (1–3, chosen by the data: by BIC, or above 4,096 samples by the error on "
+                                                      "held-out direction pairs)."),
     geometry: Optional[str] = typer.Option(None, "--geometry", help="v-cavity (default), smith or smith-rational (Smith with the rational G1 of Mitsuba 3)."),
     fresnel: Optional[str] = typer.Option(None, "--fresnel", help="effective-n (default: k = 0, n from F0) or conductor (n, k)."),
-    diffuse: str = typer.Option("auto", "--diffuse", help="The diffuse part: none, F0/pi (metal), spectrum, constant, transmitted (plastic) or auto (chosen by the data)."),
+    diffuse: str = typer.Option("auto", "--diffuse", help="The diffuse part: none, F0/pi (metal), spectrum, constant, transmitted (plastic) or auto (chosen "
+                                                          "by the data)."),
     no_diffuse: bool = typer.Option(False, "--no-diffuse", help="No diffuse part (the same as --diffuse none)."),
-    loss: str = typer.Option("auto", "--loss", help="auto (sigma with a sigma column, else robust-relative), absolute, relative, robust-relative, sigma, cosine, log or log-ratio (docs/fitting.md)."),
+    loss: str = typer.Option("auto", "--loss", help="auto (sigma with a sigma column, else robust-relative), absolute, relative, robust-relative, sigma, "
+                                                    "cosine, log or log-ratio (docs/fitting.md)."),
     solver: str = typer.Option("lm", "--solver", help="lm, gauss-newton, dogleg or bfgs."),
     float32: bool = typer.Option(False, "--float32", help="Fit in float32 (default float64)."),
     starts: int = typer.Option(3, "--starts", min=1, help="Seeds from the grid over m, solved at once."),
     max_steps: int = typer.Option(256, "--max-steps", min=1, help="Solver steps per start (more for a fit that stops short of a minimum)."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP + " A file's own line wins."),
-    plot: Optional[str] = typer.Option(None, "--plot", help="Write a PNG (or PDF, SVG, …: the suffix) of data vs fit, polar plots per incidence angle and the residual map over (θ_h, θ_d) (one file: this path; several or a folder: a folder, as -o)."),
+    plot: Optional[str] = typer.Option(None, "--plot", help="Write a PNG (or PDF, SVG, …: the suffix) of data vs fit, polar plots per incidence angle and the "
+                                                            "residual map over (θ_h, θ_d) (one file: this path; several or a folder: a folder, as -o)."),
     sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
     steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
@@ -133,8 +139,10 @@ def fit(
     resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
     overwrite: bool = typer.Option(False, "--overwrite", help="With --sample: start the chain in --backend again (a stored chain is kept otherwise)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bars (they show only on a terminal)."),
-    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="Fit on a local Dask cluster of this many worker processes (needs -o; results are kept per file and a re-run skips the files done)."),
-    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Fit on an existing Dask cluster: the scheduler's address (tcp://HOST:8786) or its scheduler file (.json); as --workers otherwise."),
+    workers: Optional[int] = typer.Option(None, "--workers", min=1, help="Fit on a local Dask cluster of this many worker processes (needs -o; results are "
+                                                                         "kept per file and a re-run skips the files done)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Fit on an existing Dask cluster: the scheduler's address (tcp://HOST:8786) or its "
+                                                                      "scheduler file (.json); as --workers otherwise."),
 ):
     """Fit the Cook–Torrance parameters to DATA; prints a table of parameters ± standard errors.
 
@@ -165,9 +173,11 @@ fit, runs to a prior bound, or the data do not constrain a parameter): the table
 def sample_cmd(
     fit_json: Path = typer.Argument(..., help="Fit-result JSON or material TOML (read only)."),
     data: Path = typer.Argument(..., help="The measurement the material was fitted to."),
-    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: STEM.posterior.json beside FIT_JSON, which is never written unless -o names it)."),
+    output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the JSON here (default: STEM.posterior.json beside FIT_JSON, which is never "
+                                                                      "written unless -o names it)."),
     as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
-    loss: Optional[str] = typer.Option(None, "--loss", help="absolute, relative, sigma, cosine, log or log-ratio (default: the fit's; a robust-relative fit is sampled with the relative likelihood); another than the fit's fits again first."),
+    loss: Optional[str] = typer.Option(None, "--loss", help="absolute, relative, sigma, cosine, log or log-ratio (default: the fit's; a robust-relative fit "
+                                                            "is sampled with the relative likelihood); another than the fit's fits again first."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
     steps: int = typer.Option(2000, "--steps", min=1, help="Steps per walker in all (also with --resume)."),
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
@@ -251,14 +261,16 @@ def render(
     output_text: str = typer.Option(..., "-o", "--output", help="Output PNG."),
     size: int = typer.Option(256, "--size", min=8, help="Tile side in pixels."),
     shape: str = typer.Option("sphere", "--shape", help="sphere or vase."),
-    compare: Optional[Path] = typer.Option(None, "--compare", help="Measurement file: show the one MATERIAL beside a rendering that uses the nearest measured BRDF."),
+    compare: Optional[Path] = typer.Option(None, "--compare", help="Measurement file: show the one MATERIAL beside a rendering that uses the nearest measured "
+                                                                   "BRDF."),
     labels: bool = typer.Option(True, "--labels/--no-labels", help="Write each material's name under its tile."),
     columns: Optional[int] = typer.Option(None, "--columns", min=1, help="Tiles per row (default: up to 6)."),
     step: float = typer.Option(5.0, "--step", min=0.0, help="Wavelength step of spectral rendering over 380–780 nm: 1 to 400 nm."),
     supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
     ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
     exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),
-    delta_e: bool = typer.Option(False, "--delta-e", help="With --compare: a figure measured (interpolated) | fitted | ΔE2000, its median and 95th percentile in the title."),
+    delta_e: bool = typer.Option(False, "--delta-e", help="With --compare: a figure measured (interpolated) | fitted | ΔE2000, its median and 95th percentile "
+                                                          "in the title."),
 ):
     """Render materials on spheres or vases under the paper's two lights (Figures 6–7) to a PNG."""
 
@@ -330,9 +342,12 @@ def _colour_table(rep: dict) -> str:
 @app.command("export")
 def export_cmd(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
-    to: str = typer.Option(..., "--to", help="mitsuba (Mitsuba 3 XML), mitsuba-dict (the same as JSON: mi.load_dict(doc['bsdf'])), merl (.binary table) or gltf (glTF 2.0 material)."),
+    to: str = typer.Option(..., "--to", help="mitsuba (Mitsuba 3 XML), mitsuba-dict (the same as JSON: mi.load_dict(doc['bsdf'])), merl (.binary table) or "
+                                             "gltf (glTF 2.0 material)."),
     output: Path = typer.Option(..., "-o", "--output", help="Output file."),
-    mitsuba_plastic: str = typer.Option("exact", "--mitsuba-plastic", help="exact: a plastic as a blendbsdf of roughconductor and plastic (exact with smith-rational G); roughplastic: Mitsuba's roughplastic, its error measured with Mitsuba."),
+    mitsuba_plastic: str = typer.Option("exact", "--mitsuba-plastic", help="exact: a plastic as a blendbsdf of roughconductor and plastic (exact with "
+                                                                           "smith-rational G); roughplastic: Mitsuba's roughplastic, its error measured with "
+                                                                           "Mitsuba."),
 ):
     """Write the material for a renderer, and print how far the export is from the fit in one line.
 

@@ -120,7 +120,8 @@ def _fit_options_record(o) -> dict:
     """The options a stored result was fitted with (a re-run keeps it only if they are equal)."""
     from .._fitting import input_sha256
 
-    return dict(family=o.family, lobes=o.lobes, geometry=o.geometry, fresnel=o.fresnel, diffuse="none" if o.no_diffuse else o.diffuse, loss=o.loss, solver=o.solver, float32=o.float32,
+    return dict(family=o.family, lobes=o.lobes, geometry=o.geometry, fresnel=o.fresnel, diffuse="none" if o.no_diffuse else o.diffuse, loss=o.loss,
+                solver=o.solver, float32=o.float32,
                 starts=o.starts, max_steps=o.max_steps, param_out=o.param_out, material=input_sha256(o.material) if o.material else None)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 from .inputs import check_param_out, load_material_file, read_data, setup_jax
 from .messages import UserError, cli_message, failure_line
@@ -265,7 +266,8 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
     from .._runtime import bar, echo
 
     together = len(files) > 1 and not o.sample_ and structure_from_options(base.structure if base else None, o) is not None
-    outcomes, fitted = [], {}
+    outcomes: list[tuple[str, str]] = []
+    fitted: dict[Path, Any] = {}  # path → (measurement, FitResult), or an exception (_fit_together)
     for k, path in enumerate(bar(files, desc="files", enabled=show and len(files) > 1)):
         try:
             if not together:
@@ -276,7 +278,8 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
                 got = fitted.pop(path)
                 if isinstance(got, Exception):
                     raise got
-                outcome = report_file(path, *got, o, plan[path], show)
+                meas, res = got
+                outcome = report_file(path, meas, res, o, plan[path], show)
             outcomes.append((outcome, str(path)))
         except (UserError, ValueError, OSError, KeyError) as e:
             if len(files) == 1:

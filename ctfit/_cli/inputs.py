@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import overload
 
 from .messages import UserError
 
@@ -17,6 +18,14 @@ def setup_jax(float32: bool = False):
     from .._runtime import enable_compilation_cache
 
     enable_compilation_cache()
+
+
+@overload
+def output_file(value: str, option: str = "-o") -> Path: ...
+@overload
+def output_file(value: None, option: str = "-o") -> None: ...
+@overload
+def output_file(value: str | None, option: str = "-o") -> Path | None: ...
 
 
 def output_file(value: str | None, option: str = "-o") -> Path | None:

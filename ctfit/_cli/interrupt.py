@@ -45,7 +45,7 @@ def exit_interrupted(message: str, notes=()) -> None:
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
-        except Exception:  # noqa: BLE001 — a closed or broken stream: nothing more to say there
+        except Exception:  # a closed or broken stream: nothing more to say there
             pass
     try:
         os.write(2, (message + "\n").encode())

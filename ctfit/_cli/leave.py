@@ -52,6 +52,6 @@ def _leave() -> None:
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
-        except Exception:  # noqa: BLE001 — a closed or broken stream: nothing more to say there
+        except Exception:  # a closed or broken stream: nothing more to say there
             pass
     os._exit(_status["code"])

@@ -43,8 +43,8 @@ def render_command_body(
     ``delta_e`` is None, or ``{"median", "p95", "coverage"}`` (ΔE2000 over the sphere, the
     fraction of the lit sphere inside the measured domain).
     """
-    from .._io import check_output, load_material  # noqa: PLC0415
-    from .._render import EXPOSURES, SHAPES, check_wavelength_step, render_compare, render_materials, save_png  # noqa: PLC0415
+    from .._io import check_output, load_material
+    from .._render import EXPOSURES, SHAPES, check_wavelength_step, render_compare, render_materials, save_png
 
     if not materials:
         raise ValueError("give at least one material file")
@@ -71,7 +71,7 @@ def render_command_body(
     if compare is not None:
         if len(mats) != 1:
             raise ValueError(f"--compare shows one material beside its data; got {len(mats)} materials")
-        from .._io import read_measurement  # noqa: PLC0415
+        from .._io import read_measurement
 
         data = read_measurement(compare)
         if delta_e:
@@ -96,7 +96,7 @@ def render_command_body(
 
 def _delta_e_figure(material, data, output, size, shape, supersample, exposure, inputs) -> dict:
     """``--compare DATA --delta-e``: the measured | fitted | ΔE2000 figure, and its summary."""
-    from .._render import render_comparison  # noqa: PLC0415
+    from .._render import render_comparison
 
     result = render_comparison(material, data, output, size=size, shape=shape, supersample=supersample, exposure=exposure)
     width, height = (int(round(v * 110)) for v in result.figure.get_size_inches())

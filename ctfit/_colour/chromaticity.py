@@ -7,6 +7,7 @@ import functools
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype, safe_div
 from .tristimulus import DEFAULT_OBSERVER, observer_cmfs
@@ -14,7 +15,7 @@ from .tristimulus import DEFAULT_OBSERVER, observer_cmfs
 __all__ = ["XYZ_to_xy", "dominant_wavelength", "excitation_purity"]
 
 
-def XYZ_to_xy(XYZ, xy_n=None):
+def XYZ_to_xy(XYZ: Float[ArrayLike, "*batch 3"], xy_n: Float[ArrayLike, " 2"] | None = None) -> Float[Array, "*batch 2"]:
     """CIE xy chromaticity (…, 2). Where X + Y + Z = 0 (black) it is ``xy_n`` if given, else (0, 0).
 
     >>> import numpy as np
@@ -32,13 +33,13 @@ def XYZ_to_xy(XYZ, xy_n=None):
 
 
 @functools.cache
-def _locus(observer: str):
+def _locus(observer: str) -> tuple[np.ndarray, np.ndarray]:
     cmfs = observer_cmfs(observer)
     v = np.asarray(cmfs.values, dtype=float)
     return v[:, :2] / v.sum(1, keepdims=True), np.asarray(cmfs.wavelengths, dtype=float)
 
 
-def _first_hit(origin, direction, observer, *, purple: bool):
+def _first_hit(origin: np.ndarray, direction: np.ndarray, observer: str, *, purple: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Ray origin + t·direction (t > 0) against the spectral locus (and the purple line if asked).
 
     Returns (t, wavelength, segment is purple line) for the smallest t; t = inf where nothing is hit.
@@ -69,7 +70,7 @@ def _first_hit(origin, direction, observer, *, purple: bool):
     return t_best, lam, np.isnan(lam) & np.isfinite(t_best)
 
 
-def _dominant(xy, xy_n, observer):
+def _dominant(xy: ArrayLike, xy_n: ArrayLike, observer: str) -> tuple[np.ndarray, np.ndarray]:
     xy = np.asarray(xy, dtype=float)
     xy_n = np.broadcast_to(np.asarray(xy_n, dtype=float), xy.shape)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
@@ -87,7 +88,9 @@ def _dominant(xy, xy_n, observer):
     return lam, purity
 
 
-def dominant_wavelength(xy, xy_n, observer: str = DEFAULT_OBSERVER) -> np.ndarray:
+def dominant_wavelength(
+    xy: Float[ArrayLike, "*batch 2"], xy_n: Float[ArrayLike, " 2"], observer: str = DEFAULT_OBSERVER
+) -> Float[np.ndarray, "*batch"]:
     """Dominant wavelength (nm) of chromaticities ``xy`` (…, 2) seen against the white ``xy_n``.
 
     The ray from ``xy_n`` through ``xy`` meets the spectral locus of ``observer`` (its
@@ -104,7 +107,9 @@ def dominant_wavelength(xy, xy_n, observer: str = DEFAULT_OBSERVER) -> np.ndarra
     return _dominant(xy, xy_n, observer)[0]
 
 
-def excitation_purity(xy, xy_n, observer: str = DEFAULT_OBSERVER) -> np.ndarray:
+def excitation_purity(
+    xy: Float[ArrayLike, "*batch 2"], xy_n: Float[ArrayLike, " 2"], observer: str = DEFAULT_OBSERVER
+) -> Float[np.ndarray, "*batch"]:
     """Excitation purity |xy − xy_n| / |xy_b − xy_n|, xy_b the locus or purple-line point. NumPy.
 
     0 for achromatic colours; greater than 1 outside the spectral locus; NaN for non-finite input.

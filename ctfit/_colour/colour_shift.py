@@ -29,6 +29,7 @@ References
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import fresnel_conductor, fresnel_dielectric, fresnel_dielectric_f0
 from .tristimulus import SpectralWeights, spectrum_to_XYZ
@@ -42,7 +43,7 @@ __all__ = [
 ]
 
 
-def average_normal_reflectance(f0, weights: SpectralWeights | None = None):
+def average_normal_reflectance(f0: Float[ArrayLike, "*batch bands"], weights: SpectralWeights | None = None) -> Float[Array, "*batch"]:
     """F0_avg of a normal-reflectance spectrum (…, λ).
 
     With ``weights``: the luminance-weighted mean, i.e. Y of the F0 spectrum (Y(white) = 1).
@@ -61,7 +62,7 @@ def average_normal_reflectance(f0, weights: SpectralWeights | None = None):
     return spectrum_to_XYZ(f0, weights)[..., 1]
 
 
-def colour_shift_weight(cos_theta, f0_mean):
+def colour_shift_weight(cos_theta: Float[ArrayLike, "*#batch"], f0_mean: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
     """max(0, F_avg(θ) − F0_avg)/(1 − F0_avg): 0 at normal incidence, 1 at grazing.
 
     F_avg is :func:`ctfit.fresnel_dielectric_f0` — the paper's dielectric F with
@@ -81,7 +82,10 @@ def colour_shift_weight(cos_theta, f0_mean):
     return jnp.where(ok, jnp.maximum(f - f0, 0) / jnp.where(ok, den, 1), 0)
 
 
-def colour_shift_approximation(rgb_normal, rgb_light, f0_mean, cos_theta):
+def colour_shift_approximation(
+    rgb_normal: Float[ArrayLike, "*#batch 3"], rgb_light: Float[ArrayLike, "*#batch 3"], f0_mean: Float[ArrayLike, "*#batch"],
+    cos_theta: Float[ArrayLike, "*#batch"],
+) -> Float[Array, "*batch 3"]:
     """The paper's colour at cos θ (…, 3) between the normal-incidence and the light's colour.
 
     ``rgb_normal`` and ``rgb_light`` (…, 3) are linear (RGB or XYZ); ``f0_mean`` and
@@ -99,7 +103,10 @@ def colour_shift_approximation(rgb_normal, rgb_light, f0_mean, cos_theta):
     return a + w * (jnp.asarray(rgb_light) - a)
 
 
-def fresnel_reflectance_spectrum(cos_theta, *, f0=None, n=None, k=None):
+def fresnel_reflectance_spectrum(
+    cos_theta: Float[ArrayLike, "*#batch"], *, f0: Float[ArrayLike, "*#batch bands"] | None = None,
+    n: Float[ArrayLike, "*#batch bands"] | None = None, k: Float[ArrayLike, "*#batch bands"] | None = None,
+) -> Float[Array, "*batch bands"]:
     """F(θ, λ), shape ``cos_theta.shape + (λ,)``, from one kind of spectral Fresnel data (λ,).
 
     - ``f0``: the paper's effective index per wavelength (k = 0), :func:`ctfit.fresnel_dielectric_f0`;
@@ -123,7 +130,10 @@ def fresnel_reflectance_spectrum(cos_theta, *, f0=None, n=None, k=None):
     return fresnel_conductor(c, jnp.asarray(n), jnp.asarray(k))
 
 
-def colour_shift_spectral(cos_theta, weights: SpectralWeights, *, f0=None, n=None, k=None):
+def colour_shift_spectral(
+    cos_theta: Float[ArrayLike, "*#batch"], weights: SpectralWeights, *, f0: Float[ArrayLike, "*#batch bands"] | None = None,
+    n: Float[ArrayLike, "*#batch bands"] | None = None, k: Float[ArrayLike, "*#batch bands"] | None = None,
+) -> Float[Array, "*batch 3"]:
     """Exact XYZ (…, 3) of the reflection at cos θ: F(θ, λ) on ``weights.wavelength_nm`` integrated.
 
     >>> import numpy as np

@@ -5,6 +5,7 @@ black and at achromatic colours."""
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype, safe_sqrt
 
@@ -14,13 +15,13 @@ __all__ = ["XYZ_to_Lab", "delta_E_CIE2000"]
 _LAB_EPS = (6 / 29) ** 3
 
 
-def _lab_f(t):
+def _lab_f(t: Array) -> Array:
     big = t > _LAB_EPS
     safe = jnp.where(big, t, 1)
     return jnp.where(big, jnp.cbrt(safe), t / (3 * (6 / 29) ** 2) + 4 / 29)
 
 
-def XYZ_to_Lab(XYZ, white_XYZ):
+def XYZ_to_Lab(XYZ: Float[ArrayLike, "*batch 3"], white_XYZ: Float[ArrayLike, " 3"]) -> Float[Array, "*batch 3"]:
     """CIELAB (CIE 15:2004 §8.2.1) relative to ``white_XYZ``: L* = 100 for the white. JAX.
 
     Differentiable at black (the cube root is only taken above (6/29)³).
@@ -37,13 +38,13 @@ def XYZ_to_Lab(XYZ, white_XYZ):
     return jnp.stack([116 * fy - 16, 500 * (fx - fy), 200 * (fy - fz)], axis=-1)
 
 
-def _safe_atan2_deg(y, x):
+def _safe_atan2_deg(y: Array, x: Array) -> Array:
     zero = (x == 0) & (y == 0)
     h = jnp.degrees(jnp.arctan2(jnp.where(zero, 0, y), jnp.where(zero, 1, x)))
     return jnp.where(zero, 0, jnp.mod(h, 360))
 
 
-def delta_E_CIE2000(Lab1, Lab2):
+def delta_E_CIE2000(Lab1: Float[ArrayLike, "*#batch 3"], Lab2: Float[ArrayLike, "*#batch 3"]) -> Float[Array, "*batch"]:
     """CIEDE2000 colour difference (k_L = k_C = k_H = 1; Sharma et al. 2005). JAX.
 
     Agrees with ``colour.delta_E(..., method="CIE 2000")``; differentiable, with zero gradient

@@ -28,6 +28,7 @@ import functools
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._model import float_dtype
 
@@ -35,7 +36,7 @@ __all__ = ["desaturate_to_gamut", "in_gamut", "scale_to_display", "srgb_luminanc
 
 
 @functools.cache
-def srgb_luminance() -> np.ndarray:
+def srgb_luminance() -> Float[np.ndarray, " 3"]:
     """Luminance of sRGB's linear channels (Y row of its RGB → XYZ matrix, summing to 1).
 
     >>> [round(float(v), 4) for v in srgb_luminance()]
@@ -47,19 +48,21 @@ def srgb_luminance() -> np.ndarray:
     return m_inv[1] / m_inv[1].sum()
 
 
-def _float(x):
+def _float(x: ArrayLike) -> Array:
     x = jnp.asarray(x)
     return x.astype(float_dtype(x))
 
 
-def _ratio(num, den, use):
+def _ratio(num: Array, den: Array, use: Array) -> Array:
     """num/den where ``use``, else 1 (no constraint); both branches finite."""
     ok = use & (den > 0)
     r = num / jnp.where(ok, den, 1)
     return jnp.where(ok, r, jnp.where(use, 0, 1))
 
 
-def desaturate_to_gamut(rgb, luminance=None, *, upper=1.0):
+def desaturate_to_gamut(
+    rgb: Float[ArrayLike, "*batch 3"], luminance: Float[ArrayLike, " 3"] | None = None, *, upper: float | None = 1.0
+) -> Float[Array, "*batch 3"]:
     """Map linear RGB (…, 3) into [0, upper]³ by mixing with the white of equal luminance.
 
     ``luminance``: the (3,) channel luminances, summing to 1 (default: sRGB's); pass
@@ -91,7 +94,7 @@ def desaturate_to_gamut(rgb, luminance=None, *, upper=1.0):
     return jnp.clip(out, 0, upper) if upper is not None else jnp.maximum(out, 0)
 
 
-def in_gamut(rgb, *, upper=1.0, atol=0.0):
+def in_gamut(rgb: Float[ArrayLike, "*batch 3"], *, upper: float | None = 1.0, atol: float = 0.0) -> Bool[Array, "*batch"]:
     """Whether every channel of each colour (…, 3) is in [−atol, upper + atol] (False for NaN).
 
     >>> import numpy as np
@@ -105,7 +108,9 @@ def in_gamut(rgb, *, upper=1.0, atol=0.0):
     return jnp.all(ok, axis=-1)
 
 
-def scale_to_display(rgb, luminance=None):
+def scale_to_display(
+    rgb: Float[ArrayLike, "*batch 3"], luminance: Float[ArrayLike, " 3"] | None = None
+) -> tuple[Float[Array, "*batch 3"], Float[Array, ""]]:
     """Scale a scene for display: ``(rgb_display, scale)``.
 
     1. Negative channels are mapped into the gamut at constant luminance

@@ -22,10 +22,11 @@ report refuses it.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .._io import float_list
 from .._model import Material, ambient_reflectance, fresnel
@@ -43,7 +44,7 @@ _spectrum_to_XYZ = eqx.filter_jit(spectrum_to_XYZ)
 
 
 @eqx.filter_jit
-def _to_rgb(XYZ, conv):
+def _to_rgb(XYZ: ArrayLike, conv: RGBConversion) -> tuple[Array, Array | np.ndarray]:
     """Linear RGB, and gamut-mapped linear RGB, of a colourspace (compiled once per shape). The
     encoding is applied outside: some colourspaces' encodings are evaluated in NumPy."""
     return XYZ_to_RGB(XYZ, conv), XYZ_to_display_RGB(XYZ, conv, encode=False)
@@ -56,7 +57,9 @@ def _cos(angle_deg: float) -> float:
     return 0.0 if a == 90 else math.cos(math.radians(a))
 
 
-def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_nm=None):
+def reflectance_spectrum(
+    material: Material, angle_deg: float = 0.0, wavelength_nm: Float[ArrayLike, " bands"] | None = None
+) -> tuple[str, Float[np.ndarray, " bands"]]:
     """``(quantity, R)``: the reflected spectrum (or RGB) the report is the colour of.
 
     ``quantity`` is ``"F(theta)"`` (specular part present) or ``"pi*Rd"`` (diffuse only). ``R``
@@ -71,16 +74,17 @@ def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_
     """
     cos = _cos(angle_deg)
     st = material.structure
+    n_bands: int | None
     if material.is_rgb:
         params = material.params_at(channels=("R", "G", "B"))
         n_bands = 3
     elif material.wavelength_nm is None:
         params = material.params  # scalar (grey) parameters
-        n_bands = None if wavelength_nm is None else len(wavelength_nm)
+        n_bands = None if wavelength_nm is None else np.size(wavelength_nm)
     else:
         wl = material.wavelength_nm if wavelength_nm is None else wavelength_nm
         params = material.params_at(wavelength_nm=wl)
-        n_bands = len(wl)
+        n_bands = np.size(wl)
     if st.has_specular:
         quantity, r = "F(theta)", _fresnel(st, params, np.asarray(cos))
     else:
@@ -91,7 +95,7 @@ def reflectance_spectrum(material: Material, angle_deg: float = 0.0, wavelength_
     return quantity, r
 
 
-def _hex(srgb) -> str:
+def _hex(srgb: ArrayLike) -> str:
     v = np.clip(np.round(np.asarray(srgb, dtype=float) * 255), 0, 255).astype(int)
     return "#" + "".join(f"{c:02x}" for c in v)
 
@@ -107,7 +111,9 @@ class _Reflection(NamedTuple):
     conversion: RGBConversion  # to the report's colourspace
 
 
-def _reflection(material: Material, angle_deg, illuminant, colourspace, observer, chromatic_adaptation) -> _Reflection:
+def _reflection(
+    material: Material, angle_deg: float, illuminant: Any, colourspace: str, observer: str, chromatic_adaptation: str | None
+) -> _Reflection:
     """XYZ of the reflected spectrum (spectral materials) or of the linear RGB (RGB materials)."""
     if material.is_rgb:
         conv = rgb_conversion(colourspace, None, None)
@@ -123,13 +129,13 @@ def _reflection(material: Material, angle_deg, illuminant, colourspace, observer
     return _Reflection(quantity, np.asarray(XYZ, dtype=float), float(np.finfo(XYZ.dtype).eps), white, weights.illuminant, conv)
 
 
-def _shown(XYZ, conv: RGBConversion) -> tuple[np.ndarray, np.ndarray]:
+def _shown(XYZ: ArrayLike, conv: RGBConversion) -> tuple[np.ndarray, np.ndarray]:
     """(linear RGB, encoded gamut-mapped RGB) of ``conv``'s colourspace."""
     lin, mapped = _to_rgb(XYZ, conv)
     return np.asarray(lin, dtype=float), np.asarray(encode_RGB(mapped, conv.colourspace), dtype=float)
 
 
-def _dominant(xy, white_xy, observer: str, eps: float) -> tuple[float, float]:
+def _dominant(xy: ArrayLike, white_xy: ArrayLike, observer: str, eps: float) -> tuple[float, float]:
     """Dominant wavelength and excitation purity; (NaN, 0) for a white up to the dtype's rounding."""
     lam = float(dominant_wavelength(xy, white_xy, observer))
     purity = float(excitation_purity(xy, white_xy, observer))
@@ -141,7 +147,7 @@ def _dominant(xy, white_xy, observer: str, eps: float) -> tuple[float, float]:
 def colour_report(
     material: Material,
     angle_deg: float = 0.0,
-    illuminant="D65",
+    illuminant: str | tuple[Float[ArrayLike, " wavelengths"], Float[ArrayLike, " wavelengths"]] = "D65",
     colourspace: str = "sRGB",
     observer: str = DEFAULT_OBSERVER,
     chromatic_adaptation: str | None = "CAT02",

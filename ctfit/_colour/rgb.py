@@ -9,10 +9,12 @@ References: IEC 61966-2-1:1999 (sRGB); ``docs/colour.md``.
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype
 from .gamut import desaturate_to_gamut
@@ -22,7 +24,7 @@ __all__ = ["RGBConversion", "rgb_conversion", "XYZ_to_RGB", "RGB_to_XYZ", "eotf_
 
 
 @functools.cache
-def _colourspace(name: str):
+def _colourspace(name: str) -> Any:
     return table_entry("RGB_COLOURSPACES", name, "colourspace", sorted(colour_science().RGB_COLOURSPACES.keys())[:12])
 
 
@@ -40,18 +42,20 @@ class RGBConversion(eqx.Module):
     ('sRGB', [0.2126, 0.7152, 0.0722])
     """
 
-    matrix: np.ndarray
-    luminance: np.ndarray
+    matrix: Float[np.ndarray, "3 3"]
+    luminance: Float[np.ndarray, " 3"]
     colourspace: str = eqx.field(static=True)
     chromatic_adaptation: str | None = eqx.field(static=True)
 
     @property
-    def white_XYZ(self) -> np.ndarray:
+    def white_XYZ(self) -> Float[np.ndarray, " 3"]:
         """The scene white that maps to RGB (1, 1, 1)."""
         return np.linalg.solve(np.asarray(self.matrix), np.ones(3))
 
 
-def rgb_conversion(colourspace: str = "sRGB", white_XYZ=None, chromatic_adaptation: str | None = "CAT02") -> RGBConversion:
+def rgb_conversion(
+    colourspace: str = "sRGB", white_XYZ: Float[ArrayLike, " 3"] | None = None, chromatic_adaptation: str | None = "CAT02"
+) -> RGBConversion:
     """The XYZ → linear RGB conversion of ``colourspace`` (any name in ``colour.RGB_COLOURSPACES``).
 
     ``white_XYZ`` is the scene white (e.g. ``SpectralWeights.white_XYZ``). With a
@@ -92,7 +96,7 @@ def rgb_conversion(colourspace: str = "sRGB", white_XYZ=None, chromatic_adaptati
     )
 
 
-def XYZ_to_RGB(XYZ, conversion: RGBConversion):
+def XYZ_to_RGB(XYZ: Float[ArrayLike, "*batch 3"], conversion: RGBConversion) -> Float[Array, "*batch 3"]:
     """Linear RGB (…, 3) from XYZ (…, 3); no encoding, no gamut mapping (channels may be < 0).
 
     >>> import numpy as np
@@ -105,7 +109,7 @@ def XYZ_to_RGB(XYZ, conversion: RGBConversion):
     return x @ jnp.asarray(conversion.matrix).astype(x.dtype).T
 
 
-def RGB_to_XYZ(rgb, conversion: RGBConversion):
+def RGB_to_XYZ(rgb: Float[ArrayLike, "*batch 3"], conversion: RGBConversion) -> Float[Array, "*batch 3"]:
     """Inverse of :func:`XYZ_to_RGB`.
 
     >>> import numpy as np
@@ -117,7 +121,7 @@ def RGB_to_XYZ(rgb, conversion: RGBConversion):
     return x @ jnp.asarray(np.linalg.inv(np.asarray(conversion.matrix))).astype(x.dtype).T
 
 
-def eotf_inverse_sRGB(L):
+def eotf_inverse_sRGB(L: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
     """sRGB encoding (IEC 61966-2-1): 12.92 L for L ≤ 0.0031308, else 1.055 L^(1/2.4) − 0.055.
 
     JAX, differentiable everywhere (the power is never evaluated at 0). Negative values use
@@ -142,7 +146,7 @@ def _jax_encodings() -> dict:
     return {colour.models.eotf_inverse_sRGB: eotf_inverse_sRGB, colour.linear_function: jnp.asarray}
 
 
-def encode_RGB(rgb, colourspace: str = "sRGB"):
+def encode_RGB(rgb: Float[ArrayLike, "*batch 3"], colourspace: str = "sRGB") -> Float[Array | np.ndarray, "*batch 3"]:
     """Apply the colourspace's encoding (its ``cctf_encoding``) to linear RGB.
 
     In JAX (differentiable, jittable) when the encoding is sRGB's curve (sRGB, Display P3, …)
@@ -168,7 +172,9 @@ def encode_RGB(rgb, colourspace: str = "sRGB"):
         return np.asarray(cs.cctf_encoding(a), dtype=float)
 
 
-def XYZ_to_display_RGB(XYZ, conversion: RGBConversion, *, upper=1.0, encode=True):
+def XYZ_to_display_RGB(
+    XYZ: Float[ArrayLike, "*batch 3"], conversion: RGBConversion, *, upper: float | None = 1.0, encode: bool = True
+) -> Float[Array | np.ndarray, "*batch 3"]:
     """XYZ (…, 3) → linear RGB → the paper's gamut mapping → encoding: the colour to show.
 
     The gamut mapping is :func:`ctfit.desaturate_to_gamut` with the colourspace's luminance and
@@ -187,7 +193,10 @@ def XYZ_to_display_RGB(XYZ, conversion: RGBConversion, *, upper=1.0, encode=True
     return encode_RGB(rgb, conversion.colourspace) if encode else rgb
 
 
-def spectrum_to_RGB(reflectance, weights: SpectralWeights, conversion: RGBConversion, *, upper=1.0, encode=True):
+def spectrum_to_RGB(
+    reflectance: Float[ArrayLike, "*batch bands"], weights: SpectralWeights, conversion: RGBConversion, *, upper: float | None = 1.0,
+    encode: bool = True,
+) -> Float[Array | np.ndarray, "*batch 3"]:
     """The whole pipeline: reflectance (…, λ) → XYZ → :func:`XYZ_to_display_RGB`.
 
     >>> import numpy as np

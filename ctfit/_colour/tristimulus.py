@@ -50,10 +50,12 @@ from __future__ import annotations
 
 import functools
 import warnings
+from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype
 
@@ -76,16 +78,16 @@ class SpectralResamplingWarning(UserWarning):
     """
 
 
-def colour_science():
+def colour_science() -> Any:
     """The colour-science package, imported on first use (it takes a while). Its import sets
     NumPy's print options to ``legacy="1.13"``; ctfit keeps the user's settings as they were."""
     with np.printoptions():
-        import colour  # noqa: PLC0415  (heavy; imported on first use)
+        import colour  # heavy; imported on first use
 
     return colour
 
 
-def table_entry(table: str, key: str, what: str, names: list[str], also: str = ""):
+def table_entry(table: str, key: str, what: str, names: list[str], also: str = "") -> Any:
     """``colour.<table>[key]``; a ValueError naming ``what`` and ``names`` (some of the keys) if absent."""
     try:
         return getattr(colour_science(), table)[key]
@@ -94,13 +96,13 @@ def table_entry(table: str, key: str, what: str, names: list[str], also: str = "
 
 
 @functools.cache
-def observer_cmfs(observer: str):
+def observer_cmfs(observer: str) -> Any:
     """The colour-matching functions of ``observer`` (a name in ``colour.MSDS_CMFS``)."""
     names = sorted(k for k in colour_science().MSDS_CMFS.keys() if "Observer" in k)
     return table_entry("MSDS_CMFS", observer, "observer", names)
 
 
-def _illuminant_sd(illuminant):
+def _illuminant_sd(illuminant: str | tuple[Float[ArrayLike, " wavelengths"], Float[ArrayLike, " wavelengths"]]) -> tuple[str, Any, bool]:
     """(name, SpectralDistribution, user_supplied) from a name, an SD or (wavelengths, values)."""
     colour = colour_science()
     if isinstance(illuminant, str):
@@ -125,7 +127,7 @@ def _illuminant_sd(illuminant):
     return "custom", sd, True
 
 
-def _on_grid(wl, grid):
+def _on_grid(wl: np.ndarray, grid: np.ndarray) -> np.ndarray | None:
     """Indices of ``wl`` in ``grid`` when every value is a node (to 1e-9 nm), else None."""
     idx = np.clip(np.searchsorted(grid, wl), 0, grid.size - 1)
     idx_lo = np.clip(idx - 1, 0, grid.size - 1)
@@ -138,7 +140,7 @@ def _warn_resampling(message: str) -> None:
     warnings.warn(message, SpectralResamplingWarning, stacklevel=3)
 
 
-def _cell_widths(wl):
+def _cell_widths(wl: np.ndarray) -> np.ndarray:
     """Δ(λ): half-way to each neighbour; the end cells are symmetric (Δλ on a uniform grid)."""
     d = np.diff(wl)
     left = np.concatenate([d[:1], d])
@@ -162,19 +164,23 @@ class SpectralWeights(eqx.Module):
     ((31, 3), 'D65', [0.3127, 0.3293])
     """
 
-    wavelength_nm: np.ndarray
-    weights: np.ndarray
-    white_XYZ: np.ndarray
+    wavelength_nm: Float[np.ndarray, " bands"]
+    weights: Float[np.ndarray, "bands 3"]
+    white_XYZ: Float[np.ndarray, " 3"]
     illuminant: str = eqx.field(static=True)
     observer: str = eqx.field(static=True)
 
     @property
-    def white_xy(self) -> np.ndarray:
+    def white_xy(self) -> Float[np.ndarray, " 2"]:
         w = np.asarray(self.white_XYZ)
         return w[:2] / w.sum()
 
 
-def spectral_weights(wavelength_nm, illuminant="D65", observer: str = DEFAULT_OBSERVER) -> SpectralWeights:
+def spectral_weights(
+    wavelength_nm: Float[ArrayLike, " bands"],
+    illuminant: str | tuple[Float[ArrayLike, " wavelengths"], Float[ArrayLike, " wavelengths"]] = "D65",
+    observer: str = DEFAULT_OBSERVER,
+) -> SpectralWeights:
     """Weights that integrate a reflectance spectrum on ``wavelength_nm`` to XYZ (Y(white) = 1).
 
     ``illuminant`` is a name from ``colour.SDS_ILLUMINANTS`` ("D65", the paper's "D6500", by
@@ -241,7 +247,7 @@ def spectral_weights(wavelength_nm, illuminant="D65", observer: str = DEFAULT_OB
 
 
 
-def spectrum_to_XYZ(reflectance, weights: SpectralWeights):
+def spectrum_to_XYZ(reflectance: Float[ArrayLike, "*batch bands"], weights: SpectralWeights) -> Float[Array, "*batch 3"]:
     """CIE XYZ (…, 3) of reflectance spectra (…, λ) on ``weights.wavelength_nm``.
 
     Y of a perfect white reflector is 1. One matrix product: differentiable, batched.

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 
 import numpy as np
 
@@ -47,7 +48,7 @@ class ExportResult:
         return (f"{self.format}: {kind}: median {100 * e['median']:.3g} %, max {100 * e['max']:.3g} % relative "
                 f"difference of the BRDF over {e['grid']}")
 
-    def write(self, path) -> None:
+    def write(self, path: str | os.PathLike[str]) -> None:
         """Write the export to ``path`` atomically."""
         if self.format == "merl":
             write_merl(path, self.content)
@@ -74,7 +75,7 @@ def _mitsuba_approximations(material: Material) -> list[str]:
     return notes
 
 
-def _error(fit, target, approximations) -> dict:
+def _error(fit: np.ndarray, target: np.ndarray, approximations: list[str]) -> dict:
     return {**relative_difference(target, fit), "exact": not approximations, "approximations": approximations, "grid": ERROR_GRID}
 
 
@@ -113,7 +114,9 @@ def _export_rgb(material: Material, to: str) -> ExportResult:
     return ExportResult(to, json.dumps(doc, indent=2, ensure_ascii=False) + "\n", error)
 
 
-def export_material(material: Material, to: str = "mitsuba", path=None, *, mitsuba_plastic: str = "exact") -> ExportResult:
+def export_material(
+    material: Material, to: str = "mitsuba", path: str | os.PathLike[str] | None = None, *, mitsuba_plastic: str = "exact"
+) -> ExportResult:
     """The material in a renderer's format (:data:`EXPORT_FORMATS`), written to ``path`` if given.
 
     ``mitsuba_plastic="roughplastic"`` writes a plastic as Mitsuba's ``roughplastic`` (one per

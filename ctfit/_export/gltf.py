@@ -131,6 +131,7 @@ def gltf_material(material: Material) -> dict:
     to_rgb = band_to_rgb(material)
     s = float(p.s) if st.has_s else float(st.has_specular)
     rough = fit_ggx_roughness(material) if st.has_specular else 1.0
+    ext: dict[str, dict[str, float | list[float]]]
     if st.family == "metal" and st.has_specular:
         base = np.asarray(normal_reflectance(st, p), float).reshape(-1) @ to_rgb
         metallic, ext = s, {"KHR_materials_specular": {"specularFactor": 0.0}}

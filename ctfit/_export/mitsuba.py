@@ -256,7 +256,8 @@ def mitsuba_values(tree: dict, material: Material, theta_i, phi_i, theta_o, phi_
             values = []
             for g in groups:
                 if spectral:
-                    si.wavelengths = [float(x) for x in g]
+                    # a list of four floats: Mitsuba converts it to its spectrum type
+                    si.wavelengths = [float(x) for x in g]  # type: ignore[assignment]
                 values.append(np.asarray(bsdf.eval(ctx, si, mi.Vector3f(*v)), float) / v[2])
             out.append(np.concatenate(values)[:wl.size] if spectral else values[0][: 1 if len(material.band_labels) == 1 else 3])
         return np.array(out)

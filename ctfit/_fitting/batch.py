@@ -28,17 +28,23 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from .._model import Measurement, Structure
 from .._runtime import cached_call
 from .chunked_fit import ROWS
 from .least_squares import FitResult, PreparedFit, finish_fit, fit, fit_core, prepare_fit, solve_prepared
 from .options import takes_fit_options
+from .problem import Problem
+
+if TYPE_CHECKING:  # texels imports this module
+    from .texels import TexelFits
 
 __all__ = ["fit_batch", "mapped", "default_width", "batch_size", "SAMPLE_BUDGET"]
 
@@ -52,11 +58,11 @@ def fit_batch(
     measurements: Sequence[Measurement],
     structure: Structure | None = None,
     *,
-    values=None,
+    values: Float[np.ndarray, "texels samples"] | None = None,
     return_errors: bool = False,
     width: int | None = None,
-    **options,
-) -> list:
+    **options: Any,
+) -> list[FitResult | Exception] | TexelFits:
     """Fit ``structure`` to every measurement, in as few compiled programs as possible.
 
     Returns one :class:`~ctfit.FitResult` per measurement, in input order, each what
@@ -101,14 +107,16 @@ def fit_batch(
         if isinstance(got, Exception):
             results[i] = got
         elif chunked:
-            results[i] = _caught(lambda: finish_fit(got, solve_prepared(got, solver, max_steps), solver, time.perf_counter(), max_steps=max_steps), return_errors)
+            results[i] = _caught(lambda: finish_fit(got, solve_prepared(got, solver, max_steps), solver, time.perf_counter(), max_steps=max_steps),
+                                 return_errors)
         else:
             preps[i] = got
     for group in _groups(preps, solver, max_steps):
         for call in _calls(group, preps):
-            outs = _caught(lambda: _solve([preps[i] for i in call], solver, max_steps, width), return_errors)
+            outs: Any = _caught(lambda: _solve([preps[i] for i in call], solver, max_steps, width), return_errors)
             for i, out in zip(call, outs if isinstance(outs, list) else [outs] * len(call)):
-                results[i] = out if isinstance(out, Exception) else _caught(lambda: finish_fit(preps[i], out, solver, time.perf_counter(), max_steps=max_steps), return_errors)
+                results[i] = out if isinstance(out, Exception) else _caught(
+                    lambda: finish_fit(preps[i], out, solver, time.perf_counter(), max_steps=max_steps), return_errors)
     share = (time.perf_counter() - t0) / max(len(measurements), 1)
     for r in results:
         if isinstance(r, FitResult):
@@ -116,7 +124,10 @@ def fit_batch(
     return results
 
 
-def _caught(work, return_errors: bool):
+_T = TypeVar("_T")
+
+
+def _caught(work: Callable[[], _T], return_errors: bool) -> _T | Exception:
     """``work()``, or with ``return_errors`` the ``ValueError`` it raised."""
     try:
         return work()
@@ -126,7 +137,7 @@ def _caught(work, return_errors: bool):
         return e
 
 
-def _single(measurements) -> Measurement:
+def _single(measurements: Sequence[Measurement] | Measurement) -> Measurement:
     items = list(measurements)
     if len(items) != 1:
         raise ValueError(f"values (per-texel fitting) needs one measurement giving the geometry, got {len(items)}")
@@ -139,15 +150,15 @@ def _sizes(prep: PreparedFit) -> tuple[int, int]:
     return problem.geom.cos_vh.shape[0], (len(prep.data) if problem.spec.grid else problem.y.shape[0])
 
 
-def _layout(prep: PreparedFit, solver: str, max_steps: int):
+def _layout(prep: PreparedFit, solver: str, max_steps: int) -> tuple:
     """What must be equal for two fits to share a program, up to the padded sizes."""
-    shapes = lambda tree: tuple((a.shape, a.dtype.name) for a in jax.tree.leaves(tree))  # noqa: E731
+    shapes = lambda tree: tuple((a.shape, a.dtype.name) for a in jax.tree.leaves(tree))
     grid = None if prep.grid is None else prep.grid.shape
     return (jax.tree.structure(prep.problem), shapes(prep.problem.fixed), jax.tree.structure(prep.u0), shapes(prep.u0), grid,
             prep.options(solver, max_steps))
 
 
-def _signature(prep: PreparedFit):
+def _signature(prep: PreparedFit) -> tuple:
     """Every array's shape and dtype (and the tree): equal for members of one batched call."""
     return jax.tree.structure(prep.problem), tuple((a.shape, a.dtype.name) for a in jax.tree.leaves((prep.problem, prep.u0)))
 
@@ -167,7 +178,7 @@ def _groups(preps: dict[int, PreparedFit], solver: str, max_steps: int) -> list[
     groups = []
     for _, members in by_layout:
         if len(members) > 1:
-            target = tuple(max(_sizes(preps[i])[j] for i in members) for j in range(2))
+            target = (max(_sizes(preps[i])[0] for i in members), max(_sizes(preps[i])[1] for i in members))
             for i in members:
                 if _sizes(preps[i]) != target:
                     preps[i] = preps[i].padded(target)
@@ -203,13 +214,13 @@ def default_width() -> int:
     return 1 if jax.default_backend() == "cpu" else 1 << 30
 
 
-def mapped(fn, xs, active, width: int):
+def mapped(fn: Callable[[Any], Any], xs: Any, active: Array, width: int) -> Any:
     """``fn`` over the leading axis of the pytree ``xs``, ``width`` members side by side
     (``jax.vmap``) and those groups in sequence (``jax.lax.map``). A member whose ``active`` is
     False (padding) is skipped where it runs alone; side by side it is computed and discarded."""
     n = active.shape[0]
 
-    def one(args):
+    def one(args: Any) -> Any:
         x, on = args
         out = jax.eval_shape(fn, x)
         return jax.lax.cond(on, fn, lambda _: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), out), x)
@@ -227,7 +238,7 @@ def _solve(preps: list[PreparedFit], solver: str, max_steps: int, width: int) ->
         return [jax.device_get(cached_call("fit", fit_core, first.problem, first.u0, first.grid, *options))]
     size = batch_size(len(preps))
     members = preps + [first] * (size - len(preps))
-    stack = lambda *xs: np.stack(xs)  # noqa: E731 — on the host: no small programs to compile
+    stack = lambda *xs: np.stack(xs)  # on the host: no small programs to compile
     problems = jax.tree.map(stack, *(p.problem for p in members))
     u0s = jax.tree.map(stack, *(p.u0 for p in members))
     active = np.arange(size) < len(preps)
@@ -236,6 +247,6 @@ def _solve(preps: list[PreparedFit], solver: str, max_steps: int, width: int) ->
     return [jax.tree.map(lambda a: a[i], out) for i in range(len(preps))]
 
 
-def _batched_core(problems, u0s, active, grid, width: int, *options):
+def _batched_core(problems: Problem, u0s: dict, active: Array, grid: Any, width: int, *options: Any) -> Any:
     """``fit_core`` over stacked problems and starts (the m grid shared), :func:`mapped`."""
     return mapped(lambda pu: fit_core(pu[0], pu[1], grid, *options), (problems, u0s), active, width)

@@ -35,6 +35,8 @@ import concurrent.futures
 import dataclasses
 import math
 import os
+from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -65,8 +67,9 @@ def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
     from .chunks import chunk_rows
 
     rows = chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
-    host = lambda a: None if a is None else np.asarray(a)  # noqa: E731
-    y, sigma, cos_i, mask = (host(a) for a in (problem.y, problem.sigma, problem.cos_i, problem.mask))
+    host = lambda a: None if a is None else np.asarray(a)
+    y = np.asarray(problem.y)
+    sigma, cos_i, mask = (host(a) for a in (problem.sigma, problem.cos_i, problem.mask))
     geom = jax.tree.map(np.asarray, problem.geom)
     count = y.shape[0] // rows if limit is None else min(limit, y.shape[0] // rows)
     own = None if problem.spec.grid else jax.device_put(np.arange(rows, dtype=np.asarray(problem.pair).dtype))
@@ -74,7 +77,7 @@ def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
     out = []
     for c in range(count):
         cut = slice(c * rows, (c + 1) * rows)
-        at = (lambda a: a[cut]) if problem.spec.grid else (lambda a: a[pair[cut]])  # noqa: E731
+        at = (lambda a: a[cut]) if problem.spec.grid else (lambda a: a[pair[cut]])  # type: ignore[index]  # set when not grid
         cells = {k: None if a is None else a[cut] for k, a in dict(y=y, sigma=sigma, cos_i=cos_i, mask=mask, band=band).items()}
         g, cells = jax.device_put((jax.tree.map(at, geom), cells))  # one transfer per chunk
         if problem.spec.grid:
@@ -224,9 +227,9 @@ class _Kernels:
     parts: list[list]
     template: Problem
     u0: dict
-    ne: object
-    init: object
-    step: object
+    ne: Callable[..., Any]
+    init: Callable[..., Any]
+    step: Callable[..., Any]
     zeros: list  # the sums' starting values, on the device once (programs do not donate their inputs)
 
     def normal_equations(self, flat):
@@ -338,7 +341,7 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
 
     def phase(budgets: list[int]) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
-        run = lambda j: kern.run(values[j], lower, upper, budgets[j], tol)  # noqa: E731
+        run = lambda j: kern.run(values[j], lower, upper, budgets[j], tol)
         if len(go) <= 1:  # one seed (a fit from its start alone): no thread
             runs = [run(j) for j in go]
         else:

@@ -90,15 +90,14 @@ def _parts(problem: Problem, k: int):
 
     cells = (split(problem.y), split(problem.sigma), split(problem.cos_i), split(problem.mask))
     if problem.spec.grid:
-        rows = (jax.tree.map(split, problem.geom), *cells)
 
-        def part(x):
+        def grid_part(x):
             geom, y, sigma, cos_i, mask = x
             return dataclasses.replace(problem, geom=geom, y=y, sigma=sigma, cos_i=cos_i, mask=mask)
 
-        return rows, part
+        return (jax.tree.map(split, problem.geom), *cells), grid_part
     rows = (split(problem.pair), split(problem.band), *cells)
-    own = jnp.arange(CHUNK, dtype=problem.pair.dtype)
+    own = jnp.arange(CHUNK, dtype=problem.pair.dtype)  # type: ignore[union-attr]  # set when not grid
 
     def part(x):
         pair, band, y, sigma, cos_i, mask = x
@@ -110,7 +109,8 @@ def _parts(problem: Problem, k: int):
 
 def sum_over_chunks(problem: Problem, fn):
     """Σ ``fn(part)`` over the parts of ``problem`` of ``CHUNK`` rows each (:func:`chunk_count`), as a
-    ``lax.scan`` — or ``fn(problem)`` when it is not chunked. ``fn`` returns a pytree of arrays that add up: sums over samples (½‖r‖², Jᵀr, JᵀJ, per-band sums)."""
+    ``lax.scan`` — or ``fn(problem)`` when it is not chunked. ``fn`` returns a pytree of arrays that
+    add up: sums over samples (½‖r‖², Jᵀr, JᵀJ, per-band sums)."""
     k = chunk_count(problem)
     if k == 1:
         return fn(problem)

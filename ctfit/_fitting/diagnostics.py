@@ -18,6 +18,8 @@ warning naming where the model is too high or too low.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from .._model import Measurement
@@ -27,7 +29,7 @@ from .losses import loss_floor
 __all__ = ["angle_lv_deg", "half_angle_deg", "relative_residual_structure", "residual_structure"]
 
 
-def _angle_lv(ti, pi, to, po) -> np.ndarray:
+def _angle_lv(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
     ti, to = np.deg2rad(ti), np.deg2rad(to)
     cos = np.sin(ti) * np.sin(to) * np.cos(np.deg2rad(po - pi)) + np.cos(ti) * np.cos(to)
     return np.rad2deg(np.arccos(np.clip(cos, -1, 1)))
@@ -37,12 +39,12 @@ _OFF_PEAK_DEG = 10.0
 """The retro-reflection group counts samples at least this far (half-vector angle α) from the peak."""
 
 
-def _angle_lv_off_peak(ti, pi, to, po) -> np.ndarray:
+def _angle_lv_off_peak(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
     """The angle between L and V, NaN (no bin) within ``_OFF_PEAK_DEG`` of the specular peak."""
     return np.where(_half_angle(ti, pi, to, po) >= _OFF_PEAK_DEG, _angle_lv(ti, pi, to, po), np.nan)
 
 
-def _half_angle(ti, pi, to, po) -> np.ndarray:
+def _half_angle(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
     ti, pi, to, po = (np.deg2rad(a) for a in (ti, pi, to, po))
     hx = np.sin(ti) * np.cos(pi) + np.sin(to) * np.cos(po)
     hy = np.sin(ti) * np.sin(pi) + np.sin(to) * np.sin(po)
@@ -50,7 +52,7 @@ def _half_angle(ti, pi, to, po) -> np.ndarray:
     return np.rad2deg(np.arctan2(np.hypot(hx, hy), hz))
 
 
-def _max_theta(ti, pi, to, po) -> np.ndarray:
+def _max_theta(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
     return np.maximum(ti, to)
 
 
@@ -73,7 +75,7 @@ _GROUPS = (
 
 def residual_structure(
     data: Measurement, model: np.ndarray, *, floor: float | None = None, threshold: float = 0.1, min_count: int = 20
-) -> list[str]:
+) -> list[FitWarning]:
     """Plain-language warnings about systematic residual structure (empty when there is none).
 
     >>> import dataclasses, numpy as np, ctfit
@@ -95,7 +97,10 @@ def residual_structure(
     return relative_residual_structure(pairs, e, index=index, threshold=threshold, min_count=min_count)
 
 
-def relative_residual_structure(pairs, rel, *, index=None, mask=None, threshold: float = 0.1, min_count: int = 20) -> list[str]:
+def relative_residual_structure(
+    pairs: np.ndarray, rel: np.ndarray, *, index: Any = None, mask: Any = None, threshold: float = 0.1,
+    min_count: int = 20,
+) -> list[FitWarning]:
     """:func:`residual_structure` from relative residuals: ``rel`` (N,) per sample with ``index``
     each sample's direction pair, or (D, W) per direction pair and band with ``mask`` (True where
     measured; other cells are ignored). ``pairs`` (D, 4): the direction pairs in degrees.
@@ -109,7 +114,7 @@ def relative_residual_structure(pairs, rel, *, index=None, mask=None, threshold:
     for name, variable, edges, place in _GROUPS:
         bins = len(edges) - 1
 
-        def bin_of(x):  # NaN (a sample the group leaves out) → the extra bin ``bins``
+        def bin_of(x: np.ndarray) -> np.ndarray:  # NaN (a sample the group leaves out) → the extra bin ``bins``
             return np.where(np.isnan(x), bins, np.clip(np.digitize(x, edges) - 1, 0, bins - 1)).astype(np.int8)
 
         b = np.concatenate([bin_of(variable(*pairs[s].T))

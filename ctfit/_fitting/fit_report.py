@@ -25,7 +25,8 @@ from .solvers import active_set
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
-    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "zero_model_cost", "summary_of_part", "combined_rms", "PARAM_FIELDS",
+    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "zero_model_cost", "summary_of_part", "combined_rms",
+    "PARAM_FIELDS",
 ]
 
 PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
@@ -168,7 +169,8 @@ def fit_warnings(params: Params, stderr, not_determined=()) -> list[FitWarning]:
                 out.append(FitWarning(f"degenerate: two lobes with nearly equal m ({a:.4g}, {b:.4g}); one lobe may suffice", "degenerate", "m"))
         for j, w in enumerate(np.asarray(params.w)):
             if w == 0.0:
-                out.append(FitWarning(f"degenerate: lobe {j} has weight 0 (on its bound): the data needs fewer lobes, and this lobe's m = {m[j]:.4g} means nothing",
+                out.append(FitWarning(f"degenerate: lobe {j} has weight 0 (on its bound): the data needs fewer lobes, and this lobe's m = {m[j]:.4g} means "
+                                      "nothing",
                                       "degenerate", "weight"))
             elif w < 1e-3:
                 out.append(FitWarning(f"degenerate: lobe {j} (m = {m[j]:.4g}) has weight {w:.2g} → 0; fewer lobes may suffice", "degenerate", "weight"))

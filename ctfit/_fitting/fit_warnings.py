@@ -30,14 +30,15 @@ class FitWarning(str):
     parameter: str | None
     region: str | None
 
-    def __new__(cls, text: str, kind: str, parameter: str | None = None, region: str | None = None):
+    def __new__(cls, text: str, kind: str, parameter: str | None = None, region: str | None = None) -> FitWarning:
         if kind not in WARNING_KINDS:
             raise ValueError(f"kind must be one of {WARNING_KINDS}, got {kind!r}")
         self = super().__new__(cls, text)
         self.kind, self.parameter, self.region = kind, parameter, region
         return self
 
-    def __getnewargs__(self):  # pickled (Dask) and copied with its fields
+    # pickled (Dask) and copied with its fields; str has one argument, this __new__ four
+    def __getnewargs__(self) -> tuple[str, str, str | None, str | None]:  # type: ignore[override]
         return (str(self), self.kind, self.parameter, self.region)
 
     def as_dict(self) -> dict:

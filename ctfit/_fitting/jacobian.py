@@ -13,6 +13,8 @@ same columns, never an N × P matrix of the whole data.
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 
@@ -40,7 +42,7 @@ def _columns(problem: Problem, u: dict, y):
     spec = problem.spec
     u_shape, u_rest = _split(u)
     has_spec = spec.structure.has_specular
-    s_dir = per_direction(problem, u_shape, u_rest) if has_spec else None
+    s_dir: Any = per_direction(problem, u_shape, u_rest) if has_spec else None
 
     def f_rest(s, ur):
         return values_from_s(problem, s, ur, u_shape)
@@ -50,13 +52,13 @@ def _columns(problem: Problem, u: dict, y):
     names = tuple(sorted(u_rest))
     zeros = {n: jnp.zeros_like(v) for n, v in u_rest.items()}
     values = f_rest(s_dir, u_rest)
-    dvs = {}
+    dvs: dict[str, Any] = {}
     if has_spec and u_shape:
         dvs["__S__"] = jax.jvp(lambda s: f_rest(s, u_rest), (s_dir,), (jnp.ones_like(s_dir),))[1]
     for k in names:
         dvs[k] = jax.jvp(lambda ur: f_rest(s_dir, ur), (u_rest,), (dict(zeros, **{k: jnp.ones_like(u_rest[k])}),))[1]
     res, g = jax.jvp(lambda v: loss_residuals(problem, v, y, flat=False), (values,), (jnp.ones_like(values),))
-    cols = {}
+    cols: dict[str, Any] = {}  # name → (kind, column)
     if "__S__" in dvs:
         a = g * dvs["__S__"]
         jac_s = jax.jacfwd(lambda us: per_direction(problem, us, u_rest))(u_shape)
@@ -120,7 +122,7 @@ def _dir_sum(problem: Problem, x):
     """Σ over the samples of each direction pair: (D,) from a layout-shaped array."""
     if problem.spec.grid:
         return jnp.sum(x, axis=1)
-    return jax.ops.segment_sum(x, problem.pair, num_segments=problem.geom.cos_vh.shape[0])
+    return jax.ops.segment_sum(x, problem.pair, num_segments=problem.geom.cos_vh.shape[0])  # type: ignore[arg-type]  # set when not grid
 
 
 def _blocks(problem: Problem, r, cols: dict, names: list[str]):
@@ -156,9 +158,9 @@ def _blocks(problem: Problem, r, cols: dict, names: list[str]):
         # shape × band: Σ over samples of band b of a_i e_i J_S[d_i]
         if problem.spec.grid:
             return js.T @ (a * cj)
-        return jax.ops.segment_sum((a * cj)[:, None] * js[problem.pair], problem.band, num_segments=W).T
+        return jax.ops.segment_sum((a * cj)[:, None] * js[problem.pair], problem.band, num_segments=W).T  # type: ignore[arg-type]  # set when not grid
 
-    grad = jnp.concatenate([dense(*cols[k], r) for k in names]) if names else jnp.zeros((0,), r.dtype)
+    grad = jnp.concatenate([dense(cols[k][0], cols[k][1], r) for k in names]) if names else jnp.zeros((0,), r.dtype)
     rows = [jnp.concatenate([block(*cols[ki], *cols[kj]) for kj in names], axis=1) for ki in names]
     return grad, (jnp.concatenate(rows, axis=0) if names else jnp.zeros((0, 0), r.dtype))
 
@@ -185,7 +187,7 @@ def _residual_jvp(primals, tangents):
     u, y, problem = primals
     tu, ty, _ = tangents  # the problem (geometry, weights) is data: no derivative through it
     res, values, cols = _columns(problem, u, y)
-    dres = 0
+    dres: Any = 0
     for name, (kind, col) in cols.items():
         t = tu[name]
         if kind == "shape":

@@ -27,13 +27,15 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import DTypeLike
 
-from .._model import Material, Measurement, Params, Structure
+from .._model import Material, Measurement, Params, Structure, x64_enabled
 from .._runtime import cached_call
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch
 from .chunks import sum_over_chunks
@@ -125,7 +127,7 @@ class FitResult:
         return stderr_block(self)
 
 
-def fit_core(problem: Problem, u0: dict, grid, starts: int, solver_name: str, max_steps: int, keep_start: bool = False):
+def fit_core(problem: Problem, u0: dict, grid: Any, starts: int, solver_name: str, max_steps: int, keep_start: bool = False) -> dict:
     """Seeds, solve, pick the best, and everything the report needs, in one compiled program.
     ``keep_start``: the start ``u0`` is a seed too (a start the caller chose)."""
     seeds = seed_points(problem, u0, starts, grid, keep_start)
@@ -146,12 +148,12 @@ class PreparedFit:
     data: Measurement
     structure: Structure
     loss: str
-    dtype: object
+    dtype: DTypeLike
     start: Params
     fixed: tuple[str, ...]
     problem: Problem
     u0: dict
-    grid: object
+    grid: np.ndarray | None
     k: int
     given_start: bool
     chunked: bool = False
@@ -166,7 +168,7 @@ class PreparedFit:
         return dataclasses.replace(self, problem=problem, chunked=False)
 
 
-def check_fit_arguments(data, structure) -> None:
+def check_fit_arguments(data: object, structure: object) -> None:
     """TypeError naming ``data`` (a :class:`~ctfit.Measurement`) or ``structure`` (a Structure or None)."""
     if not isinstance(data, Measurement):
         hint = " (read a file with ctfit.read_measurement(path))" if isinstance(data, (str, bytes)) or hasattr(data, "__fspath__") else ""
@@ -175,12 +177,13 @@ def check_fit_arguments(data, structure) -> None:
         raise TypeError(f"structure must be a ctfit.Structure or None, got {type(structure).__name__}")
 
 
-def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype, starts: int,
+def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params | None, fixed: tuple[str, ...], loss: str, dtype: DTypeLike,
+                starts: int,
              pad_to: tuple[int, int] | None = None, chunk: int | None = None) -> PreparedFit:
     """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
     samples), or with ``chunk`` to a multiple of the chunks' rows), free start ``u0`` and m grid of a fit."""
     check_fit_arguments(data, structure)
-    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
+    if dtype == jnp.float64 and not x64_enabled():
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
     structure = structure or Structure()
     if loss == "auto":
@@ -209,7 +212,7 @@ def fit(
     fixed: tuple[str, ...] = (),
     loss: str = "auto",
     solver: str = "lm",
-    dtype=jnp.float64,
+    dtype: DTypeLike = jnp.float64,
     starts: int = 3,
     max_steps: int = 256,
 ) -> FitResult:
@@ -243,7 +246,8 @@ def fit(
 
 
 def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: float | None = None, start: Params | None = None, fixed: tuple[str, ...] = (),
-                     loss: str = "auto", solver: str = "lm", dtype=jnp.float64, starts: int = 3, max_steps: int = 256, report: bool = True) -> FitResult:
+                     loss: str = "auto", solver: str = "lm", dtype: DTypeLike = jnp.float64, starts: int = 3, max_steps: int = 256,
+                     report: bool = True) -> FitResult:
     """:func:`fit` of ``structure``, its Levenberg–Marquardt ("lm") stopping where one more
     Gauss–Newton step promises less than ``tolerance`` relative decrease of the cost, and judged
     converged there (None: :data:`~ctfit._fitting.seeded_solve.STATIONARY_TOLERANCE`). The
@@ -258,7 +262,7 @@ def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: floa
 
 
 def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool = False, fixed: tuple[str, ...] = (), loss: str = "auto",
-                 solver: str = "lm", dtype=jnp.float64, starts: int = 3, report: bool = True, **_) -> None:
+                 solver: str = "lm", dtype: DTypeLike = jnp.float64, starts: int = 3, report: bool = True, **_: Any) -> None:
     """Make (load or compile) the programs a :func:`fit_to_tolerance` of ``structure`` to ``data``
     will call (with a start given or not, with the report or not), without fitting: for a
     background thread, while other fits run. Nothing for solvers other than "lm", or for a fit
@@ -284,7 +288,9 @@ def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: fl
     return jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
 
 
-def seed_params(data: Measurement, structure: Structure | None = None, *, starts: int = 3, loss: str = "auto", dtype=jnp.float64) -> list[Params]:
+def seed_params(
+    data: Measurement, structure: Structure | None = None, *, starts: int = 3, loss: str = "auto", dtype: DTypeLike = jnp.float64
+) -> list[Params]:
     """The starting points :func:`fit` solves from, best first: the ``starts`` best distinct
     points of its grid over the rms slopes, each with its best per-band F0 (or n, k) scale.
 
@@ -310,7 +316,7 @@ def seed_params(data: Measurement, structure: Structure | None = None, *, starts
     return out
 
 
-def _quality(data: Measurement, rel, floor: float, structure: Structure, params: Params) -> dict:
+def _quality(data: Measurement, rel: np.ndarray, floor: float, structure: Structure, params: Params) -> dict:
     """The ``quality`` section (:mod:`~ctfit._fitting.quality`) from the fit's relative residuals
     (f − y)/max(|y|, floor) per sample."""
     y = np.asarray(data.brdf, dtype=float)
@@ -318,7 +324,7 @@ def _quality(data: Measurement, rel, floor: float, structure: Structure, params:
     return quality_from_relative(err, half_angle_deg(data), np.maximum(data.theta_i, data.theta_o), peak_width_deg(structure, params))
 
 
-def _bic(cost: float, zero_cost: float, n: int, p: int, loss: str, dtype) -> float:
+def _bic(cost: float, zero_cost: float, n: int, p: int, loss: str, dtype: DTypeLike) -> float:
     """BIC = N ln(RSS/N) + P ln N (χ² + P ln N with the sigma loss), RSS = 2·cost. Round-off is no
     evidence: a cost below 100 ε² of the zero model's is an exact fit, and exact fits of several
     structures tie on it, so the BIC keeps the one with the fewest parameters."""
@@ -338,7 +344,8 @@ def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance
     cost, zero_cost, gn_decrease = float(costs[best]), float(out["zero_cost"]), float(out["gn_decrease"])
     steps = int(np.asarray(out["steps"])[best])
     status = fit_status(np.asarray(ok)[best], math.isfinite(cost), gn_decrease, cost, zero_cost, dtype, tolerance, steps, max_steps)
-    stats: FitStats = {"converged": status.converged, "fit_status": status.value, "steps": steps, "cost": cost, "time_s": time.perf_counter() - t0, "n_samples": n,
+    stats: FitStats = {"converged": status.converged, "fit_status": status.value, "steps": steps, "cost": cost, "time_s": time.perf_counter() - t0,
+                       "n_samples": n,
              "n_params": p, "bic": _bic(cost, zero_cost, n, p, prep.loss, dtype), "loss": prep.loss, "solver": solver, "dtype": jnp.dtype(dtype).name,
              "starts": int(np.asarray(costs).size), "relative_floor": float(problem.floor), "gauss_newton_decrease": gn_decrease,
              "on_bound": labelled(out["u"], np.asarray(out["on_bound"], bool)), "report": False}
@@ -412,17 +419,20 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     names = coordinate_names(u)
     not_determined = [names[i] for i in np.flatnonzero(loose)]
     notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined)
-    if status.converged and quality_warning(quality):  # "even at the best fit": only a fit that got there says so
-        notes.append(quality_warning(quality))
+    worst = quality_warning(quality)
+    if status.converged and worst:  # "even at the best fit": only a fit that got there says so
+        notes.append(worst)
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more max_steps=, or another start)"
-        notes.append(FitWarning(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower cost{hint}", "not_a_minimum"))
+        notes.append(FitWarning(f"not a minimum: the solver stopped where a Gauss–Newton step still promises a {gn_decrease:.2%} lower "
+                                f"cost{hint}", "not_a_minimum"))
     if explains_nothing:
         notes.append(FitWarning(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
                                 "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another loss=",
                                 "explains_nothing"))
     if not bool(np.asarray(ok)[best]):
-        notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another start, "
+        notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another "
+                                "start, "
                                 "or with fewer lobes", "numerical_failure"))
     return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)
 

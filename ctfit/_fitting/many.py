@@ -22,11 +22,13 @@ import math
 import os
 import pickle
 from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
+from jax.typing import DTypeLike
 
 from .._io import check_input_file
-from .._model import Measurement
+from .._model import Material, Measurement, Params, Structure
 
 __all__ = ["fit_many", "input_sha256", "read_input", "geometry_key", "FILES_PER_TASK"]
 
@@ -35,16 +37,16 @@ FILES_PER_TASK = 64
 
 
 def fit_many(
-    items: Sequence,
-    structure=None,
-    client=None,
+    items: Sequence[Measurement | str | os.PathLike[str]],
+    structure: Structure | None = None,
+    client: Any = None,
     *,
-    start=None,
+    start: Params | Sequence[Params | None] | None = None,
     fixed: tuple[str, ...] = (),
-    material=None,
+    material: Material | None = None,
     loss: str = "auto",
     solver: str = "lm",
-    dtype=None,
+    dtype: DTypeLike | None = None,
     starts: int = 3,
     max_steps: int = 256,
     param_out: str | None = None,
@@ -97,7 +99,7 @@ def fit_many(
     if not items:
         return results
 
-    def settle(i, got):
+    def settle(i: int, got: Any) -> None:
         results[i] = got
         if on_result is not None:
             on_result(i, got)
@@ -133,7 +135,7 @@ def _settle_as_completed(futures: dict, settle: Callable, progress: bool) -> Non
             settle(i, got)
 
 
-def _keys(client, items: list, param_out, x64: bool) -> list:
+def _keys(client: Any, items: list, param_out: str | None, x64: bool) -> list:
     """Each item's geometry key, or the exception that reading it raised (files are read on the workers)."""
     keys: list = [None] * len(items)
     paths = [i for i, item in enumerate(items) if not isinstance(item, Measurement)]
@@ -147,7 +149,7 @@ def _keys(client, items: list, param_out, x64: bool) -> list:
     return keys
 
 
-def _tasks(keys: list, files_per_task: int | None, n_workers: int, settle) -> list[list[int]]:
+def _tasks(keys: list, files_per_task: int | None, n_workers: int, settle: Callable[[int, Any], None]) -> list[list[int]]:
     """Item indices per task: the same geometry together, about two tasks per worker, at most
     ``files_per_task`` (:data:`FILES_PER_TASK`) each; items whose key is an exception are settled now."""
     groups: dict = {}
@@ -161,7 +163,7 @@ def _tasks(keys: list, files_per_task: int | None, n_workers: int, settle) -> li
     return [g[a: a + size] for g in groups.values() for a in range(0, len(g), size)]
 
 
-def read_input(path, param_out: str | None = None) -> Measurement:
+def read_input(path: str | os.PathLike[str], param_out: str | None = None) -> Measurement:
     """A measurement file read by its format's reader; ``param_out`` serves only an ALTA file
     without its own #PARAM_OUT line."""
     from .._io import read_alta, reader_for
@@ -180,7 +182,7 @@ def geometry_key(data: Measurement) -> str:
     return h.hexdigest()
 
 
-def input_sha256(path) -> str:
+def input_sha256(path: str | os.PathLike[str]) -> str:
     """The SHA-256 of a file's bytes (read in blocks): what a stored result was fitted from. A
     device or FIFO, which may never end, raises :class:`~ctfit.DataError` unread."""
     check_input_file(path, text=False)
@@ -194,7 +196,7 @@ def input_sha256(path) -> str:
 _CAUGHT = (ValueError, OSError, KeyError)
 
 
-def _located(item):
+def _located(item: Any) -> Any:
     """A measurement as it is; a path as (the path given, its absolute path): a worker may run in
     another folder, and messages and results name the file as the user gave it."""
     if isinstance(item, Measurement):
@@ -202,7 +204,7 @@ def _located(item):
     return os.fspath(item), os.path.abspath(item)
 
 
-def _read_item(item, param_out) -> Measurement:
+def _read_item(item: Any, param_out: str | None) -> Measurement:
     """The measurement of a :func:`_located` item, read on a worker."""
     if isinstance(item, Measurement):
         return item
@@ -229,7 +231,7 @@ def _portable(e: Exception) -> Exception:
         return ValueError(str(e))
 
 
-def _key_task(item, param_out, x64: bool):
+def _key_task(item: Any, param_out: str | None, x64: bool) -> Any:
     from .._runtime import prepare_worker
 
     prepare_worker(x64)
@@ -239,7 +241,7 @@ def _key_task(item, param_out, x64: bool):
         return _portable(e)
 
 
-def _fit_task(items: list, structure, options: dict, param_out, x64: bool) -> list:
+def _fit_task(items: list, structure: Structure | None, options: dict, param_out: str | None, x64: bool) -> list:
     """One task: read the files (or take the measurements) and fit them with ``fit_batch``;
     per item a FitResult or the exception that stopped it."""
     from .._runtime import prepare_worker

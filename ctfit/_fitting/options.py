@@ -32,7 +32,7 @@ def takes_fit_options(fit: Callable) -> Callable:
             options = {p.name: arguments.pop(p.name) for p in shared}
             return fn(**arguments, **options)
 
-        wrapper.__signature__ = signature
+        wrapper.__signature__ = signature  # type: ignore[attr-defined]  # what inspect.signature reads
         return wrapper
 
     return decorate

@@ -83,7 +83,7 @@ def make_fit_quality_figure(result, data: Measurement):
     top_height = 5.4 + 0.16 * title.count("\n")
     fig = Figure(figsize=(16, top_height + 7.4), layout="constrained")
     FigureCanvasAgg(fig)
-    top, bottom = fig.subfigures(2, 1, height_ratios=[top_height, 7.4])
+    top, bottom = fig.subfigures(2, 1, height_ratios=[top_height, 7.4])  # type: ignore[misc]  # two: an array
     draw_fit_panels(top, result, data, title)
     polar, residuals = bottom.subfigures(1, 2, width_ratios=[1.6, 1.0])
     try:

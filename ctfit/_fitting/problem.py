@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -87,8 +89,9 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     n = len(pairs)
     if n == 0:
         return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs)))
-    put = (lambda a: a) if on_host else jax.device_put  # noqa: E731
-    key = (pairs.dtype.str, pairs.shape, hashlib.blake2b(np.ascontiguousarray(pairs).tobytes(), digest_size=16).digest()) if n <= RECENT_GEOMETRY_PAIRS else None
+    put = (lambda a: a) if on_host else jax.device_put
+    key = (pairs.dtype.str, pairs.shape, hashlib.blake2b(np.ascontiguousarray(pairs).tobytes(),
+                                                         digest_size=16).digest()) if n <= RECENT_GEOMETRY_PAIRS else None
     fields = _recent_geometry.pop(key, None)
     if fields is None:
         blocks = -(-n // GEOMETRY_BLOCK)
@@ -146,10 +149,11 @@ def make_problem(
         raise ValueError(f"{data.source}: pad_to={pad_to} is smaller than the data ({n_pairs} direction pairs, {len(data)} samples)")
     if pad and n_pairs:
         pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
-    put = (lambda a: a) if chunk else jax.device_put  # noqa: E731 — chunked, the per-row arrays stay on the host
+    put = (lambda a: a) if chunk else jax.device_put  # chunked, the per-row arrays stay on the host
     geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)), on_host=bool(chunk))
     floor = loss_floor(data.brdf, loss)
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
+    sig: np.ndarray | None = None
     if grid:
         shape = (len(pairs), n_bands)
         y = np.zeros(shape)
@@ -163,14 +167,14 @@ def make_problem(
         pair = band = None
     else:
         extra = (pad_to[1] if pad_to else bucket(len(data))) - len(data) if pad and len(data) else 0
-        padded = lambda a, fill: np.concatenate([np.asarray(a), np.full(extra, fill, np.asarray(a).dtype)])  # noqa: E731
+        padded = lambda a, fill: np.concatenate([np.asarray(a), np.full(extra, fill, np.asarray(a).dtype)])
         y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data), dtype=bool), False)
         sig = padded(data.sigma, 1.0) if data.sigma is not None else None
         cos_i = padded(cos_pair[index], 1.0) if loss in ("cosine", "log") else None
         pair, band = put(padded(index, 0)), put(padded(data.band, 0))  # no conversion program
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
-    to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)  # noqa: E731
-    rows = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if chunk else to  # noqa: E731
+    to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)
+    rows: Callable[[Any], Any] = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if chunk else to
     return Problem(
         spec=spec,
         geom=geom,
@@ -222,7 +226,7 @@ def band_sum(problem: Problem, x):
     """Σ over the samples of each band: (W, …) from a layout-shaped array (… its trailing axes)."""
     if problem.spec.grid:
         return jnp.sum(x, axis=0)
-    return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)
+    return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)  # type: ignore[arg-type]  # set when not grid
 
 
 def model_values(problem: Problem, u: dict):

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .._model import Material, Measurement, Params, Structure
 from .diagnostics import half_angle_deg
@@ -55,7 +56,7 @@ def _summary(err: np.ndarray) -> dict:
     return {"samples": int(err.size), "median_relative_error": float(np.median(err)), "p90_relative_error": float(np.quantile(err, 0.9))}
 
 
-def quality_from_relative(err, alpha_deg, max_theta_deg, peak_deg: float | None) -> dict:
+def quality_from_relative(err: np.ndarray, alpha_deg: np.ndarray, max_theta_deg: np.ndarray, peak_deg: float | None) -> dict:
     """The ``quality`` section from per-sample relative errors |f − y|/y (NaN where y ≤ 0: left
     out) and each sample's half-vector angle α and max(θ_i, θ_o), in degrees."""
     err, alpha, top = (np.asarray(a, dtype=float).reshape(-1) for a in (err, alpha_deg, max_theta_deg))
@@ -72,7 +73,7 @@ def quality_from_relative(err, alpha_deg, max_theta_deg, peak_deg: float | None)
     return out
 
 
-def fit_quality(material: Material, data: Measurement, model=None) -> dict:
+def fit_quality(material: Material, data: Measurement, model: Float[ArrayLike, " samples"] | None = None) -> dict:
     """The ``quality`` section of a fit of ``material`` to ``data`` (``model``: the material's
     values at the samples, computed when not given).
 
@@ -97,7 +98,7 @@ def quality_warning(quality: dict) -> FitWarning | None:
     """One line when the median relative error is above :data:`MODEL_LIMIT` or its 90th percentile
     above :data:`TAIL_LIMIT`, naming the worst region."""
     median, tail = quality.get("median_relative_error"), quality.get("p90_relative_error")
-    if median is None or (median <= MODEL_LIMIT and tail <= TAIL_LIMIT):
+    if median is None or tail is None or (median <= MODEL_LIMIT and tail <= TAIL_LIMIT):
         return None
     names = {"peak": "near the specular peak", "off_peak": "off the peak", "grazing": "at grazing angles"}
     regions = [(r["median_relative_error"], k) for k, r in quality["regions"].items() if r["median_relative_error"] is not None]

@@ -21,12 +21,17 @@ subfigure (``ctfit fit --plot`` puts both under the data-vs-fit panels).
 
 from __future__ import annotations
 
+import os
 import textwrap
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .._io import angles_deg_to_half_diff_deg
-from .._model import evaluate, evaluate_at
+from .._model import Material, Measurement, evaluate, evaluate_at
+from .least_squares import FitResult
 
 __all__ = ["plot_polar", "plot_residual_map", "draw_polar", "draw_residual_map", "residual_cells", "PLANE_TOL_DEG"]
 
@@ -37,35 +42,35 @@ _RGB_COLOURS = {"R": "tab:red", "G": "tab:green", "B": "tab:blue"}
 _COLOURS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple"]
 
 
-def _material(material_or_result):
+def _material(material_or_result: Material | FitResult) -> Material:
     return getattr(material_or_result, "material", material_or_result)
 
 
-def _new_figure(size):
+def _new_figure(size: tuple[float, float]) -> Any:
     from .._runtime import need
 
     need("plots", "a plot of a fit")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
-    from matplotlib.figure import Figure  # noqa: PLC0415
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
 
     fig = Figure(figsize=size, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
 
 
-def _save(fig, path) -> None:
+def _save(fig: Any, path: str | os.PathLike[str] | None) -> None:
     if path is not None:
-        from .._io import atomic_save  # noqa: PLC0415
+        from .._io import atomic_save
 
         atomic_save(path, lambda buffer: fig.savefig(buffer, format="png", dpi=110))
 
 
-def _needs_brdf(data) -> None:
+def _needs_brdf(data: Measurement) -> None:
     if data.brdf is None:
         raise ValueError(f"{data.source}: the measurement has no BRDF values to plot")
 
 
-def _shown_bands(data, bands) -> list[int]:
+def _shown_bands(data: Measurement, bands: Sequence[int] | None) -> list[int]:
     if bands is not None:
         chosen = [int(b) for b in np.atleast_1d(bands)]
         bad = [b for b in chosen if not 0 <= b < data.n_bands]
@@ -78,13 +83,15 @@ def _shown_bands(data, bands) -> list[int]:
     return sorted({int(np.argmin(np.abs(wl - target))) for target in (450.0, 550.0, 650.0)})
 
 
-def _band_colour(data, b, k) -> str:
+def _band_colour(data: Measurement, b: int, k: int) -> str:
     if data.channels is not None:
         return _RGB_COLOURS.get(data.channels[b], _COLOURS[k % len(_COLOURS)])
     return _COLOURS[k % len(_COLOURS)]
 
 
-def _model_in_bands(material, data, theta_i, theta_o, phi_o, bands) -> np.ndarray:
+def _model_in_bands(
+    material: Material, data: Measurement, theta_i: ArrayLike, theta_o: ArrayLike, phi_o: ArrayLike, bands: Sequence[int]
+) -> np.ndarray:
     """The model at the directions (φ_i = 0) in the data's ``bands``, shape (n, len(bands))."""
     if (data.channels is None) != (material.channels is None) or (data.channels is not None and not set(data.channels) <= set(material.channels)):
         raise ValueError(f"{data.source}: bands {data.band_labels} cannot be shown with material {material.name!r} (bands {material.band_labels})")
@@ -97,7 +104,7 @@ def _model_in_bands(material, data, theta_i, theta_o, phi_o, bands) -> np.ndarra
     return evaluate_at(material, theta_i=theta_i, theta_o=theta_o, phi_o=phi_o, wavelength_nm=wl)
 
 
-def in_plane_angle(data, tol_deg: float = PLANE_TOL_DEG) -> np.ndarray:
+def in_plane_angle(data: Measurement, tol_deg: float = PLANE_TOL_DEG) -> np.ndarray:
     """Each sample's θ_o signed within the plane of incidence (degrees): + forward (mirror side,
     φ_o = φ_i + 180°), − back (light's side); NaN where V is more than ``tol_deg`` from the plane."""
     to = np.asarray(data.theta_o, dtype=float)
@@ -106,12 +113,14 @@ def in_plane_angle(data, tol_deg: float = PLANE_TOL_DEG) -> np.ndarray:
     return np.where(off <= tol_deg, np.where(np.cos(dphi) < 0, to, -to), np.nan)
 
 
-def _is_v_equals_l(data) -> bool:
+def _is_v_equals_l(data: Measurement) -> bool:
     same = (data.theta_i == data.theta_o) & ((np.mod(data.phi_o - data.phi_i, 360.0) == 0) | (data.theta_o == 0))
     return data.meta.get("alta_param_in") == "COS_TH" or (len(data) > 1 and bool(same.all()))
 
 
-def incidence_groups(data, in_plane, incidence=None, max_panels: int = 4):
+def incidence_groups(
+    data: Measurement, in_plane: np.ndarray, incidence: ArrayLike | None = None, max_panels: int = 4
+) -> list[tuple[str, float | None, np.ndarray]]:
     """``[(label, θ_i of the model curve, sample selection)]``, at most ``max_panels``.
 
     ``incidence``: θ_i values (degrees) to show, samples within 1° of each. Otherwise the data's
@@ -129,7 +138,7 @@ def incidence_groups(data, in_plane, incidence=None, max_panels: int = 4):
         chosen = enough[np.unique(np.round(np.linspace(0, len(enough) - 1, min(max_panels, len(enough)))).astype(int))]
         return [(f"θ_i = {t:.3g}°", float(t), ok & (np.abs(ti - t) <= 1e-6)) for t in chosen]
     edges = np.unique(np.quantile(ti[ok], np.linspace(0, 1, max_panels + 1)))
-    groups = []
+    groups: list[tuple[str, float | None, np.ndarray]] = []
     for k, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
         sel = ok & (ti >= lo) & ((ti < hi) | ((k == len(edges) - 2) & (ti <= hi)))
         mid = float(np.median(ti[sel]))
@@ -137,7 +146,9 @@ def incidence_groups(data, in_plane, incidence=None, max_panels: int = 4):
     return groups
 
 
-def _polar_groups(data, incidence, plane_tol_deg, max_panels):
+def _polar_groups(
+    data: Measurement, incidence: ArrayLike | None, plane_tol_deg: float, max_panels: int
+) -> tuple[np.ndarray, list[tuple[str, float | None, np.ndarray]]]:
     """``(signed in-plane θ_o per sample, groups)`` (see :func:`incidence_groups`); 1-D data
     (V = L) is one group along the back side, with no model θ_i (the model follows V = L)."""
     if _is_v_equals_l(data):
@@ -149,7 +160,7 @@ def _polar_groups(data, incidence, plane_tol_deg, max_panels):
     return x, groups
 
 
-def _radius_limits(data_values, model_values):
+def _radius_limits(data_values: Sequence[np.ndarray], model_values: Sequence[np.ndarray]) -> tuple[float, float]:
     d = np.concatenate([np.ravel(v) for v in data_values]) if data_values else np.zeros(0)
     m = np.concatenate([np.ravel(v) for v in model_values])
     d, m = d[np.isfinite(d) & (d > 0)], m[np.isfinite(m) & (m > 0)]
@@ -161,8 +172,9 @@ def _radius_limits(data_values, model_values):
     return lo / 1.5, hi * 1.5
 
 
-def draw_polar(container, material, data, *, incidence=None, bands=None, plane_tol_deg: float = PLANE_TOL_DEG, max_panels: int = 4,
-               columns: int | None = None):
+def draw_polar(container: Any, material: Material | FitResult, data: Measurement, *, incidence: ArrayLike | None = None,
+               bands: Sequence[int] | None = None, plane_tol_deg: float = PLANE_TOL_DEG, max_panels: int = 4,
+               columns: int | None = None) -> list[Any]:
     """Draw the polar panels (module docstring) into ``container``, a matplotlib Figure or
     SubFigure, ``columns`` per row (default: all in one row); returns the list of axes, one per
     incidence angle (or bin)."""
@@ -205,12 +217,12 @@ def draw_polar(container, material, data, *, incidence=None, bands=None, plane_t
     return list(axes)
 
 
-def _band_suffix(data, b) -> str:
+def _band_suffix(data: Measurement, b: int) -> str:
     label = data.band_labels[b]
     return "" if label == "unknown band" else f" {label}"
 
 
-def _polar_style(ax, title, lo, hi) -> None:
+def _polar_style(ax: Any, title: str, lo: float, hi: float) -> None:
     ax.set_theta_zero_location("N")
     ax.set_theta_direction(-1)  # + (forward, mirror side) on the right
     ax.set_thetamin(-90)
@@ -224,7 +236,10 @@ def _polar_style(ax, title, lo, hi) -> None:
     ax.set_title(title, fontsize=9)
 
 
-def plot_polar(material, data, path=None, *, incidence=None, bands=None, plane_tol_deg: float = PLANE_TOL_DEG, max_panels: int = 4):
+def plot_polar(
+    material: Material | FitResult, data: Measurement, path: str | os.PathLike[str] | None = None, *, incidence: Float[ArrayLike, "*angles"] | None = None,
+    bands: Sequence[int] | None = None, plane_tol_deg: float = PLANE_TOL_DEG, max_panels: int = 4,
+) -> Any:
     """Polar plots of data and model per incidence angle (module docstring): a matplotlib Figure.
 
     ``material``: a Material or FitResult. ``incidence``: θ_i values to show (default: the
@@ -250,7 +265,9 @@ def plot_polar(material, data, path=None, *, incidence=None, bands=None, plane_t
     return fig
 
 
-def residual_cells(material, data, bins: int = 30, band=None):
+def residual_cells(
+    material: Material | FitResult, data: Measurement, bins: int = 30, band: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """``(θ_h edges, θ_d edges, mean ln(model/data) per cell (n_h, n_d), samples per cell, left out)``.
 
     Every sample (of ``band`` only, if given) with data > 0 and model > 0 counts once; cells
@@ -265,7 +282,7 @@ def residual_cells(material, data, bins: int = 30, band=None):
     th, td = th[index], td[index]
     use = np.ones(len(data), bool) if band is None else np.asarray(data.band) == int(band)
     ok = use & np.isfinite(model) & np.isfinite(measured) & (model > 0) & (measured > 0)
-    from scipy.stats import binned_statistic_2d  # noqa: PLC0415
+    from scipy.stats import binned_statistic_2d
 
     edges = np.linspace(0.0, 90.0, int(bins) + 1)
     th_ok, td_ok, r = np.clip(th[ok], 0.0, 90.0), np.clip(td[ok], 0.0, 90.0), np.log(model[ok] / measured[ok])
@@ -274,7 +291,7 @@ def residual_cells(material, data, bins: int = 30, band=None):
     return edges, edges, mean, counts.astype(int), int(np.count_nonzero(use & ~ok))
 
 
-def draw_residual_map(container, material, data, *, bins: int = 30, band=None):
+def draw_residual_map(container: Any, material: Material | FitResult, data: Measurement, *, bins: int = 30, band: int | None = None) -> Any:
     """Draw the residual map (module docstring) into ``container`` (Figure or SubFigure); returns its axes."""
     h_edges, d_edges, mean, counts, left_out = residual_cells(material, data, bins, band)
     ax = container.subplots()
@@ -295,7 +312,9 @@ def draw_residual_map(container, material, data, *, bins: int = 30, band=None):
     return ax
 
 
-def plot_residual_map(material, data, path=None, *, bins: int = 30, band=None):
+def plot_residual_map(
+    material: Material | FitResult, data: Measurement, path: str | os.PathLike[str] | None = None, *, bins: int = 30, band: int | None = None
+) -> Any:
     """ln(model/data) averaged over (θ_h, θ_d) cells (module docstring): a matplotlib Figure.
 
     ``material``: a Material or FitResult; ``bins``: cells per axis over 0–90°; ``band``: one

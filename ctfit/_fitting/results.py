@@ -9,21 +9,25 @@ where ``stderr`` mirrors the parameters (``s``, ``lobes[j].m``, ``lobes[j].weigh
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+from jaxtyping import ArrayLike
 
 from .._io import material_to_dict
 from .._model import Material
 from .fit_warnings import FitWarning
+from .least_squares import FitResult
 
 __all__ = ["fit_result_to_dict", "format_fit_table", "stderr_block"]
 
 
-def stderr_block(res) -> dict | None:
+def stderr_block(res: FitResult) -> dict | None:
     """The standard errors of a fit in the JSON's names and layout (``FitResult.parameter_errors``)."""
     se = res.stderr
     if se is None:
         return None
-    out = {}
+    out: dict[str, object] = {}
     if "s" in se:
         out["s"] = float(np.asarray(se["s"]).reshape(-1)[0])
     if "m" in se:
@@ -36,7 +40,7 @@ def stderr_block(res) -> dict | None:
     return out
 
 
-def fit_result_to_dict(res, material_keys: bool = True) -> dict:
+def fit_result_to_dict(res: FitResult, material_keys: bool = True) -> dict:
     """The fit result as a JSON-ready dict; with ``material_keys=False`` only the ``fit`` section.
 
     >>> import numpy as np, ctfit
@@ -57,13 +61,13 @@ def fit_result_to_dict(res, material_keys: bool = True) -> dict:
     return material_to_dict(res.material, extra={"fit": block})
 
 
-def _pm(value, err) -> str:
+def _pm(value: float, err: float | None) -> str:
     if err is None or not np.isfinite(err):
         return f"{value:.6g}"
     return f"{value:.6g} ± {err:.2g}"
 
 
-def format_fit_table(res, label: str = "") -> str:
+def format_fit_table(res: FitResult, label: str = "") -> str:
     """A plain-text table of the parameters ± standard errors and the fit statistics.
 
     >>> import numpy as np, ctfit
@@ -110,7 +114,7 @@ def format_fit_table(res, label: str = "") -> str:
 
 def quality_line(quality: dict) -> str:
     """One line of the ``quality`` section: median and 90th-percentile |f − y|/y, per region."""
-    def pct(x):
+    def pct(x: float | None) -> str:
         return "–" if x is None else f"{x:.1%}"
 
     regions = ", ".join(f"{name.replace('_', '-')} {pct(r['median_relative_error'])}" for name, r in quality["regions"].items() if r["samples"])
@@ -135,22 +139,22 @@ def _band_rows(mat: Material, se: dict) -> list[str]:
     if len(cols) > 1:
         lines.append("  " + "  ".join(f"{c:>18}" for c in cols))
         for i, lab in enumerate(mat.band_labels):
-            err = lambda name: _at(se.get(name), 0 if (name == "Rd" and st.diffuse == "constant") else i)  # noqa: E731
+            err = lambda name: _at(se.get(name), 0 if (name == "Rd" and st.diffuse == "constant") else i)
             lines.append("  " + "  ".join(f"{c:>18}" for c in [lab] + [_pm(v[i], err(name)) for v, name in values]))
     return lines
 
 
-def _f0(mat: Material):
+def _f0(mat: Material) -> Any:
     from .._model import normal_reflectance
 
     return normal_reflectance(mat.structure, mat.params)
 
 
-def _first(a):
+def _first(a: ArrayLike | None) -> float | None:
     return None if a is None else float(np.asarray(a).reshape(-1)[0])
 
 
-def _at(a, i):
+def _at(a: ArrayLike | None, i: int) -> float | None:
     return None if a is None else float(np.asarray(a).reshape(-1)[i])
 
 

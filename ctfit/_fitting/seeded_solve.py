@@ -21,7 +21,8 @@ from .jacobian import half_squared_norm, normal_equations, residual
 from .problem import Problem
 from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, predicted_decrease
 
-__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "stop_tolerances", "RACE_STEPS", "RACE_MARGIN"]
+__all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "stop_tolerances",
+           "RACE_STEPS", "RACE_MARGIN"]
 
 SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
 
@@ -190,8 +191,9 @@ def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int)
     solver = _solver(solver_name, problem.y.dtype)
 
     def one(u0):
+        sol: optx.Solution
         if solver_name == "bfgs":
-            fn = lambda u, a: 0.5 * jnp.sum(residual(u, a) ** 2)  # noqa: E731
+            fn = lambda u, a: 0.5 * jnp.sum(residual(u, a) ** 2)
             sol = optx.minimise(fn, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)
         else:
             sol = optx.least_squares(residual, solver, u0, (problem.y, problem), max_steps=max_steps, throw=False)

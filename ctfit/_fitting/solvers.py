@@ -81,7 +81,7 @@ def predicted_decrease(jtj, jtr, free=None):
 
 class _ProjectedState(eqx.Module):
     y: Array
-    f_info: optx.FunctionInfo.EvalGradHessian
+    f_info: Any  # optx.FunctionInfo.EvalGradHessian: a class attribute, not usable as a type
 
 
 class ProjectedDampedNewtonDescent(optx.AbstractDescent):
@@ -133,7 +133,7 @@ class _LevenbergMarquardtState(eqx.Module):
     first_step: Array
     y_eval: Array
     search_state: Any
-    f_info: optx.FunctionInfo.EvalGradHessian
+    f_info: Any  # optx.FunctionInfo.EvalGradHessian: a class attribute, not usable as a type
     aux: Any
     descent_state: Any
     terminate: Array
@@ -158,8 +158,8 @@ class StructuredLevenbergMarquardt(optx.AbstractMinimiser):
 
     rtol: float
     atol: float
-    data: Any
-    gauss_newton: Callable[[Array, Any], Array] = eqx.field(static=True)
+    data: Any  # type: ignore[misc]  # the parent's fields are abstract (eqx.AbstractVar), not defaults
+    gauss_newton: Callable[[Array, Any], Array] = eqx.field(static=True)  # type: ignore[misc]  # (the same)
     gtol: float = 0.0
     stol: float = jnp.inf
     norm: Callable = optx.max_norm
@@ -175,7 +175,8 @@ class StructuredLevenbergMarquardt(optx.AbstractMinimiser):
         return _LevenbergMarquardtState(
             first_step=jnp.array(True), y_eval=y, search_state=self.search.init(y, f_info_struct), f_info=f_info,
             aux=jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), aux_struct), descent_state=self.descent.init(y, f_info_struct),
-            terminate=jnp.array(False), result=optx.RESULTS.successful, num_accepted_steps=jnp.array(0),
+            terminate=jnp.array(False), num_accepted_steps=jnp.array(0),
+            result=optx.RESULTS.successful,  # type: ignore[arg-type]  # equinox's Enumeration items are typed str
         )
 
     def terminate(self, fn, y, args, options, state, tags):

@@ -16,6 +16,7 @@ import enum
 
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import ArrayLike, DTypeLike
 
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none
 
@@ -54,21 +55,27 @@ class FitStatus(enum.StrEnum):
         return self is FitStatus.CONVERGED
 
 
-def _verdicts(ok, finite, gn_decrease, cost, zero_cost, dtype, tolerance: float | None):
+def _verdicts(
+    ok: ArrayLike, finite: ArrayLike, gn_decrease: ArrayLike, cost: ArrayLike, zero_cost: ArrayLike, dtype: DTypeLike, tolerance: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(solver ok, finite, explains some of the data, stationary), each an array or a bool."""
     tolerance = STATIONARY_TOLERANCE[jnp.dtype(dtype).name] if tolerance is None else tolerance
     return np.asarray(ok, bool), np.asarray(finite, bool), ~explains_none(cost, zero_cost), np.asarray(gn_decrease) <= tolerance
 
 
-def judge_converged(ok, finite, gn_decrease, cost, zero_cost, dtype, tolerance: float | None = None):
+def judge_converged(
+    ok: ArrayLike, finite: ArrayLike, gn_decrease: ArrayLike, cost: ArrayLike, zero_cost: ArrayLike, dtype: DTypeLike, tolerance: float | None = None
+) -> np.ndarray:
     """Whether one fit or many (arrays) converged: :func:`fit_status` is ``CONVERGED``
     (``tolerance``: the stationarity, by default ``STATIONARY_TOLERANCE``)."""
     solver_ok, is_finite, explains, stationary = _verdicts(ok, finite, gn_decrease, cost, zero_cost, dtype, tolerance)
     return solver_ok & is_finite & explains & stationary
 
 
-def fit_status(ok, finite, gn_decrease, cost, zero_cost, dtype, tolerance: float | None = None, steps: int | None = None,
-               max_steps: int | None = None) -> FitStatus:
+def fit_status(
+    ok: ArrayLike, finite: ArrayLike, gn_decrease: ArrayLike, cost: ArrayLike, zero_cost: ArrayLike, dtype: DTypeLike,
+    tolerance: float | None = None, steps: int | None = None, max_steps: int | None = None,
+) -> FitStatus:
     """The status of one fit: the first of the tests in the module docstring that fails, in the
     order of :class:`FitStatus` from the last (a numerical failure first); ``steps`` and
     ``max_steps`` tell the step limit from a stall."""

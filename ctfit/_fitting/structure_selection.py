@@ -5,21 +5,25 @@ from __future__ import annotations
 import concurrent.futures
 import os
 import queue
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
 
 import jax
 import numpy as np
+from jaxtyping import Array
 
-from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg
+from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg, x64_enabled
 from .._runtime import cached_call
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
 
-__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error", "DIFFUSE_FORMS",
+__all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error",
+           "DIFFUSE_FORMS",
            "SCREEN_SAMPLES", "SCREEN_TOLERANCE", "HELDOUT_PAIRS", "CHOICE_GAIN"]
 
 
 def select_structure(
-    data: Measurement, candidates: list[Structure], *, progress=None, **kwargs
+    data: Measurement, candidates: list[Structure], *, progress: Callable[[Iterable], Iterable] | None = None, **kwargs: Any
 ) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
     """Fit each candidate structure and keep the one with the lowest BIC (Schwarz 1978).
 
@@ -122,8 +126,8 @@ def structure_label(st: Structure) -> str:
 
 
 def choose_structure(
-    data: Measurement, *, families=DEFAULT_FAMILIES, lobes=DEFAULT_LOBES, diffuse=None, geometry: str = "v-cavity",
-    fresnel: str | None = None, progress=None, **kwargs,
+    data: Measurement, *, families: Sequence[str] = DEFAULT_FAMILIES, lobes: Sequence[int] = DEFAULT_LOBES, diffuse: Sequence[str | None] | None = None,
+    geometry: str = "v-cavity", fresnel: str | None = None, progress: Callable[[Iterable], Iterable] | None = None, **kwargs: Any,
 ) -> tuple[FitResult, list[tuple[Structure, FitResult]]]:
     """The data-chosen default structure: family × diffuse part × lobe count, by BIC or, on large
     data, by the median relative error on held-out direction pairs.
@@ -173,12 +177,12 @@ def choose_structure(
         tried.append((st, fit_screen(st, start, seeded)))
         return tried[-1][1]
 
-    better = lambda new, old: _better(new, old, n_full, held is not None)  # noqa: E731
+    better = lambda new, old: _better(new, old, n_full, held is not None)
 
     # Each stage's later fits have their programs made (loaded or compiled) in the background
     # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
     with concurrent.futures.ThreadPoolExecutor(2) as background:
-        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, report=False,  # noqa: E731
+        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, report=False,
                                                           **_seeding(kwargs, given and not seeded))
         tried.extend(_first_stage(combos, fit_screen, background, screen, given, kwargs, progress))
         best_st, best = _preferred(tried, better)
@@ -203,7 +207,9 @@ def choose_structure(
     return best, tried
 
 
-def _other_diffuse_parts(combos, chosen_st: Structure, chosen: FitResult, fit_screen, ahead, better):
+def _other_diffuse_parts(
+    combos: list[Structure], chosen_st: Structure, chosen: FitResult, fit_screen: Callable[..., FitResult], ahead: Any, better: Callable[..., bool]
+) -> tuple[Structure, FitResult]:
     """The family's other diffuse parts of ``combos`` at ``chosen_st``'s lobe count, each from
     ``chosen``'s lobes alone (programs made ``ahead``); the (structure, fit) ``better`` keeps."""
     best_st, best = chosen_st, chosen
@@ -217,7 +223,10 @@ def _other_diffuse_parts(combos, chosen_st: Structure, chosen: FitResult, fit_sc
     return best_st, best
 
 
-def _first_combos(data: Measurement, families, lobes: int, diffuse, geometry: str, fresnel, fixed) -> list[Structure]:
+def _first_combos(
+    data: Measurement, families: Sequence[str], lobes: int, diffuse: Sequence[str | None] | None, geometry: str, fresnel: str | None,
+    fixed: tuple[str, ...],
+) -> list[Structure]:
     """Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse``
     given) with ``lobes`` lobes, those with more free parameters than ``data`` has samples left out
     (all of them too many: the first, whose fit's error says so)."""
@@ -234,7 +243,9 @@ def _first_combos(data: Measurement, families, lobes: int, diffuse, geometry: st
     return [st for st in combos if n_free_parameters(st, data.n_bands, fixed) <= len(data)] or combos[:1]
 
 
-def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: dict, progress) -> list[tuple[Structure, FitResult]]:
+def _first_stage(
+    combos: list[Structure], fit_screen: Callable[..., FitResult], background: Any, screen: Any, given: bool, kwargs: dict, progress: Any
+) -> list[tuple[Structure, FitResult]]:
     """Fit every (family, diffuse part) combination with the fewest lobes, each that contains an
     earlier one from that one's fit (:func:`_chains`: such combinations are fitted in turn, the
     chains side by side in threads); the programs of the later ones made in ``background``
@@ -268,7 +279,7 @@ def _first_stage(combos, fit_screen, background, screen, given: bool, kwargs: di
     return [(st, fits[i]) for i, st in enumerate(combos)]
 
 
-def _preferred(fits: list[tuple[Structure, FitResult]], better) -> tuple[Structure, FitResult]:
+def _preferred(fits: list[tuple[Structure, FitResult]], better: Callable[..., bool]) -> tuple[Structure, FitResult]:
     """The (structure, fit) of ``fits`` that ``better`` keeps, taken in their order."""
     best = fits[0]
     for st, res in fits[1:]:
@@ -323,14 +334,14 @@ def _better(new: FitResult, old: FitResult, n_full: int, heldout: bool) -> bool:
     return a < b * (1 - CHOICE_GAIN) if more > 0 else a < b * (1 + CHOICE_GAIN) if more < 0 else a < b
 
 
-def _samples_of_pairs(data: Measurement, index, kept) -> Measurement:
+def _samples_of_pairs(data: Measurement, index: np.ndarray, kept: np.ndarray) -> Measurement:
     """The samples of ``data`` whose direction pair (``index``, :meth:`~ctfit.Measurement.directions`'s) is in ``kept``."""
     keep = np.isin(index, kept)
     fields = ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf") + (("sigma",) if data.sigma is not None else ())
     return data.replace(**{k: np.asarray(getattr(data, k))[keep] for k in fields})
 
 
-def _screening_pairs(data: Measurement, samples: int):
+def _screening_pairs(data: Measurement, samples: int) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """(direction pairs, each sample's pair, the pairs of the screening sample or None: all)."""
     pairs, index = data.directions()
     if len(data) <= samples or len(pairs) < 2:
@@ -354,7 +365,7 @@ def heldout_sample(data: Measurement, samples: int = SCREEN_SAMPLES, pairs: int 
     return _samples_of_pairs(data, index, rest)
 
 
-def _values_at_pairs(structure: Structure, params: Params, pairs):
+def _values_at_pairs(structure: Structure, params: Params, pairs: Array) -> Array:
     """The model at direction pairs (θ_i, φ_i, θ_o, φ_o in degrees, one row each): (pairs, bands)."""
     return brdf(structure, params, geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3]))
 
@@ -370,7 +381,7 @@ def model_median_error(res: FitResult, data: Measurement) -> float:
     stored program per structure serves every file."""
     pairs, index = data.directions()
     size = -(-len(pairs) // HELDOUT_PAIRS) * HELDOUT_PAIRS
-    dt = np.float64 if jax.config.jax_enable_x64 else np.float32
+    dt = np.float64 if x64_enabled() else np.float32
     padded = np.concatenate([pairs, np.repeat(pairs[:1], size - len(pairs), axis=0)]).astype(dt)
     params = jax.tree.map(lambda a: np.asarray(a, dtype=dt), res.material.params)
     values = np.concatenate([np.asarray(cached_call("heldout_values", _values_at_pairs, res.material.structure, params, padded[i: i + HELDOUT_PAIRS],

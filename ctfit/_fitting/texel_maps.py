@@ -30,10 +30,15 @@ import hashlib
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from jax.typing import DTypeLike
 
-from .._model import PARAMETER_AXES, PUBLIC_NAMES, Measurement
+from .._model import PARAMETER_AXES, PUBLIC_NAMES, Measurement, Structure
+
+if TYPE_CHECKING:  # the cluster extra, imported where it is used
+    import xarray as xr
 
 __all__ = ["fit_texel_maps", "read_texel_geometry", "save_map_pngs", "TexelMapError"]
 
@@ -44,7 +49,7 @@ class TexelMapError(ValueError):
     """A texel file or an output store that cannot be used; the message says why."""
 
 
-def _open(path):
+def _open(path: str | os.PathLike[str]) -> Any:
     """The texel file as an xarray Dataset (every texel map starts here: the "cluster" extra)."""
     from .._runtime import need
 
@@ -54,12 +59,13 @@ def _open(path):
     path = os.fspath(path)
     engine = "zarr" if path.rstrip("/").endswith(".zarr") else "h5netcdf"
     try:
-        return xr.open_dataset(path, engine=engine, chunks=None, **({"consolidated": False} if engine == "zarr" else {}))
+        backend: dict[str, Any] = {"consolidated": False} if engine == "zarr" else {}
+        return xr.open_dataset(path, engine=engine, chunks=None, **backend)
     except (OSError, ValueError, KeyError) as e:
         raise TexelMapError(f"{path}: cannot be opened as texel data ({engine}): {e}") from None
 
 
-def read_texel_geometry(path) -> tuple[Measurement, tuple[str, ...], tuple[int, ...]]:
+def read_texel_geometry(path: str | os.PathLike[str]) -> tuple[Measurement, tuple[str, ...], tuple[int, ...]]:
     """The shared geometry of a texel file (a :class:`~ctfit.Measurement` without values), the
     texel dims (``("texel",)`` or ``("y", "x")``) and their sizes.
 
@@ -100,7 +106,7 @@ def read_texel_geometry(path) -> tuple[Measurement, tuple[str, ...], tuple[int, 
     return data, tuple(dims[:-1]), sizes
 
 
-def _file_sha256(path) -> str:
+def _file_sha256(path: str | os.PathLike[str]) -> str:
     """SHA-256 of a file, or of a store's files (names and bytes, in sorted order)."""
     from .many import input_sha256
 
@@ -114,20 +120,20 @@ def _file_sha256(path) -> str:
 
 
 def fit_texel_maps(
-    path,
-    output,
-    structure=None,
-    client=None,
+    path: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    structure: Structure | None = None,
+    client: Any = None,
     *,
     workers: int | None = None,
     chunk: int = 4096,
     loss: str = "auto",
     solver: str = "lm",
-    dtype=None,
+    dtype: DTypeLike | None = None,
     starts: int = 3,
     max_steps: int = 256,
     progress: bool = False,
-):
+) -> xr.Dataset:
     """Fit every texel of the texel file ``path`` and write the parameter maps to the Zarr store ``output``.
 
     Chunks of about ``chunk`` texels (whole rows of an image) are fitted as Dask tasks on
@@ -162,7 +168,7 @@ def fit_texel_maps(
     import xarray as xr
 
     _check_geometry(data, structure, loss, dtype)
-    options = dict(loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
+    options: dict[str, Any] = dict(loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
     record = json.dumps(dict(structure=repr(structure), **{k: (np.dtype(v).name if k == "dtype" else v) for k, v in options.items()}), sort_keys=True)
     stamp = dict(input=os.fspath(path), input_sha256=_file_sha256(path), fit_options=record)
     row = int(np.prod(sizes[1:])) if len(sizes) > 1 else 1
@@ -187,7 +193,7 @@ def fit_texel_maps(
     return xr.open_zarr(output, consolidated=False)
 
 
-def _check_geometry(data: Measurement, structure, loss: str, dtype) -> None:
+def _check_geometry(data: Measurement, structure: Structure | None, loss: str, dtype: DTypeLike) -> None:
     """What would fail every chunk, said once by the client: too few samples for the structure's
     parameters, or the sigma loss (texels have no sigma)."""
     from .._model import Structure
@@ -201,7 +207,7 @@ def _check_geometry(data: Measurement, structure, loss: str, dtype) -> None:
         raise TexelMapError(str(e).replace("measure more", "every texel has that many; measure more")) from None
 
 
-def _pending(output, stamp: dict, spans: list) -> list | None:
+def _pending(output: str | os.PathLike[str], stamp: dict, spans: list) -> list | None:
     """The spans still to fit in an existing store (None: no store yet); a store of another input is refused."""
     import xarray as xr
 
@@ -221,23 +227,24 @@ def _pending(output, stamp: dict, spans: list) -> list | None:
         return [(a, b) for a, b in spans if (status.isel({lead: slice(a, b)}).values < 0).any()]
 
 
-def _fit_rows(source: tuple[str, str], span: tuple[int, int], **task) -> dict | None:
+def _fit_rows(source: tuple[str, str], span: tuple[int, int], **task: Any) -> dict | None:
     """One task (:func:`_fit_span`); an error comes back as ``{"error": message}``, for the client
     to raise (raised here, the worker would print its traceback before the client's one line)."""
     try:
         return _fit_span(source, span, **task)
-    except Exception as e:  # noqa: BLE001 — a corrupt chunk raises whatever its codec raises
+    except Exception as e:  # a corrupt chunk raises whatever its codec raises
         return {"error": f"{source[0]}, rows {span[0]}–{span[1] - 1}: {type(e).__name__}: {e}"}
 
 
-def _checked(got):
+def _checked(got: Any) -> Any:
     """A task's result, or its error raised as a :class:`TexelMapError`."""
     if isinstance(got, dict) and "error" in got:
         raise TexelMapError(got["error"])
     return got
 
 
-def _fit_span(source: tuple[str, str], span: tuple[int, int], *, data: Measurement, structure, options: dict, x64: bool, rows: int,
+def _fit_span(source: tuple[str, str], span: tuple[int, int], *, data: Measurement, structure: Structure | None, options: dict, x64: bool,
+              rows: int,
               dims: tuple[str, ...], output: str | None = None) -> dict | None:
     """Rows ``span`` of ``values`` read from the store and fitted — padded to ``rows`` rows with
     copies of the last, so that every chunk runs one compiled program — and their maps written
@@ -273,7 +280,7 @@ def _variables(maps: dict, dims: tuple[str, ...]) -> dict:
     return {k: ((*dims, PARAMETER_AXES[k]) if PARAMETER_AXES.get(k) and v.ndim > len(dims) else dims, v) for k, v in maps.items()}
 
 
-def _create(output, first: dict, dims, sizes, data: Measurement, stamp: dict, rows: int) -> None:
+def _create(output: str | os.PathLike[str], first: dict, dims: tuple[str, ...], sizes: tuple[int, ...], data: Measurement, stamp: dict, rows: int) -> None:
     """The output store: every map at full size (NaN / False until written), chunked like the tasks."""
     import dask.array as da
     import xarray as xr
@@ -295,7 +302,7 @@ def _create(output, first: dict, dims, sizes, data: Measurement, stamp: dict, ro
     ds.to_zarr(output, mode="w-", compute=True, consolidated=False)
 
 
-def _write(output, maps: dict, dims: tuple[str, ...], span: tuple[int, int]) -> None:
+def _write(output: str | os.PathLike[str], maps: dict, dims: tuple[str, ...], span: tuple[int, int]) -> None:
     """One chunk's maps into their region of the store (``status`` last: it marks the chunk done)."""
     import xarray as xr
 
@@ -306,7 +313,7 @@ def _write(output, maps: dict, dims: tuple[str, ...], span: tuple[int, int]) -> 
     xr.Dataset({"status": variables["status"]}).to_zarr(output, region=region, consolidated=False)
 
 
-def save_map_pngs(maps, folder) -> list[Path]:
+def save_map_pngs(maps: Any, folder: str | os.PathLike[str]) -> list[Path]:
     """One PNG per map of an image's maps (dims y, x): per lobe (m, weight), per band (F0, Rd),
     and s, cost, rel_rmse, converged; each scaled to its own range (the PNG's name says which)."""
     from .._io import atomic_save

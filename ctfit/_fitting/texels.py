@@ -21,11 +21,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import DTypeLike
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import Material, Measurement, Params, Structure, value_rules
 from .._runtime import cached_call
@@ -33,6 +36,7 @@ from .batch import default_width, mapped
 from .least_squares import FitResult, fit, fit_core, prepare_fit
 from .losses import row_floors
 from .options import takes_fit_options
+from .problem import Problem
 from .status import judge_converged
 from .validate import representable_range
 
@@ -74,7 +78,7 @@ class TexelFits:
     structure: Structure
     params: Params
     stats: dict
-    values: object = dataclasses.field(repr=False)
+    values: np.ndarray = dataclasses.field(repr=False)
     options: dict = dataclasses.field(repr=False, default_factory=dict)
 
     def __len__(self) -> int:
@@ -102,12 +106,12 @@ class TexelFits:
 @takes_fit_options(fit)
 def fit_texels(
     measurement: Measurement,
-    values,
+    values: Float[np.ndarray, "texels samples"],
     structure: Structure | None = None,
     *,
     chunk: int = CHUNK,
     width: int | None = None,
-    **options,
+    **options: Any,
 ) -> TexelFits:
     """Fit ``structure`` to every texel: ``values[t]`` is texel t's BRDF at ``measurement``'s rows.
 
@@ -175,7 +179,7 @@ def fit_texels(
     return _result(measurement, prep.structure, out, values, n_texels, t0, dict(options, loss=loss), status)
 
 
-def texel_status(values, chunk: int, dtype) -> np.ndarray:
+def texel_status(values: np.ndarray, chunk: int, dtype: DTypeLike) -> np.ndarray:
     """Each texel's :data:`TEXEL_STATUS` code (int8): 0 where it can be fitted, else the first
     rule it breaks — the brdf rules of every reader (:func:`~ctfit._model.measurement.value_rules`:
     finite, ≥ 0), then :func:`~ctfit._fitting.validate.check_fittable`'s (not all 0, the largest
@@ -202,12 +206,12 @@ def texel_status(values, chunk: int, dtype) -> np.ndarray:
 class _Layout:
     """Texels' values (chunk, samples) in the problem's layout, with each texel's loss floor."""
 
-    def __init__(self, problem, data: Measurement):
+    def __init__(self, problem: Problem, data: Measurement) -> None:
         self.grid, self.loss = problem.spec.grid, problem.spec.loss
         self.shape = problem.y.shape
         self.index, self.band = data.directions()[1], np.asarray(data.band)
 
-    def __call__(self, block: np.ndarray, dtype):
+    def __call__(self, block: np.ndarray, dtype: DTypeLike) -> tuple[np.ndarray, np.ndarray]:
         if self.grid:
             ys = np.zeros((len(block),) + self.shape)
             ys[:, self.index, self.band] = block
@@ -217,11 +221,11 @@ class _Layout:
         return ys.astype(dtype), floors.astype(dtype)
 
 
-def _texel_core(problem, ys, floors, active, u0, grid, width: int, *options):
+def _texel_core(problem: Problem, ys: Array, floors: Array, active: Array, u0: dict, grid: Any, width: int, *options: Any) -> Any:
     """``fit_core`` mapped over the texels' values (geometry and start shared); per texel the
     parameters and the cheap statistics only (the rest of the program is dead code to XLA)."""
 
-    def one(texel):
+    def one(texel: Any) -> dict:
         y, floor = texel
         p = eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor))
         out = fit_core(p, u0, grid, *options)
@@ -233,14 +237,16 @@ def _texel_core(problem, ys, floors, active, u0, grid, width: int, *options):
     return mapped(one, (ys, floors), active, width)
 
 
-def _result(measurement, structure: Structure, out, values, n_texels: int, t0: float, options: dict, status: np.ndarray) -> TexelFits:
+def _result(
+    measurement: Measurement, structure: Structure, out: dict, values: np.ndarray, n_texels: int, t0: float, options: dict, status: np.ndarray
+) -> TexelFits:
     dtype = jnp.dtype(options["dtype"]).name
     bad = status != 0
     p = {k: None if out["params"][k] is None else np.where(_per_texel(bad, out["params"][k]), np.nan, out["params"][k]) for k in _FIELDS}
     if p["m"] is not None:  # lobes in ascending m, per texel
         order = np.argsort(p["m"], axis=1)
         p["m"], p["w"] = np.take_along_axis(p["m"], order, 1), np.take_along_axis(p["w"], order, 1)
-    get = lambda k: np.where(bad, np.nan, np.asarray(out[k], dtype=float))  # noqa: E731  (no fit: NaN)
+    get = lambda k: np.where(bad, np.nan, np.asarray(out[k], dtype=float))  # no fit: NaN
     cost, rmse = get("cost"), get("rmse")
     decrease = get("gauss_newton_decrease")
     finite = np.isfinite(cost) & np.isfinite(rmse) & np.asarray(out["finite"]).astype(bool)
@@ -255,6 +261,6 @@ def _result(measurement, structure: Structure, out, values, n_texels: int, t0: f
     return TexelFits(measurement, structure, Params(**p), stats, values, options)
 
 
-def _per_texel(bad: np.ndarray, a) -> np.ndarray:
+def _per_texel(bad: np.ndarray, a: ArrayLike) -> np.ndarray:
     """``bad`` (T,) broadcast against a parameter array (T, ...)."""
     return bad.reshape(bad.shape + (1,) * (np.ndim(a) - 1))

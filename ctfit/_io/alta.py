@@ -37,6 +37,7 @@ import math
 import os
 import re
 import warnings
+from typing import Any
 
 import numpy as np
 
@@ -58,7 +59,7 @@ _HORIZON_DEG = 90 - 1e-6  # a viewer this close to the horizon has no usable cos
 _HEADER = re.compile(r"#([A-Z][A-Z0-9_]*)(?:\s+(.*))?")
 
 
-def read_alta(path, *, param_out: str | None = None, param_out_default: str | None = None) -> Measurement:
+def read_alta(path: str | os.PathLike[str], *, param_out: str | None = None, param_out_default: str | None = None) -> Measurement:
     r"""Read an ALTA text data file.
 
     ``param_out`` names the output parametrisation for a file without a ``#PARAM_OUT`` line
@@ -126,9 +127,11 @@ def read_alta(path, *, param_out: str | None = None, param_out_default: str | No
     )
 
 
-def _split(text: str, path):
+def _split(text: str, path: str | os.PathLike[str]) -> tuple[dict[str, tuple[str, int]], list[str], np.ndarray]:
     """Header {KEY: (value, line)}, data lines and their line numbers."""
-    header, rows, lines = {}, [], []
+    header: dict[str, tuple[str, int]] = {}
+    rows: list[str] = []
+    lines: list[int] = []
     for k, line in enumerate(text.replace("\r\n", "\n").replace("\r", "\n").split("\n"), start=1):  # LF, CR LF or CR
         line = line.strip()
         if line.startswith("#"):
@@ -147,8 +150,8 @@ def _split(text: str, path):
     return header, rows, np.array(lines)
 
 
-def _interpret(header: dict, param_out, path):
-    def need(key, what):
+def _interpret(header: dict, param_out: str | None, path: str | os.PathLike[str]) -> Any:
+    def need(key: str, what: str) -> tuple[str, int]:
         if key not in header:
             raise DataError(f"no #{key} line ({what}); is this an ALTA data file?", path=path)
         return header[key]
@@ -188,13 +191,13 @@ def _interpret(header: dict, param_out, path):
     return dim_in, dim_out, pin, pout, int(vs)
 
 
-def _column_names(pin, pout, vs):
+def _column_names(pin: str, pout: str, vs: int) -> list[str]:
     outputs = ("R", "G", "B") if pout == "RGB_COLOR" else ("value",)
     intervals = {0: (), 1: ("{}_halfwidth",), 2: ("{}_lower", "{}_upper")}[vs]
     return [*PARAM_IN[pin], *outputs, *(f.format(o) for o in outputs for f in intervals)]
 
 
-def _numbers(rows, lines, names, path) -> np.ndarray:
+def _numbers(rows: list[str], lines: np.ndarray, names: list[str], path: str | os.PathLike[str]) -> np.ndarray:
     if not rows:
         raise DataError("no data lines", path=path)
     data = np.empty((len(rows), len(names)))
@@ -212,14 +215,16 @@ def _numbers(rows, lines, names, path) -> np.ndarray:
     return data
 
 
-def _check(bad, lines, names, j, message, data, path):
+def _check(bad: np.ndarray, lines: np.ndarray, names: list[str], j: int, message: str, data: np.ndarray, path: str | os.PathLike[str]) -> None:
     if bad.any():
         r = int(np.argmax(bad))
         x = data[r, j]
         raise DataError(message.format("NaN" if math.isnan(x) else repr(float(x))), path=path, line=int(lines[r]), column=names[j], index=j + 1)
 
 
-def _sigma(data, dim_in, dim_out, vs, lines, names, path):
+def _sigma(
+    data: np.ndarray, dim_in: int, dim_out: int, vs: int, lines: np.ndarray, names: list[str], path: str | os.PathLike[str]
+) -> np.ndarray | None:
     if vs == 0:
         return None
     values = data[:, dim_in : dim_in + dim_out]
@@ -238,7 +243,7 @@ def _sigma(data, dim_in, dim_out, vs, lines, names, path):
     return 0.5 * (upper - lower)
 
 
-def _directions(x, pin, lines, names, path):
+def _directions(x: np.ndarray, pin: str, lines: np.ndarray, names: list[str], path: str | os.PathLike[str]) -> tuple[np.ndarray, ...]:
     """(θ_i, φ_i, θ_o, φ_o) in degrees, and cos θ_o, from the input coordinates."""
     if pin == "COS_TH":
         c = x[:, 0]
@@ -267,6 +272,6 @@ def _directions(x, pin, lines, names, path):
     return theta_i, phi_i, theta_o, phi_o, np.cos(theta_v)
 
 
-def _degrees(radians):
+def _degrees(radians: np.ndarray) -> np.ndarray:
     """Degrees rounded to 1e-9° (far below any goniometer's resolution), so that π/12 reads as 15°."""
     return np.round(np.rad2deg(radians), 9) + 0.0

@@ -15,8 +15,11 @@ import difflib
 import math
 import os
 import re
+from collections.abc import Iterable, Iterator, Mapping
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .._model import Measurement, format_value as _fmt, invalid_value
 from .errors import DataError
@@ -41,7 +44,7 @@ _WRITE_ROWS = 100_000
 # --- reading ------------------------------------------------------------------------------------
 
 
-def read_csv(path) -> Measurement:
+def read_csv(path: str | os.PathLike[str]) -> Measurement:
     r"""Read a measurement CSV.
 
     ``# key: value`` lines before the header become ``meta`` (other ``#`` lines are free text
@@ -84,7 +87,7 @@ def read_csv(path) -> Measurement:
     return _measurement(values, channel, meta, path)
 
 
-def _split_header(raw: bytes, path, pos: int = 0):
+def _split_header(raw: Any, path: str | os.PathLike[str], pos: int = 0) -> tuple[dict, dict, int, str, int]:
     """(meta, line number of each meta key, header line number, header text, body offset); the
     file's text starts at ``pos`` (after a byte-order mark)."""
     meta, meta_lines, line_no, blank = {}, {}, 0, True
@@ -109,7 +112,7 @@ def _split_header(raw: bytes, path, pos: int = 0):
 class _Header:
     """Column positions from the header row, validated."""
 
-    def __init__(self, header: str, line: int, path):
+    def __init__(self, header: str, line: int, path: str | os.PathLike[str]) -> None:
         names = [n.strip().strip('"').strip() for n in header.split(",")]
         self.names, self.line = names, line
         err = lambda msg, name=None, i=None: DataError(msg, path=path, line=line, column=name, index=i)
@@ -126,7 +129,7 @@ class _Header:
                 path=path,
                 line=line,
             )
-        seen = {}
+        seen: dict[str, int] = {}
         for i, name in enumerate(names):
             if not name:
                 raise err(f"column {i + 1} has no name")
@@ -154,11 +157,11 @@ class _Header:
         self.numeric = [n for n in (*ANGLES, "wavelength_nm", "brdf", "sigma") if n in seen]
         self.ignored = [i for i, n in enumerate(names) if n not in _KNOWN]
 
-    def column(self, name):
+    def column(self, name: str) -> dict[str, Any]:
         return dict(column=name, index=self.index[name] + 1)
 
 
-def _did_you_mean(name, names):
+def _did_you_mean(name: str, names: list[str]) -> str:
     close = difflib.get_close_matches(name, [n for n in names if n not in _KNOWN and len(n) < 3 * len(name)], n=1, cutoff=0.75)
     return f" (is {quote(close[0])} meant to be {name!r}?)" if close else ""
 
@@ -187,7 +190,7 @@ PARSE_BLOCK = 1 << 23
 times the block — stay small however large the file is."""
 
 
-def _parse_blocks(raw: bytes, pos: int, end: int, cols: _Header):
+def _parse_blocks(raw: Any, pos: int, end: int, cols: _Header) -> tuple[dict, np.ndarray | None] | None:
     """:func:`_parse_fast` over blocks of about ``PARSE_BLOCK`` bytes of whole lines, the columns
     joined; None when any block needs a closer look (the slow parser then reads the whole body)."""
     parts = []
@@ -205,7 +208,7 @@ def _parse_blocks(raw: bytes, pos: int, end: int, cols: _Header):
     return values, None if parts[0][1] is None else np.concatenate([p[1] for p in parts])
 
 
-def _parse_fast(raw: bytes, pos: int, end: int, cols: _Header):
+def _parse_fast(raw: Any, pos: int, end: int, cols: _Header) -> tuple[dict, np.ndarray | None] | None:
     """({name: values}, channel codes or None) from ``raw[pos:end]``, or None when the body needs
     a closer look."""
     n = end - pos
@@ -253,7 +256,7 @@ def _parse_fast(raw: bytes, pos: int, end: int, cols: _Header):
     return {n: table[:, cols.index[n]].copy() for n in cols.numeric}, channel
 
 
-def _lines(raw: bytes, pos: int, end: int):
+def _lines(raw: Any, pos: int, end: int) -> Iterator[str]:
     """The lines of ``raw[pos:end]``, decoded one at a time (the file is UTF-8, checked)."""
     while pos <= end:
         stop = raw.find(b"\n", pos, end)
@@ -262,7 +265,7 @@ def _lines(raw: bytes, pos: int, end: int):
         pos = stop + 1
 
 
-def _parse_slow(lines, first: int, cols: _Header, path):
+def _parse_slow(lines: Iterable[str], first: int, cols: _Header, path: str | os.PathLike[str]) -> tuple[dict, np.ndarray | None]:
     """Line by line; raises at the first bad line."""
     names, ncols = cols.names, len(cols.names)
     numeric = [(n, cols.index[n]) for n in cols.numeric]
@@ -292,7 +295,7 @@ def _parse_slow(lines, first: int, cols: _Header, path):
     return values, (np.array(channel, np.uint8) if cols.channel is not None else None)
 
 
-def _check_values(values: dict, cols: _Header, first: int, path):
+def _check_values(values: dict, cols: _Header, first: int, path: str | os.PathLike[str]) -> None:
     """Raise for the earliest (line, column) with a value out of its domain (the rule every
     reader shares: :func:`~ctfit._model.measurement.invalid_value`)."""
     worst = None
@@ -307,7 +310,7 @@ def _check_values(values: dict, cols: _Header, first: int, path):
         raise DataError(message, path=path, line=first + row, **cols.column(name))
 
 
-def _check_units(values: dict, meta: dict, meta_lines: dict, cols: _Header, header_line: int, path):
+def _check_units(values: dict, meta: dict, meta_lines: dict, cols: _Header, header_line: int, path: str | os.PathLike[str]) -> None:
     """Radian-looking angles are an error unless ``# angle_unit: degrees`` confirms degrees:
     every θ ≤ π/2, or (θ in degrees) every φ within ±2π with some not whole numbers."""
     unit = meta.get("angle_unit")
@@ -333,7 +336,7 @@ def _check_units(values: dict, meta: dict, meta_lines: dict, cols: _Header, head
     _check_phi_units(values, cols, header_line, path)
 
 
-def _check_phi_units(values: dict, cols: _Header, header_line: int, path):
+def _check_phi_units(values: dict, cols: _Header, header_line: int, path: str | os.PathLike[str]) -> None:
     """φ in radians beside θ in degrees: every |φ| ≤ 2π, some φ not whole, θ up to more than 2π.
 
     Whole-numbered φ within ±2π (0 and 180 in-plane data has larger ones anyway; 0 alone, or
@@ -358,12 +361,12 @@ def _check_phi_units(values: dict, cols: _Header, header_line: int, path):
     )
 
 
-def _measurement(values: dict, channel, meta: dict, path) -> Measurement:
+def _measurement(values: dict, channel: np.ndarray | None, meta: dict, path: str | os.PathLike[str]) -> Measurement:
     phi = {n: _mod360(values[n]) for n in ("phi_i", "phi_o")}
     theta = {n: values[n] + 0.0 for n in ("theta_i", "theta_o")}  # -0.0 → 0.0
     if channel is not None:
         present, band = np.unique(channel, return_inverse=True)
-        bands = dict(channels=tuple(CHANNELS[c] for c in present))
+        bands: dict[str, object] = dict(channels=tuple(CHANNELS[c] for c in present))
     else:
         wavelength, band = np.unique(values["wavelength_nm"], return_inverse=True)
         bands = dict(wavelength_nm=wavelength)
@@ -381,7 +384,7 @@ def _measurement(values: dict, channel, meta: dict, path) -> Measurement:
     )
 
 
-def _mod360(phi):
+def _mod360(phi: np.ndarray) -> np.ndarray:
     phi = np.mod(phi, 360.0) + 0.0
     phi[phi >= 360.0] = 0.0  # a tiny negative φ rounds to 360
     return phi
@@ -390,7 +393,10 @@ def _mod360(phi):
 # --- writing ------------------------------------------------------------------------------------
 
 
-def write_csv(measurement: Measurement, path, brdf=None, extra_columns=None, *, meta=None) -> None:
+def write_csv(
+    measurement: Measurement, path: str | os.PathLike[str], brdf: Float[ArrayLike, " samples"] | None = None,
+    extra_columns: Mapping[str, ArrayLike] | None = None, *, meta: Mapping[str, object] | None = None,
+) -> None:
     """Write ``measurement`` as a measurement CSV, atomically (a temporary file, then a rename).
 
     ``brdf`` replaces the measurement's BRDF values (e.g. model values); ``extra_columns`` maps
@@ -453,7 +459,7 @@ def _meta_lines(meta: dict) -> list[str]:
     return lines
 
 
-def _chunks(head: list[str], columns: list[np.ndarray], n: int):
+def _chunks(head: list[str], columns: list[np.ndarray], n: int) -> Iterator[str]:
     yield "\n".join(head) + "\n"
     for start in range(0, n, _WRITE_ROWS):
         cells = [_strings(c[start : start + _WRITE_ROWS]) for c in columns]

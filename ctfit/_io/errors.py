@@ -28,7 +28,9 @@ class DataError(ValueError):
     (17, '95.0 is outside [0, 90] degrees', True)
     """
 
-    def __init__(self, reason: str, *, path=None, line: int | None = None, column: str | None = None, index: int | None = None):
+    def __init__(
+        self, reason: str, *, path: str | os.PathLike[str] | None = None, line: int | None = None, column: str | None = None, index: int | None = None
+    ) -> None:
         where = ""
         if path is not None:
             where = os.fspath(path) + (f":{line}" if line is not None else "") + ": "

@@ -24,7 +24,7 @@ __all__ = [
     "writes_in_place",
 ]
 
-_temporaries: dict[str, tuple[str, bool]] = {}  # writes under way: temporary → (the user's path, whether a file is there)
+_temporaries: dict[str, tuple[str | None, bool]] = {}  # writes under way: temporary → (the user's path, whether a file is there)
 
 
 MAP_BYTES = 1 << 26
@@ -52,6 +52,7 @@ def map_utf8(path):
 
     with open(path, "rb") as f:
         size = os.fstat(f.fileno()).st_size
+        raw: bytes | mmap.mmap
         if size < MAP_BYTES:
             raw = f.read()
         else:
@@ -111,7 +112,7 @@ def writes_in_place(path) -> bool:
     return not stat.S_ISREG(mode) and not stat.S_ISDIR(mode)
 
 
-def _named(err: OSError, path: str, tmp: str) -> OSError:
+def _named(err: OSError, path: str, tmp: str | None) -> OSError:
     """``err`` naming the user's ``path`` where it named the temporary file, or nothing."""
     if err.filename in (None, tmp) and err.errno is not None:
         return type(err)(err.errno, err.strerror, path)
@@ -148,7 +149,7 @@ def remove_stale_temporaries(folder) -> list[str]:
     """Remove the temporaries (:data:`TEMPORARY`) that a killed ``ctfit`` left in ``folder``:
     this user's, whose process has ended (or whose PID now belongs to a later process).
     Returns the names removed. Done once per folder by the first write into it."""
-    removed = []
+    removed: list[str] = []
     try:
         entries = list(os.scandir(folder))
     except OSError:

@@ -18,12 +18,28 @@ import contextlib
 import os
 import threading
 from collections.abc import Callable
+from typing import TypedDict
 
 __all__ = ["deferred", "note_resumable", "on_interrupt", "resumable", "run_cleanups", "set_exit", "sigint", "wait_for_writes"]
 
 _guard = threading.RLock()  # held by deferred writes; the command's watcher takes it before exiting
 _cleanups: list[Callable[[], None]] = []  # run before an interrupted exit (on_interrupt)
-_state = {"depth": 0, "pending": False, "resumable": None, "exit": None}
+
+
+def _interrupt(notes: list[str]) -> None:
+    raise KeyboardInterrupt  # no command's exit set: what Ctrl-C does by default
+
+
+class _State(TypedDict):
+    """What :func:`deferred` and the command's handler share."""
+
+    depth: int  # deferred blocks under way
+    pending: bool  # a SIGINT held back until they end
+    resumable: str | None  # the chain file being written (note_resumable)
+    exit: Callable[[list[str]], None]  # the command's exit (set_exit)
+
+
+_state: _State = {"depth": 0, "pending": False, "resumable": None, "exit": _interrupt}
 
 
 def note_resumable(path) -> None:
@@ -84,5 +100,5 @@ def run_cleanups() -> None:
     for cleanup in reversed(list(_cleanups)):
         try:
             cleanup()
-        except BaseException:  # noqa: BLE001 — leaving anyway: a cleanup that fails is skipped
+        except BaseException:  # leaving anyway: a cleanup that fails is skipped
             pass

@@ -32,8 +32,11 @@ import os
 import pathlib
 import re
 import tomllib
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike
 
 from .._model import (
     DISTRIBUTIONS,
@@ -68,8 +71,9 @@ _FRESNEL_KEYS = {"f0": ("F0",), "n": ("n",), "conductor": ("n", "k")}
 def _toml_position(err: tomllib.TOMLDecodeError, text: str) -> tuple[int, int, str]:
     """Line, column and message of a TOML syntax error (attributes only from Python 3.14)."""
     msg = err.args[0] if err.args else str(err)
-    if getattr(err, "lineno", None) is not None:
-        return err.lineno, err.colno, getattr(err, "msg", msg)
+    lineno, colno = getattr(err, "lineno", None), getattr(err, "colno", None)
+    if lineno is not None and colno is not None:
+        return lineno, colno, getattr(err, "msg", msg)
     found = re.search(r"\s*\(at line (\d+), column (\d+)\)$", msg)
     if found:
         return int(found[1]), int(found[2]), msg[: found.start()]
@@ -108,7 +112,7 @@ def _read_document(path: pathlib.Path) -> dict:
     return data
 
 
-def load_material(path) -> Material:
+def load_material(path: str | os.PathLike[str]) -> Material:
     """Load a material from a TOML config or a fit-result JSON file (chosen by the suffix).
 
     >>> import pathlib
@@ -132,20 +136,20 @@ def load_material(path) -> Material:
 # --- validation ---------------------------------------------------------------------------------
 
 
-def _is_number(v) -> bool:
+def _is_number(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 class _Parser:
     """Turns the keys of one material document into a Material; errors name source and key."""
 
-    def __init__(self, data: dict, source: str, base_dir):
+    def __init__(self, data: dict, source: str, base_dir: str | os.PathLike[str] | None) -> None:
         self.data, self.source, self.base_dir = data, source, base_dir
 
     def error(self, key: str, msg: str) -> MaterialError:
         return MaterialError(f"{self.source}: key '{shorten(key)}': {msg}")
 
-    def number(self, value, key, lo=-math.inf, hi=math.inf, lo_open=False) -> float:
+    def number(self, value: Any, key: str, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
         if not _is_number(value):
             raise self.error(key, f"must be a number, got {quote(value)}")
         x = float(value)
@@ -154,7 +158,7 @@ class _Parser:
             raise self.error(key, f"{x!r} is outside {lo_txt}, {hi:g}]")
         return x
 
-    def choice(self, key, allowed, default):
+    def choice(self, key: str, allowed: Sequence[Any], default: Any) -> Any:
         value = self.data.get(key, default)
         if value not in allowed:
             raise self.error(key, f"must be one of {list(allowed)}, got {quote(value)}")
@@ -178,9 +182,12 @@ class _Parser:
             raise self.error("s", "missing: give the specular and diffuse fractions s and d (s + d = 1)")
         s = self.number(self.data["s"], "s", 0, 1) if has_s else None
         d = self.number(self.data["d"], "d", 0, 1) if has_d else None
-        if has_s and has_d and abs(s + d - 1) > _TOL:
+        if s is not None and d is not None and abs(s + d - 1) > _TOL:
             raise self.error("d", f"s + d = {s + d:.12g}, must be 1")
-        return (s, 1 - s) if has_s else (1 - d, d)
+        if s is not None:
+            return s, 1 - s
+        assert d is not None  # has_s or has_d
+        return 1 - d, d
 
     def lobes(self, s: float) -> tuple[list[float], list[float]]:
         raw = self.data.get("lobes", [])
@@ -213,7 +220,7 @@ class _Parser:
         order = sorted(range(len(ms)), key=ms.__getitem__)  # results list lobes in ascending m
         return [ms[j] for j in order], [ws[j] for j in order]
 
-    def resolve(self, name: str):
+    def resolve(self, name: str) -> str | pathlib.Path:
         """A table's name, or the real path of an optical constants CSV in the material file's
         folder (below it, or the working directory's without one) or in a folder of
         :data:`~ctfit._io.optical_constants.TABLE_FOLDERS` (``docs/formats.md``)."""
@@ -236,7 +243,7 @@ class _Parser:
         looked = " or ".join(str(f / name) for f in folders)
         raise self.error("optical_constants", f"no file {quote(name)} (looked for {shorten(looked, 400)}); ctfit ships {', '.join(table_names())}")
 
-    def bands(self):
+    def bands(self) -> tuple[np.ndarray | None, tuple[str, ...] | None, str | None, dict | None]:
         """(wavelength_nm, channels, band key, optical constants table or None)."""
         given = [k for k in ("wavelength_nm", "channels", "optical_constants") if k in self.data]
         if not given:
@@ -267,7 +274,9 @@ class _Parser:
             raise self.error(key, "must be strictly increasing")
         return wl, None, key, None
 
-    def spectrum(self, key, nbands, band_key, lo, hi, lo_open=False, allow_null=False) -> np.ndarray:
+    def spectrum(
+        self, key: str, nbands: int, band_key: str | None, lo: float, hi: float, lo_open: bool = False, allow_null: bool = False
+    ) -> np.ndarray:
         """A per-band quantity: a list over the bands, or one number for every band."""
         value = self.data[key]
         if _is_number(value):
@@ -283,7 +292,7 @@ class _Parser:
         )  # fmt: skip
 
 
-def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None, default_name: str = "") -> Material:
+def material_from_dict(data: dict, *, source: str = "<material>", base_dir: str | os.PathLike[str] | None = None, default_name: str = "") -> Material:
     """Build a Material from the keys of a material document (already parsed TOML/JSON).
 
     ``source`` names the document in error messages; ``base_dir`` is where a relative
@@ -311,7 +320,7 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
     geometry = p.choice("geometry", GEOMETRIES, "v-cavity")
     normalization = p.choice("normalization", NORMALIZATIONS, "normalized")
     wl, channels, band_key, table = p.bands()
-    nbands = len(wl) if wl is not None else len(channels)
+    nbands = len(wl) if wl is not None else len(channels or ())
     band_unknown = data.get("band_unknown", False)
     if not isinstance(band_unknown, bool):
         raise p.error("band_unknown", f"must be true or false, got {quote(band_unknown)}")
@@ -360,7 +369,7 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir=None,
     return Material(structure, params, wavelength_nm=wl, channels=channels, name=name, meta=meta, band_unknown=band_unknown)
 
 
-def _family(p: _Parser, diffuse, rd, nbands: int):
+def _family(p: _Parser, diffuse: str | None, rd: Any, nbands: int) -> tuple[str, str | None, Any]:
     """(family, diffuse form, R_d) from the keys ``family`` and ``diffuse`` (a plastic's R_d
     seen through its interface is a spectrum: a single number is repeated over the bands)."""
     family = p.choice("family", ("metal", "plastic"), "metal")
@@ -376,7 +385,7 @@ def _family(p: _Parser, diffuse, rd, nbands: int):
     return family, diffuse, rd
 
 
-def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tuple[str, dict]:
+def _fresnel(p: _Parser, table: dict | None, needed: bool, nbands: int, band_key: str | None) -> tuple[str, dict]:
     """The Fresnel form and its per-band parameters ({"f0" | "n" | "k": array})."""
     data = p.data
     keys = [k for k in ("F0", "n", "k") if k in data]
@@ -427,11 +436,11 @@ def _fresnel(p: _Parser, table, needed: bool, nbands: int, band_key: str) -> tup
 # --- writing ------------------------------------------------------------------------------------
 
 
-def float_list(a) -> list:
+def float_list(a: ArrayLike) -> list[float]:
     return [float(x) for x in np.asarray(a, dtype=float).reshape(-1)]
 
 
-def jsonable(x):
+def jsonable(x: Any) -> Any:
     """Plain Python values for JSON: arrays to lists, non-finite floats to None (null)."""
     if isinstance(x, dict):
         return {str(k): jsonable(v) for k, v in x.items()}
@@ -540,7 +549,7 @@ def _check_finite(material: Material) -> None:
             )
 
 
-def save_material_json(material: Material, path, extra: dict | None = None) -> pathlib.Path:
+def save_material_json(material: Material, path: str | os.PathLike[str], extra: dict | None = None) -> pathlib.Path:
     """Write :func:`material_to_dict` as JSON atomically (:func:`~ctfit._io.files.atomic_write`).
 
     >>> glass = material_from_dict({"name": "glass", "s": 1, "lobes": [{"m": 0.2}], "channels": ["R", "G", "B"], "n": 1.5})

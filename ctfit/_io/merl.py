@@ -29,8 +29,11 @@ from __future__ import annotations
 import math
 import os
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float, Int
 
 from .._model import Measurement
 from .errors import DataError
@@ -63,26 +66,26 @@ MERL_FILE_BYTES = _HEADER_BYTES + 3 * _CELLS * 8
 # --- index mapping ------------------------------------------------------------------------------
 
 
-def merl_theta_h_index(theta_h):
+def merl_theta_h_index(theta_h: Float[ArrayLike, "*batch"]) -> Int[np.ndarray, "*batch"]:
     """Table index of the half-vector angle θ_h (radians); square-root spacing."""
     theta_h = np.asarray(theta_h, dtype=np.float64)
     i = np.floor(np.sqrt(np.maximum(theta_h, 0) / (np.pi / 2) * 90 * 90))
     return np.clip(i, 0, 89).astype(np.int64)
 
 
-def merl_theta_d_index(theta_d):
+def merl_theta_d_index(theta_d: Float[ArrayLike, "*batch"]) -> Int[np.ndarray, "*batch"]:
     """Table index of the difference angle θ_d (radians); uniform spacing over [0, π/2)."""
     i = np.floor(np.asarray(theta_d, dtype=np.float64) / (np.pi / 2) * 90)
     return np.clip(i, 0, 89).astype(np.int64)
 
 
-def merl_phi_d_index(phi_d):
+def merl_phi_d_index(phi_d: Float[ArrayLike, "*batch"]) -> Int[np.ndarray, "*batch"]:
     """Table index of the difference azimuth φ_d (radians), folded into [0, π) by reciprocity."""
     i = np.floor(np.mod(np.asarray(phi_d, dtype=np.float64), np.pi) / np.pi * 180)
     return np.clip(i, 0, 179).astype(np.int64)
 
 
-def merl_cell_centres():
+def merl_cell_centres() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Cell centres ``(θ_h (90,), θ_d (90,), φ_d (180,))`` in radians; each maps back to its index."""
     theta_h = (np.pi / 2) * ((np.arange(90) + 0.5) / 90) ** 2
     theta_d = (np.pi / 2) * (np.arange(90) + 0.5) / 90
@@ -90,7 +93,7 @@ def merl_cell_centres():
     return theta_h, theta_d, phi_d
 
 
-def merl_table(fn):
+def merl_table(fn: Callable[..., Any]) -> Float[np.ndarray, "3 90 90 180"]:
     """A (3, 90, 90, 180) table of ``fn(θ_h, θ_d, φ_d)`` at the cell centres.
 
     ``fn`` gets broadcastable arrays of shapes (90, 1, 1), (1, 90, 1), (1, 1, 180) in radians and
@@ -118,7 +121,9 @@ def merl_table(fn):
 # --- half/difference angles ---------------------------------------------------------------------
 
 
-def half_diff_deg_to_angles_deg(theta_h, theta_d, phi_d):
+def half_diff_deg_to_angles_deg(
+    theta_h: Float[ArrayLike, "*#batch"], theta_d: Float[ArrayLike, "*#batch"], phi_d: Float[ArrayLike, "*#batch"]
+) -> tuple[Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"]]:
     """(θ_i, φ_i, θ_o, φ_o) in degrees for half/difference angles (θ_h, θ_d, φ_d) in degrees, φ_h = 0.
 
     L is the difference vector rotated by θ_h about the y axis, V its mirror about the half
@@ -135,7 +140,9 @@ def half_diff_deg_to_angles_deg(theta_h, theta_d, phi_d):
     return _half_diff_rad_to_angles_deg(*(np.deg2rad(np.asarray(a, dtype=np.float64)) for a in (theta_h, theta_d, phi_d)))
 
 
-def angles_deg_to_half_diff_deg(theta_i, phi_i, theta_o, phi_o):
+def angles_deg_to_half_diff_deg(
+    theta_i: Float[ArrayLike, "*#batch"], phi_i: Float[ArrayLike, "*#batch"], theta_o: Float[ArrayLike, "*#batch"], phi_o: Float[ArrayLike, "*#batch"]
+) -> tuple[Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"]]:
     """(θ_h, θ_d, φ_d) in degrees, φ_d in (−180, 180], for directions in degrees (the inverse of
     :func:`half_diff_deg_to_angles_deg`).
 
@@ -150,10 +157,13 @@ def angles_deg_to_half_diff_deg(theta_i, phi_i, theta_o, phi_o):
     >>> [round(float(a), 6) for a in ctfit.angles_deg_to_half_diff_deg(*angles)]  # the round trip
     [20.0, 30.0, 90.0]
     """
-    return tuple(np.rad2deg(a) for a in _angles_deg_to_half_diff_rad(theta_i, phi_i, theta_o, phi_o))
+    theta_h, theta_d, phi_d = _angles_deg_to_half_diff_rad(theta_i, phi_i, theta_o, phi_o)
+    return np.rad2deg(theta_h), np.rad2deg(theta_d), np.rad2deg(phi_d)
 
 
-def half_diff_to_angles_deg(theta_h, theta_d, phi_d):
+def half_diff_to_angles_deg(
+    theta_h: Float[ArrayLike, "*#batch"], theta_d: Float[ArrayLike, "*#batch"], phi_d: Float[ArrayLike, "*#batch"]
+) -> tuple[Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"]]:
     """Deprecated: takes θ_h, θ_d, φ_d in *radians*; use :func:`half_diff_deg_to_angles_deg` (degrees).
 
     Examples
@@ -170,7 +180,9 @@ def half_diff_to_angles_deg(theta_h, theta_d, phi_d):
     return _half_diff_rad_to_angles_deg(theta_h, theta_d, phi_d)
 
 
-def angles_deg_to_half_diff(theta_i, phi_i, theta_o, phi_o):
+def angles_deg_to_half_diff(
+    theta_i: Float[ArrayLike, "*#batch"], phi_i: Float[ArrayLike, "*#batch"], theta_o: Float[ArrayLike, "*#batch"], phi_o: Float[ArrayLike, "*#batch"]
+) -> tuple[Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"], Float[np.ndarray, "*batch"]]:
     """Deprecated: returns θ_h, θ_d, φ_d in *radians*; use :func:`angles_deg_to_half_diff_deg` (degrees).
 
     Examples
@@ -187,7 +199,9 @@ def angles_deg_to_half_diff(theta_i, phi_i, theta_o, phi_o):
     return _angles_deg_to_half_diff_rad(theta_i, phi_i, theta_o, phi_o)
 
 
-def _half_diff_rad_to_angles_deg(theta_h, theta_d, phi_d):
+def _half_diff_rad_to_angles_deg(
+    theta_h: ArrayLike, theta_d: ArrayLike, phi_d: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(θ_i, φ_i, θ_o, φ_o) in degrees for half/difference angles in radians, with φ_h = 0."""
     theta_h, theta_d, phi_d = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d)))
     sd, cd = np.sin(theta_d), np.cos(theta_d)
@@ -198,7 +212,9 @@ def _half_diff_rad_to_angles_deg(theta_h, theta_d, phi_d):
     return (*_angles_deg(lx, ly, lz), *_angles_deg(vx, vy, vz))
 
 
-def _angles_deg_to_half_diff_rad(theta_i, phi_i, theta_o, phi_o):
+def _angles_deg_to_half_diff_rad(
+    theta_i: ArrayLike, phi_i: ArrayLike, theta_o: ArrayLike, phi_o: ArrayLike
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(θ_h, θ_d, φ_d) in radians, φ_d in (−π, π], for directions in degrees."""
     l = _unit(theta_i, phi_i)
     v = _unit(theta_o, phi_o)
@@ -214,18 +230,18 @@ def _angles_deg_to_half_diff_rad(theta_i, phi_i, theta_o, phi_o):
     return theta_h, np.arctan2(np.hypot(x, y), z), np.arctan2(y, x)
 
 
-def _unit(theta_deg, phi_deg):
+def _unit(theta_deg: ArrayLike, phi_deg: ArrayLike) -> np.ndarray:
     t, p = np.deg2rad(np.asarray(theta_deg, dtype=np.float64)), np.deg2rad(np.asarray(phi_deg, dtype=np.float64))
     return np.stack(np.broadcast_arrays(np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)))
 
 
-def _angles_deg(x, y, z):
+def _angles_deg(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     theta = np.rad2deg(np.arctan2(np.hypot(x, y), z))
     phi = np.mod(np.rad2deg(np.arctan2(y, x)), 360.0) + 0.0
     return theta, np.where(phi >= 360.0, 0.0, phi)
 
 
-def _cell_directions():
+def _cell_directions() -> tuple[list[np.ndarray], np.ndarray]:
     """(θ_i, φ_i, θ_o, φ_o) of every cell's centre, flat in file order, and the above-horizon mask.
     Computed one θ_h row at a time, so the temporaries stay small (a MERL table has 1.46M cells)."""
     th, td, pd = merl_cell_centres()
@@ -240,7 +256,7 @@ def _cell_directions():
 # --- files --------------------------------------------------------------------------------------
 
 
-def read_merl(path) -> Measurement:
+def read_merl(path: str | os.PathLike[str]) -> Measurement:
     """Read a MERL ``.binary`` file as an RGB measurement (channels R, G, B).
 
     Samples are ordered by cell (file order), and within a cell by channel. ``meta`` counts the
@@ -309,7 +325,7 @@ def read_merl(path) -> Measurement:
     return data.with_directions(pairs, pair.astype(np.int32))  # < 1.46M cells
 
 
-def write_merl(path, rgb_table) -> None:
+def write_merl(path: str | os.PathLike[str], rgb_table: Float[ArrayLike, "3 90 90 180"]) -> None:
     """Write a (3, 90, 90, 180) table of BRDF values (sr⁻¹) as a MERL ``.binary`` file, atomically.
 
     NaN or negative values are written as unmeasured cells (−1).

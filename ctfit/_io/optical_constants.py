@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib.resources
 import os
 import pathlib
+from typing import Any
 
 import numpy as np
 
@@ -40,7 +41,7 @@ def table_folders() -> list[pathlib.Path]:
     return [pathlib.Path(p) for p in os.environ.get(TABLE_FOLDERS, "").split(os.pathsep) if p and os.path.isabs(p)]
 
 
-def read_material_text(path) -> str:
+def read_material_text(path: str | os.PathLike[str]) -> str:
     """The text of a material or optical-constants file (:func:`~ctfit._io.files.read_text`:
     UTF-8, a byte-order mark dropped); a missing, unreadable or undecodable file raises
     :class:`MaterialError` naming it, as does a file that is not a regular file, is not text or is
@@ -57,7 +58,7 @@ def read_material_text(path) -> str:
         raise MaterialError(f"{path}: cannot read: {err}") from err
 
 
-def is_table_name(name) -> bool:
+def is_table_name(name: object) -> bool:
     """A bare name (``"Cu"``) rather than a path: a string without folder or suffix."""
     return isinstance(name, str) and bool(name) and pathlib.PurePath(name).name == name and "." not in name and "\\" not in name
 
@@ -67,7 +68,7 @@ def table_names() -> list[str]:
     return sorted(p.name[: -len(".csv")] for p in _TABLES.iterdir() if p.name.endswith(".csv"))
 
 
-def _bundled_table(name: str):
+def _bundled_table(name: str) -> Any:
     """The package-data file of table ``name`` (an ``importlib.resources`` Traversable)."""
     resource = _TABLES / f"{name}.csv"
     if not resource.is_file():
@@ -75,9 +76,11 @@ def _bundled_table(name: str):
     return resource
 
 
-def _parse(path, lines: list[str]) -> tuple[dict, list[str], list[list[float]]]:
+def _parse(path: str | os.PathLike[str], lines: list[str]) -> tuple[dict, list[str], list[list[float]]]:
     """``(meta, header, rows)`` of the table's lines."""
-    meta, header, rows = {}, None, []
+    meta: dict[str, str] = {}
+    header: list[str] | None = None
+    rows: list[list[float]] = []
     for lineno, line in enumerate(lines, 1):
         if not line.strip():
             continue
@@ -101,12 +104,12 @@ def _parse(path, lines: list[str]) -> tuple[dict, list[str], list[list[float]]]:
             rows.append([float(c) for c in cells])
         except ValueError:
             raise MaterialError(f"{path}:{lineno}: not a number in {quote(line)}") from None
-    if not rows:
+    if header is None or not rows:  # (no header: no rows either)
         raise MaterialError(f"{path}: no data rows")
     return meta, header, rows
 
 
-def read_optical_constants(path) -> dict:
+def read_optical_constants(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read an optical constants CSV (``docs/formats.md``): a path, or the name of a table that
     ships with ctfit (``"Cu"``, ``"Au"``, ``"Ag"``, ``"Al"``, ``"Fe"``, ``"stainless-steel"``;
     a name has no folder and no suffix).
@@ -124,10 +127,10 @@ def read_optical_constants(path) -> dict:
     >>> gold["meta"]["material"]
     'Gold (Au)'
     """
-    path = _bundled_table(path) if is_table_name(path) else pathlib.Path(path)
+    path = _bundled_table(str(path)) if is_table_name(path) else pathlib.Path(path)
     meta, header, rows = _parse(path, read_material_text(path).splitlines())
     table = np.asarray(rows, dtype=float)
-    out = {name: table[:, header.index(name)] for name in ("wavelength_nm", "n", "k")}
+    out: dict = {name: table[:, header.index(name)] for name in ("wavelength_nm", "n", "k")}
     out["F0"] = table[:, header.index("F0")] if "F0" in header else f0_from_nk(out["n"], out["k"])
     if not np.all(np.isfinite(table)):
         raise MaterialError(f"{path}: values must be finite")

@@ -38,7 +38,7 @@ def _identity(p) -> frozenset:
     folder that does not exist yet, as the system will take it once the folder is made), the
     lexical one (``os.path.normpath``), and the device and inode of whichever exists. Two paths
     are the same file when they share any of these."""
-    found = set()
+    found: set[tuple[str | int, ...]] = set()
     for q in {os.path.realpath(p), os.path.normpath(os.path.abspath(p))}:
         found.add(("path", q))
         try:
@@ -173,7 +173,8 @@ def check_output_folder(path, option: str = "-o") -> Path:
     return path
 
 
-def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--resume", "--overwrite"), option: str = "--backend", chosen: bool = False) -> Path:
+def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--resume", "--overwrite"), option: str = "--backend",
+                  chosen: bool = False) -> Path:
     """Check an HDF5 chain file before sampling: a stored chain is never wiped unasked.
 
     An existing, non-empty ``path`` needs ``resume`` (continue the chain there; refused when

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import os
 import pathlib
+from collections.abc import Callable
+from typing import Any
 
 from .._model import Measurement
 from .alta import read_alta
@@ -27,7 +29,7 @@ READERS = {".csv": read_csv, ".binary": read_merl, ".alta": read_alta, ".bsdf": 
 _SNIFF_BYTES = 64 * 1024
 
 
-def read_measurement(path, **options) -> Measurement:
+def read_measurement(path: str | os.PathLike[str], **options: Any) -> Measurement:
     r"""Read BRDF samples from a measurement CSV, a MERL ``.binary``, an ALTA text or an RGL ``.bsdf`` file.
 
     ``options`` go to the reader (e.g. ``param_out=`` for an ALTA file without ``#PARAM_OUT``,
@@ -54,7 +56,7 @@ def read_measurement(path, **options) -> Measurement:
     return reader_for(path)(path, **options)
 
 
-def reader_for(path):
+def reader_for(path: str | os.PathLike[str]) -> Callable[..., Measurement]:
     """The reader of ``path``: by its suffix, else by its content (``.dat``: ALTA text)."""
     suffix = pathlib.Path(path).suffix.lower()
     reader = READERS.get(suffix) or _sniff(path) or (read_alta if suffix == ".dat" else None)
@@ -67,7 +69,7 @@ def reader_for(path):
     return reader
 
 
-def _sniff(path):
+def _sniff(path: str | os.PathLike[str]) -> Callable[..., Measurement] | None:
     """The reader for a file recognised by its content, or None."""
     check_input_file(path, text=False)
     with open(path, "rb") as f:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +56,7 @@ MAX_TENSOR_BYTES = 1 << 31
 before it is read into memory."""
 
 
-def read_tensor_file(path) -> dict:
+def read_tensor_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The named arrays of a Mitsuba tensor file, each checked to lie inside the file.
 
     Examples
@@ -75,7 +76,7 @@ def read_tensor_file(path) -> dict:
         raise DataError("not a tensor file: it does not start with 'tensor_file\\0' (an RGL .bsdf file does)", path=path)
     pos = len(TENSOR_MAGIC)
 
-    def take(fmt: str, count: int = 1):
+    def take(fmt: str, count: int = 1) -> Any:
         nonlocal pos
         size = np.dtype(fmt).itemsize * count
         if pos + size > len(raw):
@@ -107,7 +108,7 @@ def read_tensor_file(path) -> dict:
     return fields
 
 
-def _structure(fields: dict, path) -> dict:
+def _structure(fields: dict, path: str | os.PathLike[str]) -> dict:
     """The fields of an RGL BRDF, checked as Mitsuba's ``measured`` plugin checks them."""
     spectral = "wavelengths" in fields
     values = "spectra" if spectral else "rgb"
@@ -154,7 +155,7 @@ def _structure(fields: dict, path) -> dict:
 # --- Mitsuba's continuous Marginal2D --------------------------------------------------------------
 
 
-def _sample_segment(s, inv_width, v0, v1):
+def _sample_segment(s: np.ndarray, inv_width: float, v0: np.ndarray, v1: np.ndarray) -> np.ndarray:
     """Invert the integral of a linear density v0 → v1 over one cell (Mitsuba's ``sample_segment``)."""
     non_const = np.abs(v0 - v1) > 1e-4 * (v0 + v1)
     divisor = np.where(non_const, v0 - v1, v0 + v1)
@@ -163,7 +164,7 @@ def _sample_segment(s, inv_width, v0, v1):
     return np.where(divisor != 0, s / np.where(divisor != 0, divisor, 1.0), s)
 
 
-def marginal_sample(density, sample):
+def marginal_sample(density: np.ndarray, sample: np.ndarray) -> np.ndarray:
     """Warp points of ``[0, 1]²`` (N, 2) by the bilinear density ``density`` (h, w), x along w.
 
     Mitsuba's ``Marginal2D<Float, 0, true>::sample`` (``include/mitsuba/core/distr_2d.h``,
@@ -203,7 +204,7 @@ def marginal_sample(density, sample):
     return np.stack([(col + x) / (w - 1), (row + y) / (h - 1)], axis=1)
 
 
-def bilinear(table, pos):
+def bilinear(table: np.ndarray, pos: np.ndarray) -> np.ndarray:
     """Bilinear interpolation of ``table`` (h, w) at points ``pos`` (N, 2) of ``[0, 1]²`` (x along
     w), as Mitsuba's ``Marginal2D::eval`` of an unnormalised table.
 
@@ -231,7 +232,7 @@ def _azimuth_seen(theta_i: float, phi_i: float) -> float:
     return 0.0 if theta_i == 0 else float(np.arctan2(np.sin(phi_i), np.cos(phi_i)))
 
 
-def _slice_points(f: dict, p: int, t: int, nodes, isotropic: bool):
+def _slice_points(f: dict, p: int, t: int, nodes: np.ndarray, isotropic: bool) -> tuple[Any, Any, np.ndarray, Any]:
     """The light (θ_i, φ_i), the viewers (N, 3) and the factor D/(4σ) (or 1) of one slice's nodes."""
     theta_i = float(f["theta_i"][t])
     phi_i = _azimuth_seen(theta_i, float(f["phi_i"][p]))
@@ -248,7 +249,7 @@ def _slice_points(f: dict, p: int, t: int, nodes, isotropic: bool):
     return theta_i, phi_i, wo, factor
 
 
-def _anisotropy_error(f: dict, path) -> DataError:
+def _anisotropy_error(f: dict, path: str | os.PathLike[str]) -> DataError:
     phi = np.degrees(f["phi_i"].astype(np.float64))
     return DataError(
         f"anisotropic BRDF: {len(phi)} incident azimuths φ_i from {phi[0]:g}° to {phi[-1]:g}° (an isotropic file has at "
@@ -258,7 +259,7 @@ def _anisotropy_error(f: dict, path) -> DataError:
     )
 
 
-def _points(f: dict, isotropic: bool):
+def _points(f: dict, isotropic: bool) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """Every kept node's angles (N, 4) in degrees, values (N, bands) in sr⁻¹, and the drop counts."""
     n_phi, n_theta, n_bands, n = f["values"].shape[:4]
     g = np.linspace(0.0, 1.0, n)
@@ -284,7 +285,7 @@ def _points(f: dict, isotropic: bool):
     return np.concatenate(angles), np.concatenate(values), counts
 
 
-def read_rgl(path, *, anisotropic: bool = False) -> Measurement:
+def read_rgl(path: str | os.PathLike[str], *, anisotropic: bool = False) -> Measurement:
     """Read an RGL material database ``.bsdf`` file (spectral or RGB) at its measured points.
 
     Each node of each measured slice becomes one direction pair (see the module's description

@@ -20,7 +20,8 @@ import sys
 
 from .errors import DataError
 
-__all__ = ["MAX_NESTING", "QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "check_nesting", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep", "too_many_digits"]
+__all__ = ["MAX_NESTING", "QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "check_nesting", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep",
+           "too_many_digits"]
 
 QUOTE_CHARS = 80
 """The most characters of a file's content that an error message quotes."""

@@ -15,7 +15,11 @@ the lobe sum — is computed once per direction (:func:`specular_geometric`), an
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from .directions import Geometry
 from .distribution import beckmann, gaussian
@@ -27,7 +31,7 @@ from .fresnel_equations import (
     fresnel_dielectric_f0,
     fresnel_diffuse_reflectance,
 )
-from .material import Params, Structure
+from .material import Params, Structure, used
 from .shadowing import smith_g1_reduced, smith_rational_g1_reduced, v_cavity_reduced
 
 __all__ = [
@@ -59,13 +63,13 @@ def specular_constant(structure: Structure) -> float:
     return 0.25 * _INV_PI if structure.normalization == "normalized" else _INV_PI
 
 
-def _distribution(structure: Structure, tan2, m):
+def _distribution(structure: Structure, tan2: ArrayLike, m: ArrayLike) -> Array:
     if structure.distribution == "beckmann":
         return beckmann(tan2, m)
     return gaussian(tan2, m, normalized=structure.normalization == "normalized")
 
 
-def specular_geometric(structure: Structure, params: Params, geom: Geometry):
+def specular_geometric(structure: Structure, params: Params, geom: Geometry) -> Float[Array | np.ndarray, "*batch"]:
     """K Σ_j w_j D̂(α; m_j) G_j/((N·L)(N·V)) per direction: everything in R_s but F.
 
     Examples
@@ -78,11 +82,11 @@ def specular_geometric(structure: Structure, params: Params, geom: Geometry):
     >>> print(f"{float(ctfit.specular_geometric(ctfit.Structure(), p, peak)):.6f}")  # 1/π
     0.318310
     """
-    m, w = params.m, params.w
+    m, w = used(params.m), used(params.w)
     # The lobe sum (eq. 5) is unrolled (lobes is static and small): no reduce op, so XLA fuses
     # it with F into one loop (and it avoids an XLA CPU miscompilation of a small reduction
     # whose result is broadcast over the bands, see tests/test_brdf.py).
-    total = None
+    total: Array | None = None
     for j in range(structure.lobes):
         term = w[j] * _distribution(structure, geom.tan2_h, m[j])
         if structure.geometry != "v-cavity":  # Smith: G1(L) G1(V) per lobe, exact or rational
@@ -90,11 +94,11 @@ def specular_geometric(structure: Structure, params: Params, geom: Geometry):
             term = term * g1(geom.cos_l, geom.sin_l, m[j]) * g1(geom.cos_v, geom.sin_v, m[j])
         total = term if total is None else total + term
     if structure.geometry == "v-cavity":
-        total = v_cavity_reduced(geom.cos_l, geom.cos_v, geom.cos_h, geom.cos_vh) * total
-    return specular_constant(structure) * total
+        total = v_cavity_reduced(geom.cos_l, geom.cos_v, geom.cos_h, geom.cos_vh) * used(total)
+    return specular_constant(structure) * used(total)
 
 
-def fresnel(structure: Structure, params: Params, cos_vh):
+def fresnel(structure: Structure, params: Params, cos_vh: Float[ArrayLike, "*batch #bands"]) -> Float[Array, "*batch bands"]:
     """F(V·H) with the material's Fresnel form; ``cos_vh`` broadcasts against the band axis.
 
     Examples
@@ -107,13 +111,13 @@ def fresnel(structure: Structure, params: Params, cos_vh):
     [[0.04, 0.9], [1.0, 1.0]]
     """
     if structure.fresnel == "f0":
-        return fresnel_dielectric_f0(cos_vh, params.f0)
+        return fresnel_dielectric_f0(cos_vh, used(params.f0))
     if structure.fresnel == "n":
-        return fresnel_dielectric(cos_vh, params.n)
-    return fresnel_conductor(cos_vh, params.n, params.k)
+        return fresnel_dielectric(cos_vh, used(params.n))
+    return fresnel_conductor(cos_vh, used(params.n), used(params.k))
 
 
-def normal_reflectance(structure: Structure, params: Params):
+def normal_reflectance(structure: Structure, params: Params) -> Float[Array | np.ndarray, "*bands"]:
     """F0 per band from whichever Fresnel parameters the material has.
 
     Examples
@@ -126,13 +130,13 @@ def normal_reflectance(structure: Structure, params: Params):
     [0.04, 0.111111]
     """
     if structure.fresnel == "f0":
-        return params.f0
+        return used(params.f0)
     if structure.fresnel == "n":
-        return f0_from_n(params.n)
-    return f0_from_nk(params.n, params.k)
+        return f0_from_n(used(params.n))
+    return f0_from_nk(used(params.n), used(params.k))
 
 
-def diffuse_reflectance(structure: Structure, params: Params):
+def diffuse_reflectance(structure: Structure, params: Params) -> Float[Array | np.ndarray, "*bands"]:
     """R_d in sr⁻¹ per band (or scalar): F0/π, the ``rd`` spectrum, or the ``rd`` constant.
 
     Examples
@@ -146,10 +150,12 @@ def diffuse_reflectance(structure: Structure, params: Params):
     """
     if structure.diffuse == "F0/pi" or structure.diffuse is None:
         return normal_reflectance(structure, params) * _INV_PI
-    return params.rd
+    return used(params.rd)
 
 
-def transmitted_diffuse_factor(n, cos_l, cos_v):
+def transmitted_diffuse_factor(
+    n: Float[ArrayLike, "*#batch"], cos_l: Float[ArrayLike, "*#batch"], cos_v: Float[ArrayLike, "*#batch"]
+) -> Float[Array, "*batch"]:
     """T(θ_i) T(θ_o) / (n² (1 − F_dr(1/n))): what multiplies a plastic's R_d when its diffuse light
     crosses the dielectric interface twice (``diffuse="transmitted"``).
 
@@ -170,7 +176,7 @@ def transmitted_diffuse_factor(n, cos_l, cos_v):
     return (1 - fresnel_dielectric(cos_l, n)) * (1 - fresnel_dielectric(cos_v, n)) / (n * n * (1 - f_int))
 
 
-def ambient_reflectance(structure: Structure, params: Params):
+def ambient_reflectance(structure: Structure, params: Params) -> Float[Array | np.ndarray, "*bands"]:
     """The paper's ambient reflectance R_a = π R_d (§2.1), R_d as in :func:`diffuse_reflectance`.
 
     For a material without a diffuse part the default R_d = F0/π is used, so a metal still
@@ -191,14 +197,17 @@ def ambient_reflectance(structure: Structure, params: Params):
     [0.9]
     """
     if structure.diffuse == "transmitted":
-        n = params.n
+        n = used(params.n)
         through = (1 - fresnel_diffuse_reflectance(n)) ** 2 / (n * n * (1 - fresnel_diffuse_reflectance(1 / n)))
-        return jnp.pi * params.rd * through
+        return jnp.pi * used(params.rd) * through
     return jnp.pi * diffuse_reflectance(structure, params)
 
 
-def combine_parts(structure: Structure, params: Params, geom_valid, spec, cos_vh, cos_lv=None):
-    """s R_s + d R_d from the per-direction factor ``spec`` (already broadcast to the bands);
+def combine_parts(
+    structure: Structure, params: Params, geom_valid: ArrayLike, spec: Any, cos_vh: Any, cos_lv: tuple[ArrayLike, ArrayLike] | None = None
+) -> Array:
+    """s R_s + d R_d from the per-direction factor ``spec`` (already broadcast to the bands; it and
+    ``cos_vh`` are None without a specular part);
     ``cos_lv`` = (N·L, N·V), broadcast like ``spec``, for a transmitted diffuse part."""
     if structure.has_specular:
         rs = fresnel(structure, params, cos_vh) * spec
@@ -207,15 +216,18 @@ def combine_parts(structure: Structure, params: Params, geom_valid, spec, cos_vh
     else:
         rd = diffuse_reflectance(structure, params)
         if structure.diffuse == "transmitted":
-            rd = rd * transmitted_diffuse_factor(params.n, *cos_lv)
+            if cos_lv is None:
+                raise ValueError("a transmitted diffuse part needs cos_lv = (N·L, N·V)")
+            rd = rd * transmitted_diffuse_factor(used(params.n), *cos_lv)
         if structure.has_s:
-            out = params.s * rs + (1 - params.s) * rd
+            s = used(params.s)
+            out = s * rs + (1 - s) * rd
         else:
             out = jnp.broadcast_to(rd, jnp.broadcast_shapes(jnp.shape(geom_valid), jnp.shape(rd)))
     return jnp.where(geom_valid, out, 0)
 
 
-def brdf(structure: Structure, params: Params, geom: Geometry):
+def brdf(structure: Structure, params: Params, geom: Geometry) -> Float[Array, "*batch bands"]:
     """R for every direction pair × every band: shape ``geom.shape + (bands,)``.
 
     Per-band fields of ``params`` (f0, n, k, rd) have shape (bands,). D and G are evaluated once
@@ -240,7 +252,7 @@ def brdf(structure: Structure, params: Params, geom: Geometry):
     return combine_parts(structure, params, valid, spec, geom.cos_vh[..., None], cos_lv)
 
 
-def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band):
+def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band: Int[Array | np.ndarray, "*batch"]) -> Float[Array, "*batch"]:
     """R for samples that each have their own direction pair and band index ``band`` (int array).
 
     The scattered layout of a measurement file: per-band parameters are gathered per sample.

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .numerics import safe_sqrt
 
@@ -44,34 +44,34 @@ class Geometry(eqx.Module):
     1.000000 0.000000 0.866025 True
     """
 
-    cos_l: Array
-    cos_v: Array
-    sin_l: Array
-    sin_v: Array
-    cos_h: Array
-    tan2_h: Array
-    cos_vh: Array
-    valid: Array
+    cos_l: Float[Array, "*batch"]
+    cos_v: Float[Array, "*batch"]
+    sin_l: Float[Array, "*batch"]
+    sin_v: Float[Array, "*batch"]
+    cos_h: Float[Array, "*batch"]
+    tan2_h: Float[Array, "*batch"]
+    cos_vh: Float[Array, "*batch"]
+    valid: Bool[Array, "*batch"]
 
 
-def _components(x):
+def _components(x: Array) -> tuple[Array, ...]:
     return x[..., 0], x[..., 1], x[..., 2]
 
 
-def _dot(a, b):
+def _dot(a: tuple[Array, ...], b: tuple[Array, ...]) -> Array:
     # Written out, not jnp.sum(a * b, -1): no reduce op, so XLA fuses it with the rest (and it
     # avoids an XLA CPU miscompilation of small reductions, see tests/test_brdf.py).
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def _cross_norm2(a, b):
+def _cross_norm2(a: tuple[Array, ...], b: tuple[Array, ...]) -> Array:
     cx = a[1] * b[2] - a[2] * b[1]
     cy = a[2] * b[0] - a[0] * b[2]
     cz = a[0] * b[1] - a[1] * b[0]
     return cx * cx + cy * cy + cz * cz
 
 
-def geometry(l, v, n=None) -> Geometry:
+def geometry(l: Float[ArrayLike, "*#batch 3"], v: Float[ArrayLike, "*#batch 3"], n: Float[ArrayLike, "*#batch 3"] | None = None) -> Geometry:
     """Geometry of unit vectors ``l`` (to the light) and ``v`` (to the viewer), shape (..., 3).
 
     ``n`` is the unit surface normal (default +z). Sines and tan²α come from cross products,
@@ -127,7 +127,7 @@ def geometry(l, v, n=None) -> Geometry:
     )
 
 
-def direction_from_angles_deg(theta, phi):
+def direction_from_angles_deg(theta: Float[ArrayLike, "*#batch"], phi: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 3"]:
     """Unit vector(s) for polar angle θ and azimuth φ in degrees, shape (..., 3).
 
     cos θ is computed as sin(90° − θ), so θ = 90° gives exactly 0 (on the horizon) in every
@@ -150,7 +150,9 @@ def direction_from_angles_deg(theta, phi):
     return jnp.stack([st * jnp.cos(phi_r), st * jnp.sin(phi_r), ct], axis=-1)
 
 
-def geometry_from_angles_deg(theta_i, phi_i, theta_o, phi_o) -> Geometry:
+def geometry_from_angles_deg(
+    theta_i: Float[ArrayLike, "*#batch"], phi_i: Float[ArrayLike, "*#batch"], theta_o: Float[ArrayLike, "*#batch"], phi_o: Float[ArrayLike, "*#batch"]
+) -> Geometry:
     """:func:`geometry` for angles in degrees (the measurement-CSV convention).
 
     Examples

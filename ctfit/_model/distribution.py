@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["beckmann", "gaussian", "gaussian_norm_integral"]
 
@@ -30,7 +31,7 @@ _GL_X = 0.5 * (_GL_X + 1.0)
 _GL_W = 0.5 * _GL_W
 
 
-def beckmann(tan2, m):
+def beckmann(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
     """Beckmann D̂(α; m) = exp(−tan²α/m²)(1 + tan²α)²/m² (paper eq. 4, without 1/π).
 
     Examples
@@ -50,7 +51,7 @@ def beckmann(tan2, m):
     return jnp.exp(-t * inv_m2) * ((1 + t) * (1 + t)) * inv_m2
 
 
-def gaussian_norm_integral(m):
+def gaussian_norm_integral(m: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
     """J(m) = I(m)/m² with I(m) = ∫₀^{π/2} exp(−α²/m²) cos α sin α dα; J → ½ as m → 0.
 
     Substituting α = m τ: J(m) = ∫₀^{T} exp(−τ²) sin(2 m τ)/(2 m) dτ with T = min(π/(2m), 9),
@@ -65,7 +66,7 @@ def gaussian_norm_integral(m):
     return upper * jnp.sum(w * integrand, axis=-1)
 
 
-def _alpha2(t):
+def _alpha2(t: Array) -> Array:
     """α² = (arctan √t)², written as t·(arctan(x)/x)² with x = √t so it is smooth at t = 0."""
     small = t < 1e-8
     ts = jnp.where(small, 1, t)
@@ -74,7 +75,7 @@ def _alpha2(t):
     return t * ratio * ratio
 
 
-def gaussian(tan2, m, *, normalized: bool = True):
+def gaussian(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"], *, normalized: bool = True) -> Float[Array, "*batch"]:
     """Gaussian D̂(α; m) = exp(−(α/m)²)/(2 m² J(m)) (normalised) or exp(−(α/m)²)/m² (1982).
 
     Examples

@@ -13,19 +13,26 @@ uncertainty that was used, floored so that no sample gets an infinite weight). E
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import DTypeLike
+from jaxtyping import Array, ArrayLike, Float
 
 from .cook_torrance import brdf
 from .directions import geometry, geometry_from_angles_deg
-from .material import Material
+from .material import Material, Params, Structure
 from .measurement import Measurement
+from .numerics import x64_enabled
 
 __all__ = ["simulate", "goniometer_directions", "evaluate", "evaluate_at"]
 
 
-def goniometer_directions(n_pairs: int, *, spread: float = 0.3, max_theta: float = 85.0, seed: int = 0):
+def goniometer_directions(
+    n_pairs: int, *, spread: float = 0.3, max_theta: float = 85.0, seed: int = 0
+) -> tuple[Float[np.ndarray, " pairs"], Float[np.ndarray, " pairs"], Float[np.ndarray, " pairs"], Float[np.ndarray, " pairs"]]:
     """``n_pairs`` direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, denser near the mirror direction.
 
     ``spread`` is the rms angle (radians, as a slope) of the mirror-centred half of the sample.
@@ -78,7 +85,7 @@ def _spread(material: Material) -> float:
     return float(np.clip(2.5 * np.max(np.asarray(p.m)), 0.02, 0.8))
 
 
-def evaluate(material: Material, measurement: Measurement, *, dtype=None) -> np.ndarray:
+def evaluate(material: Material, measurement: Measurement, *, dtype: DTypeLike | None = None) -> Float[np.ndarray, " samples"]:
     """The material's BRDF at every sample of ``measurement`` (sr⁻¹), as a NumPy array (N,).
 
     Per-band parameters are resampled to the measurement's bands (linear interpolation in λ,
@@ -100,14 +107,24 @@ def evaluate(material: Material, measurement: Measurement, *, dtype=None) -> np.
     """
     params = material.params_at(measurement.wavelength_nm if measurement.channels is None else None, measurement.channels)
     pairs, index = measurement.directions()
-    dt = dtype or (jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
     values = _grid_values(material.structure, params, jnp.asarray(pairs, dtype=dt))
     return np.asarray(values)[index, measurement.band]
 
 
-def evaluate_at(material: Material, *, theta_i=None, phi_i=0.0, theta_o=None, phi_o=0.0, l=None, v=None, wavelength_nm=None,
-                dtype=None) -> np.ndarray:
+def evaluate_at(
+    material: Material,
+    *,
+    theta_i: Float[ArrayLike, "*#batch"] | None = None,
+    phi_i: Float[ArrayLike, "*#batch"] = 0.0,
+    theta_o: Float[ArrayLike, "*#batch"] | None = None,
+    phi_o: Float[ArrayLike, "*#batch"] = 0.0,
+    l: Float[ArrayLike, "*#batch 3"] | None = None,
+    v: Float[ArrayLike, "*#batch 3"] | None = None,
+    wavelength_nm: Float[ArrayLike, " bands"] | None = None,
+    dtype: DTypeLike | None = None,
+) -> Float[np.ndarray, "*batch bands"]:
     """The material's BRDF (sr⁻¹) at any directions, in every band: no :class:`Measurement` needed.
 
     Directions are angles in degrees — ``theta_i``, ``phi_i`` (light), ``theta_o``, ``phi_o``
@@ -128,7 +145,7 @@ def evaluate_at(material: Material, *, theta_i=None, phi_i=0.0, theta_o=None, ph
     if wavelength_nm is not None and material.wavelength_nm is None:
         raise ValueError(f"material {material.name!r} has RGB channels; it has no values at wavelengths")
     params = material.params_at(wavelength_nm)
-    dt = dtype or (jnp.float64 if jax.config.jax_enable_x64 else jnp.float32)
+    dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
     if by_angles:
         angles = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)))
@@ -141,7 +158,7 @@ def evaluate_at(material: Material, *, theta_i=None, phi_i=0.0, theta_o=None, ph
 _values = jax.jit(brdf, static_argnums=0)
 
 
-def _grid_values_impl(structure, params, pairs):
+def _grid_values_impl(structure: Structure, params: Params, pairs: Float[Array, "pairs 4"]) -> Float[Array, "pairs bands"]:
     geom = geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3])
     return brdf(structure, params, geom)
 
@@ -153,8 +170,8 @@ def simulate(
     material: Material,
     n_pairs: int = 2000,
     *,
-    wavelength_nm=None,
-    channels=None,
+    wavelength_nm: Float[ArrayLike, " bands"] | None = None,
+    channels: Sequence[str] | None = None,
     noise: float = 0.0,
     seed: int = 0,
     max_theta: float = 85.0,
@@ -182,7 +199,7 @@ def simulate(
     if seed < 0:
         raise ValueError(f"seed must be ≥ 0 (NumPy's generators take no negative seed), got seed={seed}")
     if material.is_rgb:
-        channels = tuple(channels or material.channels)
+        channels = tuple(channels or material.channels or ())
         wl = None
     elif material.band_unknown:  # one band of unknown wavelength (a fit of an ALTA file): that band, as the data had it
         if wavelength_nm is not None:
@@ -199,8 +216,8 @@ def simulate(
             raise ValueError(f"wavelength_nm must be positive finite numbers of nm, got {np.asarray(wavelength_nm).tolist()!r}")
         channels = None
     ti, pi, to, po = goniometer_directions(n_pairs, spread=_spread(material), max_theta=max_theta, seed=seed)
-    n_bands = len(channels) if channels is not None else len(wl)
-    rep = lambda a: np.repeat(a, n_bands)  # noqa: E731
+    n_bands = len(channels) if channels is not None else len(wl if wl is not None else ())
+    rep = lambda a: np.repeat(a, n_bands)
     band = np.tile(np.arange(n_bands), n_pairs)
     base = Measurement(
         theta_i=rep(ti), phi_i=rep(pi), theta_o=rep(to), phi_o=rep(po), band=band,

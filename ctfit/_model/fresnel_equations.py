@@ -37,9 +37,12 @@ References
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 __all__ = [
     "f0_from_n",
@@ -56,7 +59,7 @@ __all__ = [
 _TINY_F0 = 1e-30
 
 
-def _array_module(*values):
+def _array_module(*values: ArrayLike) -> Any:
     """NumPy for NumPy input (float64 stays float64 whatever JAX's x64 setting), else jax.numpy.
 
     NumPy when at least one value is a NumPy array or scalar and none is a JAX array (or a
@@ -66,7 +69,7 @@ def _array_module(*values):
     return np if numpy_in and not any(isinstance(v, jax.Array) for v in values) else jnp
 
 
-def f0_from_n(n):
+def f0_from_n(n: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*batch"]:
     """Normal reflectance of a dielectric, F0 = ((n − 1)/(n + 1))² (paper, eq. in §4).
 
     NumPy in, NumPy out (float64 kept); otherwise JAX (jit-able, differentiable).
@@ -76,12 +79,12 @@ def f0_from_n(n):
     array([0.04      , 0.11111111])
     """
     xp = _array_module(n)
-    n = xp.asarray(n)
-    r = (n - 1) / (n + 1)
+    index = xp.asarray(n)
+    r = (index - 1) / (index + 1)
     return r * r
 
 
-def f0_from_nk(n, k):
+def f0_from_nk(n: Float[ArrayLike, "*#batch"], k: Float[ArrayLike, "*#batch"]) -> Float[Array | np.ndarray, "*batch"]:
     """Normal reflectance of a conductor, F0 = ((n − 1)² + k²)/((n + 1)² + k²).
 
     NumPy in, NumPy out (float64 kept); otherwise JAX (jit-able, differentiable). Where n or k
@@ -102,7 +105,7 @@ def f0_from_nk(n, k):
         return xp.where(xp.isfinite(f0), f0, (a * a + b * b) / (c * c + b * b))
 
 
-def n_from_f0(f0):
+def n_from_f0(f0: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*batch"]:
     """The paper's effective index n = (1 + √F0)/(1 − √F0) (k = 0). Infinite at F0 = 1.
 
     NumPy in, NumPy out (float64 kept); otherwise JAX (jit-able, differentiable).
@@ -117,13 +120,13 @@ def n_from_f0(f0):
         return (1 + r) / (1 - r)
 
 
-def _clip_cos(c):
+def _clip_cos(c: ArrayLike) -> tuple[Array, Array]:
     """c clipped to [0, 1] (V·H from rounded vectors can exceed 1 by an ulp) and 1 − c²."""
     c = jnp.clip(jnp.asarray(c), 0, 1)
     return c, (1 - c) * (1 + c)
 
 
-def _unit_interval(f):
+def _unit_interval(f: Array) -> Array:
     """A reflectance held in [0, 1], which the formulas leave by an ulp at most (F0 = 1: F = 1
     for every c). The rounding is clipped from the value only, so the derivative stays the
     formula's: a clip's derivative is ½ or 0 on its bound, and F0 = 1 and F0 = 0, bounds of the
@@ -131,7 +134,7 @@ def _unit_interval(f):
     return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)
 
 
-def _dielectric(c, a, u, scale, *, tir_possible=True):
+def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: bool = True) -> Array:
     """Unpolarised dielectric F from c = V·H, a = 1 − u², u = 1/n and ``scale`` = a².
 
     ``scale`` is passed separately so the F0 path can write it as 16 F0/(1 + r)⁴, exactly linear
@@ -168,7 +171,7 @@ def _dielectric(c, a, u, scale, *, tir_possible=True):
     return _unit_interval(f)
 
 
-def fresnel_dielectric_f0(c, f0):
+def fresnel_dielectric_f0(c: Float[ArrayLike, "*#batch"], f0: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
     """Unpolarised Fresnel reflectance with the paper's effective index from F0 (k = 0).
 
     Equivalent to ``fresnel_dielectric(c, n_from_f0(f0))`` but finite and differentiable for
@@ -190,10 +193,10 @@ def fresnel_dielectric_f0(c, f0):
     u = (1 - f0) / one_plus_r2
     a = 4 * r / one_plus_r2
     scale = 16 * f0 / (one_plus_r2 * one_plus_r2)
-    return _dielectric(c, a, u, scale, tir_possible=False)
+    return _dielectric(jnp.asarray(c), a, u, scale, tir_possible=False)
 
 
-def fresnel_dielectric(c, n):
+def fresnel_dielectric(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
     """The paper's unpolarised Fresnel reflectance for a real index n (k = 0).
 
     ``n`` is the ratio of refractive indices (material over the surrounding medium); n < 1
@@ -207,10 +210,10 @@ def fresnel_dielectric(c, n):
     n = jnp.asarray(n)
     u = 1 / n
     a = (n - 1) * (n + 1) * (u * u)
-    return _dielectric(c, a, u, a * a)
+    return _dielectric(jnp.asarray(c), a, u, a * a)
 
 
-def fresnel_conductor(c, n, k):
+def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"], k: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
     """Exact unpolarised Fresnel reflectance of a conductor with complex index n + i k.
 
     Born & Wolf's formulation (as in Mitsuba 3's ``fresnel_conductor``): with
@@ -275,7 +278,7 @@ def fresnel_conductor(c, n, k):
     return _unit_interval(f)
 
 
-def fresnel_diffuse_reflectance(eta):
+def fresnel_diffuse_reflectance(eta: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*batch"]:
     """F_dr(η): the fraction of uniform (diffuse) light that a smooth dielectric interface of
     relative index η reflects, by the fits Mitsuba 3 uses (``fresnel.h``): Egan & Hilgeman (1973)
     for η < 1 (light inside a denser medium), d'Eon & Irving (2011, a polynomial in 1/η) for
@@ -286,8 +289,8 @@ def fresnel_diffuse_reflectance(eta):
     array([0.0918, 0.5968])
     """
     xp = _array_module(eta)
-    eta = xp.asarray(eta)
-    inv = 1 / eta
-    inside = 0.0636 * inv + eta * (eta * -1.4399 + 0.7099) + 0.6681
+    e = xp.asarray(eta)
+    inv = 1 / e
+    inside = 0.0636 * inv + e * (e * -1.4399 + 0.7099) + 0.6681
     outside = 0.919317 + inv * (-3.4793 + inv * (6.75335 + inv * (-7.80989 + inv * (4.98554 + inv * -1.36881))))
-    return xp.where(eta < 1, inside, outside)
+    return xp.where(e < 1, inside, outside)

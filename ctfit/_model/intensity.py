@@ -34,7 +34,7 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike, Float
 
 from .cook_torrance import ambient_reflectance, brdf
 from .directions import geometry
@@ -61,11 +61,11 @@ class Light(eqx.Module):
     ([0.0, 0.0, 1.0], [1.0, 0.5], 0.001)
     """
 
-    direction: Array
-    spectrum: Array
-    solid_angle: Array
+    direction: Float[Array | np.ndarray, " 3"]
+    spectrum: Float[Array | np.ndarray, "*bands"]
+    solid_angle: Float[Array | np.ndarray, ""]
 
-    def __init__(self, direction, spectrum, solid_angle):
+    def __init__(self, direction: Float[ArrayLike, " 3"], spectrum: Float[ArrayLike, "*bands"], solid_angle: Float[ArrayLike, ""]) -> None:
         # NumPy for concrete inputs (no per-light dispatch of tiny JAX ops), JAX for traced ones.
         xp = np if isinstance(direction, (np.ndarray, list, tuple)) else jnp
         d = xp.asarray(direction)
@@ -83,11 +83,11 @@ class Light(eqx.Module):
 def reflected_intensity(
     structure: Structure,
     params: Params,
-    normal,
-    view,
+    normal: Float[ArrayLike, "*#batch 3"],
+    view: Float[ArrayLike, "*#batch 3"],
     lights: Sequence[Light],
-    ambient=None,
-):
+    ambient: Float[ArrayLike, "*bands"] | None = None,
+) -> Float[Array, "*batch bands"]:
     """I_r (…, bands) of eq. 1 at points with unit ``normal`` and unit ``view`` (…, 3).
 
     ``lights``: a sequence of :class:`Light` (unrolled: the number of lights is static).

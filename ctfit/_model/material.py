@@ -9,15 +9,16 @@ not exist in the pytree, so they are neither traced nor fitted.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Sequence
 from typing import Literal
 
 import equinox as eqx
 import numpy as np
-from jaxtyping import Array
+from jaxtyping import Array, ArrayLike, Float
 
 from .measurement import band_labels
 
-__all__ = ["Structure", "Params", "Material", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "FAMILIES", "MAX_LOBES"]
+__all__ = ["Structure", "Params", "Material", "used", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "FAMILIES", "MAX_LOBES"]
 
 DISTRIBUTIONS = ("beckmann", "gaussian")
 GEOMETRIES = ("v-cavity", "smith", "smith-rational")
@@ -78,7 +79,7 @@ class Structure:
     normalization: Literal["normalized", "cook-torrance-1982"] = "normalized"
     family: Literal["metal", "plastic"] = "metal"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.family == "plastic" and self.fresnel == "f0":
             object.__setattr__(self, "fresnel", "n")  # a plastic's index is a real n
         if not isinstance(self.lobes, int) or not 0 <= self.lobes <= MAX_LOBES:
@@ -149,16 +150,29 @@ class Params(eqx.Module):
     (True, 3)
     """
 
-    s: Array | None = None
-    m: Array | None = None
-    w: Array | None = None
-    f0: Array | None = None
-    n: Array | None = None
-    k: Array | None = None
-    rd: Array | None = None
+    s: Float[Array | np.ndarray, ""] | None = None
+    m: Float[Array | np.ndarray, " lobes"] | None = None
+    w: Float[Array | np.ndarray, " lobes"] | None = None
+    f0: Float[Array | np.ndarray, " bands"] | None = None
+    n: Float[Array | np.ndarray, "*bands"] | None = None
+    k: Float[Array | np.ndarray, " bands"] | None = None
+    rd: Float[Array | np.ndarray, "*bands"] | None = None
 
 
 _SPECTRAL_FIELDS = ("f0", "n", "k", "rd")
+
+
+def used(value: Array | np.ndarray | None) -> Array | np.ndarray:
+    """A parameter the structure uses, so one that is set (``Params`` leaves only the others None).
+
+    >>> used(None)
+    Traceback (most recent call last):
+    ...
+    ValueError: the structure uses a parameter that is None in Params
+    """
+    if value is None:
+        raise ValueError("the structure uses a parameter that is None in Params")
+    return value
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -183,13 +197,13 @@ class Material:
 
     structure: Structure
     params: Params
-    wavelength_nm: np.ndarray | None = None
+    wavelength_nm: Float[np.ndarray, " bands"] | None = None
     channels: tuple[str, ...] | None = None
     name: str = ""
     meta: dict = dataclasses.field(default_factory=dict)
     band_unknown: bool = False
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.band_unknown and (self.wavelength_nm is None or len(self.wavelength_nm) != 1):
             raise ValueError(f"material {self.name!r}: band_unknown needs exactly one wavelength band (a placeholder)")
 
@@ -202,7 +216,7 @@ class Material:
         """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""
         return band_labels(self.wavelength_nm, self.channels, self.band_unknown)
 
-    def params_at(self, wavelength_nm=None, channels=None) -> Params:
+    def params_at(self, wavelength_nm: Float[ArrayLike, " bands"] | None = None, channels: Sequence[str] | None = None) -> Params:
         """Per-band parameters resampled to other bands.
 
         Spectral: linear interpolation between the listed wavelengths, held at the end values
@@ -227,7 +241,7 @@ class Material:
         return _map_bands(p, lambda a: np.interp(wl, src, np.asarray(a, dtype=float)))
 
 
-def _map_bands(p: Params, fn) -> Params:
+def _map_bands(p: Params, fn: Callable[[Array], Array | np.ndarray]) -> Params:
     """Apply ``fn`` to every per-band (non-scalar) spectral field of ``p``."""
     out = {}
     for f in _SPECTRAL_FIELDS:

@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float, Int
 
 __all__ = ["Measurement", "band_labels", "check_samples", "format_value", "invalid_value", "value_rules"]
 
 
-def format_value(x) -> str:
+def format_value(x: float) -> str:
     """A value as messages show it: ``repr(float(x))``, "NaN" for a NaN."""
     return "NaN" if np.isnan(x) else repr(float(x))
 
@@ -44,7 +47,7 @@ def value_rules(name: str) -> list:
     return rules
 
 
-def invalid_value(name: str, values) -> tuple[int, str] | None:
+def invalid_value(name: str, values: ArrayLike) -> tuple[int, str] | None:
     """The first row of the column ``name`` (theta_i, phi_i, theta_o, phi_o, wavelength_nm, brdf,
     sigma) whose value is not allowed, and why; None when every value is. The one rule of every
     reader (the CSV reader, texel stores) and of :class:`Measurement`.
@@ -63,7 +66,7 @@ def invalid_value(name: str, values) -> tuple[int, str] | None:
     return found
 
 
-def _real_column(m, name: str):
+def _real_column(m: Measurement, name: str) -> np.ndarray:
     a = getattr(m, name)
     kind = np.asarray(a).dtype.kind
     if kind not in "biuf" or np.ndim(a) != 1:
@@ -97,7 +100,7 @@ def check_samples(m: Measurement) -> None:
             raise ValueError(f"Measurement {m.source}: wavelength_nm[{found[0]}]: {found[1]}")
 
 
-def band_labels(wavelength_nm, channels, band_unknown: bool = False) -> list[str]:
+def band_labels(wavelength_nm: Sequence[float] | np.ndarray | None, channels: Sequence[str] | None, band_unknown: bool = False) -> list[str]:
     """One label per band: "450 nm", a channel name, or "unknown band" (one band whose
     wavelength is not known)."""
     if band_unknown:
@@ -143,20 +146,20 @@ class Measurement:
     (4, ['450 nm', '650 nm'], [0, 0, 1, 1])
     """
 
-    theta_i: np.ndarray
-    phi_i: np.ndarray
-    theta_o: np.ndarray
-    phi_o: np.ndarray
-    band: np.ndarray
-    wavelength_nm: np.ndarray | None = None
+    theta_i: Float[np.ndarray, " samples"]
+    phi_i: Float[np.ndarray, " samples"]
+    theta_o: Float[np.ndarray, " samples"]
+    phi_o: Float[np.ndarray, " samples"]
+    band: Int[np.ndarray, " samples"]
+    wavelength_nm: Float[np.ndarray, " bands"] | None = None
     channels: tuple[str, ...] | None = None
-    brdf: np.ndarray | None = None
-    sigma: np.ndarray | None = None
+    brdf: Float[np.ndarray, " samples"] | None = None
+    sigma: Float[np.ndarray, " samples"] | None = None
     meta: dict = dataclasses.field(default_factory=dict)
     source: str = "<memory>"
     band_unknown: bool = False
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if (self.wavelength_nm is None) == (self.channels is None):
             raise ValueError("a Measurement has either wavelength_nm or channels, not both or neither")
         if self.band_unknown and self.n_bands != 1:
@@ -173,14 +176,15 @@ class Measurement:
 
     @property
     def n_bands(self) -> int:
-        return len(self.channels) if self.channels is not None else len(self.wavelength_nm)
+        bands = self.channels if self.channels is not None else self.wavelength_nm
+        return 0 if bands is None else len(bands)  # one of the two is set (__post_init__)
 
     @property
     def band_labels(self) -> list[str]:
         """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""
         return band_labels(self.wavelength_nm, self.channels, self.band_unknown)
 
-    def directions(self) -> tuple[np.ndarray, np.ndarray]:
+    def directions(self) -> tuple[Float[np.ndarray, "pairs 4"], Int[np.ndarray, " samples"]]:
         """Unique direction pairs (D, 4) as (θ_i, φ_i, θ_o, φ_o) and each sample's pair index (N,).
 
         The pairs are in lexicographic order (a lexsort of the four columns, ~10× faster than
@@ -191,7 +195,7 @@ class Measurement:
         """
         return self._directions
 
-    def with_directions(self, pairs, index) -> Measurement:
+    def with_directions(self, pairs: Float[ArrayLike, "pairs 4"], index: Int[ArrayLike, " samples"]) -> Measurement:
         """This measurement with its direction pairs given, for readers that know them (a MERL
         table's cells): ``pairs`` (D, 4) unique, ``index`` (N,) with ``pairs[index]`` equal to each
         sample's angles (any integer type: int32 halves its memory). Saves the search in
@@ -235,7 +239,7 @@ class Measurement:
             return bool(np.bincount(flat, minlength=cells).max(initial=0) > 1)
         return len(np.unique(flat)) != len(flat)
 
-    def grid(self):
+    def grid(self) -> tuple[Float[np.ndarray, "pairs 4"], Int[np.ndarray, " samples"]] | None:
         """The samples as a dense (D, W) grid when every pair has every band exactly once.
 
         Returns ``(pairs (D, 4), order (N,))`` with ``order`` such that
@@ -249,7 +253,7 @@ class Measurement:
         order = np.argsort(flat, kind="stable")
         return pairs, order
 
-    def replace(self, **changes) -> Measurement:
+    def replace(self, **changes: Any) -> Measurement:
         """A copy with ``changes``; it keeps the direction pairs found already when the angles stay."""
         new = dataclasses.replace(self, **changes)
         if "_directions" in self.__dict__ and not changes.keys() & {"theta_i", "phi_i", "theta_o", "phi_o"}:

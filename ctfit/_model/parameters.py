@@ -29,7 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["Parameter", "PARAMETERS", "PUBLIC_NAMES", "PARAMETER_AXES", "M_MIN", "M_MAX", "PLASTIC_INDEX_RANGE", "parameter", "box_bounds", "clip_box", "value_range"]
+__all__ = ["Parameter", "PARAMETERS", "PUBLIC_NAMES", "PARAMETER_AXES", "M_MIN", "M_MAX", "PLASTIC_INDEX_RANGE", "parameter", "box_bounds", "clip_box",
+           "value_range"]
 
 
 M_MIN, M_MAX = 1e-5, 4.0

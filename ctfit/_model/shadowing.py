@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 from jax.scipy.special import erf
+from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["v_cavity_reduced", "smith_g1_reduced", "smith_rational_g1_reduced"]
 
@@ -36,7 +37,9 @@ _SQRT_PI = 1.7724538509055159
 _A_MAX = 30.0
 
 
-def v_cavity_reduced(cos_l, cos_v, cos_h, cos_vh):
+def v_cavity_reduced(
+    cos_l: Float[ArrayLike, "*#batch"], cos_v: Float[ArrayLike, "*#batch"], cos_h: Float[ArrayLike, "*#batch"], cos_vh: Float[ArrayLike, "*#batch"]
+) -> Float[Array, "*batch"]:
     """G/((N·L)(N·V)) = min{1/((N·L)(N·V)), 2(N·H)/((V·H)(N·L)), 2(N·H)/((V·H)(N·V))}.
 
     Requires N·L > 0, N·V > 0 and V·H > 0 (callers mask other directions).
@@ -57,7 +60,7 @@ def v_cavity_reduced(cos_l, cos_v, cos_h, cos_vh):
     return jnp.minimum(1, two_h * jnp.minimum(cos_l, cos_v)) / (cos_l * cos_v)
 
 
-def smith_g1_reduced(cos_t, sin_t, m):
+def smith_g1_reduced(cos_t: Float[ArrayLike, "*#batch"], sin_t: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
     """Smith's Beckmann G1(θ; m)/cos θ for a direction with cos θ > 0 and sin θ ≥ 0.
 
     With a = cos θ/(m sin θ), multiplying the exact form through by m sin θ gives
@@ -74,6 +77,7 @@ def smith_g1_reduced(cos_t, sin_t, m):
     >>> np.asarray(ctfit.smith_g1_reduced(np.array([1.0, 0.0]), np.array([0.0, 1.0]), 0.5), float).round(4).tolist()
     [1.0, 7.0898]
     """
+    cos_t, sin_t, m = jnp.asarray(cos_t), jnp.asarray(sin_t), jnp.asarray(m)
     a = cos_t / jnp.maximum(m * sin_t, cos_t / _A_MAX)
     return 2 * _SQRT_PI / (_SQRT_PI * cos_t * (1 + erf(a)) + m * sin_t * jnp.exp(-a * a))
 
@@ -81,7 +85,9 @@ def smith_g1_reduced(cos_t, sin_t, m):
 _RATIONAL_A_MAX = 1.6  # Walter et al. 2007, eq. 27: G1 = 1 from here on (the rational form is 1.000057 there)
 
 
-def smith_rational_g1_reduced(cos_t, sin_t, m):
+def smith_rational_g1_reduced(
+    cos_t: Float[ArrayLike, "*#batch"], sin_t: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"]
+) -> Float[Array, "*batch"]:
     """Walter et al.'s rational approximation of Smith's Beckmann G1(θ; m), divided by cos θ, for
     a direction with cos θ > 0 and sin θ ≥ 0.
 
@@ -93,6 +99,7 @@ def smith_rational_g1_reduced(cos_t, sin_t, m):
     both finite for c > 0 (= 3.535/s at θ = 90°), so the unselected branch of the ``where`` has
     finite values and derivatives.
     """
+    cos_t, sin_t, m = jnp.asarray(cos_t), jnp.asarray(sin_t), jnp.asarray(m)
     s = m * sin_t
     rational = (3.535 * s + 2.181 * cos_t) / (s * s + 2.276 * cos_t * s + 2.577 * cos_t * cos_t)
     return jnp.where(cos_t >= _RATIONAL_A_MAX * s, 1 / cos_t, rational)

@@ -14,7 +14,8 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={  # in the order of the pipeline
         "surfaces": ['SHAPES', 'Surface', 'VIEW_DIRECTION', 'surface_normals'],
-        "scene": ['AMBIENT_FRACTION', 'LIGHT_DIRECTIONS', 'SOLID_ANGLES', 'Scene', 'Tile', 'WAVELENGTH_STEP_NM', 'check_wavelength_step', 'render_linear', 'render_scene', 'shade_linear'],
+        "scene": ['AMBIENT_FRACTION', 'LIGHT_DIRECTIONS', 'SOLID_ANGLES', 'Scene', 'Tile', 'WAVELENGTH_STEP_NM', 'check_wavelength_step', 'render_linear',
+                  'render_scene', 'shade_linear'],
         "tone": ['EXPOSURES', 'tone_map'],
         "sheet": ['render_material', 'render_materials'],
         "measured": ['render_compare'],

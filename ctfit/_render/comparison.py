@@ -21,13 +21,17 @@ sRGB pixels, both scaled by the fitted sphere's exposure (the paper's scale, see
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import os
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
+import numpy.typing as npt
+from jaxtyping import ArrayLike, Float
 
 from .._colour import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion
 from .._io import angles_deg_to_half_diff_deg
-from .._model import evaluate_at
+from .._model import Light, Material, Measurement, evaluate_at
 from .scene import LIGHT_DIRECTIONS, SOLID_ANGLES, Scene, Tile, render_bands, scene_lights, white_scale
 from .surfaces import VIEW_DIRECTION, surface_normals
 from .tone import tone_map
@@ -41,7 +45,10 @@ _AXES = ("θ_h", "θ_d", "φ_d")
 NEIGHBOURS = 16  # samples that shape each interpolated value (in 2 or 3 dimensions)
 
 
-def half_diff_folded_deg(theta_i, phi_i, theta_o, phi_o) -> np.ndarray:
+def half_diff_folded_deg(
+    theta_i: Float[ArrayLike, "*#batch"], phi_i: Float[ArrayLike, "*#batch"], theta_o: Float[ArrayLike, "*#batch"],
+    phi_o: Float[ArrayLike, "*#batch"],
+) -> Float[np.ndarray, "*batch 3"]:
     """Rusinkiewicz (θ_h, θ_d, φ_d) in degrees, shape (..., 3), φ_d folded to [0°, 90°].
 
     Isotropy makes the BRDF even in φ_d, reciprocity (swapping L and V) turns φ_d into φ_d + 180°.
@@ -54,7 +61,7 @@ def half_diff_folded_deg(theta_i, phi_i, theta_o, phi_o) -> np.ndarray:
     return np.stack(np.broadcast_arrays(th, td, np.minimum(pd, 180.0 - pd)), axis=-1)
 
 
-def _band_groups(data):
+def _band_groups(data: Measurement) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """``[(bands, pairs (D, 4), values (D, len(bands)))]``: one group for grid data, else one per band."""
     if data.brdf is None:
         raise ValueError(f"{data.source}: the measurement has no BRDF values to show")
@@ -73,7 +80,7 @@ def _band_groups(data):
     return groups
 
 
-def _mean_of_repeats(points, values):
+def _mean_of_repeats(points: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     keys, inverse = np.unique(np.round(points, 9), axis=0, return_inverse=True)
     inverse = inverse.ravel()
     counts = np.bincount(inverse, minlength=len(keys))
@@ -99,7 +106,7 @@ class MeasuredBRDF:
     [[0.2, 0.1, 0.05]]
     """
 
-    def __init__(self, data, max_points: int = MAX_POINTS):
+    def __init__(self, data: Measurement, max_points: int = MAX_POINTS) -> None:
         self.n_bands = data.n_bands
         self.parts = []
         kept = set()
@@ -118,7 +125,7 @@ class MeasuredBRDF:
         if dropped:
             self.note += f"; {', '.join(dropped)} constant in the data, taken not to matter"
 
-    def __call__(self, theta_i, theta_o, dphi) -> np.ndarray:
+    def __call__(self, theta_i: np.ndarray, theta_o: np.ndarray, dphi: np.ndarray) -> np.ndarray:
         coords = half_diff_folded_deg(theta_i, 0.0, theta_o, dphi)
         out = np.full(coords.shape[:-1] + (self.n_bands,), np.nan)
         for bands, dims, f in self.parts:
@@ -126,7 +133,7 @@ class MeasuredBRDF:
         return out
 
 
-def _interpolant(points, logs, dims):
+def _interpolant(points: np.ndarray, logs: np.ndarray, dims: list[int]) -> Callable[[np.ndarray], np.ndarray]:
     """A function of (..., len(dims)) coordinates giving (..., bands) log values, NaN outside."""
     if not dims:
         return lambda q: np.broadcast_to(logs[0], q.shape[:-1] + logs.shape[1:])
@@ -135,7 +142,7 @@ def _interpolant(points, logs, dims):
         order = np.argsort(p[:, 0])
         x, y = p[order, 0], logs[order]
 
-        def along(q):
+        def along(q: np.ndarray) -> np.ndarray:
             q = q[..., 0]
             inside = (q >= x[0]) & (q <= x[-1])
             return np.where(inside[..., None], np.stack([np.interp(q, x, c) for c in y.T], axis=-1), np.nan)
@@ -144,13 +151,13 @@ def _interpolant(points, logs, dims):
     return _shepard(p, logs)
 
 
-def _shepard(points, logs):
+def _shepard(points: np.ndarray, logs: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
     """Local linear regression on the :data:`NEIGHBOURS` nearest points (a k-d tree), weighted
     by modified Shepard weights ((R − d)₊ / (R d))², R the distance to the next nearest point
     (Franke & Nielson 1980): a weight falls to 0 before its point leaves the neighbourhood, so the
     result is continuous, exact at the samples and exact for linear functions. NaN outside the
     convex hull of the points (the measured domain)."""
-    from scipy.spatial import ConvexHull, QhullError, cKDTree  # noqa: PLC0415
+    from scipy.spatial import ConvexHull, QhullError, cKDTree
 
     tree = cKDTree(points)
     k = min(NEIGHBOURS + 1, len(points))
@@ -159,8 +166,8 @@ def _shepard(points, logs):
     except QhullError:  # too few points, or all in a lower-dimensional set: no domain test
         hull = None
 
-    def regression(q):
-        d, j = tree.query(q, k=k)
+    def regression(q: np.ndarray) -> np.ndarray:
+        d, j = (np.asarray(a) for a in tree.query(q, k=k))  # (len(q), k): k > 1
         far, d, j = d[:, -1:], d[:, :-1], j[:, :-1]
         w = (np.maximum(far - d, 0.0) / (far * np.maximum(d, 1e-9))) ** 2
         w = np.where(w.sum(axis=1, keepdims=True) > 0, w, 1.0)
@@ -175,7 +182,7 @@ def _shepard(points, logs):
             out[np.any(q @ hull[:, :-1].T + hull[:, -1] > 1e-6, axis=1)] = np.nan
         return out
 
-    def local_linear(q):
+    def local_linear(q: np.ndarray) -> np.ndarray:
         flat = q.reshape(-1, q.shape[-1])
         out = np.concatenate([regression(flat[i : i + 4096]) for i in range(0, len(flat), 4096)] or [np.zeros((0, logs.shape[1]))])
         return out.reshape(q.shape[:-1] + (logs.shape[1],))
@@ -183,7 +190,7 @@ def _shepard(points, logs):
     return local_linear
 
 
-def _mirrored(p, logs, dims):
+def _mirrored(p: np.ndarray, logs: np.ndarray, dims: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """The points with their mirror images across θ_h = 0, θ_d = 0, φ_d = 0° and φ_d = 90° (the
     folded BRDF is even about each), for points within 20° of the edge: so that the convex hull,
     and the interpolation, reach the edges of the domain (the mirror direction, retro-reflection)."""
@@ -216,7 +223,7 @@ class Comparison(NamedTuple):
     note: str
 
 
-def _bands_of(material, data):
+def _bands_of(material: Material, data: Measurement) -> tuple[np.ndarray, np.ndarray, Callable[..., np.ndarray]]:
     """``(light spectrum (B,), to_rgb (B, 3), model: f(θ_i, θ_o, Δφ) → (..., B))`` on the data's bands."""
     if data.band_unknown != material.band_unknown:
         unknown, known = (data.source, material.name) if data.band_unknown else (material.name, data.source)
@@ -240,27 +247,29 @@ def _bands_of(material, data):
     return spectrum, to_rgb, lambda ti, to, dp: _evaluate_padded(material, ti, to, dp, wavelength_nm=wl)
 
 
-def _evaluate_padded(material, theta_i, theta_o, dphi, **options):
+def _evaluate_padded(material: Material, theta_i: np.ndarray, theta_o: np.ndarray, dphi: np.ndarray, **options: Any) -> np.ndarray:
     """:func:`ctfit.evaluate_at` (φ_i = 0) on arrays padded to a power of two: one compiled
     program serves every number of lit pixels of that order."""
     n = len(theta_i)
     size = 1 << max(n - 1, 1).bit_length()
-    pad = lambda a: np.concatenate([a, np.zeros(size - n)])  # noqa: E731
+    pad = lambda a: np.concatenate([a, np.zeros(size - n)])
     return evaluate_at(material, theta_i=pad(theta_i), theta_o=pad(theta_o), phi_o=pad(dphi), **options)[:n]
 
 
-def _local_angles_deg(normals, light, view):
+def _local_angles_deg(normals: np.ndarray, light: np.ndarray, view: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """θ_i, θ_o, Δφ (degrees) of each normal (P, 3) for one light and the view, and N·L, N·V > 0."""
     cl, cv = normals @ light, normals @ view
     tl, tv = light - cl[:, None] * normals, view - cv[:, None] * normals
     den = np.linalg.norm(tl, axis=-1) * np.linalg.norm(tv, axis=-1)
     ok = den > 1e-12
     cos_dphi = np.where(ok, np.sum(tl * tv, axis=-1) / np.where(ok, den, 1.0), 1.0)
-    angle = lambda c: np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))  # noqa: E731
+    angle = lambda c: np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
     return angle(cl), angle(cv), angle(cos_dphi), (cl > 0) & (cv > 0)
 
 
-def _shade(normals, lights, brdf_fn, n_bands):
+def _shade(
+    normals: np.ndarray, lights: Sequence[Light], brdf_fn: Callable[..., np.ndarray], n_bands: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(intensity (P, B), lit (P,), missing (P,))``: Σ over lights of E dω cos θ_i f, no ambient.
 
     ``missing``: a light reaches the sample but ``brdf_fn`` has no value there (NaN)."""
@@ -280,22 +289,24 @@ def _shade(normals, lights, brdf_fn, n_bands):
     return intensity, lit, missing
 
 
-def _per_pixel(samples, s: int):
+def _per_pixel(samples: np.ndarray, s: int) -> np.ndarray:
     """(n·s, n·s, ...) samples → (n, n, ...) means over each pixel's s × s samples."""
     n = samples.shape[0] // s
     return samples.reshape(n, s, n, s, *samples.shape[2:]).mean(axis=(1, 3))
 
 
-def _delta_e(measured, fitted):
+def _delta_e(measured: np.ndarray, fitted: np.ndarray) -> np.ndarray:
     conv = rgb_conversion("sRGB", None, None)
     white = np.asarray(RGB_to_XYZ(np.ones(3), conv), dtype=float)
     lab = [XYZ_to_Lab(RGB_to_XYZ(np.nan_to_num(x), conv), white) for x in (measured, fitted)]
     return np.asarray(delta_E_CIE2000(*lab), dtype=float)
 
 
-def render_comparison(material, data, path=None, *, size: int = 128, shape: str = "sphere", supersample: int = 2,
-                      exposure: str = "reference", directions=LIGHT_DIRECTIONS, solid_angles=SOLID_ANGLES,
-                      max_delta_e: float = 10.0) -> Comparison:
+def render_comparison(
+    material: Material, data: Measurement, path: str | os.PathLike[str] | None = None, *, size: int = 128, shape: str = "sphere",
+    supersample: int = 2, exposure: str = "reference", directions: Float[npt.ArrayLike, "lights 3"] = LIGHT_DIRECTIONS,
+    solid_angles: Float[npt.ArrayLike, " lights"] = SOLID_ANGLES, max_delta_e: float = 10.0,
+) -> Comparison:
     """Measured | fitted | ΔE2000 of ``material`` (a Material or FitResult) and ``data``; see the module docstring.
 
     Writes the figure to ``path`` (PNG) when given. The title states the median and 95th
@@ -323,7 +334,7 @@ def render_comparison(material, data, path=None, *, size: int = 128, shape: str 
     for name, intensity in (("fitted", fit_i), ("measured", meas_i)):
         samples[name] = np.zeros(surface.mask.shape + (3,))
         samples[name][surface.mask] = intensity @ to_rgb
-    on = lambda flags: _per_pixel(np.where(surface.mask, _scatter(surface.mask, flags), False).astype(float), supersample)  # noqa: E731
+    on = lambda flags: _per_pixel(np.where(surface.mask, _scatter(surface.mask, flags), False).astype(float), supersample)
     full = _per_pixel(surface.mask.astype(float), supersample) == 1
     lit_px, missing_px = full & (on(lit) == 1), full & (on(missing) > 0)
     compared = lit_px & ~missing_px
@@ -340,28 +351,30 @@ def render_comparison(material, data, path=None, *, size: int = 128, shape: str 
     fig = _comparison_figure(material, data, (right, left, de, full & ~compared & missing_px), (median, p95, int(compared.sum()), coverage),
                              measured_fn.note, max_delta_e)
     if path is not None:
-        from .._io import atomic_save  # noqa: PLC0415
+        from .._io import atomic_save
 
         atomic_save(path, lambda buffer: fig.savefig(buffer, format="png", dpi=110))
     return Comparison(fig, de, median, p95, coverage, measured, fitted, measured_fn.note)
 
 
-def _scatter(mask, flags):
+def _scatter(mask: np.ndarray, flags: np.ndarray) -> np.ndarray:
     out = np.zeros(mask.shape, bool)
     out[mask] = flags
     return out
 
 
-def _comparison_figure(material, data, images, stats, note, max_delta_e):
+def _comparison_figure(
+    material: Material, data: Measurement, images: Sequence[np.ndarray], stats: Sequence[float], note: str, max_delta_e: float
+) -> Any:
     """The three panels: measured (grey outside the measured domain), fitted, ΔE2000 with its colourbar."""
-    import textwrap  # noqa: PLC0415
+    import textwrap
 
     from .._runtime import need
 
     need("plots", "a rendered comparison")
-    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
-    from matplotlib.colors import ListedColormap  # noqa: PLC0415
-    from matplotlib.figure import Figure  # noqa: PLC0415
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import ListedColormap
+    from matplotlib.figure import Figure
 
     measured, fitted, de, outside = images
     median, p95, n, coverage = stats

@@ -7,7 +7,12 @@ tile; see :func:`render_compare`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import Any, Literal
+
 import numpy as np
+import numpy.typing as npt
+from jaxtyping import Float, UInt8
 
 from .._model import Material, Measurement, ambient_reflectance
 from .scene import Scene, Tile, render_scene, shade_tile, white_scale
@@ -18,7 +23,7 @@ from .tone import BACKGROUND, tone_map
 __all__ = ["render_compare"]
 
 
-def _embed(theta_i, theta_o, dphi):
+def _embed(theta_i: np.ndarray, theta_o: np.ndarray, dphi: np.ndarray) -> np.ndarray:
     """Direction pairs as points of R⁶ (L, V in the local frame with L at φ = 0)."""
     st_o = np.sin(theta_o)
     return np.stack(
@@ -27,7 +32,7 @@ def _embed(theta_i, theta_o, dphi):
     )
 
 
-def _measured_pairs(data: Measurement):
+def _measured_pairs(data: Measurement) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per group of bands that share direction pairs: (bands, points (2D, 6), values (2D, bands)).
 
     Isotropy: only θ_i, θ_o and |Δφ| (folded to [0°, 180°]) are kept; reciprocity: every pair
@@ -59,7 +64,7 @@ def _measured_pairs(data: Measurement):
     return out
 
 
-def _pixel_angles(normal, light, view):
+def _pixel_angles(normal: np.ndarray, light: np.ndarray, view: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """θ_i, θ_o, |Δφ| (radians) of each normal (P, 3) for one light and the view, and validity."""
     cl, cv = normal @ light, normal @ view
     tl = light - cl[:, None] * normal
@@ -82,7 +87,9 @@ def _check_bands(material: Material, data: Measurement) -> None:
         raise ValueError(f"{data.source}: spectral data needs a spectral material; {material.name!r} has RGB channels")
 
 
-def measured_tile(material: Material, data: Measurement, scene: Scene, surface: Surface, supersample: int, max_distance: float):
+def measured_tile(
+    material: Material, data: Measurement, scene: Scene, surface: Surface, supersample: int, max_distance: float
+) -> tuple[Tile, float]:
     """``(tile, coverage)``: ``scene`` shaded with the measured BRDF, nearest direction pair per band.
 
     For every object sample and light, the local (θ_i, θ_o, |Δφ|) is looked up in the data
@@ -93,7 +100,7 @@ def measured_tile(material: Material, data: Measurement, scene: Scene, surface: 
     the hemispherical reflectance the data does not give, is the material's R_a = π R_d.
     ``coverage`` is the fraction of object samples with data. ``scene`` is on the data's bands.
     """
-    from scipy.spatial import cKDTree  # noqa: PLC0415
+    from scipy.spatial import cKDTree
 
     normals = surface.normal[surface.mask]
     view = np.asarray(VIEW_DIRECTION)
@@ -129,14 +136,14 @@ def render_compare(
     data: Measurement,
     size: int = 256,
     shape: str = "sphere",
-    labels=None,
+    labels: Sequence[str] | Literal[False] | None = None,
     *,
     exposure: str = "reference",
-    background=BACKGROUND,
+    background: Float[npt.ArrayLike, " 3"] = BACKGROUND,
     supersample: int = 2,
     max_distance: float = 0.35,
-    **scene,
-) -> np.ndarray:
+    **scene: Any,
+) -> UInt8[np.ndarray, "height width 3"]:
     """Two tiles, (H, W, 3) uint8: ``material`` and the nearest-measured rendering of ``data``.
 
     Both are shaded on the data's bands with the same lights; both use the model tile's

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
+from jaxtyping import UInt8
 
 from .._io import atomic_save
 
 __all__ = ["save_png"]
 
 
-def save_png(image: np.ndarray, path) -> Path:
+def save_png(image: UInt8[np.ndarray, "height width 3"], path: str | os.PathLike[str]) -> Path:
     """Write an (H, W, 3) uint8 image as PNG (Pillow), atomically; the parent folder is created.
 
     >>> import numpy as np
@@ -25,7 +27,7 @@ def save_png(image: np.ndarray, path) -> Path:
     from .._runtime import need
 
     need("plots", "a rendered picture")
-    from PIL import Image  # noqa: PLC0415
+    from PIL import Image
 
     a = np.asarray(image)
     if a.ndim != 3 or a.shape[-1] not in (3, 4) or a.dtype != np.uint8:

@@ -25,11 +25,14 @@ from __future__ import annotations
 import functools
 import math
 import warnings
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
+from jaxtyping import Array, ArrayLike, Float
 
 from .._colour import colour_science, rgb_conversion, spectral_weights
 from .._io import DataWarning
@@ -60,7 +63,7 @@ WAVELENGTH_STEP_NM = (1.0, SPECTRAL_RANGE_NM[1] - SPECTRAL_RANGE_NM[0])
 
 
 @functools.cache
-def _spectral_setup(wavelength_nm: tuple[float, ...]):
+def _spectral_setup(wavelength_nm: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
     """(D65 spectrum with Y = 1, (λ, 3) matrix from I_r(λ) to linear sRGB) for the bands."""
     colour = colour_science()
     wl = np.asarray(wavelength_nm, dtype=float)
@@ -86,7 +89,9 @@ def check_wavelength_step(wavelength_step: float) -> None:
         raise ValueError(f"wavelength_step must be in [{low:g}, {high:g}] nm, got {wavelength_step:g} ({why})")
 
 
-def render_bands(material: Material, wavelength_step: float = 5.0, wavelength_nm=None):
+def render_bands(
+    material: Material, wavelength_step: float = 5.0, wavelength_nm: Float[ArrayLike, " bands"] | None = None
+) -> tuple[Params, np.ndarray, np.ndarray]:
     """``(params, light spectrum (bands,), to_rgb (bands, 3))`` of ``material`` for rendering.
 
     Spectral materials: ``wavelength_nm``, or 380–780 nm every ``wavelength_step`` nm; the
@@ -109,8 +114,12 @@ def render_bands(material: Material, wavelength_step: float = 5.0, wavelength_nm
     return params, spectrum, to_rgb
 
 
-def scene_lights(spectrum, directions=LIGHT_DIRECTIONS, solid_angles=SOLID_ANGLES) -> list[Light]:
+def scene_lights(
+    spectrum: Float[ArrayLike, " bands"], directions: Float[npt.ArrayLike, "lights 3"] = LIGHT_DIRECTIONS,
+    solid_angles: Float[npt.ArrayLike, " lights"] = SOLID_ANGLES,
+) -> list[Light]:
     """One light of intensity ``spectrum`` (bands,) per direction, with its solid angle."""
+    directions, solid_angles = np.asarray(directions, dtype=float), np.asarray(solid_angles, dtype=float)
     if len(directions) != len(solid_angles):
         raise ValueError(f"{len(directions)} light directions but {len(solid_angles)} solid angles")
     return [Light(np.asarray(d, dtype=float), np.asarray(spectrum, dtype=float), float(w)) for d, w in zip(directions, solid_angles)]
@@ -146,11 +155,11 @@ class Scene(NamedTuple):
 def render_scene(
     material: Material,
     *,
-    directions=LIGHT_DIRECTIONS,
-    solid_angles=SOLID_ANGLES,
+    directions: Float[npt.ArrayLike, "lights 3"] = LIGHT_DIRECTIONS,
+    solid_angles: Float[npt.ArrayLike, " lights"] = SOLID_ANGLES,
     ambient: float = AMBIENT_FRACTION,
     wavelength_step: float = 5.0,
-    wavelength_nm=None,
+    wavelength_nm: Float[ArrayLike, " bands"] | None = None,
 ) -> Scene:
     """``material`` in the renderer's scene: its bands, lights and ambient light (module docstring).
 
@@ -172,12 +181,14 @@ def render_scene(
 
 
 @eqx.filter_jit
-def _shade(structure, params, normal, view, lights, ambient, to_rgb):
+def _shade(
+    structure: Structure, params: Params, normal: ArrayLike, view: ArrayLike, lights: Sequence[Light], ambient: ArrayLike, to_rgb: ArrayLike
+) -> Array:
     intensity = reflected_intensity(structure, params, normal, view, lights, ambient)
     return intensity @ jnp.asarray(to_rgb).astype(intensity.dtype)
 
 
-def shade_linear(structure: Structure, scene: Scene, normals):
+def shade_linear(structure: Structure, scene: Scene, normals: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
     """Linear sRGB (…, 3) of eq. 1 at unit ``normals`` (…, 3), seen from :data:`VIEW_DIRECTION`.
 
     The reflected intensity per band (:func:`ctfit.reflected_intensity`) times ``scene.to_rgb``;
@@ -210,7 +221,7 @@ class Tile(NamedTuple):
     white_scale: float  # 1 / brightest value of a white Lambertian object in the same scene
 
 
-def white_scale(normals, scene: Scene) -> float:
+def white_scale(normals: np.ndarray, scene: Scene) -> float:
     """1 / max over the object of Σ_l dω_l (N·L_l)⁺/π + ambient: a white R_d = 1/π, in the
     units where a perfect white reflector lit by a unit light of unit dω is linear RGB 1."""
     lights = scene.lights
@@ -228,7 +239,7 @@ def shade_tile(structure: Structure, scene: Scene, surface: Surface, supersample
     return Tile(rgb, surface.mask, supersample, white_scale(normals, scene))
 
 
-def render_linear(material: Material, size: int = 256, shape: str = "sphere", *, supersample: int = 2, **scene) -> Tile:
+def render_linear(material: Material, size: int = 256, shape: str = "sphere", *, supersample: int = 2, **scene: Any) -> Tile:
     """Unscaled linear sRGB of ``material`` on ``shape``: ``(rgb, mask, supersample, white_scale)``.
 
     ``rgb`` has side ``size * supersample``; only samples on the object are shaded (one

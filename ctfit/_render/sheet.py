@@ -7,8 +7,11 @@ drawn with Pillow in DejaVu Sans (shipped with matplotlib), cut with "…" when 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
+from jaxtyping import Float, UInt8
 
 from .._colour import eotf_inverse_sRGB
 from .._model import Material
@@ -20,7 +23,7 @@ __all__ = ["grid_layout", "assemble_sheet", "tile_label", "render_material", "re
 _LABEL_HEIGHT_FRACTION = 0.11
 
 
-def grid_layout(n_tiles: int, size: int, columns: int | None = None, labels: bool = True):
+def grid_layout(n_tiles: int, size: int, columns: int | None = None, labels: bool = True) -> tuple[int, int, list[tuple[int, int]]]:
     """``(height, width, boxes)``: the grid's image size and each tile's (top, left) corner.
 
     ``columns`` defaults to min(n, 6). With ``labels`` each tile has a text strip below it.
@@ -44,12 +47,12 @@ def _label_height(size: int) -> int:
     return max(14, round(size * _LABEL_HEIGHT_FRACTION))
 
 
-def _font(px: int):
+def _font(px: int) -> Any:
     """DejaVu Sans (shipped with matplotlib, as in the other figures), else Pillow's default."""
-    from PIL import ImageFont  # noqa: PLC0415
+    from PIL import ImageFont
 
     try:
-        from matplotlib import font_manager  # noqa: PLC0415
+        from matplotlib import font_manager
 
         return ImageFont.truetype(font_manager.findfont("DejaVu Sans", fallback_to_default=True), px)
     except (ImportError, OSError, ValueError):
@@ -60,7 +63,7 @@ def _font(px: int):
         return ImageFont.load_default()
 
 
-def _fit_text(draw, text: str, font, width: int) -> str:
+def _fit_text(draw: Any, text: str, font: Any, width: int) -> str:
     if draw.textlength(text, font=font) <= width:
         return text
     while text and draw.textlength(text + "…", font=font) > width:
@@ -68,13 +71,15 @@ def _fit_text(draw, text: str, font, width: int) -> str:
     return text + "…"
 
 
-def assemble_sheet(tiles: list[np.ndarray], names: list[str] | None, size: int, columns: int | None, background) -> np.ndarray:
+def assemble_sheet(
+    tiles: list[np.ndarray], names: list[str] | None, size: int, columns: int | None, background: npt.ArrayLike
+) -> UInt8[np.ndarray, "height width 3"]:
     """The tiles (uint8, ``size`` square) on a grid (:func:`grid_layout`) over ``background``
     (linear sRGB), each with its name below it unless ``names`` is None."""
     from .._runtime import need
 
     need("plots", "a rendered picture")  # and for _font below
-    from PIL import Image, ImageDraw  # noqa: PLC0415
+    from PIL import Image, ImageDraw
 
     height, width, boxes = grid_layout(len(tiles), size, columns, labels=names is not None)
     bg = np.clip(np.round(np.asarray(eotf_inverse_sRGB(np.asarray(background, dtype=float))) * 255), 0, 255)
@@ -100,7 +105,7 @@ def tile_label(name: str, material: Material) -> str:
     return f"band unknown: {name}" if material.band_unknown else name  # first: a long name is cut at its end
 
 
-def _names(materials, labels):
+def _names(materials: Sequence[Material], labels: bool | Sequence[str] | None) -> list[str] | None:
     if labels is False:
         return None
     if labels is None or labels is True:
@@ -112,8 +117,9 @@ def _names(materials, labels):
 
 
 def render_material(
-    material: Material, size: int = 256, shape: str = "sphere", *, exposure: str = "reference", background=BACKGROUND, **options
-) -> np.ndarray:
+    material: Material, size: int = 256, shape: str = "sphere", *, exposure: str = "reference",
+    background: Float[npt.ArrayLike, " 3"] = BACKGROUND, **options: Any,
+) -> UInt8[np.ndarray, "height width 3"]:
     """One tile, (size, size, 3) uint8; ``options`` as for :func:`ctfit.render_linear`.
 
     >>> from ctfit import material_from_dict
@@ -132,13 +138,13 @@ def render_materials(
     materials: Sequence[Material],
     size: int = 256,
     shape: str | Sequence[str] = "sphere",
-    labels=None,
+    labels: bool | Sequence[str] | None = None,
     *,
     columns: int | None = None,
     exposure: str = "reference",
-    background=BACKGROUND,
-    **options,
-) -> np.ndarray:
+    background: Float[npt.ArrayLike, " 3"] = BACKGROUND,
+    **options: Any,
+) -> UInt8[np.ndarray, "height width 3"]:
     """A grid of tiles, one per material, (H, W, 3) uint8, like the paper's Figure 7.
 
     ``shape``: one of ``"sphere"``, ``"vase"`` for every tile, or one per material. ``labels``:

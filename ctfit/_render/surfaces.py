@@ -14,9 +14,10 @@
 from __future__ import annotations
 
 import functools
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
+from jaxtyping import ArrayLike
 
 __all__ = ["SHAPES", "VIEW_DIRECTION", "Surface", "surface_normals", "vase_profile"]
 
@@ -55,14 +56,14 @@ def _pixel_centres(n: int) -> np.ndarray:
 
 
 @functools.cache
-def _vase_spline():
-    from scipy.interpolate import CubicSpline  # noqa: PLC0415
+def _vase_spline() -> Any:
+    from scipy.interpolate import CubicSpline
 
     y, r = np.asarray(_VASE_POINTS).T
     return CubicSpline(y, r, bc_type="natural")
 
 
-def vase_profile(y):
+def vase_profile(y: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     """``(r, dr/dy)`` of the vase's profile at heights ``y`` (r = 0 outside the vase).
 
     >>> r, dr = vase_profile([-0.95, -0.45, 2.0])

@@ -16,6 +16,8 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
+from jaxtyping import Array, ArrayLike, Float, UInt8
 
 from .._colour import desaturate_to_gamut, eotf_inverse_sRGB, scale_to_display
 from .scene import Tile
@@ -27,12 +29,12 @@ BACKGROUND = (0.1, 0.1, 0.1)  # linear sRGB: a neutral dark grey (encoded 89/255
 
 
 @eqx.filter_jit
-def _paper_scale(rgb):
+def _paper_scale(rgb: np.ndarray) -> Array:
     return scale_to_display(rgb.reshape(-1, 3))[1]
 
 
 @eqx.filter_jit
-def _compose(rgb, mask, scale, background, supersample: int):
+def _compose(rgb: np.ndarray, mask: np.ndarray, scale: ArrayLike, background: ArrayLike, supersample: int) -> Array:
     """uint8 sRGB: scaled and gamut-mapped object samples over the background, averaged in
     linear light over each pixel's ``supersample``² samples, then encoded."""
     shown = desaturate_to_gamut(desaturate_to_gamut(rgb, upper=None) * scale, upper=1.0)
@@ -42,7 +44,9 @@ def _compose(rgb, mask, scale, background, supersample: int):
     return jnp.clip(jnp.round(eotf_inverse_sRGB(lin) * 255), 0, 255).astype(jnp.uint8)
 
 
-def tone_map(tile: Tile, scale=None, background=BACKGROUND, exposure: str = "reference"):
+def tone_map(
+    tile: Tile, scale: float | None = None, background: Float[npt.ArrayLike, " 3"] = BACKGROUND, exposure: str = "reference"
+) -> tuple[UInt8[np.ndarray, "height width 3"], float]:
     """``(uint8 image (size, size, 3), scale)``: the paper's scaling, sRGB encoding, background.
 
     ``scale=None``: the paper's rule (:func:`ctfit.scale_to_display`): the tile's brightest

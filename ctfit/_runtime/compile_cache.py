@@ -18,6 +18,7 @@ import sys
 import tempfile
 import warnings
 from pathlib import Path
+from typing import Any
 
 __all__ = ["CacheWarning", "enable_compilation_cache", "program_store_folder", "matplotlib_config_fallback", "unsafe_folder", "warn_once"]
 
@@ -133,7 +134,8 @@ def program_store_folder() -> Path | None:
     ``$JAX_COMPILATION_CACHE_DIR``) to one that others can write to (:func:`unsafe_folder`)."""
     import jax
 
-    where = jax.config.jax_compilation_cache_dir
+    config: Any = jax.config  # its flags are attributes added at run time, unknown to type checkers
+    where = config.jax_compilation_cache_dir
     if not where:
         return None
     try:
@@ -153,7 +155,8 @@ def matplotlib_config_fallback() -> str | None:
     nothing was needed (``MPLCONFIGDIR`` set, matplotlib already imported, or a usable folder)."""
     if "MPLCONFIGDIR" in os.environ or "matplotlib" in sys.modules:
         return None
-    base = os.environ.get("XDG_CONFIG_HOME") or (None if _home() is None else str(_home() / ".config"))
+    home = _home()
+    base = os.environ.get("XDG_CONFIG_HOME") or (None if home is None else str(home / ".config"))
     if base and os.path.isabs(base) and _usable(Path(base) / "matplotlib") is None:
         return None
     folder = tempfile.mkdtemp(prefix="ctfit-matplotlib-")

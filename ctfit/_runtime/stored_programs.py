@@ -47,6 +47,7 @@ import platform
 import threading
 import warnings
 from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -59,7 +60,9 @@ from .compile_cache import program_store_folder, unsafe_folder, warn_once
 
 _FORMAT = 4  # 1: jax.export programs (compiled again in every process); 2: executables; 3: with their key; 4: compile efforts
 
-COMPILE_EFFORT = {
+_CONFIG: Any = jax.config  # JAX's flags are attributes added at run time, unknown to type checkers
+
+COMPILE_EFFORT: dict[str, dict[str, bool | int]] = {
     "run": {"xla_llvm_disable_expensive_passes": True},
     "once": {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True},
 }
@@ -162,7 +165,7 @@ def _key(name: str, args: tuple, constants=None) -> str | None:
     text = repr(jax.tree.map(_abstract, args))
     if " at 0x" in text:
         return None
-    config = (jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision, jax.config.jax_numpy_rank_promotion)
+    config = (_CONFIG.jax_enable_x64, _CONFIG.jax_default_matmul_precision, _CONFIG.jax_numpy_rank_promotion)
     h = hashlib.sha256("\n".join([_environment_digest(), name, repr(config), text]).encode())
     if constants is not None:
         leaves, treedef = jax.tree.flatten(constants)
@@ -315,7 +318,7 @@ def _outside_jax_cache():
     global _outside_depth, _outside_saved
     with _outside:
         if _outside_depth == 0:
-            _outside_saved = jax.config.jax_persistent_cache_min_compile_time_secs
+            _outside_saved = _CONFIG.jax_persistent_cache_min_compile_time_secs
             jax.config.update("jax_persistent_cache_min_compile_time_secs", math.inf)
         _outside_depth += 1
     try:
@@ -402,7 +405,7 @@ def _load_or_compile(name: str, fn: Callable, static, in_def, leaves: list, key:
             out = jax.block_until_ready(run(*leaves))  # a damaged program fails here, not later
         except FileNotFoundError:
             pass  # deleted meanwhile (another process kept its store under STORE_LIMIT): compiled below
-        except Exception as err:  # noqa: BLE001 — a stale or damaged entry: trace instead
+        except Exception as err:  # a stale or damaged entry: trace instead
             warnings.warn(f"ignoring the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=3)
             path.unlink(missing_ok=True)
         else:
@@ -434,6 +437,6 @@ def _load_or_compile(name: str, fn: Callable, static, in_def, leaves: list, key:
     if path is not None and getattr(_thread_hits, "count", 0) == hits:
         try:
             _save(path, key, run)
-        except Exception as err:  # noqa: BLE001 — the cache is an optimisation; never fail a fit over it
+        except Exception as err:  # the cache is an optimisation; never fail a fit over it
             warnings.warn(f"could not write the compiled-program cache entry {path}: {err}", RuntimeWarning, stacklevel=3)
     return run, None

@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -21,7 +22,7 @@ class ChainTooShortWarning(UserWarning):
 
 
 @contextlib.contextmanager
-def _quiet_emcee_log():
+def _quiet_emcee_log() -> Iterator[None]:
     """emcee logs its own "chain too short" message; ctfit raises ChainTooShortWarning instead."""
     logger = logging.getLogger("emcee")
     old = logger.level

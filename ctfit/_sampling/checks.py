@@ -135,7 +135,8 @@ def check_posterior(chain: dict, prior: tuple, fresnel: str, lp_draws, lp_optimu
     if left:
         problems.append(_left_fit_line(higher, d2, limit, chain, optimum))
     if at_bound:
-        problems.append(f"at a prior bound: {', '.join(at_bound)} (the 95 % range reaches the prior's limit): these intervals are the prior's cut, not the data's")
+        problems.append(f"at a prior bound: {', '.join(at_bound)} (the 95 % range reaches the prior's limit): these intervals are the prior's cut, not the "
+                        "data's")
     if loose:
         problems.append(f"not constrained: the data cannot pin down {', '.join(loose)} (95 % range over half the prior's, or no curvature of the fit there)")
     return {

@@ -55,12 +55,12 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
 
     if material.is_rgb:
         order = [material.channels.index(c) for c in ("R", "G", "B")]
-        to_bands = lambda a: a[:, order]  # noqa: E731
+        to_bands = lambda a: a[:, order]
         n_out = 3
     else:
         grid = np.asarray(observer_cmfs(DEFAULT_OBSERVER).wavelengths, dtype=float)
         A = _interp_matrix(material.wavelength_nm, grid)
-        to_bands = lambda a: a @ A.T  # noqa: E731
+        to_bands = lambda a: a @ A.T
         n_out = grid.size
     if st.has_specular:
         names = {"f0": ("f0",), "n": ("n",), "conductor": ("n", "k")}[st.fresnel]

@@ -27,13 +27,16 @@ References
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 import warnings
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 
-from .._fitting import undetermined
-from .._model import Measurement
+from .._fitting import FitResult, undetermined
+from .._model import Material, Measurement
 from .backend import fingerprint, open_run
 from .chain_diagnostics import ChainTooShortWarning, autocorr_time, default_burn, likelihood_description, residual_spread, run_notes
 from .checks import check_mixing, check_posterior, fit_distance
@@ -46,7 +49,11 @@ from .start import fit_covariance, laplace_start, start_walkers
 __all__ = ["sample"]
 
 
-def _run(s: PosteriorSetup, x0, cov, *, steps, seed, backend, resume, overwrite, progress):
+def _run(
+    s: PosteriorSetup, x0: np.ndarray, cov: np.ndarray, *, steps: int, seed: int, backend: Any, resume: bool,
+    overwrite: bool,
+    progress: bool | str,
+) -> tuple[Any, int, int, float]:
     """Run (or continue) the chain: (sampler, steps run now, steps done before, seconds)."""
     import emcee
 
@@ -72,7 +79,7 @@ def _run(s: PosteriorSetup, x0, cov, *, steps, seed, backend, resume, overwrite,
     return sampler, todo, done, time.perf_counter() - t
 
 
-def _checks(s: PosteriorSetup, x0, flat, draw_lp, chain, optimum) -> dict:
+def _checks(s: PosteriorSetup, x0: np.ndarray, flat: np.ndarray, draw_lp: np.ndarray, chain: dict, optimum: dict) -> dict:
     """The usability checks, with the posterior density in θ (the density in u less log|∂θ/∂u|)."""
     lp_theta = draw_lp - s.engine.log_jacobian(flat)
     lp_opt = float(s.engine(x0[None])[0] - s.engine.log_jacobian(x0[None])[0])
@@ -82,7 +89,9 @@ def _checks(s: PosteriorSetup, x0, flat, draw_lp, chain, optimum) -> dict:
     return check_posterior(chain, s.prior, s.layout.fresnel, lp_theta, lp_opt, optimum, distance, loose)
 
 
-def _diagnostics(s: PosteriorSetup, sampler, *, burn, thin, todo, done, run_s, seed, backend) -> dict:
+def _diagnostics(
+    s: PosteriorSetup, sampler: Any, *, burn: int, thin: int, todo: int, done: int, run_s: float, seed: int, backend: Any
+) -> dict:
     chain_u = np.asarray(sampler.get_chain())
     n_steps = chain_u.shape[0]
     tau = autocorr_time(chain_u[burn:])
@@ -103,8 +112,9 @@ def _diagnostics(s: PosteriorSetup, sampler, *, burn, thin, todo, done, run_s, s
 
 
 def sample(
-    fit_result_or_material, data: Measurement, *, walkers: int | None = None, steps: int = 2000, burn: int | None = None,
-    thin: int = 1, seed: int = 0, backend=None, resume: bool = False, overwrite: bool = False, progress: bool | str = False,
+    fit_result_or_material: FitResult | Material, data: Measurement, *, walkers: int | None = None, steps: int = 2000,
+    burn: int | None = None, thin: int = 1, seed: int = 0, backend: str | os.PathLike[str] | None = None, resume: bool = False,
+    overwrite: bool = False, progress: bool | str = False,
     priors: dict | None = None, loss: str | None = None, fixed: tuple[str, ...] | None = None, colour: bool = True,
 ) -> SampleResult:
     """Sample the posterior of the material's parameters given ``data``, starting from the fit.
@@ -175,7 +185,10 @@ def sample(
     return _result(s, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0)
 
 
-def _result(s: PosteriorSetup, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0) -> SampleResult:
+def _result(
+    s: PosteriorSetup, sampler: Any, chain: dict, flat: np.ndarray, draw_lp: np.ndarray, optimum: dict, laplace: Any,
+    checks: dict, d: dict, colour: bool, t0: float,
+) -> SampleResult:
     """The :class:`SampleResult`: summaries, ArviZ's diagnostics, notes and warnings."""
     problem = s.engine.problem
     keep = np.asarray(problem.mask).reshape(-1) > 0
@@ -210,9 +223,9 @@ def _result(s: PosteriorSetup, sampler, chain, flat, draw_lp, optimum, laplace, 
     return _with_mixing(res, check_mixing(d), short)
 
 
-def _least(values) -> float:
+def _least(values: Iterable[float]) -> float:
     """The smallest value, NaN when there is none or one is NaN (a quantity too short to read)."""
-    v = np.asarray(list(values), dtype=float)
+    v = np.asarray(list(values), dtype=np.float64)
     return float(np.min(v)) if v.size else float("nan")
 
 

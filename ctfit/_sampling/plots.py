@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import os
 import pathlib
+from typing import Any
 
 import numpy as np
 
 from .._model import band_labels
+from .result import SampleResult
 
 __all__ = ["plot_corner", "plot_spectra", "CORNER_QUANTILES"]
 
 
-def _pyplot():
+def _pyplot() -> Any:
     from .._runtime import need
 
     need("plots", "a plot of a posterior")
@@ -30,7 +32,7 @@ def _pyplot():
     return plt
 
 
-def _save_figure(fig, path: pathlib.Path, **options) -> None:
+def _save_figure(fig: Any, path: pathlib.Path, **options: Any) -> None:
     """``fig.savefig`` through an atomic write (the format from the file's suffix, PNG without one)."""
     from .._io import atomic_save
 
@@ -38,7 +40,7 @@ def _save_figure(fig, path: pathlib.Path, **options) -> None:
     atomic_save(path, lambda buffer: fig.savefig(buffer, format=fmt, dpi=110, **options))
 
 
-def _global_columns(result) -> tuple[np.ndarray, list[str], list[float]]:
+def _global_columns(result: SampleResult) -> tuple[np.ndarray, list[str], list[float]]:
     """Draws (n, p), labels and optimum values of s, m_j, w_j (with F0 at the first, middle and
     last bands when there is only one of them; R_d bands for a diffuse-only material)."""
     ch, opt, mat = result.chain, result.optimum, result.material
@@ -94,7 +96,9 @@ def _central_ranges(data: np.ndarray) -> tuple[list[tuple[float, float]], float]
     return [(float(a), float(b)) for a, b in zip(lo, hi)], outside
 
 
-def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathlib.Path:
+def plot_corner(
+    result: SampleResult, path: str | os.PathLike[str], *, truths: dict | None = None, title: str | None = None
+) -> pathlib.Path:
     """Corner plot (``corner`` package) of the global parameters s, m_j, w_j (j < J: the last
     weight is 1 − the others) and σ_noise; with a single global parameter (one lobe, no diffuse
     part), F0 at three bands join it.
@@ -153,7 +157,9 @@ def plot_corner(result, path, *, truths=None, title: str | None = None) -> pathl
     return path
 
 
-def plot_spectra(result, path, *, truth: dict | None = None, title: str | None = None) -> pathlib.Path:
+def plot_spectra(
+    result: SampleResult, path: str | os.PathLike[str], *, truth: dict | None = None, title: str | None = None
+) -> pathlib.Path:
     """F0(λ) and n(λ) (and k(λ), R_d(λ) where sampled) with their 68 % and 95 % posterior bands.
 
     Left column: the values — line: posterior median; dark band: 16–84 %; light band:

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
+from jaxtyping import ArrayLike, Float
 
-from .._fitting import LOSSES, from_params, make_problem
-from .._model import Material, Measurement
+from .._fitting import LOSSES, FitResult, from_params, make_problem
+from .._model import Material, Measurement, x64_enabled
 from .engine import Engine
 from .logprob import Layout
 from .priors import normalise_priors
@@ -46,7 +46,10 @@ class PosteriorSetup:
     walkers: int
 
 
-def set_up_posterior(target, data: Measurement, *, loss=None, fixed=None, priors=None, walkers=None) -> PosteriorSetup:
+def set_up_posterior(
+    target: FitResult | Material, data: Measurement, *, loss: str | None = None, fixed: tuple[str, ...] | None = None,
+    priors: dict | None = None, walkers: int | None = None,
+) -> PosteriorSetup:
     """The sampling problem of ``target`` (a FitResult or a Material) on ``data``; the arguments
     are :func:`ctfit.sample`'s."""
     if not isinstance(data, Measurement):
@@ -55,7 +58,7 @@ def set_up_posterior(target, data: Measurement, *, loss=None, fixed=None, priors
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     material, loss, fixed, note = resolve_fit(target, data, loss, fixed)
     st = material.structure
-    dtype = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+    dtype = jnp.float64 if x64_enabled() else jnp.float32
     start = start_params(material, data)
     problem = make_problem(st, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, space="unconstrained")
     u0 = {k: jnp.asarray(v, dtype=dtype) for k, v in from_params(problem.spec, start).items()}
@@ -97,11 +100,11 @@ class LogProbability:
         """The number of sampled coordinates."""
         return len(self.labels)
 
-    def __call__(self, coords) -> np.ndarray:
+    def __call__(self, coords: Float[ArrayLike, "*batch dim"]) -> Float[np.ndarray, "*batch"]:
         return self._engine(coords)
 
 
-def log_probability(target, data: Measurement, *, loss: str | None = None, fixed: tuple[str, ...] | None = None,
+def log_probability(target: FitResult | Material, data: Measurement, *, loss: str | None = None, fixed: tuple[str, ...] | None = None,
                     priors: dict | None = None, walkers: int | None = None) -> LogProbability:
     """The log-posterior of the parameters of ``target`` (a :class:`~ctfit.FitResult` or a
     :class:`~ctfit.Material`) given ``data``, the function :func:`ctfit.sample` hands to emcee.

@@ -8,6 +8,7 @@ the fit JSON's ``uncertainty`` section (``docs/uncertainty.md``) and
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -25,7 +26,7 @@ def summarise(a: np.ndarray) -> dict | list:
     q = np.percentile(a, [p for _, p in _QUANTILES], axis=0)
     mean, std = np.mean(a, axis=0), np.std(a, axis=0)
 
-    def one(idx):
+    def one(idx: Any) -> dict[str, float]:
         d = {"median": float(q[2][idx]), "p16": float(q[1][idx]), "p84": float(q[3][idx])}
         d.update({"p2.5": float(q[0][idx]), "p97.5": float(q[4][idx]), "mean": float(mean[idx]), "std": float(std[idx])})
         return d
@@ -110,7 +111,7 @@ class SampleResult:
         out["checks"] = self.checks
         return jsonable(out)
 
-    def to_inference_data(self):
+    def to_inference_data(self) -> Any:
         """The draws as an ``arviz.InferenceData`` (one chain per walker; groups posterior and
         sample_stats), for ``az.summary``, ``az.plot_trace``, ``az.plot_pair`` or ``to_netcdf``."""
         from .arviz_export import inference_data

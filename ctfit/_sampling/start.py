@@ -18,7 +18,7 @@ import jax
 import numpy as np
 
 from .._fitting import FitResult, standard_errors, undetermined
-from .._model import Material, Params
+from .._model import Material, Params, x64_enabled
 
 __all__ = ["start_params", "resolve_fit", "optimum_point", "laplace_start", "fit_covariance", "start_walkers"]
 
@@ -49,7 +49,8 @@ def resolve_fit(target, data, loss: str | None, fixed: tuple[str, ...] | None):
     the fit had to be run.
 
     ``target``: a FitResult or a Material. ``loss`` None: the fit's (a "robust-relative" fit is sampled with
-    the "relative" likelihood, multiplicative noise), else sigma/relative by the data. The fit is run (from the material's values) unless ``target`` already is one with this loss.
+    the "relative" likelihood, multiplicative noise), else sigma/relative by the data. The fit is run
+    (from the material's values) unless ``target`` already is one with this loss.
     """
     from .._fitting import fit
 
@@ -63,9 +64,10 @@ def resolve_fit(target, data, loss: str | None, fixed: tuple[str, ...] | None):
     fixed = tuple(material.meta.get("fixed", ())) if fixed is None else tuple(fixed)
     if fitted == loss or (fitted, loss) == ("robust-relative", "relative"):
         return material, loss, fixed, None
-    dtype = jax.numpy.float64 if jax.config.jax_enable_x64 else jax.numpy.float32
+    dtype = jax.numpy.float64 if x64_enabled() else jax.numpy.float32
     res = fit(data, material.structure, start=start_params(material, data), fixed=fixed, loss=loss, dtype=dtype)
-    why = f"fitted with loss {loss!r} first (the material was fitted with {fitted!r})" if fitted else f"fitted with loss {loss!r} first, from the material's values"
+    why = (f"fitted with loss {loss!r} first (the material was fitted with "
+           f"{fitted!r})") if fitted else f"fitted with loss {loss!r} first, from the material's values"
     if not res.converged:
         why += "; that fit did not converge (" + "; ".join(res.warnings[:1] or ["no minimum"]) + "), so the walkers start from where it stopped"
     return res.material, loss, fixed, why

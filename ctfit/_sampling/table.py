@@ -15,7 +15,7 @@ def _fmt(s: dict | None) -> str:
     return f"{med:.6g} (+{hi - med:.2g} / −{med - lo:.2g})"
 
 
-def number_text(x, spec: str) -> str:
+def number_text(x: float | None, spec: str) -> str:
     """``x`` formatted with ``spec``; "n/a" where the JSON holds none (NaN is written as null), e.g.
     τ, ESS or R̂ of a chain too short to estimate them."""
     return "n/a" if x is None or x != x else format(x, spec)
