@@ -261,18 +261,21 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
 
     Several files fitted with one structure (not ``--lobes auto``, not ``--sample``) are fitted
     together by ``fit_batch``, a window of files at a time (:func:`_fit_together`), and then
-    reported file by file, as they would be one at a time."""
+    reported file by file, as they would be one at a time; the next window is read and fitted
+    in a background thread while one is reported (:func:`_windows`)."""
     from .._runtime import bar, echo
 
     together = len(files) > 1 and not o.sample_ and structure_from_options(base.structure if base else None, o) is not None
-    outcomes, fitted = [], {}
-    for k, path in enumerate(bar(files, desc="files", enabled=show and len(files) > 1)):
+    outcomes = []
+    windows = _windows(files, o, base) if together else None
+    fitted: dict = {}
+    for path in bar(files, desc="files", enabled=show and len(files) > 1):
         try:
             if not together:
                 outcome = _fit_file(path, o, base, plan[path], show)
             else:
                 if path not in fitted:
-                    fitted = _fit_together(files[k:], o, base)
+                    fitted = next(windows)
                 got = fitted.pop(path)
                 if isinstance(got, Exception):
                     raise got
@@ -285,6 +288,29 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
             echo(f"error: {line}", err=True)
             outcomes.append(("failed", line))
     return outcomes
+
+
+WINDOW_FILES = 64
+"""The most files read and fitted at once (:func:`_fit_together`): while one window is reported,
+the next is read and fitted."""
+
+
+def _windows(files: list[Path], o, base):
+    """:func:`_fit_together`'s windows of ``files``, one after the other: each one read and
+    fitted in a background thread while the one before it is reported."""
+    import concurrent.futures
+
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        ahead = pool.submit(_fit_together, files, o, base)
+        while True:
+            done = ahead.result()
+            rest = files[len(done):]
+            files = rest
+            if rest:
+                ahead = pool.submit(_fit_together, rest, o, base)
+            yield done
+            if not rest:
+                return
 
 
 UNUSABLE = "posterior not usable"
@@ -326,7 +352,7 @@ def _fit_together(files: list[Path], o, base) -> dict:
     done: dict = {}
     ready, fixed, held = [], (), 0
     for path in files:
-        if held >= SAMPLE_BUDGET:
+        if held >= SAMPLE_BUDGET or len(done) + len(ready) >= WINDOW_FILES:
             break
         try:
             meas = read_data(path, o.param_out)

@@ -96,7 +96,19 @@ def fit_batch(
     results: list = [None] * len(measurements)
     preps: dict[int, PreparedFit] = {}
     chunked = solver == "lm" and width == 1  # one after the other: each on chunks, sharing their programs
+    together = set()
+    if chunked:  # many of one geometry: one program call for a group of them
+        from .shared_geometry import fit_shared, shared_groups
+
+        for group in shared_groups(measurements, begins):
+            got = fit_shared([measurements[i] for i in group], structure, start=begins[group[0]], solver=solver, max_steps=max_steps,
+                             return_errors=return_errors, **options)
+            for i, res in zip(group, got):
+                results[i] = res
+            together.update(group)
     for i, (data, begin) in enumerate(zip(measurements, begins)):
+        if i in together:
+            continue
         got = _caught(lambda: prepare_fit(data, structure, start=begin, chunk=ROWS if chunked else None, **options), return_errors)
         if isinstance(got, Exception):
             results[i] = got
