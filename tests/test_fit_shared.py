@@ -84,3 +84,21 @@ def test_a_folder_of_mixed_geometries_matches_fitting_each_file(tmp_path, shared
     for i in range(len(files)):
         name = f"m{i}.fit.json"
         assert_same_numbers(json.loads((tmp_path / "windows" / name).read_text()), json.loads((tmp_path / "fits" / name).read_text()))
+
+
+def test_what_the_directions_give_is_computed_once_for_members_of_one_geometry(monkeypatch):
+    from ctfit._fitting import diagnostics
+
+    data = scattered(300, 11)
+    member = data.replace(brdf=2 * data.brdf).with_directions(*data.directions())  # as fit_shared hands its members on
+    np.testing.assert_array_equal(diagnostics.pair_half_angle_deg(data), diagnostics.half_angle_deg(data))
+    notes = diagnostics.relative_residual_structure(data.directions()[0], data.brdf, index=data.directions()[1])
+    calls = []
+    real = diagnostics._half_angle
+    monkeypatch.setattr(diagnostics, "_half_angle", lambda *a: calls.append(1) or real(*a))
+    assert diagnostics.relative_residual_structure(member.directions()[0], data.brdf, index=member.directions()[1]) == notes
+    np.testing.assert_array_equal(diagnostics.pair_half_angle_deg(member), diagnostics.half_angle_deg(data))
+    assert len(calls) == 1  # half_angle_deg's own: the member's pairs gave what was kept for data's
+    fresh = scattered(300, 12)
+    diagnostics.pair_half_angle_deg(fresh)
+    assert len(calls) == 2  # other pairs: computed

@@ -137,9 +137,11 @@ def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, star
 def _report(call, template: PreparedFit, measurements: list, results: list, solver: str, max_steps: int, t0: float, return_errors: bool) -> None:
     """Each member's :class:`~ctfit.FitResult` of a solved call, into ``results``."""
     chunk, ys, floors, out = call
+    pairs, index = template.data.directions()
     for j, i in enumerate(chunk):
         problem = eqx.tree_at(lambda q: (q.y, q.floor), template.problem, (ys[j], floors[j]))
-        prep = dataclasses.replace(template, data=measurements[i], problem=problem)
+        data = measurements[i].with_directions(pairs, index)  # the same arrays: what is computed from them is kept for the next member
+        prep = dataclasses.replace(template, data=data, problem=problem)
         try:
             results[i] = finish_fit(prep, jax.tree.map(lambda x: x[j], out), solver, t0, max_steps=max_steps)
         except ValueError as e:
