@@ -15,7 +15,9 @@ the single-fit program itself.
 
 With the solver "lm" and ``width`` 1 (the default on a CPU), the measurements are fitted one
 after the other, each on chunks of one shape (:mod:`~ctfit._fitting.chunked_fit`): every size
-shares the structure's compiled programs, and nothing is padded to the group's largest.
+shares the structure's compiled programs, and nothing is padded to the group's largest. Groups
+of measurements of one geometry (:func:`~ctfit._fitting.shared_geometry.shared_groups`) are
+fitted together instead, many to a program call (:func:`~ctfit._fitting.shared_geometry.fit_shared`).
 
 Members side by side share one ``while_loop``: it ends when the slowest of them is done
 (finished members are carried unchanged) and both sides of the solver's branches are computed
