@@ -24,6 +24,7 @@ def shared_calls(monkeypatch):
     return calls
 
 
+@pytest.mark.slow  # compiles the shared program of two layouts
 def test_files_of_one_geometry_share_a_call_and_equal_fitting_each_alone(shared_calls):
     grid = same_geometry([0.12, 0.18, 0.25, 0.33, 0.4], n_pairs=90, seed=5)  # grid layout, one geometry
     pairs = scattered(300, 2)  # pairs layout: padded to its size bucket with the others of its geometry
@@ -51,13 +52,17 @@ def test_a_member_that_cannot_be_fitted_is_its_error_and_the_others_go_on(shared
         ctfit.fit_batch([*good, bad], ST)
 
 
-def test_few_files_of_a_geometry_or_other_starts_are_fitted_one_by_one(shared_calls):
+def test_few_files_of_a_geometry_other_starts_or_large_files_are_fitted_one_by_one(shared_calls, monkeypatch):
     three = same_geometry([0.15, 0.2, 0.3], n_pairs=90, seed=8)
     start = ctfit.Params(m=np.array([0.3]), w=np.ones(1), f0=np.array([0.5, 0.5]))
     four = same_geometry([0.15, 0.2, 0.3, 0.35], n_pairs=90, seed=9)
     got = ctfit.fit_batch([*three, *four], ST, start=[None] * 3 + [None, start, None, start])
     assert shared_calls == []  # 3 of one geometry; 2 + 2 of another with two starts
     assert_same_fit(got[4], ctfit.fit(four[1], ST, start=start))
+    monkeypatch.setattr(shared_geometry, "SHARED_SAMPLES", 179)  # files of 180 samples: large ones, each on chunks
+    got = ctfit.fit_batch(four, ST)
+    assert shared_calls == []
+    assert_same_fit(got[2], ctfit.fit(four[2], ST))
 
 
 def test_a_folder_of_mixed_geometries_matches_fitting_each_file(tmp_path, shared_calls, monkeypatch):

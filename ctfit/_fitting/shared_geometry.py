@@ -14,7 +14,7 @@ of one call are reported (Python) the next ones solve (XLA, without the GIL). Ea
 
 :func:`shared_groups` finds the groups: measurements with the same geometry key
 (:func:`~ctfit._fitting.many.geometry_key`: directions, bands, which columns exist), no sigma
-column, the same start, at least :data:`SHARED_MIN` of them.
+column, the same start, at most :data:`SHARED_SAMPLES` samples each, at least :data:`SHARED_MIN` of them.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from .many import geometry_key
 from .texels import ValueLayout
 from .validate import check_fittable
 
-__all__ = ["fit_shared", "shared_groups", "SHARED_CALL", "SHARED_MIN"]
+__all__ = ["fit_shared", "shared_groups", "SHARED_CALL", "SHARED_MIN", "SHARED_SAMPLES"]
 
 SHARED_CALL = 32
 """Members per program call (fewer when their samples exceed :data:`~ctfit._fitting.batch.SAMPLE_BUDGET`);
@@ -53,10 +53,16 @@ SHARED_MIN = 4
 """The fewest measurements of one geometry fitted together; fewer are fitted one after the
 other on chunks (:mod:`~ctfit._fitting.chunked_fit`), whose programs every size shares."""
 
+SHARED_SAMPLES = 1 << 16
+"""The most samples of a measurement fitted together with others: where the per-file costs
+around the solve matter. Larger ones are fitted on chunks, one after the other, whose memory
+stays bounded whatever their size (a member of a call is laid out whole)."""
+
 
 def shared_groups(measurements: list, begins: list) -> list[list[int]]:
     """Indices of the measurements that :func:`fit_shared` fits together, each group in input
-    order: one geometry key, no sigma column, the same start (``begins[i]``: Params or None).
+    order: one geometry key, no sigma column, the same start (``begins[i]``: Params or None),
+    at most :data:`SHARED_SAMPLES` samples.
 
     >>> import numpy as np, ctfit
     >>> base = ctfit.simulate(ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1),
@@ -68,7 +74,7 @@ def shared_groups(measurements: list, begins: list) -> list[list[int]]:
     """
     by_key: dict = {}
     for i, (data, begin) in enumerate(zip(measurements, begins)):
-        if isinstance(data, Measurement) and data.sigma is None and data.brdf is not None:
+        if isinstance(data, Measurement) and data.sigma is None and data.brdf is not None and len(data) <= SHARED_SAMPLES:
             by_key.setdefault((geometry_key(data), _start_key(begin)), []).append(i)
     return [members for members in by_key.values() if len(members) >= SHARED_MIN]
 
