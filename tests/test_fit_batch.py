@@ -126,9 +126,10 @@ def test_one_compiled_program_solves_the_batch(compiled):
 
 
 def test_one_after_the_other_the_batch_shares_the_structure_s_programs(compiled, monkeypatch):
-    from ctfit._fitting import chunked_fit
+    from ctfit._fitting import chunked_fit, shared_geometry
 
     monkeypatch.setattr(chunked_fit, "_programs", {})
+    monkeypatch.setattr(shared_geometry, "SHARED_MIN", 10**9)  # files of one geometry, each on chunks (not fitted together)
     first = same_geometry([0.1, 0.2, 0.3], n_pairs=90, seed=5)
     assert all(r.converged for r in ctfit.fit_batch(first, ST, width=1))
     programs = [name for name in compiled if name.startswith("jit(ctfit_")]

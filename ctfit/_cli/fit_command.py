@@ -261,20 +261,23 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
     """Fit every file; several: a failure is one error line and the rest go on. [(outcome, what)].
 
     Several files fitted with one structure (not ``--lobes auto``, not ``--sample``) are fitted
-    together by ``fit_batch``, a window of files at a time (:func:`_fit_together`), and then
-    reported file by file, as they would be one at a time."""
+    together by ``fit_batch``, a window of files at a time (:func:`_read_window`), and then
+    reported file by file, as they would be one at a time; the next windows are fitted and read
+    in background threads while one is reported (:func:`_windows`)."""
     from .._runtime import bar, echo
 
     together = len(files) > 1 and not o.sample_ and structure_from_options(base.structure if base else None, o) is not None
     outcomes: list[tuple[str, str]] = []
-    fitted: dict[Path, Any] = {}  # path → (measurement, FitResult), or an exception (_fit_together)
-    for k, path in enumerate(bar(files, desc="files", enabled=show and len(files) > 1)):
+    windows = _windows(files, o, base) if together else None
+    fitted: dict[Path, Any] = {}  # path → (measurement, FitResult), or an exception (_windows)
+    for path in bar(files, desc="files", enabled=show and len(files) > 1):
         try:
             if not together:
                 outcome = _fit_file(path, o, base, plan[path], show)
             else:
                 if path not in fitted:
-                    fitted = _fit_together(files[k:], o, base)
+                    assert windows is not None  # together
+                    fitted = next(windows)
                 got = fitted.pop(path)
                 if isinstance(got, Exception):
                     raise got
@@ -288,6 +291,31 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
             echo(f"error: {line}", err=True)
             outcomes.append(("failed", line))
     return outcomes
+
+
+WINDOW_FILES = 64
+"""The most files read and fitted at once (:func:`_read_window`)."""
+
+
+def _windows(files: list[Path], o, base):
+    """The fits of ``files`` a window at a time (path → (measurement, FitResult) or the exception
+    that stopped it), in three stages that overlap: while the caller reports one window, the
+    next is fitted (:func:`_fit_window`, in a thread) and the one after it read
+    (:func:`_read_window`, in another thread)."""
+    import concurrent.futures
+
+    with concurrent.futures.ThreadPoolExecutor(1) as reader, concurrent.futures.ThreadPoolExecutor(1) as fitter:
+        reading: concurrent.futures.Future | None = reader.submit(_read_window, files, o, base)
+        fitting: concurrent.futures.Future | None = None
+        while reading is not None:
+            ready, failed, fixed = reading.result()
+            files = files[len(ready) + len(failed):]
+            reading = reader.submit(_read_window, files, o, base) if files else None
+            fitted, fitting = fitting, fitter.submit(_fit_window, ready, failed, fixed, o, base)
+            if fitted is not None:
+                yield fitted.result()
+        if fitting is not None:
+            yield fitting.result()
 
 
 UNUSABLE = "posterior not usable"
@@ -318,18 +346,19 @@ def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool) -> str:
     return report_file(path, meas, _fit_measurement(meas, o, base, show), o, t, show)
 
 
-def _fit_together(files: list[Path], o, base) -> dict:
+def _read_window(files: list[Path], o, base) -> tuple[list, dict, tuple]:
     """The first of ``files`` read — one at least, more while they hold fewer than
-    ``SAMPLE_BUDGET`` samples in all, so memory stays bounded — and fitted by ``fit_batch``:
-    path → (measurement, FitResult), or the exception that stopped that file (reading it, its
-    start, or its fit)."""
-    from .._fitting import SAMPLE_BUDGET, fit_batch, start_from_material
+    ``SAMPLE_BUDGET`` samples in all and number fewer than :data:`WINDOW_FILES`, so memory stays
+    bounded: ([(path, measurement, start)], {path: the exception that reading it or its start
+    raised}, the fixed parameters)."""
+    from .._fitting import SAMPLE_BUDGET, start_from_material
 
     st = structure_from_options(base.structure if base else None, o)
-    done: dict = {}
-    ready, fixed, held = [], (), 0
+    failed: dict = {}
+    ready: list[tuple[Path, Any, Any]] = []
+    fixed, held = (), 0
     for path in files:
-        if held >= SAMPLE_BUDGET:
+        if held >= SAMPLE_BUDGET or len(failed) + len(ready) >= WINDOW_FILES:
             break
         try:
             meas = read_data(path, o.param_out)
@@ -337,8 +366,18 @@ def _fit_together(files: list[Path], o, base) -> dict:
             ready.append((path, meas, start))
             held += len(meas)
         except (UserError, ValueError, OSError, KeyError) as e:
-            done[path] = e
+            failed[path] = e
+    return ready, failed, fixed
+
+
+def _fit_window(ready: list, failed: dict, fixed: tuple, o, base) -> dict:
+    """A window of :func:`_read_window` fitted by ``fit_batch``: path → (measurement, FitResult),
+    or the exception that stopped that file (reading it, its start, or its fit)."""
+    from .._fitting import fit_batch
+
+    st = structure_from_options(base.structure if base else None, o)
     fits = fit_batch([m for _, m, _ in ready], st, start=[s for _, _, s in ready], fixed=fixed, return_errors=True, **fit_kwargs(o))
+    done = dict(failed)
     for (path, meas, _), res in zip(ready, fits):
         done[path] = res if isinstance(res, Exception) else (meas, res)
     return done

@@ -15,7 +15,9 @@ the single-fit program itself.
 
 With the solver "lm" and ``width`` 1 (the default on a CPU), the measurements are fitted one
 after the other, each on chunks of one shape (:mod:`~ctfit._fitting.chunked_fit`): every size
-shares the structure's compiled programs, and nothing is padded to the group's largest.
+shares the structure's compiled programs, and nothing is padded to the group's largest. Groups
+of measurements of one geometry (:func:`~ctfit._fitting.shared_geometry.shared_groups`) are
+fitted together instead, many to a program call (:func:`~ctfit._fitting.shared_geometry.fit_shared`).
 
 Members side by side share one ``while_loop``: it ends when the slowest of them is done
 (finished members are carried unchanged) and both sides of the solver's branches are computed
@@ -102,7 +104,19 @@ def fit_batch(
     results: list = [None] * len(measurements)
     preps: dict[int, PreparedFit] = {}
     chunked = solver == "lm" and width == 1  # one after the other: each on chunks, sharing their programs
+    together = set()
+    if chunked:  # many of one geometry: one program call for a group of them
+        from .shared_geometry import fit_shared, shared_groups
+
+        for group in shared_groups(measurements, begins):
+            shared = fit_shared([measurements[i] for i in group], structure, start=begins[group[0]], solver=solver, max_steps=max_steps,
+                                return_errors=return_errors, **options)
+            for i, res in zip(group, shared):
+                results[i] = res
+            together.update(group)
     for i, (data, begin) in enumerate(zip(measurements, begins)):
+        if i in together:
+            continue
         got = _caught(lambda: prepare_fit(data, structure, start=begin, chunk=ROWS if chunked else None, **options), return_errors)
         if isinstance(got, Exception):
             results[i] = got

@@ -18,6 +18,7 @@ warning naming where the model is too high or too low.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -26,7 +27,7 @@ from .._model import Measurement
 from .fit_warnings import FitWarning
 from .losses import loss_floor
 
-__all__ = ["angle_lv_deg", "half_angle_deg", "relative_residual_structure", "residual_structure"]
+__all__ = ["angle_lv_deg", "half_angle_deg", "pair_half_angle_deg", "relative_residual_structure", "residual_structure"]
 
 
 def _angle_lv(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
@@ -64,6 +65,30 @@ def angle_lv_deg(data: Measurement) -> np.ndarray:
 def half_angle_deg(data: Measurement) -> np.ndarray:
     """The half-vector angle α (between N and H) of every sample, in degrees (0: the specular peak)."""
     return _half_angle(data.theta_i, data.phi_i, data.theta_o, data.phi_o)
+
+
+def pair_half_angle_deg(data: Measurement) -> np.ndarray:
+    """:func:`half_angle_deg` computed per direction pair (``data.directions()``), kept for the
+    next measurement of the same pairs (files of one geometry fitted together share them)."""
+    pairs, index = data.directions()
+    return _recent(pairs, "half-angle", lambda: _half_angle(*pairs.T))[index]
+
+
+_kept: list = []  # (direction pairs, what, values): the last few computed from a set of pairs
+_KEPT = 8
+
+
+def _recent(pairs: np.ndarray, what: str, compute: Callable[[], Any]) -> Any:
+    """``compute()``, a function of the direction pairs ``pairs`` (read-only), or what it gave
+    for this same array lately (the array itself, not an equal one, is what matches)."""
+    for p, w, values in list(_kept):
+        if p is pairs and w == what:
+            return values
+    values = compute()
+    if not pairs.flags.writeable:  # an array that may change is never matched later
+        _kept.append((pairs, what, values))
+        del _kept[:-_KEPT]
+    return values
 
 
 _GROUPS = (
@@ -117,8 +142,8 @@ def relative_residual_structure(
         def bin_of(x: np.ndarray) -> np.ndarray:  # NaN (a sample the group leaves out) → the extra bin ``bins``
             return np.where(np.isnan(x), bins, np.clip(np.digitize(x, edges) - 1, 0, bins - 1)).astype(np.int8)
 
-        b = np.concatenate([bin_of(variable(*pairs[s].T))
-                            for s in (slice(i, i + _BLOCK) for i in range(0, len(pairs), _BLOCK))] or [np.zeros(0, np.int8)])
+        b = _recent(pairs, name, lambda: np.concatenate([bin_of(variable(*pairs[s].T)) for s in (slice(i, i + _BLOCK) for i in range(0, len(pairs), _BLOCK))]
+                                                        or [np.zeros(0, np.int8)]))
         if per_sample:
             b = b[index]
         bins += 1  # the bins' sums below include the left-out bin; it is never reported

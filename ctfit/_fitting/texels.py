@@ -40,7 +40,7 @@ from .problem import Problem
 from .status import judge_converged
 from .validate import representable_range
 
-__all__ = ["fit_texels", "texel_status", "TexelFits", "CHUNK", "TEXEL_STATUS"]
+__all__ = ["fit_texels", "texel_status", "TexelFits", "ValueLayout", "CHUNK", "TEXEL_STATUS"]
 
 CHUNK = 1024
 """Texels per compiled call, by default."""
@@ -161,7 +161,7 @@ def fit_texels(
     # One size for every texel: laid out at its own size, no bucket padding.
     prep = prepare_fit(template, structure, start=options["start"], fixed=options["fixed"], loss=loss, dtype=dtype, starts=options["starts"],
                        pad_to=(len(template.directions()[0]), len(template)))
-    problem, layout = prep.problem, _Layout(prep.problem, template)
+    problem, layout = prep.problem, ValueLayout(prep.problem, template)
     core_options = prep.options(solver, max_steps)
     pending, outs = None, []  # one chunk dispatched while the previous one's results are fetched
     for a in range(0, n_texels, chunk):
@@ -203,8 +203,21 @@ def texel_status(values: np.ndarray, chunk: int, dtype: DTypeLike) -> np.ndarray
     return out
 
 
-class _Layout:
-    """Texels' values (chunk, samples) in the problem's layout, with each texel's loss floor."""
+class ValueLayout:
+    """Rows of values (members × samples, in the rows of ``data``) laid out as ``problem``'s
+    ``y`` (grid: direction pairs × bands; pairs: the samples, padded with zeros), with each
+    row's loss floor: for measurements that share ``data``'s geometry.
+
+    >>> import numpy as np, ctfit
+    >>> from ctfit._fitting.least_squares import prepare_fit
+    >>> gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1),
+    ...                       f0=np.array([0.9])), wavelength_nm=np.array([550.0]))
+    >>> data = ctfit.simulate(gold, n_pairs=50, seed=0)
+    >>> prep = prepare_fit(data, gold.structure, start=None, fixed=(), loss="relative", dtype=np.float64, starts=3)
+    >>> ys, floors = ValueLayout(prep.problem, data)(np.stack([data.brdf, 2 * data.brdf]), np.float64)
+    >>> ys.shape[1:] == prep.problem.y.shape, bool(np.allclose(ys[0], prep.problem.y)), bool(np.isclose(floors[1], 2 * float(prep.problem.floor)))
+    (True, True, True)
+    """
 
     def __init__(self, problem: Problem, data: Measurement) -> None:
         self.grid, self.loss = problem.spec.grid, problem.spec.loss
@@ -212,11 +225,11 @@ class _Layout:
         self.index, self.band = data.directions()[1], np.asarray(data.band)
 
     def __call__(self, block: np.ndarray, dtype: DTypeLike) -> tuple[np.ndarray, np.ndarray]:
+        ys = np.zeros((len(block),) + self.shape)
         if self.grid:
-            ys = np.zeros((len(block),) + self.shape)
             ys[:, self.index, self.band] = block
         else:
-            ys = block
+            ys[:, : block.shape[1]] = block
         floors = row_floors(block, self.loss)
         return ys.astype(dtype), floors.astype(dtype)
 
