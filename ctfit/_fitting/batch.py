@@ -73,9 +73,8 @@ def fit_batch(
     sequence with one (or None) per measurement; the other arguments as for :func:`~ctfit.fit`.
     ``return_errors``: a measurement that cannot be fitted (its ``ValueError``) is returned in
     its place instead of raised, so the others still go on. ``width``: fits solved side by side
-    (vmapped) inside a program, the rest in sequence; None: :func:`default_width`.
-
-    With ``values`` (texels × samples) and one measurement, the per-texel fit
+    (vmapped) inside a program, the rest in sequence; None: :func:`default_width`. With
+    ``values`` (texels × samples) and one measurement, the per-texel fit
     :func:`~ctfit.fit_texels` of that geometry: returns its :class:`~ctfit.TexelFits`.
 
     >>> import numpy as np, ctfit
