@@ -95,12 +95,14 @@ SCREEN_SAMPLES = 4096
 """Above about this many samples, the data-chosen default compares its candidates on a random
 subset of the direction pairs holding about this many (:func:`screening_sample`), then fits the
 structure chosen to all the data: the choice costs a fraction of the fits on the whole file."""
-SCREEN_TOLERANCE = 1e-5
+SCREEN_TOLERANCE = 3e-4
 """The candidates fitted to a screening sample stop (and count as converged) where one more
-Gauss–Newton step promises less than this relative decrease of their cost: their BICs then
-differ from those of fits to the last digit by less than ``SCREEN_TOLERANCE`` × N (0.2 at
-20,000 samples), far below the differences that choose. It saves the slow tails of the fits
-(:func:`~ctfit._fitting.least_squares.fit_to_tolerance`)."""
+Gauss–Newton step promises less than this relative decrease of their cost. It saves the slow
+tails of the fits (:func:`~ctfit._fitting.least_squares.fit_to_tolerance`): on the test-bed
+(docs/real-materials.md) 20–38 % of the default's solver steps against 10⁻⁵, with the same
+choice and the same final fit on every file. The candidates are compared on held-out pairs,
+whose medians moved by 0.1–1 % (up to 5 % for a candidate far from the choice) between the
+two: the choice is then fitted to all the data at full tolerance."""
 DEFAULT_FAMILIES = ("metal", "plastic")
 """The families the data-chosen default tries (:data:`~ctfit.FAMILIES`)."""
 DEFAULT_LOBES = (1, 2, 3)
