@@ -5,6 +5,8 @@ computed once, and the run-once programs compiled for a short compile (COMPILE_E
 
 from __future__ import annotations
 
+import os
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -15,6 +17,8 @@ from ctfit._fitting.least_squares import fit_to_tolerance, prefetch_fit
 from ctfit._fitting.seeded_solve import STATIONARY_TOLERANCE
 from ctfit._fitting.structure_selection import SCREEN_TOLERANCE
 from ctfit._runtime import stored_programs
+
+from conftest import ROOT
 
 ST = ctfit.Structure(family="plastic", lobes=1, diffuse="spectrum")
 
@@ -123,3 +127,31 @@ def test_candidates_are_fitted_without_the_report_and_only_the_choice_with_it(mo
     assert best.stderr is not None and "rmse" in best.stats and best.stats["starts"] == 1
     assert best.stats["cost"] == pytest.approx(candidate.stats["cost"], rel=1e-9)
     assert best.stats["quality"]["median_relative_error"] == pytest.approx(candidate.stats["quality"]["median_relative_error"], rel=1e-6)
+
+
+_WARM_FIT = """
+import sys
+from ctfit.cli import main
+sys.argv = ["ctfit", "fit", sys.argv[1], "--family", "metal", "--lobes", "1", "--diffuse", "none", "-o", sys.argv[2], "-q"]
+try:
+    main()
+except SystemExit as e:
+    assert not e.code, e.code
+print(sorted(m for m in ("optimistix", "lineax") if m in sys.modules))
+"""
+
+
+@pytest.mark.slow
+def test_a_fit_whose_programs_are_stored_imports_neither_optimistix_nor_lineax(tmp_path):
+    """Their imports cost 0.15 s of a warm whole process; they are needed only where a program
+    is traced (ctfit/_fitting/seeded_solve.py)."""
+    import subprocess
+    import sys
+
+    env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "cache"))
+    run = lambda: subprocess.run([sys.executable, "-c", _WARM_FIT, str(ROOT / "measurements" / "testbed" / "blend-conductors.csv"),
+                                  str(tmp_path / "fit.json")], capture_output=True, text=True, env=env, timeout=600)
+    first, second = run(), run()
+    assert first.returncode == 0 and second.returncode == 0, first.stderr[-2000:] + second.stderr[-2000:]
+    assert first.stdout.splitlines()[-1] == "['lineax', 'optimistix']"  # it compiled: it traced the solver
+    assert second.stdout.splitlines()[-1] == "[]"

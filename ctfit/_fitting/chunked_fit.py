@@ -42,7 +42,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from .._model import Params, Structure
@@ -202,6 +201,8 @@ def _lm(y, lower, upper, grad, hess, tol):
 
 def _lm_init(y, lower, upper, tol):
     """optimistix's ``init`` and first ``terminate`` (``_run_solver``'s); ``tol``: (stol, gtol)."""
+    import optimistix as optx
+
     p = y.shape[0]
     solver, state = _lm(y, lower, upper, jnp.zeros((p,), y.dtype), jnp.zeros((p, p), y.dtype), tol)
     done, result = solver.terminate(_cost_given, y, jnp.zeros((), y.dtype), {}, state, frozenset())
@@ -211,6 +212,8 @@ def _lm_init(y, lower, upper, tol):
 
 def _lm_step(y, leaves: list, f, grad, hess, lower, upper, tol):
     """One optimistix step given the cost, Jᵀr and JᵀJ at the point the state evaluates."""
+    import optimistix as optx
+
     solver, template = _lm(y, lower, upper, grad, hess, tol)
     dynamic, static = eqx.partition(template, eqx.is_array)
     state = eqx.combine(jax.tree.unflatten(jax.tree.structure(dynamic), leaves), static)

@@ -21,7 +21,6 @@ from .fit_warnings import FitWarning
 from .losses import loss_residuals
 from .problem import Problem, model_values
 from .seeded_solve import flat_bounds, gauss_newton_decrease
-from .solvers import active_set
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
@@ -222,6 +221,8 @@ def light_report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost) -> d
     """What comparing a fit needs at its solution ``u``: the active set, the Gauss–Newton
     decrease on the free coordinates and the parameters (no standard errors: the data-chosen
     default's candidates, :func:`~ctfit._fitting.least_squares.fit_to_tolerance` with ``report=False``)."""
+    from .solvers import active_set
+
     flat, _ = ravel_pytree(u)
     lower, upper = flat_bounds(problem, u)
     on_bound = active_set(flat, jtr, lower, upper)  # held on a bound: a result, not a failure

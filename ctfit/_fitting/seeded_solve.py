@@ -8,18 +8,24 @@ cost wins. optimistix Gauss–Newton, Dogleg (normal equations with Cholesky) or
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from .coordinates import bounds
 from .jacobian import half_squared_norm, normal_equations, residual
 from .problem import Problem
-from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt, predicted_decrease
+
+if TYPE_CHECKING:
+    from .solvers import StructuredLevenbergMarquardt
+
+# optimistix, lineax and the solvers built on them are imported where a program is traced, not
+# here: a fit whose compiled programs all come from the store never imports them (0.15 s of a
+# whole process; :mod:`ctfit._runtime.stored_programs`).
 
 __all__ = ["SOLVERS", "STATIONARY_TOLERANCE", "explains_none", "flat_bounds", "solve_seeds", "gauss_newton_decrease", "lm_solver", "stop_tolerances",
            "RACE_STEPS", "RACE_MARGIN"]
@@ -28,6 +34,9 @@ SOLVERS = ("lm", "gauss-newton", "dogleg", "bfgs")
 
 
 def _solver(name: str, dtype):
+    import lineax as lx
+    import optimistix as optx
+
     rtol, atol = (1e-8, 1e-12) if dtype == jnp.float64 else (1e-5, 1e-8)
     if name == "lm":
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
@@ -93,6 +102,8 @@ def _run_solver(solver, y0, data, budget):
     """optimistix's iteration (``solver.init``, then ``step`` until ``terminate``) for at most
     ``budget`` steps — a *traced* count, so one compiled loop serves every phase of the race.
     Returns (value, converged, steps); the solver's own tests decide ``converged``."""
+    import optimistix as optx
+
     f_struct = jax.ShapeDtypeStruct((), y0.dtype)
     state = solver.init(_with_aux, y0, data, {}, f_struct, None, frozenset())
     dynamic, static = eqx.partition(state, eqx.is_array)
@@ -133,6 +144,8 @@ def lm_solver(dtype, lower, upper, data, gauss_newton, stol=None, gtol=None) -> 
     """The fit's projected Levenberg–Marquardt (tolerances of ``dtype``) in the box [lower, upper];
     ``gauss_newton(flat, data)`` gives Jᵀr and JᵀJ. ``stol``, ``gtol`` (scalars, may be traced):
     by default :func:`stop_tolerances`'."""
+    from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt
+
     rtol, atol = (1e-8, 1e-12) if dtype == jnp.float64 else (1e-5, 1e-8)
     descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
     if stol is None or gtol is None:
@@ -186,6 +199,8 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
 
 def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
     """Every seed; values, success flags, steps and final costs per seed."""
+    import optimistix as optx
+
     if solver_name == "lm":
         return _structured_lm(problem, seeds, max_steps)
     solver = _solver(solver_name, problem.y.dtype)
@@ -213,6 +228,8 @@ def gauss_newton_decrease(jtj, jtr, cost, scale):
     of JᵀJ, relative to the largest, below the dtype's rounding) are left out, so a degenerate
     but stationary point still reads as stationary.
     """
+    from .solvers import predicted_decrease
+
     dec = predicted_decrease(jtj, jtr)
     eps = jnp.finfo(cost.dtype).eps
     return dec / jnp.maximum(cost, jnp.maximum(eps * scale, jnp.finfo(cost.dtype).tiny))
