@@ -65,9 +65,9 @@ def _parts(part: Problem, u0: dict, log_m):
 
 def _amplitude_sums(part: Problem, u0: dict, log_m):
     (a, b), wgt = _parts(part, u0, log_m)
-    num = jnp.stack([band_sum(part, wgt * a * part.y), band_sum(part, wgt * b * part.y)], axis=-1)
-    den = jnp.stack([band_sum(part, wgt * a * a), band_sum(part, wgt * a * b), band_sum(part, wgt * b * b)], axis=-1)
-    return num, den
+    wa, wb = wgt * a, wgt * b
+    sums = band_sum(part, jnp.stack([wa * part.y, wb * part.y, wa * a, wa * b, wb * b], axis=-1))  # one pass: (bands, 5)
+    return sums[..., :2], sums[..., 2:]
 
 
 def _cost_of(part: Problem, u0: dict, log_m, amplitudes):
