@@ -193,8 +193,7 @@ def test_nonfinite_reason_names_what_is_not_finite():
 
 
 def test_a_fit_that_is_not_finite_has_not_converged_and_says_why(data, monkeypatch):
-    # 1e300 sr⁻¹ let through to the solver: the absolute loss's squares overflow. (1e-300 data gave
-    # NaN seeds until the seeds' amplitudes were guarded; it now ends finite, as "no fit".)
+    # 1e300 sr⁻¹ let through to the solver: the absolute loss's squares overflow.
     monkeypatch.setattr(_fit, "check_fittable", lambda *a, **k: None)
     res = ctfit.fit(data.replace(brdf=np.full(len(data), 1e300)), Structure(lobes=1), loss="absolute")
     assert not res.stats["converged"]

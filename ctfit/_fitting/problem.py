@@ -24,7 +24,7 @@ from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
 from .losses import LOSSES, loss_floor
 
-__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "band_sum", "make_problem", "model_values", "per_direction", "values_from_s"]
+__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "band_sum", "make_problem", "model_parts", "model_values", "per_direction", "values_from_s"]
 
 SHAPE_PARAMETERS = ("m", "w")
 """The parameters of S, the per-direction factor of the specular term (everything in R_s but F)."""
@@ -229,10 +229,26 @@ def band_sum(problem: Problem, x):
     return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)  # type: ignore[arg-type]  # set when not grid
 
 
-def model_values(problem: Problem, u: dict):
-    """The model at every sample (problem layout), from the free values ``u``."""
+def _split(problem: Problem, u: dict):
+    """(S per direction or None, the free values of S, the others)."""
     u_shape = {k: v for k, v in u.items() if k in SHAPE_PARAMETERS}
     u_rest = {k: v for k, v in u.items() if k not in SHAPE_PARAMETERS}
     s_dir = per_direction(problem, u_shape, u_rest) if problem.spec.structure.has_specular else None
+    return s_dir, u_shape, u_rest
+
+
+def model_values(problem: Problem, u: dict):
+    """The model at every sample (problem layout), from the free values ``u``."""
+    s_dir, u_shape, u_rest = _split(problem, u)
     return values_from_s(problem, s_dir, u_rest, u_shape)
+
+
+def model_parts(problem: Problem, u: dict):
+    """The model's two parts at every sample, (s R_s, d R_d) (Eq. 2's terms; the second is the
+    model with its specular factor zeroed, 0 without a diffuse part; the first 0 without a
+    specular part); their sum is :func:`model_values`."""
+    s_dir, u_shape, u_rest = _split(problem, u)
+    v = values_from_s(problem, s_dir, u_rest, u_shape)
+    diffuse = v if s_dir is None else values_from_s(problem, jnp.zeros_like(s_dir), u_rest, u_shape)
+    return v - diffuse, diffuse
 

@@ -25,7 +25,6 @@ import dataclasses
 import os
 import time
 
-import equinox as eqx
 import jax
 import numpy as np
 
@@ -35,7 +34,7 @@ from .batch import SAMPLE_BUDGET, mapped
 from .fit_report import PARAM_FIELDS
 from .least_squares import PreparedFit, check_fit_arguments, finish_fit, fit_core, prepare_fit
 from .many import geometry_key
-from .texels import ValueLayout
+from .texels import ValueLayout, with_values
 from .validate import check_fittable
 
 __all__ = ["fit_shared", "shared_groups", "SHARED_CALL", "SHARED_MIN", "SHARED_SAMPLES"]
@@ -145,7 +144,7 @@ def _report(call, template: PreparedFit, measurements: list, results: list, solv
     chunk, ys, floors, out = call
     pairs, index = template.data.directions()
     for j, i in enumerate(chunk):
-        problem = eqx.tree_at(lambda q: (q.y, q.floor), template.problem, (ys[j], floors[j]))
+        problem = with_values(template.problem, ys[j], floors[j])
         data = measurements[i].with_directions(pairs, index)  # the same arrays: what is computed from them is kept for the next member
         prep = dataclasses.replace(template, data=data, problem=problem)
         try:
@@ -162,7 +161,7 @@ def _shared_core(problem, ys, floors, active, u0, grid, *options):
 
     def one(member):
         y, floor = member
-        return fit_core(eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor)), u0, grid, *options)
+        return fit_core(with_values(problem, y, floor), u0, grid, *options)
 
     return mapped(one, (ys, floors), active, 1)
 

@@ -16,10 +16,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._io import MaterialError
-from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0
+from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0, safe_div
 from .chunks import chunk_count, sum_over_chunks
 from .coordinates import free_names
-from .problem import SHAPE_PARAMETERS, Problem, band_sum, per_direction, values_from_s
+from .problem import Problem, band_sum, model_parts
 
 __all__ = ["default_start", "m_grid", "seed_points", "seeds_from_scores", "grid_sums", "grid_scales", "grid_amplitudes", "grid_costs", "start_from_material"]
 
@@ -52,15 +52,9 @@ def m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
 
 
 def _parts(part: Problem, u0: dict, log_m):
-    """The model's two parts at every sample, (s R_s, d R_d) (Eq. 2's terms: the second is the
-    model with its specular factor zeroed, 0 where it has no diffuse part), and the loss's weights."""
-    u = dict(u0, m=log_m)
-    u_shape = {k: v for k, v in u.items() if k in SHAPE_PARAMETERS}
-    u_rest = {k: v for k, v in u.items() if k not in SHAPE_PARAMETERS}
-    s_dir = per_direction(part, u_shape, u_rest) if part.spec.structure.has_specular else None
-    v = values_from_s(part, s_dir, u_rest, u_shape)
-    diffuse = values_from_s(part, jnp.zeros_like(s_dir), u_rest, u_shape) if s_dir is not None else v
-    return (v - diffuse, diffuse), part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
+    """The model's two parts at every sample (:func:`~ctfit._fitting.problem.model_parts`) at the
+    rms slopes ``log_m``, and the loss's weights."""
+    return model_parts(part, dict(u0, m=log_m)), part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
 
 
 def _amplitude_sums(part: Problem, u0: dict, log_m):
@@ -83,16 +77,11 @@ def grid_sums(part: Problem, u0: dict, grid):
     return jax.lax.map(lambda log_m: _amplitude_sums(part, u0, log_m), grid)
 
 
-def _divide(a, b, ok):
-    """a / b where ``ok``, else 0 (double-``where``: no inf or NaN in either branch)."""
-    return jnp.where(ok, a / jnp.where(ok, b, 1), 0)
-
-
 def grid_scales(num, den):
     """The best per-band amplitude of the whole model A + B from :func:`grid_sums`' totals: the
     seeds' scale of F0 (or of the normal reflectance)."""
     total = den[..., 0] + 2 * den[..., 1] + den[..., 2]
-    return _divide(num[..., 0] + num[..., 1], total, total > 0)
+    return safe_div(num[..., 0] + num[..., 1], total)[0]
 
 
 def grid_amplitudes(num, den):
@@ -106,11 +95,11 @@ def grid_amplitudes(num, den):
     aa, ab, bb = den[..., 0], den[..., 1], den[..., 2]
     det = aa * bb - ab * ab
     both_ok = det > jnp.sqrt(jnp.finfo(det.dtype).eps) * aa * bb  # the parts not (nearly) proportional
-    alpha = _divide(ay * bb - by * ab, det, both_ok)
-    beta = _divide(by * aa - ay * ab, det, both_ok)
+    det = jnp.where(both_ok, det, 0)
+    alpha, beta = safe_div(ay * bb - by * ab, det)[0], safe_div(by * aa - ay * ab, det)[0]
     both_ok = both_ok & (alpha >= 0) & (beta >= 0)
-    a_only = _divide(jnp.maximum(ay, 0), aa, aa > 0)  # 0 for a part that is 0 at every sample
-    b_only = _divide(jnp.maximum(by, 0), bb, bb > 0)
+    a_only = safe_div(jnp.maximum(ay, 0), aa)[0]  # 0 for a part that is 0 at every sample
+    b_only = safe_div(jnp.maximum(by, 0), bb)[0]
     a_better = a_only * jnp.maximum(ay, 0) >= b_only * jnp.maximum(by, 0)  # the decrease of the loss, Σ w y² − cost
     alpha = jnp.where(both_ok, alpha, jnp.where(a_better, a_only, 0.0))
     beta = jnp.where(both_ok, beta, jnp.where(a_better, 0.0, b_only))

@@ -40,7 +40,7 @@ from .problem import Problem
 from .status import judge_converged
 from .validate import representable_range
 
-__all__ = ["fit_texels", "texel_status", "TexelFits", "ValueLayout", "CHUNK", "TEXEL_STATUS"]
+__all__ = ["fit_texels", "texel_status", "TexelFits", "ValueLayout", "with_values", "CHUNK", "TEXEL_STATUS"]
 
 CHUNK = 1024
 """Texels per compiled call, by default."""
@@ -234,14 +234,19 @@ class ValueLayout:
         return ys.astype(dtype), floors.astype(dtype)
 
 
+def with_values(problem: Problem, y: Array, floor: Array) -> Problem:
+    """``problem`` with another measurement's values ``y`` (laid out by :class:`ValueLayout`) and
+    loss floor: a texel, or a member of a group of one geometry."""
+    return eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor))
+
+
 def _texel_core(problem: Problem, ys: Array, floors: Array, active: Array, u0: dict, grid: Any, width: int, *options: Any) -> Any:
     """``fit_core`` mapped over the texels' values (geometry and start shared); per texel the
     parameters and the cheap statistics only (the rest of the program is dead code to XLA)."""
 
     def one(texel: Any) -> dict:
         y, floor = texel
-        p = eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor))
-        out = fit_core(p, u0, grid, *options)
+        out = fit_core(with_values(problem, y, floor), u0, grid, *options)
         best = out["best"]
         return dict(params=out["params"], cost=out["costs"][best], ok=out["ok"][best], steps=out["steps"][best],
                     gauss_newton_decrease=out["gn_decrease"], zero_cost=out["zero_cost"], rmse=out["rmse"], rel_rmse=out["rel_rmse"],
