@@ -129,6 +129,23 @@ def test_grid_amplitudes_are_the_non_negative_least_squares_solution():
         assert (got >= 0).all() and cost(got) <= cost(want) * (1 + 1e-9) + 1e-12, (trial, got, want)
 
 
+def test_grid_costs_from_the_sums_are_the_weighted_loss_after_the_amplitudes():
+    # The seeds' scores come from one pass of sums (the loss is quadratic in the amplitudes); a
+    # second pass over the data computed them directly before.
+    from ctfit._fitting.starts import grid_amplitudes, grid_costs
+
+    rng = np.random.default_rng(1)
+    for trial in range(100):
+        g, bands, n = 4, 3, 40
+        a, b = rng.random((g, bands, n)), rng.random((g, bands, n))
+        w, y = rng.random((bands, n)) + 0.1, rng.random((bands, n)) * rng.choice([1e-3, 1, 1e3])
+        num = np.stack([np.sum(w * a * y, -1), np.sum(w * b * y, -1), np.broadcast_to(np.sum(w * y * y, -1), (g, bands))], -1)
+        den = np.stack([np.sum(w * a * a, -1), np.sum(w * a * b, -1), np.sum(w * b * b, -1)], -1)
+        amp = np.asarray(grid_amplitudes(num, den))
+        direct = np.sum(w * (amp[..., 0:1] * a + amp[..., 1:2] * b - y) ** 2, axis=(1, 2))
+        np.testing.assert_allclose(np.asarray(grid_costs(num, den, amp)), direct, rtol=1e-9, atol=1e-12 * np.sum(w * y * y))
+
+
 def test_a_plastic_fit_recovers_its_index_and_keeps_it_in_range():
     truth = plastic()
     data = ctfit.simulate(truth, n_pairs=600, noise=0.01, seed=3)

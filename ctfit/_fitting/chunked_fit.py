@@ -9,8 +9,8 @@ any file, each adding its share to a running sum on the device (calls are queued
 
 - ``fit_ne``: ½‖r‖², Jᵀr and JᵀJ at a flat parameter vector
   (:func:`~ctfit._fitting.jacobian.normal_equations`);
-- ``fit_grid_sums`` and ``fit_grid_costs``: the two passes of the seeds' scores
-  (:func:`~ctfit._fitting.starts.grid_sums`, :func:`~ctfit._fitting.starts.grid_costs`);
+- ``fit_grid_sums``: the sums the seeds' scores are made of (:func:`~ctfit._fitting.starts.grid_sums`;
+  the scores from them, :func:`~ctfit._fitting.starts.grid_costs`, in ``fit_seeds``);
 - ``fit_summary``: residual summary and the cost of a zero model, per chunk;
 - ``fit_zero``: the cost of a zero model alone, with no structure in it (one program per loss,
   layout and bands, shared by every structure): for fits without the report (``report=False``).
@@ -94,7 +94,7 @@ def _signature(args) -> tuple:
     return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args))
 
 
-_CALLED_OFTEN = ("fit_ne", "lm_step", "fit_grid_sums", "fit_grid_costs", "fit_summary")
+_CALLED_OFTEN = ("fit_ne", "lm_step", "fit_grid_sums", "fit_summary")
 """The programs a fit calls at every Levenberg–Marquardt step or once per chunk (a MERL table has
 1,600 chunks), compiled for speed (:data:`~ctfit._runtime.COMPILE_EFFORT` "run"); the others
 (the seeds' choice, ``lm_init``, the report) run once per fit and are compiled for a short
@@ -155,10 +155,6 @@ def _sums_kernel(acc, part: Problem, u0: dict, grid):
     return [a + b for a, b in zip(acc, grid_sums(part, u0, grid))]
 
 
-def _costs_kernel(acc, part: Problem, u0: dict, grid, num, den):
-    return acc + grid_costs(part, u0, grid, grid_amplitudes(num, den))
-
-
 def _summary_kernel(part: Problem, u: dict):
     rel, stats, bad = summary_of_part(part, u)
     return dict(rel=rel, stats=stats, bad=bad, zero=zero_model_cost(part))
@@ -175,10 +171,11 @@ def _data_only(part: Problem) -> Problem:
     return dataclasses.replace(part, spec=spec, geom=None, fixed=Params())
 
 
-def _seeds_program(part: Problem, u0: dict, k: int, grid, num, den, costs, keep_start: bool):
+def _seeds_program(part: Problem, u0: dict, k: int, grid, num, den, keep_start: bool):
     if grid is None:
         seeds = jax.tree.map(lambda a: a[None], u0)
     else:
+        costs = grid_costs(num, den, grid_amplitudes(num, den))
         seeds = seeds_from_scores(part, u0, k, grid, costs, grid_scales(num, den), keep_start)
     flat = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
     lower, upper = flat_bounds(part, u0)
@@ -285,32 +282,26 @@ def _report_programs(template: Problem, u0: dict, report: bool = True):
 
 
 def _seed_programs(template: Problem, u0: dict, k: int, grid, keep_start: bool):
-    """The programs of the seeds: (scores' first pass, second pass, choice), or (None, None,
-    choice) without a grid."""
+    """The programs of the seeds: (the scores' sums, the choice), or (None, choice) without a grid."""
     if "m" not in u0 or k < 1 or grid is None:
-        return None, None, _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, None, keep_start)
-    g = grid.shape[0]
-    acc = [np.zeros((g, template.fixed_bands, c), grid.dtype) for c in (2, 3)]
-    total = np.zeros((g,), grid.dtype)
-    return (_program("fit_grid_sums", _sums_kernel, acc, template, u0, grid), _program("fit_grid_costs", _costs_kernel, total, template, u0, grid, *acc),
-            _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], total, keep_start))
+        return None, _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, keep_start)
+    acc = [np.zeros((grid.shape[0], template.fixed_bands, 3), grid.dtype) for _ in range(2)]
+    return (_program("fit_grid_sums", _sums_kernel, acc, template, u0, grid),
+            _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], keep_start))
 
 
 def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> dict:
-    """The flat seeds and the bounds (host arrays): the scores' two passes over the chunks, then
-    the choice (:func:`~ctfit._fitting.starts.seed_points`' steps)."""
+    """The flat seeds and the bounds (host arrays): the scores' sums over the chunks (one pass),
+    then the choice (:func:`~ctfit._fitting.starts.seed_points`' steps)."""
     template, chunks = parts[0], [_leaves(pt) for pt in parts]
-    sums, costs, pick = _seed_programs(template, u0, k, grid, keep_start)
+    sums, pick = _seed_programs(template, u0, k, grid, keep_start)
     if sums is None:
         return jax.device_get(pick(*_leaves((template, u0))))
-    u0l, g = _leaves(u0), grid.shape[0]
-    acc = [jax.device_put(np.zeros((g, template.fixed_bands, c), grid.dtype)) for c in (2, 3)]
+    u0l = _leaves(u0)
+    acc = [jax.device_put(np.zeros((grid.shape[0], template.fixed_bands, 3), grid.dtype)) for _ in range(2)]
     for leaves in chunks:
         acc = sums(*acc, *leaves, *u0l, grid)
-    total = jax.device_put(np.zeros((g,), grid.dtype))
-    for leaves in chunks:
-        total = costs(total, *leaves, *u0l, grid, *acc)
-    return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1], total))))
+    return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1]))))
 
 
 def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False, report: bool = True) -> None:

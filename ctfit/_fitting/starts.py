@@ -2,7 +2,9 @@
 
 The seeds (``seed_points``): a grid over the rms slopes (one value per lobe, ascending), each
 scored by the loss after the best non-negative per-band amplitudes of the model's specular and
-diffuse parts (a linear least-squares problem, :func:`grid_amplitudes`), one pass over the data; the best ``starts`` distinct grid points seed the solver.
+diffuse parts (a linear least-squares problem, :func:`grid_amplitudes`); one pass over the data
+gives the sums that both the amplitudes and the loss after them are made of
+(:func:`grid_sums`, :func:`grid_costs`). The best ``starts`` distinct grid points seed the solver.
 :func:`~ctfit.seed_params` gives them to analysis code as :class:`~ctfit.Params`.
 """
 
@@ -59,21 +61,16 @@ def _parts(part: Problem, u0: dict, log_m):
 
 def _amplitude_sums(part: Problem, u0: dict, log_m):
     (a, b), wgt = _parts(part, u0, log_m)
-    wa, wb = wgt * a, wgt * b
-    sums = band_sum(part, jnp.stack([wa * part.y, wb * part.y, wa * a, wa * b, wb * b], axis=-1))  # one pass: (bands, 5)
-    return sums[..., :2], sums[..., 2:]
-
-
-def _cost_of(part: Problem, u0: dict, log_m, amplitudes):
-    (a, b), wgt = _parts(part, u0, log_m)
-    amp = amplitudes if part.spec.grid else amplitudes[part.band]
-    return jnp.sum(wgt * (amp[..., 0] * a + amp[..., 1] * b - part.y) ** 2)
+    wa, wb, wy = wgt * a, wgt * b, wgt * part.y
+    sums = band_sum(part, jnp.stack([wa * part.y, wb * part.y, wy * part.y, wa * a, wa * b, wb * b], axis=-1))  # one pass: (bands, 6)
+    return sums[..., :3], sums[..., 3:]
 
 
 def grid_sums(part: Problem, u0: dict, grid):
     """Per grid point of log m, the per-band sums of ``part`` over the model's two parts A = s R_s
-    and B = d R_d: (Σ w A y, Σ w B y) and (Σ w A², Σ w A B, Σ w B²), shapes (G, bands, 2) and
-    (G, bands, 3). The first pass of the seeds' scores, summable over chunks."""
+    and B = d R_d and the data y, w the loss's weights: (Σ w A y, Σ w B y, Σ w y²) and
+    (Σ w A², Σ w A B, Σ w B²), shapes (G, bands, 3) and (G, bands, 3). All the seeds' scores
+    need (:func:`grid_amplitudes`, :func:`grid_costs`), in one pass, summable over chunks."""
     return jax.lax.map(lambda log_m: _amplitude_sums(part, u0, log_m), grid)
 
 
@@ -106,30 +103,32 @@ def grid_amplitudes(num, den):
     return jnp.stack([alpha, beta], axis=-1)
 
 
-def grid_costs(part: Problem, u0: dict, grid, amplitudes):
-    """Per grid point, the weighted loss of ``part`` after its parts' ``amplitudes``
-    (:func:`grid_amplitudes`; the second pass, summable over chunks)."""
-    return jax.lax.map(lambda ma: _cost_of(part, u0, ma[0], ma[1]), (grid, amplitudes))
+def grid_costs(num, den, amplitudes):
+    """Per grid point, the weighted loss Σ w (α A + β B − y)² after its parts' ``amplitudes``
+    (α, β) (:func:`grid_amplitudes`), from :func:`grid_sums`' totals: the loss is quadratic in
+    (α, β), so its sums give it without a second pass over the data (Σ w y² − 2α Σ w A y − 2β Σ w B y
+    + α² Σ w A² + 2αβ Σ w A B + β² Σ w B², per band, summed over the bands; at least 0). The
+    difference of sums loses digits where a grid point fits almost exactly (float32: about
+    10⁻⁷ Σ w y²), which only reorders grid points that fit alike."""
+    alpha, beta = amplitudes[..., 0], amplitudes[..., 1]
+    cost = (num[..., 2] - 2 * alpha * num[..., 0] - 2 * beta * num[..., 1]
+            + alpha * alpha * den[..., 0] + 2 * alpha * beta * den[..., 1] + beta * beta * den[..., 2])
+    return jnp.maximum(jnp.sum(cost, axis=-1), 0)
 
 
 @eqx.filter_jit
 def _score_grid(problem: Problem, u0: dict, grid):
     """Loss of each grid point of log m after the best amplitudes of its two parts (weighted
-    linear least squares, :func:`grid_amplitudes`), and the whole model's best per-band scale —
-    two passes, chunk by chunk, on a large grid (:func:`~ctfit._fitting.chunks.sum_over_chunks`),
-    one pass otherwise."""
+    linear least squares, :func:`grid_amplitudes`, :func:`grid_costs`), and the whole model's
+    best per-band scale — one pass, chunk by chunk on a large grid
+    (:func:`~ctfit._fitting.chunks.sum_over_chunks`)."""
 
     def score(log_m):
         if chunk_count(problem) == 1:
             num, den = _amplitude_sums(problem, u0, log_m)
         else:
             num, den = sum_over_chunks(problem, lambda part: _amplitude_sums(part, u0, log_m))
-        amplitudes = grid_amplitudes(num, den)
-        if chunk_count(problem) == 1:
-            cost = _cost_of(problem, u0, log_m, amplitudes)
-        else:
-            cost = sum_over_chunks(problem, lambda part: _cost_of(part, u0, log_m, amplitudes))
-        return cost, grid_scales(num, den)
+        return grid_costs(num, den, grid_amplitudes(num, den)), grid_scales(num, den)
 
     return jax.lax.map(score, grid)  # one grid point at a time: memory O(N), not O(grid × N)
 
