@@ -135,7 +135,7 @@ def test_grid_costs_from_the_sums_are_the_weighted_loss_after_the_amplitudes():
     from ctfit._fitting.starts import grid_amplitudes, grid_costs
 
     rng = np.random.default_rng(1)
-    for trial in range(100):
+    for _ in range(100):
         g, bands, n = 4, 3, 40
         a, b = rng.random((g, bands, n)), rng.random((g, bands, n))
         w, y = rng.random((bands, n)) + 0.1, rng.random((bands, n)) * rng.choice([1e-3, 1, 1e3])
