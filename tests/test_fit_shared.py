@@ -96,14 +96,15 @@ def test_what_the_directions_give_is_computed_once_for_members_of_one_geometry(m
 
     data = scattered(300, 11)
     member = data.replace(brdf=2 * data.brdf).with_directions(*data.directions())  # as fit_shared hands its members on
-    np.testing.assert_array_equal(diagnostics.pair_half_angle_deg(data), diagnostics.half_angle_deg(data))
+    per_sample = diagnostics._half_angle(data.theta_i, data.phi_i, data.theta_o, data.phi_o)
+    np.testing.assert_array_equal(diagnostics.half_angle_deg(data), per_sample)
     notes = diagnostics.relative_residual_structure(data.directions()[0], data.brdf, index=data.directions()[1])
     calls = []
     real = diagnostics._half_angle
     monkeypatch.setattr(diagnostics, "_half_angle", lambda *a: calls.append(1) or real(*a))
     assert diagnostics.relative_residual_structure(member.directions()[0], data.brdf, index=member.directions()[1]) == notes
-    np.testing.assert_array_equal(diagnostics.pair_half_angle_deg(member), diagnostics.half_angle_deg(data))
-    assert len(calls) == 1  # half_angle_deg's own: the member's pairs gave what was kept for data's
+    np.testing.assert_array_equal(diagnostics.half_angle_deg(member), per_sample)
+    assert len(calls) == 0  # the member's pairs gave what was kept for data's
     fresh = scattered(300, 12)
-    diagnostics.pair_half_angle_deg(fresh)
-    assert len(calls) == 2  # other pairs: computed
+    diagnostics.half_angle_deg(fresh)
+    assert len(calls) == 1  # other pairs: computed

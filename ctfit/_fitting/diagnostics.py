@@ -27,7 +27,7 @@ from .._model import Measurement
 from .fit_warnings import FitWarning
 from .losses import loss_floor
 
-__all__ = ["angle_lv_deg", "half_angle_deg", "pair_half_angle_deg", "relative_residual_structure", "residual_structure"]
+__all__ = ["angle_lv_deg", "half_angle_deg", "relative_residual_structure", "residual_structure"]
 
 
 def _angle_lv(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
@@ -63,13 +63,9 @@ def angle_lv_deg(data: Measurement) -> np.ndarray:
 
 
 def half_angle_deg(data: Measurement) -> np.ndarray:
-    """The half-vector angle α (between N and H) of every sample, in degrees (0: the specular peak)."""
-    return _half_angle(data.theta_i, data.phi_i, data.theta_o, data.phi_o)
-
-
-def pair_half_angle_deg(data: Measurement) -> np.ndarray:
-    """:func:`half_angle_deg` computed per direction pair (``data.directions()``), kept for the
-    next measurement of the same pairs (files of one geometry fitted together share them)."""
+    """The half-vector angle α (between N and H) of every sample, in degrees (0: the specular peak):
+    computed per direction pair (``data.directions()``) and kept for the next measurement of the
+    same pairs (files of one geometry fitted together share them)."""
     pairs, index = data.directions()
     return _recent(pairs, "half-angle", lambda: _half_angle(*pairs.T))[index]
 

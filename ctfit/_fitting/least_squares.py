@@ -40,7 +40,7 @@ from .._runtime import cached_call
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch
 from .chunks import sum_over_chunks
 from .coordinates import from_params, to_params
-from .diagnostics import pair_half_angle_deg, relative_residual_structure
+from .diagnostics import half_angle_deg, relative_residual_structure
 from .fit_report import (
     PARAM_FIELDS,
     coordinate_names,
@@ -321,7 +321,7 @@ def _quality(data: Measurement, rel: np.ndarray, floor: float, structure: Struct
     (f − y)/max(|y|, floor) per sample."""
     y = np.asarray(data.brdf, dtype=float)
     err = np.where(y > 0, np.abs(np.asarray(rel, dtype=float)) * np.maximum(np.abs(y), floor) / np.where(y > 0, y, 1.0), np.nan)
-    return quality_from_relative(err, pair_half_angle_deg(data), np.maximum(data.theta_i, data.theta_o), peak_width_deg(structure, params))
+    return quality_from_relative(err, half_angle_deg(data), np.maximum(data.theta_i, data.theta_o), peak_width_deg(structure, params))
 
 
 def _bic(cost: float, zero_cost: float, n: int, p: int, loss: str, dtype: DTypeLike) -> float:
