@@ -10,13 +10,18 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 
-# The core and every extra (plots, posterior, cluster): what the README's examples use.
+# The core and every extra (plots, posterior, cluster): what the README's examples use. ctfit's
+# modules are byte-compiled as pip does for a regular install (an editable one leaves them to the
+# first import, which cannot store them where PYTHONDONTWRITEBYTECODE is set: every command would
+# compile them again).
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[all]'
+	$(BIN)/python -m compileall -q ctfit
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m compileall -q ctfit
 	touch $@ $(VENV)/.installed $(VENV)/.installed-docs
 
 $(VENV)/.installed-docs: pyproject.toml | $(BIN)/python

@@ -190,6 +190,62 @@ def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_p
     assert first.stdout == second.stdout == third.stdout
 
 
+_LAPACK_SCRIPT = """
+import sys, jax
+jax.config.update("jax_enable_x64", True)
+import numpy as np, jax.numpy as jnp
+from ctfit._runtime import cached_call
+from ctfit._runtime.compile_cache import enable_compilation_cache
+enable_compilation_cache(sys.argv[1])
+
+def solve(a, b):
+    return jnp.linalg.solve(jnp.linalg.cholesky(a) @ jnp.linalg.cholesky(a).T, b), jnp.linalg.eigh(a)[0]
+
+a = np.array([[4.0, 1.0], [1.0, 3.0]])
+x, w = cached_call("lapack_probe", solve, a, np.array([1.0, 2.0]))
+print("before", "scipy.linalg" in sys.modules, [m for m in sys.modules if m.startswith("scipy.linalg.")])
+print(repr((np.asarray(x).tolist(), np.asarray(w).tolist())))
+import scipy.linalg
+print("after", scipy.linalg.cython_blas.__name__, scipy.linalg.cython_lapack.__name__, repr(scipy.linalg.eigh(a)[0].tolist()))
+"""
+
+
+@pytest.mark.slow
+def test_a_stored_program_calling_lapack_runs_without_importing_scipy_linalg(tmp_path):
+    """JAX's LAPACK kernels take their routines from SciPy's ``cython_blas`` and ``cython_lapack``:
+    the store loads those two modules alone (``_scipy_lapack``), not all of ``scipy.linalg``. A
+    new process runs a stored program that calls LAPACK (Cholesky, eigh) with ``scipy.linalg``
+    never imported, gets the first process's results, and can import ``scipy.linalg`` after it
+    as usual (its BLAS and LAPACK modules its own attributes)."""
+    import subprocess
+    import sys
+
+    run = lambda: subprocess.run([sys.executable, "-c", _LAPACK_SCRIPT, str(tmp_path / "cache")], capture_output=True, text=True, timeout=300)
+    first = run()  # compiles and stores the program
+    assert first.returncode == 0, first.stderr
+    assert list((tmp_path / "cache" / "ctfit-aot").glob("lapack_probe-*"))
+    second = run()  # loads it
+    assert second.returncode == 0, second.stderr
+    before, values, after = second.stdout.splitlines()
+    assert before == "before False []"  # nothing of scipy.linalg left in sys.modules
+    assert values == first.stdout.splitlines()[1]
+    x, w = (np.array(v) for v in eval(values))
+    a = np.array([[4.0, 1.0], [1.0, 3.0]])
+    np.testing.assert_allclose(a @ x, [1.0, 2.0], rtol=1e-12)
+    np.testing.assert_allclose(w, np.linalg.eigvalsh(a), rtol=1e-12)
+    assert after.startswith("after scipy.linalg.cython_blas scipy.linalg.cython_lapack [")
+
+
+def test_scipy_lapack_leaves_an_imported_scipy_linalg_alone(monkeypatch):
+    """Where ``scipy.linalg`` is imported already, nothing is loaded apart from it."""
+    import sys
+
+    import scipy.linalg  # noqa: F401
+
+    assert _aot._scipy_lapack() == []
+    assert "scipy.linalg" in sys.modules
+
+
 def _ignores_its_second(x, unused):
     return {"y": x * 2.0}
 

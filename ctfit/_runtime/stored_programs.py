@@ -44,6 +44,7 @@ import os
 import pathlib
 import pickle
 import platform
+import sys
 import threading
 import warnings
 from collections.abc import Callable
@@ -222,19 +223,62 @@ def _register_lapack() -> None:
     """Register JAX's LAPACK kernels, which compiled fits call. JAX registers them when it lowers
     a linear-algebra operation, which a loaded executable skips (its call would crash): lowering
     one small ``jnp.linalg.eigh`` (never compiled) does it through JAX's public API. Threads
-    asking at once wait for the first."""
+    asking at once wait for the first. The kernels take their routines from SciPy's
+    ``cython_blas`` and ``cython_lapack``, loaded first on their own (:func:`_scipy_lapack`)."""
     global _lapack_registered
     with _lapack_lock:
         if not _lapack_registered:
-            jax.jit(jnp.linalg.eigh).lower(np.eye(2))
+            loaded = _scipy_lapack()
+            try:
+                jax.jit(jnp.linalg.eigh).lower(np.eye(2))
+            finally:
+                for name in loaded:  # JAX holds their routines now; ``import scipy.linalg`` makes its own
+                    sys.modules.pop(name, None)
             _lapack_registered = True
 
 
+def _scipy_lapack() -> list[str]:
+    """Load SciPy's ``scipy.linalg.cython_blas`` and ``cython_lapack`` extension modules (where
+    JAX's LAPACK kernels find their routines) without running ``scipy/linalg/__init__.py``.
+    Importing them the usual way imports all of ``scipy.linalg`` first: 0.15–0.2 s of every
+    command, on the way to its first fit; these two take milliseconds. Where ``scipy.linalg`` is
+    imported already, or the files are not where SciPy keeps them, nothing is done (JAX then
+    imports them itself). Returns the names entered in ``sys.modules``, for the caller to take out
+    once JAX has their routines: a later ``import scipy.linalg`` then imports them as usual."""
+    import importlib.machinery
+    import importlib.util
+
+    loaded: list[str] = []
+    if "scipy.linalg" in sys.modules:
+        return loaded
+    try:
+        spec = importlib.util.find_spec("scipy")
+    except (ImportError, ValueError):
+        return loaded
+    if spec is None or not spec.submodule_search_locations:
+        return loaded
+    folder = pathlib.Path(next(iter(spec.submodule_search_locations))) / "linalg"
+    for name in ("cython_blas", "cython_lapack"):
+        full = f"scipy.linalg.{name}"
+        files = [folder / (name + suffix) for suffix in importlib.machinery.EXTENSION_SUFFIXES if (folder / (name + suffix)).is_file()]
+        module_spec = importlib.util.spec_from_file_location(full, files[0]) if files and full not in sys.modules else None
+        if module_spec is None or module_spec.loader is None:
+            continue
+        module = importlib.util.module_from_spec(module_spec)
+        sys.modules[full] = module
+        try:
+            module_spec.loader.exec_module(module)
+        except Exception:  # JAX's own import then loads it the usual way
+            del sys.modules[full]
+            continue
+        loaded.append(full)
+    return loaded
+
+
 def prepare_runtime() -> None:
-    """Start :func:`_register_lapack`'s work (0.15–0.2 s, mostly SciPy's BLAS import, which JAX's
-    LAPACK kernels take their routines from) in a thread of
-    its own, so that a command's first stored program need not wait for all of it (the command
-    calls this when it sets JAX up, before it reads its files)."""
+    """Start :func:`_register_lapack`'s work (0.1 s, mostly a first lowering) in a thread of its own,
+    so that a command's first stored program need not wait for it (the command calls this when
+    it sets JAX up, before it reads its files)."""
     threading.Thread(target=_register_lapack, name="ctfit-runtime").start()
 
 
