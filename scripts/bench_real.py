@@ -93,12 +93,13 @@ def read(path: Path) -> ctfit.Measurement:
     return ctfit.read_measurement(path, **({"param_out": PARAM_OUT[path.name]} if path.name in PARAM_OUT else {}))
 
 
-def ctfit_default(path: Path, folder: Path, env: dict, data: ctfit.Measurement) -> dict:
-    """``ctfit fit FILE -o out.json`` cold and then warm, timed as whole processes; the fit's error."""
+def ctfit_default(path: Path, folder: Path, env: dict, data: ctfit.Measurement, warm_runs: int = 1) -> dict:
+    """``ctfit fit FILE -o out.json`` cold and then ``warm_runs`` times warm, timed as whole
+    processes (``warm_s`` the median of the warm ones, ``warm_range`` their least and most); the fit's error."""
     cache, out = folder / "cache", folder / "default.json"
     extra = ["--param-out", PARAM_OUT[path.name]] if path.name in PARAM_OUT else []
     walls = []
-    for _ in ("cold", "warm"):
+    for _ in range(1 + max(1, warm_runs)):
         r = run([CTFIT, "fit", str(path), "-o", str(out), *extra], env=dict(env, JAX_COMPILATION_CACHE_DIR=str(cache)), timeout=TIMEOUT)
         if r.returncode not in (0, 1):  # 1: did not converge, still a result
             r.check(f"ctfit fit {path.name}")
@@ -107,7 +108,8 @@ def ctfit_default(path: Path, folder: Path, env: dict, data: ctfit.Measurement) 
     material = ctfit.load_material(out)
     med, p90 = relative_error(ctfit.evaluate(material, data), data.brdf, data.theta_i, data.theta_o)
     chosen = [row["structure"] for row in doc["fit"].get("structure_choice", []) if row.get("chosen")]  # as chosen (a fit with s = 0 keeps no lobes)
-    return dict(median=med, p90=p90, cold_s=walls[0], warm_s=walls[1], quality=doc.get("quality"), converged=doc["fit"]["converged"],
+    return dict(median=med, p90=p90, cold_s=walls[0], warm_s=float(np.median(walls[1:])), warm_range=(min(walls[1:]), max(walls[1:])),
+                quality=doc.get("quality"), converged=doc["fit"]["converged"],
                 structure=chosen[0] if chosen else ctfit.structure_label(material.structure))
 
 
@@ -218,7 +220,8 @@ def default_section(rows: list[dict], refs: dict, args, started: float, load: tu
     lines = [DEFAULT_SECTION, "", f"Measured {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} with `python scripts/bench_real.py "
              f"{' '.join(args.argv)}` on {cpu_name()} ({os.cpu_count()} CPUs, shared: load average {load[0]:.1f} at the start, "
              f"{load[1]:.1f} at the end), Python {platform.python_version()}; {time.perf_counter() - started:.0f} s in all. `ctfit fit FILE` "
-             "as a user runs it, whole processes: cold (an empty compilation cache), then warm (the cache the cold run filled). The "
+             "as a user runs it, whole processes: cold (an empty compilation cache), then warm (the cache the cold run filled"
+             + (f"; {args.warm} runs, their median and in brackets their range" if getattr(args, "warm", 1) > 1 else "") + "). The "
              "reference is the better of the exhaustive search's best and Mitsuba + Adam in \"Results\" above (its own run).", "",
              "| " + " | ".join(DEFAULT_COLUMNS) + " |", "|" + "---|" * len(DEFAULT_COLUMNS)]
     for r in rows:
@@ -227,9 +230,15 @@ def default_section(rows: list[dict], refs: dict, args, started: float, load: tu
         ref = float(np.nanmin([best, mits])) if np.isfinite([best, mits]).any() else float("nan")
         ratio = d["median"] / ref if np.isfinite(ref) and ref > 0 else float("nan")
         lines.append("| " + " | ".join([r["file"], f"{r['samples']:,}", f"{100 * d['median']:.2f} %", f"{100 * d['p90']:.2f} %", d["structure"],
-                                         f"{d['cold_s']:.1f}", f"{d['warm_s']:.1f}", f"{100 * ref:.2f} %" if np.isfinite(ref) else "–",
+                                         f"{d['cold_s']:.1f}", _warm_cell(d), f"{100 * ref:.2f} %" if np.isfinite(ref) else "–",
                                          f"{ratio:.2f}" if np.isfinite(ratio) else ("≤ 1" if d["median"] <= 1e-6 else "–")]) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _warm_cell(d: dict) -> str:
+    """The warm time: the median, and where several runs were timed, their range."""
+    low, high = d.get("warm_range", (d["warm_s"], d["warm_s"]))
+    return f"{d['warm_s']:.1f}" + (f" ({low:.1f}–{high:.1f})" if high > low else "")
 
 
 def cells(row: dict) -> list[str]:
@@ -266,6 +275,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=None, help="Adam steps of the Mitsuba peer (default 1000; --quick: 20)")
     ap.add_argument("--docs", type=Path, help=f"write the section {SECTION!r} of DIR/real-materials.md")
     ap.add_argument("--default-only", action="store_true", help=f"only ctfit's default fit: writes the section {DEFAULT_SECTION!r}")
+    ap.add_argument("--warm", type=int, default=1, help="warm runs of the default fit per file (their median is reported; default 1)")
     ap.add_argument("--search", nargs=2, metavar=("FILE", "LOSS"), help=argparse.SUPPRESS)  # one loss's search, in its own process
     args = ap.parse_args(argv)
     if args.search:
@@ -293,7 +303,7 @@ def main(argv=None) -> int:
             for path in map(Path, files):
                 (Path(tmp) / path.stem).mkdir()
                 data = read(path)
-                rows.append(dict(file=path.name, samples=len(data), default=ctfit_default(path, Path(tmp) / path.stem, env, data)))
+                rows.append(dict(file=path.name, samples=len(data), default=ctfit_default(path, Path(tmp) / path.stem, env, data, args.warm)))
                 d = rows[-1]["default"]
                 print(f"{path.name}: median {100 * d['median']:.2f} %, {d['structure']}, cold {d['cold_s']:.1f} s, warm {d['warm_s']:.1f} s", flush=True)
                 text = default_section(rows, refs, args, started, (load0, os.getloadavg()[0]))

@@ -90,3 +90,7 @@ def test_default_only_section_compares_with_the_search_and_mitsuba(tmp_path):
     text = bench.default_section([row], refs, args, 0.0, (1.0, 1.0))
     assert text.startswith(bench.DEFAULT_SECTION)
     assert "| a.csv | 10 | 5.00 % | 10.00 % | metal, 1 lobe, no diffuse | 2.0 | 1.0 | 4.00 % | 1.25 |" in text
+    row["default"].update(warm_s=1.04, warm_range=(0.93, 1.21))  # several warm runs: their median and range
+    args.warm = 3
+    text = bench.default_section([row], refs, args, 0.0, (1.0, 1.0))
+    assert "| 2.0 | 1.0 (0.9–1.2) | 4.00 % | 1.25 |" in text and "3 runs, their median and in brackets their range" in text
