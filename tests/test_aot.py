@@ -193,7 +193,7 @@ def test_a_stored_program_runs_in_a_new_process_also_when_jax_cache_had_it(tmp_p
 _LAPACK_SCRIPT = """
 import sys, jax
 jax.config.update("jax_enable_x64", True)
-import numpy as np, jax.numpy as jnp
+import json, numpy as np, jax.numpy as jnp
 from ctfit._runtime import cached_call
 from ctfit._runtime.compile_cache import enable_compilation_cache
 enable_compilation_cache(sys.argv[1])
@@ -204,7 +204,7 @@ def solve(a, b):
 a = np.array([[4.0, 1.0], [1.0, 3.0]])
 x, w = cached_call("lapack_probe", solve, a, np.array([1.0, 2.0]))
 print("before", "scipy.linalg" in sys.modules, [m for m in sys.modules if m.startswith("scipy.linalg.")])
-print(repr((np.asarray(x).tolist(), np.asarray(w).tolist())))
+print(json.dumps([np.asarray(x).tolist(), np.asarray(w).tolist()]))
 import scipy.linalg
 print("after", scipy.linalg.cython_blas.__name__, scipy.linalg.cython_lapack.__name__, repr(scipy.linalg.eigh(a)[0].tolist()))
 """
@@ -217,6 +217,7 @@ def test_a_stored_program_calling_lapack_runs_without_importing_scipy_linalg(tmp
     new process runs a stored program that calls LAPACK (Cholesky, eigh) with ``scipy.linalg``
     never imported, gets the first process's results, and can import ``scipy.linalg`` after it
     as usual (its BLAS and LAPACK modules its own attributes)."""
+    import json
     import subprocess
     import sys
 
@@ -229,7 +230,7 @@ def test_a_stored_program_calling_lapack_runs_without_importing_scipy_linalg(tmp
     before, values, after = second.stdout.splitlines()
     assert before == "before False []"  # nothing of scipy.linalg left in sys.modules
     assert values == first.stdout.splitlines()[1]
-    x, w = (np.array(v) for v in eval(values))
+    x, w = (np.array(v) for v in json.loads(values))
     a = np.array([[4.0, 1.0], [1.0, 3.0]])
     np.testing.assert_allclose(a @ x, [1.0, 2.0], rtol=1e-12)
     np.testing.assert_allclose(w, np.linalg.eigvalsh(a), rtol=1e-12)

@@ -260,8 +260,10 @@ def _scipy_lapack() -> list[str]:
     folder = pathlib.Path(next(iter(spec.submodule_search_locations))) / "linalg"
     for name in ("cython_blas", "cython_lapack"):
         full = f"scipy.linalg.{name}"
-        files = [folder / (name + suffix) for suffix in importlib.machinery.EXTENSION_SUFFIXES if (folder / (name + suffix)).is_file()]
-        module_spec = importlib.util.spec_from_file_location(full, files[0]) if files and full not in sys.modules else None
+        file = next((folder / (name + ext) for ext in importlib.machinery.EXTENSION_SUFFIXES if (folder / (name + ext)).is_file()), None)
+        if file is None or full in sys.modules:
+            continue
+        module_spec = importlib.util.spec_from_file_location(full, file)
         if module_spec is None or module_spec.loader is None:
             continue
         module = importlib.util.module_from_spec(module_spec)
