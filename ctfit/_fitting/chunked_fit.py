@@ -52,20 +52,23 @@ from .problem import Problem, Spec
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver, stop_tolerances
 from .starts import grid_amplitudes, grid_costs, grid_scales, grid_sums, seeds_from_scores
 
-__all__ = ["ROWS", "chunk_problems", "chunked_core", "prefetch"]
+__all__ = ["ROWS", "RACE_CHUNKS", "chunk_problems", "chunked_core", "prefetch", "race_rows"]
 
 ROWS = 2048
 """Cells per chunk: samples of the pairs layout; the grid layout takes a power of two of
 direction pairs with about this many cells (:func:`~ctfit._fitting.chunks.chunk_rows`)."""
 
 
-def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
+def chunk_problems(problem: Problem, limit: int | None = None, rows_of: np.ndarray | None = None) -> list[Problem]:
     """``problem`` (rows a multiple of the chunk's: ``make_problem(chunk=ROWS)``) cut into
-    problems of one shape, on the host (the first ``limit`` of them). Pairs layout: each chunk's
+    problems of one shape, on the host (the first ``limit`` of them); ``rows_of``: only these
+    rows (a multiple of the chunk's, e.g. :func:`race_rows`). Pairs layout: each chunk's
     samples carry their own direction pair's geometry (``pair`` = 0, 1, …)."""
-    from .chunks import chunk_rows
-
-    rows = chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
+    rows = _rows(problem)
+    if rows_of is not None:  # the rows' cells; a grid's rows are direction pairs, so their geometry too
+        take = lambda a: None if a is None else np.asarray(a)[rows_of]
+        cells: dict[str, Any] = {k: take(getattr(problem, k)) for k in ("y", "sigma", "cos_i", "mask", "band", "pair")}
+        problem = dataclasses.replace(problem, **cells, **({"geom": jax.tree.map(take, problem.geom)} if problem.spec.grid else {}))
     host = lambda a: None if a is None else np.asarray(a)
     y = np.asarray(problem.y)
     sigma, cos_i, mask = (host(a) for a in (problem.sigma, problem.cos_i, problem.mask))
@@ -85,6 +88,35 @@ def chunk_problems(problem: Problem, limit: int | None = None) -> list[Problem]:
         else:
             out.append(dataclasses.replace(problem, geom=g, pair=own, **cells))
     return out
+
+
+def _rows(problem: Problem) -> int:
+    from .chunks import chunk_rows
+
+    return chunk_rows(problem.spec.grid, problem.fixed_bands, ROWS)
+
+
+RACE_CHUNKS = 8
+"""Data of at least twice this many chunks (32,768 samples of the pairs layout) races its seeds
+on a random sample of this many chunks' rows (:func:`race_rows`): the race's steps then cost
+what they cost on a file of 16,384 samples, and only the winners go on over all the data."""
+
+RACE_CLOSE = 0.01
+"""Raced on a sample, every seed whose cost there is within this fraction of the lowest goes on
+to convergence on all the data (a near tie on the sample may be decided otherwise on all of it);
+the lowest cost on all the data wins."""
+
+
+def race_rows(problem: Problem) -> np.ndarray | None:
+    """The rows (sorted; random, seed 0) of ``problem`` its seeds are raced on: ``RACE_CHUNKS``
+    chunks' worth of rows holding data, or None where the data is less than twice that (then
+    the seeds are raced on all of it). Rows are samples (pairs layout) or direction pairs with
+    every band (grid layout)."""
+    rows, mask = _rows(problem), np.asarray(problem.mask)
+    real = np.flatnonzero(mask if mask.ndim == 1 else mask.any(axis=1))
+    if real.size < 2 * RACE_CHUNKS * rows:
+        return None
+    return np.sort(np.random.default_rng(0).choice(real, RACE_CHUNKS * rows, replace=False))
 
 
 _programs: dict = {}
@@ -317,13 +349,18 @@ def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = F
     _programs[_signature((template, u0, grid, starts, keep_start, report))] = True
 
 
-def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None):
+def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None, sample: _Kernels | None = None):
     """``_structured_lm``'s race on the host: every seed ``RACE_STEPS`` steps, then those within
     ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs.
     ``tolerance``: stop where one more Gauss–Newton step promises less than this relative
     decrease of the cost (None: ``lm_solver``'s tests). The seeds of a phase run side by side,
     one thread each up to the machine's cores (the programs run without the GIL; every seed's
-    steps are those it would take alone)."""
+    steps are those it would take alone).
+
+    ``sample``: the kernels of a sample of the rows (:func:`race_rows`). The race runs there, to
+    convergence; then the seeds within ``RACE_CLOSE`` of its lowest cost go on over all the data
+    (``kern``), each with ``max_steps`` steps. The steps returned are those on all the data; a
+    seed that did not go on keeps cost ∞."""
     n, p = seeds["flat"].shape
     tol = jax.device_put(np.array(stop_tolerances(seeds["flat"].dtype, tolerance), seeds["flat"].dtype))
     extra = _padded_size(p) - p
@@ -332,10 +369,11 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     values = [jax.device_put(v) for v in flat]
     ok, steps, costs, sound = [False] * n, [0] * n, [math.inf] * n, [True] * n
     race = n > 1 and max_steps > RACE_STEPS
+    sample = sample if n > 1 else None
 
-    def phase(budgets: list[int]) -> None:
+    def phase(budgets: list[int], on: _Kernels) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
-        run = lambda j: kern.run(values[j], lower, upper, budgets[j], tol)
+        run = lambda j: on.run(values[j], lower, upper, budgets[j], tol)
         if len(go) <= 1:  # one seed (a fit from its start alone): no thread
             runs = [run(j) for j in go]
         else:
@@ -346,42 +384,72 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
                 values[j], ok[j], sound[j], costs[j] = v, o, fine, (c if math.isfinite(c) else math.inf)
             steps[j] += k
 
+    first = sample or kern
     if not race:
-        phase([max_steps] * n)
+        phase([max_steps] * n, first)
     else:
-        phase([RACE_STEPS] * n)
+        phase([RACE_STEPS] * n, first)
         lowest = min(costs)
-        phase([max_steps - RACE_STEPS if (not ok[j] and costs[j] <= RACE_MARGIN * lowest) else 0 for j in range(n)])
+        phase([max_steps - RACE_STEPS if (not ok[j] and costs[j] <= RACE_MARGIN * lowest) else 0 for j in range(n)], first)
+    if sample is not None:  # the sample's winners, over all the data
+        go = _distinct_winners(jax.device_get(values), costs)
+        ok, steps, costs = [False] * n, [0] * n, [math.inf] * n
+        phase([max_steps if j in go else 0 for j in range(n)], kern)
     return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype)
 
 
+SAME_POINT = 1e-3
+"""Seeds whose flat coordinates (log m, logits of w, …) all agree within this (absolute and
+relative) after the race on a sample converged to one point: only the lowest of them goes on."""
+
+
+def _distinct_winners(values: list, costs: list[float]) -> list[int]:
+    """The seeds that go on over all the data after a race on a sample: those within
+    ``RACE_CLOSE`` of the lowest cost, lowest first, leaving out any at the point of one before."""
+    finite = [c for c in costs if math.isfinite(c)]
+    if not finite:
+        return []
+    lowest = min(finite)
+    out: list[int] = []
+    for j in sorted(range(len(costs)), key=lambda j: costs[j]):
+        if costs[j] <= (1 + RACE_CLOSE) * lowest and not any(np.allclose(values[j], values[i], rtol=SAME_POINT, atol=SAME_POINT) for i in out):
+            out.append(j)
+    return out
+
+
 def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False, parts: list[Problem] | None = None,
-                 tolerance: float | None = None, report: bool = True) -> dict:
+                 tolerance: float | None = None, report: bool = True, race_parts: list[Problem] | None = None) -> dict:
     """``fit_core``'s output (host arrays) for the solver "lm", on chunks: ``problem`` laid out
     by ``make_problem(chunk=ROWS)``, ``parts`` its :func:`chunk_problems` (made here if None);
     ``tolerance``: :func:`_race`'s. ``report=False``: only what comparing fits needs (the
     parameters, the cost of a zero model, the Gauss–Newton decrease; no residual summary or
-    standard errors), with two small programs in place of the summary's and the report's."""
+    standard errors), with two small programs in place of the summary's and the report's.
+    ``race_parts``: the chunks of a sample of the rows (:func:`race_rows`), where the seeds are
+    chosen and raced (:func:`_race`'s ``sample``; the same programs: chunks of one shape)."""
     parts = chunk_problems(problem) if parts is None else parts
+    seeding = parts if race_parts is None else race_parts
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
     # The first time, a structure's programs compile in three threads at once (XLA compiles
     # without the GIL): the solver's, the report's, and (here) the seeds'.
     shapes = _signature((parts[0], u0, grid, starts, keep_start, report))
     if shapes in _programs:
-        seeds, kern = _seeds(parts, u0, starts, grid, keep_start), _kernels(parts, u0)
+        seeds, kern = _seeds(seeding, u0, starts, grid, keep_start), _kernels(parts, u0)
     else:
         with concurrent.futures.ThreadPoolExecutor(2) as pool:
             kernels = pool.submit(_kernels, parts, u0)
             pool.submit(_report_programs, parts[0], u0, report)
-            seeds = _seeds(parts, u0, starts, grid, keep_start)
+            seeds = _seeds(seeding, u0, starts, grid, keep_start)
             kern = kernels.result()
         _programs[shapes] = True
-    values, sound, steps, costs = _race(kern, seeds, max_steps, tolerance)
+    sample = None if race_parts is None else dataclasses.replace(kern, parts=[_leaves(pt) for pt in race_parts])
+    values, sound, steps, costs = _race(kern, seeds, max_steps, tolerance, sample)
     best = int(np.argmin(costs))
     p = _flat_shape(u0)[0]
     cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))
     cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
     solved = dict(u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best)
+    if race_parts is not None and len(costs) > 1:  # raced on the sample (one seed alone is not)
+        solved["race_samples"] = int(sum(np.sum(np.asarray(pt.mask)) for pt in race_parts))
     u = {k: jax.device_put(v) for k, v in solved["u"].items()}  # (jnp.asarray compiles a copy program per shape)
     if not report:
         zero_program, light = _report_programs(kern.template, u0, report=False)

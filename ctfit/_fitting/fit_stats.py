@@ -29,7 +29,7 @@ class FitStats(TypedDict, total=False):
     fit_status: str
     """How it ended (a :class:`~ctfit.FitStatus` value)."""
     steps: int
-    """Levenberg–Marquardt steps of the best start."""
+    """Levenberg–Marquardt steps of the best start (on all the data: see ``race_samples``)."""
     cost: float
     """½‖r‖² at the solution, r the loss's residuals."""
     time_s: float
@@ -44,6 +44,9 @@ class FitStats(TypedDict, total=False):
     dtype: str
     starts: int
     """Starts raced (grid seeds and the start given)."""
+    race_samples: int
+    """Present where the starts were raced on a random sample of the data, of this many samples
+    (data of at least 32,768): the race's winners then went on over all of it (``steps``)."""
     relative_floor: float
     """The relative losses' floor (``loss_floor``)."""
     gauss_newton_decrease: float

@@ -37,7 +37,7 @@ from jax.typing import DTypeLike
 
 from .._model import Material, Measurement, Params, Structure, x64_enabled
 from .._runtime import cached_call
-from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch
+from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch, race_rows
 from .chunks import sum_over_chunks
 from .coordinates import from_params, to_params
 from .diagnostics import half_angle_deg, relative_residual_structure
@@ -283,8 +283,11 @@ def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: fl
     program of its size bucket."""
     if solver == "lm" and prep.chunked:
         parts = chunk_problems(prep.problem)
+        sample = race_rows(prep.problem) if prep.k + prep.given_start > 1 else None  # more than one seed: a large file races them on a sample
+        race_parts = None if sample is None else chunk_problems(prep.problem, rows_of=sample)
         prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
-        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance, report=report)
+        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance, report=report,
+                            race_parts=race_parts)
     return jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
 
 
@@ -349,6 +352,8 @@ def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance
              "n_params": p, "bic": _bic(cost, zero_cost, n, p, prep.loss, dtype), "loss": prep.loss, "solver": solver, "dtype": jnp.dtype(dtype).name,
              "starts": int(np.asarray(costs).size), "relative_floor": float(problem.floor), "gauss_newton_decrease": gn_decrease,
              "on_bound": labelled(out["u"], np.asarray(out["on_bound"], bool)), "report": False}
+    if "race_samples" in out:
+        stats["race_samples"] = int(out["race_samples"])
     return FitResult(material=_fitted_material(prep, params), stats=stats, stderr=None, warnings=[], loss=prep.loss, solver=solver)
 
 
@@ -415,6 +420,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
         "no_stderr": [f"{k}[{i}]" for k, v in (stderr or {}).items() for i in np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))],
         "quality": quality,
     }
+    if "race_samples" in out:
+        stats["race_samples"] = int(out["race_samples"])
     material = _fitted_material(prep, params)
     names = coordinate_names(u)
     not_determined = [names[i] for i in np.flatnonzero(loose)]
