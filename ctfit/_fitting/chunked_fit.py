@@ -273,19 +273,29 @@ class _Kernels:
         return acc
 
     def run(self, y0, lower, upper, budget: int, tol):
-        """``_run_solver`` on the host: (value, converged, steps, sound, cost); ``tol``: the
+        """``_run_solver`` on the host: (value, converged, steps, sound, cost, last), ``last`` the
+        point the solver last evaluated and (½‖r‖², Jᵀr, JᵀJ) there, or None; ``tol``: the
         solver's (stol, gtol) (:func:`~ctfit._fitting.seeded_solve.lm_solver`), a device array."""
         out = self.init(y0, lower, upper, tol)
         y, leaves, y_eval = y0, out["state"], out["y_eval"]
         done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
-        k, cost = 0, np.inf
+        k, cost, last = 0, np.inf, None
         while not done and sound and k < budget:
             f, grad, hess = self.normal_equations(y_eval)
+            last = (y_eval, [f, grad, hess])
             out = self.step(y, *leaves, f, grad, hess, lower, upper, tol)
             y, leaves, y_eval, cost = out["y"], out["state"], out["y_eval"], out["cost"]
             done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
             k += 1
-        return y, done and sound, k, sound, float(cost)
+        return y, done and sound, k, sound, float(cost), last
+
+    def normal_equations_at(self, flat, last):
+        """:meth:`normal_equations` at ``flat``, or the sums of ``last`` (:meth:`run`'s) where
+        they were evaluated at ``flat`` itself (the solver's last step was accepted): a pass
+        over the data fewer."""
+        if last is not None and np.array_equal(*jax.device_get((last[0], flat))):
+            return last[1]
+        return self.normal_equations(flat)
 
 
 def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
@@ -355,7 +365,8 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     ``tolerance``: stop where one more Gauss–Newton step promises less than this relative
     decrease of the cost (None: ``lm_solver``'s tests). The seeds of a phase run side by side,
     one thread each up to the machine's cores (the programs run without the GIL; every seed's
-    steps are those it would take alone).
+    steps are those it would take alone). Also returns each seed's :meth:`_Kernels.run` ``last``
+    (over all the data).
 
     ``sample``: the kernels of a sample of the rows (:func:`race_rows`). The race runs there, to
     convergence; then the seeds within ``RACE_CLOSE`` of its lowest cost go on over all the data
@@ -368,6 +379,7 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     lower, upper = (jax.device_put(np.pad(seeds[k], (0, extra))) for k in ("lower", "upper"))
     values = [jax.device_put(v) for v in flat]
     ok, steps, costs, sound = [False] * n, [0] * n, [math.inf] * n, [True] * n
+    last: list = [None] * n
     race = n > 1 and max_steps > RACE_STEPS
     sample = sample if n > 1 else None
 
@@ -379,9 +391,9 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
         else:
             with concurrent.futures.ThreadPoolExecutor(min(len(go), os.cpu_count() or 1)) as pool:
                 runs = list(pool.map(run, go))
-        for j, (v, o, k, fine, c) in zip(go, runs):
+        for j, (v, o, k, fine, c, at) in zip(go, runs):
             if k > 0:  # a seed that did not go on keeps what it had
-                values[j], ok[j], sound[j], costs[j] = v, o, fine, (c if math.isfinite(c) else math.inf)
+                values[j], ok[j], sound[j], costs[j], last[j] = v, o, fine, (c if math.isfinite(c) else math.inf), at
             steps[j] += k
 
     first = sample or kern
@@ -393,9 +405,9 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
         phase([max_steps - RACE_STEPS if (not ok[j] and costs[j] <= RACE_MARGIN * lowest) else 0 for j in range(n)], first)
     if sample is not None:  # the sample's winners, over all the data
         go = _distinct_winners(jax.device_get(values), costs)
-        ok, steps, costs = [False] * n, [0] * n, [math.inf] * n
+        ok, steps, costs, last = [False] * n, [0] * n, [math.inf] * n, [None] * n
         phase([max_steps if j in go else 0 for j in range(n)], kern)
-    return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype)
+    return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype), last
 
 
 SAME_POINT = 1e-3
@@ -442,10 +454,10 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
             kern = kernels.result()
         _programs[shapes] = True
     sample = None if race_parts is None else dataclasses.replace(kern, parts=[_leaves(pt) for pt in race_parts])
-    values, sound, steps, costs = _race(kern, seeds, max_steps, tolerance, sample)
+    values, sound, steps, costs, last = _race(kern, seeds, max_steps, tolerance, sample)
     best = int(np.argmin(costs))
     p = _flat_shape(u0)[0]
-    cost, jtr, jtj = jax.device_get(kern.normal_equations(values[best]))
+    cost, jtr, jtj = jax.device_get(kern.normal_equations_at(values[best], last[best]))
     cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
     solved = dict(u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best)
     if race_parts is not None and len(costs) > 1:  # raced on the sample (one seed alone is not)
