@@ -368,9 +368,9 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     steps are those it would take alone). Also returns each seed's :meth:`_Kernels.run` ``last``
     (over all the data).
 
-    ``sample``: the kernels of a sample of the rows (:func:`race_rows`). The race runs there, to
-    convergence; then the seeds within ``RACE_CLOSE`` of its lowest cost go on over all the data
-    (``kern``), each with ``max_steps`` steps. The steps returned are those on all the data; a
+    ``sample``: the kernels of a sample of the rows (:func:`race_rows`; given for more than one
+    seed). The race runs there, to convergence; then the seeds within ``RACE_CLOSE`` of its
+    lowest cost go on over all the data (``kern``), each with ``max_steps`` steps. The steps returned are those on all the data; a
     seed that did not go on keeps cost ∞."""
     n, p = seeds["flat"].shape
     tol = jax.device_put(np.array(stop_tolerances(seeds["flat"].dtype, tolerance), seeds["flat"].dtype))
@@ -381,7 +381,6 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     ok, steps, costs, sound = [False] * n, [0] * n, [math.inf] * n, [True] * n
     last: list = [None] * n
     race = n > 1 and max_steps > RACE_STEPS
-    sample = sample if n > 1 else None
 
     def phase(budgets: list[int], on: _Kernels) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
@@ -453,15 +452,18 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
             seeds = _seeds(seeding, u0, starts, grid, keep_start)
             kern = kernels.result()
         _programs[shapes] = True
-    sample = None if race_parts is None else dataclasses.replace(kern, parts=[_leaves(pt) for pt in race_parts])
+    sample, race_samples = None, 0
+    if race_parts is not None and seeds["flat"].shape[0] > 1:  # one seed alone is not raced: it is solved on all the data
+        sample = dataclasses.replace(kern, parts=[_leaves(pt) for pt in race_parts])
+        race_samples = int(sum(np.sum(np.asarray(pt.mask)) for pt in race_parts))
     values, sound, steps, costs, last = _race(kern, seeds, max_steps, tolerance, sample)
     best = int(np.argmin(costs))
     p = _flat_shape(u0)[0]
     cost, jtr, jtj = jax.device_get(kern.normal_equations_at(values[best], last[best]))
     cost, jtr, jtj = np.asarray(cost), jtr[:p], jtj[:p, :p]
     solved = dict(u=_unflat(u0, np.asarray(values[best])), ok=sound, steps=steps, costs=costs, best=best)
-    if race_parts is not None and len(costs) > 1:  # raced on the sample (one seed alone is not)
-        solved["race_samples"] = int(sum(np.sum(np.asarray(pt.mask)) for pt in race_parts))
+    if sample is not None:
+        solved["race_samples"] = race_samples
     u = {k: jax.device_put(v) for k, v in solved["u"].items()}  # (jnp.asarray compiles a copy program per shape)
     if not report:
         zero_program, light = _report_programs(kern.template, u0, report=False)
