@@ -9,7 +9,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 import ctfit
 from ctfit import DataError, Measurement, read_csv, write_csv
-from ctfit._io import csv_files as _csvio
+from ctfit._io import csv_files as _csvio, csv_table as _table
 
 HEADER = "theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf"
 
@@ -35,9 +35,9 @@ def path_kind(request, monkeypatch):
     """Run a test through the vectorised path (whole, and in blocks of a line or two) and through
     the line-by-line fallback."""
     if request.param == "slow":
-        monkeypatch.setattr(_csvio, "_parse_fast", lambda *args: None)
+        monkeypatch.setattr(_table, "_parse_fast", lambda *args: None)
     if request.param == "blocks":
-        monkeypatch.setattr(_csvio, "PARSE_BLOCK", 7)
+        monkeypatch.setattr(_table, "PARSE_BLOCK", 7)
     return request.param
 
 
@@ -114,7 +114,7 @@ def test_large_file_takes_the_vectorised_path(tmp_path, monkeypatch, variant):
     if variant == "text column":
         head, rows = head + ",note", [f"{row},n/a {k} é" for k, row in enumerate(rows)]
     path = write(tmp_path, eol.join([head, *rows]) + eol)
-    monkeypatch.setattr(_csvio, "_parse_slow", None)  # calling it would fail
+    monkeypatch.setattr(_table, "_parse_slow", None)  # calling it would fail
     m = read_csv(path)
     np.testing.assert_array_equal(m.theta_i, cols[0])
     np.testing.assert_array_equal(m.phi_o, cols[3])
@@ -334,11 +334,11 @@ def test_round_trip_property(tmp_path, m):
     path = tmp_path / "rt.csv"
     write_csv(m, path)
     assert_same(m, read_csv(path))
-    block, _csvio.PARSE_BLOCK = _csvio.PARSE_BLOCK, 40  # the same file in blocks of a line or so
+    block, _table.PARSE_BLOCK = _table.PARSE_BLOCK, 40  # the same file in blocks of a line or so
     try:
         assert_same(m, read_csv(path))
     finally:
-        _csvio.PARSE_BLOCK = block
+        _table.PARSE_BLOCK = block
 
 
 @settings(max_examples=60, deadline=None)
@@ -445,7 +445,7 @@ def test_an_error_quotes_at_most_80_characters_of_a_field(tmp_path, text, patter
 
 def test_a_line_before_the_header_longer_than_the_limit_is_refused(tmp_path, monkeypatch):
     """A header (or comment) line past ``MAX_HEADER_BYTES`` is not decoded, split or quoted."""
-    monkeypatch.setattr(_csvio, "MAX_HEADER_BYTES", 1000)
+    monkeypatch.setattr(_table, "MAX_HEADER_BYTES", 1000)
     with pytest.raises(DataError, match=r"data\.csv:2: 1001 bytes without a line break before the header row ends: not a measurement CSV"):
         read_csv(write(tmp_path, "# fine\n" + "t" * 1001 + "\n1,2\n"))
     assert len(read_csv(write(tmp_path, "# " + "x" * 990 + "\n" + HEADER + "\n10,0,30,180,550,0.1\n"))) == 1

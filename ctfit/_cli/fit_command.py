@@ -78,7 +78,21 @@ def _diffuse(o) -> str:
 
 
 def fit_command(o) -> int:
-    """The ``fit`` command: options and outputs checked first, then every file; the exit status."""
+    """The ``fit`` command: options and outputs checked first, then every file; the exit status.
+    One large CSV is parsed in a helper process meanwhile (:mod:`~ctfit._io.read_ahead`), started
+    before anything imports JAX."""
+    from .._io.read_ahead import read_ahead
+
+    one = len(o.data) == 1 and o.workers is None and o.scheduler is None
+    ahead = read_ahead(o.data[0]) if one else None
+    try:
+        return _fit_command(o, ahead)
+    finally:
+        if ahead is not None:
+            ahead.cancel()  # not taken (an option refused, say): stopped
+
+
+def _fit_command(o, ahead) -> int:
     from .._runtime import prepare_runtime, progress_enabled
     from .fit_cluster import TEXEL_SUFFIXES, fit_on_cluster, fit_texel_command
 
@@ -97,7 +111,7 @@ def fit_command(o) -> int:
     if o.workers is not None or o.scheduler is not None:
         outcomes, hashes = fit_on_cluster(files, o, base, plan, progress_enabled(o.quiet))
     else:
-        outcomes, hashes = _fit_each(files, o, base, plan, progress_enabled(o.quiet)), {}
+        outcomes, hashes = _fit_each(files, o, base, plan, progress_enabled(o.quiet), ahead), {}
     if o.output is not None and o.folders["output"]:
         write_summary(o.output / SUMMARY, files, outcomes, plan, hashes)
     return fit_exit_status(outcomes)
@@ -257,7 +271,7 @@ def _plot_format(path: Path) -> Path:
     return path
 
 
-def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[str, str]]:
+def _fit_each(files: list[Path], o, base, plan: dict, show: bool, ahead=None) -> list[tuple[str, str]]:
     """Fit every file; several: a failure is one error line and the rest go on. [(outcome, what)].
 
     Several files fitted with one structure (not ``--lobes auto``, not ``--sample``) are fitted
@@ -273,7 +287,7 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool) -> list[tuple[
     for path in bar(files, desc="files", enabled=show and len(files) > 1):
         try:
             if not together:
-                outcome = _fit_file(path, o, base, plan[path], show)
+                outcome = _fit_file(path, o, base, plan[path], show, ahead)
             else:
                 if path not in fitted:
                     assert windows is not None  # together
@@ -340,9 +354,10 @@ def fit_exit_status(outcomes: list[tuple[str, str]]) -> int:
     return 2 if count["failed"] else (1 if count["not converged"] or count[UNUSABLE] else 0)
 
 
-def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool) -> str:
-    """Read, fit, print and write one file's results; its outcome (:func:`report_file`)."""
-    meas = read_data(path, o.param_out)
+def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool, ahead=None) -> str:
+    """Read (``ahead``: parsed by a helper process, :mod:`~ctfit._io.read_ahead`), fit, print and
+    write one file's results; its outcome (:func:`report_file`)."""
+    meas = read_data(path, o.param_out, ahead)
     return report_file(path, meas, _fit_measurement(meas, o, base, show), o, t, show)
 
 

@@ -19,6 +19,8 @@ from typing import Any
 import numpy as np
 from jaxtyping import ArrayLike, Float, Int
 
+from .direction_pairs import unique_direction_pairs
+
 __all__ = ["Measurement", "band_labels", "check_samples", "format_value", "invalid_value", "value_rules"]
 
 
@@ -108,14 +110,6 @@ def band_labels(wavelength_nm: Sequence[float] | np.ndarray | None, channels: Se
     if channels is not None:
         return list(channels)
     return [] if wavelength_nm is None else [f"{w:g} nm" for w in wavelength_nm]
-
-
-def _new_rows(a: np.ndarray) -> np.ndarray:
-    """Whether each row of ``a`` differs from the one before (the first row: True)."""
-    new = np.empty(len(a), dtype=bool)
-    new[0] = True
-    np.any(a[1:] != a[:-1], axis=1, out=new[1:])
-    return new
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -211,23 +205,7 @@ class Measurement:
 
     @functools.cached_property
     def _directions(self) -> tuple[np.ndarray, np.ndarray]:
-        a = np.stack([self.theta_i, self.phi_i, self.theta_o, self.phi_o], axis=1)
-        if len(a) == 0:
-            a.setflags(write=False)
-            return a, np.zeros(0, dtype=np.intp)
-        run_start = _new_rows(a)  # runs of equal consecutive rows
-        run = np.cumsum(run_start) - 1
-        heads = a[run_start]
-        order = np.lexsort(heads.T[::-1])
-        s = heads[order]
-        new = _new_rows(s)
-        head_index = np.empty(len(heads), dtype=np.intp)
-        head_index[order] = np.cumsum(new) - 1
-        index = head_index[run]
-        pairs = s[new]
-        pairs.setflags(write=False)
-        index.setflags(write=False)
-        return pairs, index
+        return unique_direction_pairs(self.theta_i, self.phi_i, self.theta_o, self.phi_o)
 
     @functools.cached_property
     def repeats(self) -> bool:
