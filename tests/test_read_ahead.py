@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 import ctfit
 from ctfit._io import read_ahead as ahead_module
 from ctfit._io.csv_table import read_table
-from ctfit._io.read_ahead import ReadAhead, read_ahead
+from ctfit._io.read_ahead import ReadAhead, start_read_ahead
 from ctfit.cli import app
 
 from conftest import ROOT
@@ -49,12 +49,12 @@ def _same_measurement(a: ctfit.Measurement, b: ctfit.Measurement) -> None:
 def test_the_helper_gives_the_readers_measurement_and_its_direction_pairs(big_csv):
     from ctfit._cli.inputs import read_data
 
-    helper = read_ahead(big_csv)
+    helper = start_read_ahead(big_csv)
     assert isinstance(helper, ReadAhead)
     table = helper.table()
     assert table is not None and table.pairs is not None and table.columns is not None
     assert helper.table() is None  # once only
-    again = read_ahead(big_csv)
+    again = start_read_ahead(big_csv)
     got = read_data(big_csv, None, again)
     assert "_directions" in got.__dict__  # the helper's pairs, not computed here
     _same_measurement(got, ctfit.read_csv(big_csv))
@@ -72,17 +72,17 @@ def test_the_helper_process_never_imports_jax(big_csv):
 def test_small_files_other_formats_one_core_or_turned_off_get_no_helper(big_csv, tmp_path, monkeypatch):
     small = tmp_path / "small.csv"
     small.write_text(HEADER + "30,0,30,180,550,0.1\n")
-    assert read_ahead(small) is None
+    assert start_read_ahead(small) is None
     alta = tmp_path / "big.alta"
     alta.write_bytes(big_csv.read_bytes())
-    assert read_ahead(alta) is None
-    assert read_ahead(tmp_path / "missing.csv") is None
-    assert read_ahead(tmp_path) is None
+    assert start_read_ahead(alta) is None
+    assert start_read_ahead(tmp_path / "missing.csv") is None
+    assert start_read_ahead(tmp_path) is None
     monkeypatch.setattr(ahead_module, "_cores", lambda: 1)
-    assert read_ahead(big_csv) is None
+    assert start_read_ahead(big_csv) is None
     monkeypatch.undo()
     monkeypatch.setenv("CTFIT_READ_AHEAD", "0")
-    assert read_ahead(big_csv) is None
+    assert start_read_ahead(big_csv) is None
 
 
 def test_a_bad_file_is_read_here_with_the_readers_error(tmp_path, monkeypatch):
@@ -91,7 +91,7 @@ def test_a_bad_file_is_read_here_with_the_readers_error(tmp_path, monkeypatch):
     monkeypatch.setattr(ahead_module, "READ_AHEAD_BYTES", 10)
     bad = tmp_path / "bad.csv"
     bad.write_text(HEADER + "30,0,30,180,550,0.1\n" * 3 + "30,0,30,180,550,abc\n")
-    helper = read_ahead(bad)
+    helper = start_read_ahead(bad)
     assert helper is not None
     with pytest.raises(ctfit.DataError) as seen:
         read_data(bad, None, helper)
@@ -106,17 +106,17 @@ def test_a_file_changed_after_the_helper_started_is_read_again(tmp_path, monkeyp
     monkeypatch.setattr(ahead_module, "READ_AHEAD_BYTES", 10)
     path = tmp_path / "moving.csv"
     path.write_text(HEADER + "30,0,30,180,550,0.1\n")
-    helper = read_ahead(path)
+    helper = start_read_ahead(path)
     assert helper is not None
     path.write_text(HEADER + "30,0,30,180,550,0.25\n40,0,40,180,550,0.5\n")  # another size: another identity
     assert helper.table() is None
-    again = read_ahead(path)
+    again = start_read_ahead(path)
     path.write_text(HEADER + "10,0,10,180,550,0.75\n")
     assert read_data(path, None, again).brdf.tolist() == [0.75]
 
 
 def test_a_cancelled_helper_is_stopped(big_csv):
-    helper = read_ahead(big_csv)
+    helper = start_read_ahead(big_csv)
     assert helper is not None
     process = helper._process
     helper.cancel()
@@ -176,4 +176,14 @@ def test_the_bundled_measurements_read_the_same_through_the_helper(monkeypatch):
     for path in files[:3]:
         table = read_table(path, prepared=True)
         assert table.pairs is not None
-        _same_measurement(read_data(path, None, read_ahead(path)), ctfit.read_csv(path))
+        _same_measurement(read_data(path, None, start_read_ahead(path)), ctfit.read_csv(path))
+
+
+def test_ctfit_fit_starts_the_helper_before_it_imports_jax(big_csv):
+    """The helper's parse overlaps the command's import of JAX only if it starts first."""
+    code = ("import sys\nfrom ctfit._io import read_ahead as r\ninit = r.ReadAhead.__init__\n"
+            "def spy(self, path):\n    print('jax imported:', 'jax' in sys.modules, flush=True)\n    init(self, path)\n"
+            "r.ReadAhead.__init__ = spy\nfrom ctfit.cli import main\n"
+            f"sys.argv = ['ctfit', 'fit', {str(big_csv)!r}, '--lobes', '99']\ntry:\n    main()\nexcept SystemExit:\n    pass\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.splitlines()[0] == "jax imported: False", out.stdout + out.stderr

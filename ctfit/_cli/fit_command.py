@@ -81,10 +81,10 @@ def fit_command(o) -> int:
     """The ``fit`` command: options and outputs checked first, then every file; the exit status.
     One large CSV is parsed in a helper process meanwhile (:mod:`~ctfit._io.read_ahead`), started
     before anything imports JAX."""
-    from .._io.read_ahead import read_ahead
+    from .._io import start_read_ahead  # NumPy alone: JAX is not imported yet
 
     one = len(o.data) == 1 and o.workers is None and o.scheduler is None
-    ahead = read_ahead(o.data[0]) if one else None
+    ahead = start_read_ahead(o.data[0]) if one else None
     try:
         return _fit_command(o, ahead)
     finally:

@@ -54,7 +54,7 @@ def read_data(path: Path, param_out: str | None = None, ahead=None):
     check_param_out(param_out)
     table = ahead.table() if ahead is not None and ahead.path == str(path) else None
     if table is not None:
-        from .._io.csv_files import measurement_from_table
+        from .._io import measurement_from_table
 
         return measurement_from_table(table, path)
     return read_input(path, param_out)

@@ -9,7 +9,8 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
         "alta": ['read_alta'],
-        "csv_files": ['read_csv', 'write_csv'],
+        "csv_files": ['measurement_from_table', 'read_csv', 'write_csv'],
+        "csv_table": ['CsvTable', 'read_table'],
         "errors": ['DataError', 'DataWarning', 'MaterialError'],
         "files": ['TEMPORARY', 'atomic_save', 'atomic_write', 'remove_stale_temporaries', 'remove_temporaries', 'replace_links_in'],
         "interrupt": ['deferred', 'note_resumable', 'on_interrupt', 'resumable', 'run_cleanups', 'set_exit', 'sigint', 'wait_for_writes'],
@@ -18,6 +19,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
                  'merl_phi_d_index', 'merl_theta_d_index', 'merl_theta_h_index', 'merl_table', 'read_merl', 'write_merl'],
         "optical_constants": ['read_optical_constants'],
         "output_paths": ['broken_link', 'check_backend', 'check_output', 'check_output_folder', 'result_targets', 'same_file', 'unconverged_target'],
+        "read_ahead": ['ReadAhead', 'start_read_ahead'],
         "readers": ['read_measurement', 'reader_for'],
         "rgl": ['bilinear', 'marginal_sample', 'read_rgl', 'read_tensor_file'],
         "untrusted": ['check_input_file', 'parse_json', 'quote', 'read_json_or_none', 'shorten'],

@@ -17,11 +17,11 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from .._model import Measurement, format_value as _fmt, invalid_value
-from .csv_table import _KNOWN, ANGLES, CHANNELS, CsvTable, _Header, measurement_columns, read_table
+from .csv_table import ANGLES, CHANNELS, KNOWN_COLUMNS, CsvTable, Header, measurement_columns, read_table
 from .errors import DataError
 from .files import atomic_write
 
-__all__ = ["read_csv", "write_csv"]
+__all__ = ["measurement_from_table", "read_csv", "write_csv"]
 
 _RADIAN_MAX = math.pi / 2 + 1e-9  # largest θ that still looks like radians
 _RADIAN_ROWS = 3  # more rows than this with a nonzero θ, all ≤ π/2: "looks like radians"
@@ -67,7 +67,7 @@ def measurement_from_table(table: CsvTable, path: str | os.PathLike[str]) -> Mea
     return _measurement(table, path)
 
 
-def _check_values(values: dict, cols: _Header, first: int, path: str | os.PathLike[str]) -> None:
+def _check_values(values: dict, cols: Header, first: int, path: str | os.PathLike[str]) -> None:
     """Raise for the earliest (line, column) with a value out of its domain (the rule every
     reader shares: :func:`~ctfit._model.measurement.invalid_value`)."""
     worst = None
@@ -82,7 +82,7 @@ def _check_values(values: dict, cols: _Header, first: int, path: str | os.PathLi
         raise DataError(message, path=path, line=first + row, **cols.column(name))
 
 
-def _check_units(values: dict, meta: dict, meta_lines: dict, cols: _Header, header_line: int, path: str | os.PathLike[str]) -> None:
+def _check_units(values: dict, meta: dict, meta_lines: dict, cols: Header, header_line: int, path: str | os.PathLike[str]) -> None:
     """Radian-looking angles are an error unless ``# angle_unit: degrees`` confirms degrees:
     every θ ≤ π/2, or (θ in degrees) every φ within ±2π with some not whole numbers."""
     unit = meta.get("angle_unit")
@@ -108,7 +108,7 @@ def _check_units(values: dict, meta: dict, meta_lines: dict, cols: _Header, head
     _check_phi_units(values, cols, header_line, path)
 
 
-def _check_phi_units(values: dict, cols: _Header, header_line: int, path: str | os.PathLike[str]) -> None:
+def _check_phi_units(values: dict, cols: Header, header_line: int, path: str | os.PathLike[str]) -> None:
     """φ in radians beside θ in degrees: every |φ| ≤ 2π, some φ not whole, θ up to more than 2π.
 
     Whole-numbered φ within ±2π (0 and 180 in-plane data has larger ones anyway; 0 alone, or
@@ -185,7 +185,7 @@ def write_csv(
     if m.sigma is not None:
         columns.append(("sigma", np.asarray(m.sigma, dtype=np.float64)))
     for name, values in (extra_columns or {}).items():
-        if not name or name.lower() in _KNOWN or any(c in name for c in ',\n\r"#') or name != name.strip():
+        if not name or name.lower() in KNOWN_COLUMNS or any(c in name for c in ',\n\r"#') or name != name.strip():
             raise ValueError(f"extra column name {name!r} is empty, a standard column, or contains , \" # or spaces at its ends")
         columns.append((name, np.asarray(values, dtype=np.float64)))
     for name, values in columns:

@@ -24,11 +24,11 @@ from .errors import DataError
 from .files import map_utf8
 from .untrusted import check_input_file, quote, shorten
 
-__all__ = ["CsvTable", "measurement_columns", "read_table"]
+__all__ = ["CsvTable", "Header", "KNOWN_COLUMNS", "measurement_columns", "read_table"]
 
 ANGLES = ("theta_i", "phi_i", "theta_o", "phi_o")
 CHANNELS = ("R", "G", "B")
-_KNOWN = (*ANGLES, "wavelength_nm", "channel", "brdf", "sigma")
+KNOWN_COLUMNS = (*ANGLES, "wavelength_nm", "channel", "brdf", "sigma")
 _META = re.compile(r"#\s*([A-Za-z_][\w.-]*)\s*:\s?(.*)")
 _SEPARATORS = {";": "semicolon", "\t": "tab"}
 _CHANNEL_CODE = np.full(256, 255, np.uint8)
@@ -47,7 +47,7 @@ class CsvTable:
     meta: dict
     meta_lines: dict
     header_line: int
-    cols: _Header
+    cols: Header
     columns: dict | None = None
     """With ``read_table(prepared=True)``: :func:`measurement_columns` of the values."""
     pairs: tuple[np.ndarray, np.ndarray] | None = None
@@ -66,7 +66,7 @@ def read_table(path: str | os.PathLike[str], *, prepared: bool = False) -> CsvTa
         raw = raw[pos:].replace(b"\r\n", b"\n").replace(b"\r", b"\n")
         pos = 0
     meta, meta_lines, header_line, header, pos = _split_header(raw, path, pos)
-    cols = _Header(header, header_line, path)
+    cols = Header(header, header_line, path)
     end = len(raw)
     while end > pos and raw[end - 1] in b" \t\n":
         end -= 1
@@ -78,7 +78,7 @@ def read_table(path: str | os.PathLike[str], *, prepared: bool = False) -> CsvTa
     table = CsvTable(values, channel, meta, meta_lines, header_line, cols)
     if not prepared:
         return table
-    from .._model.direction_pairs import unique_direction_pairs
+    from .._model import unique_direction_pairs  # NumPy alone (the subpackage loads its modules on first use)
 
     columns = measurement_columns(values, channel)
     pairs = unique_direction_pairs(*(columns[n] for n in ANGLES))
@@ -129,7 +129,7 @@ def _split_header(raw: Any, path: str | os.PathLike[str], pos: int = 0) -> tuple
     raise DataError("the file is empty" if blank else "no header row: the file has only comment lines", path=path)
 
 
-class _Header:
+class Header:
     """Column positions from the header row, validated."""
 
     def __init__(self, header: str, line: int, path: str | os.PathLike[str]) -> None:
@@ -158,7 +158,7 @@ class _Header:
             seen[name] = i
         self.index = seen
         for i, name in enumerate(names):
-            if name not in _KNOWN and name.lower() in _KNOWN and name.lower() not in seen:
+            if name not in KNOWN_COLUMNS and name.lower() in KNOWN_COLUMNS and name.lower() not in seen:
                 raise err(f"is this {name.lower()!r}? Column names are case sensitive", name, i + 1)
         for name in ANGLES:
             if name not in seen:
@@ -175,14 +175,14 @@ class _Header:
             raise err("'sigma' without 'brdf': sigma is the uncertainty of the brdf column", "sigma", seen["sigma"] + 1)
         self.channel = seen.get("channel")
         self.numeric = [n for n in (*ANGLES, "wavelength_nm", "brdf", "sigma") if n in seen]
-        self.ignored = [i for i, n in enumerate(names) if n not in _KNOWN]
+        self.ignored = [i for i, n in enumerate(names) if n not in KNOWN_COLUMNS]
 
     def column(self, name: str) -> dict[str, Any]:
         return dict(column=name, index=self.index[name] + 1)
 
 
 def _did_you_mean(name: str, names: list[str]) -> str:
-    close = difflib.get_close_matches(name, [n for n in names if n not in _KNOWN and len(n) < 3 * len(name)], n=1, cutoff=0.75)
+    close = difflib.get_close_matches(name, [n for n in names if n not in KNOWN_COLUMNS and len(n) < 3 * len(name)], n=1, cutoff=0.75)
     return f" (is {quote(close[0])} meant to be {name!r}?)" if close else ""
 
 
@@ -210,7 +210,7 @@ PARSE_BLOCK = 1 << 23
 times the block — stay small however large the file is."""
 
 
-def _parse_blocks(raw: Any, pos: int, end: int, cols: _Header) -> tuple[dict, np.ndarray | None] | None:
+def _parse_blocks(raw: Any, pos: int, end: int, cols: Header) -> tuple[dict, np.ndarray | None] | None:
     """:func:`_parse_fast` over blocks of about ``PARSE_BLOCK`` bytes of whole lines, the columns
     joined; None when any block needs a closer look (the slow parser then reads the whole body)."""
     parts = []
@@ -228,7 +228,7 @@ def _parse_blocks(raw: Any, pos: int, end: int, cols: _Header) -> tuple[dict, np
     return values, None if parts[0][1] is None else np.concatenate([p[1] for p in parts])
 
 
-def _parse_fast(raw: Any, pos: int, end: int, cols: _Header) -> tuple[dict, np.ndarray | None] | None:
+def _parse_fast(raw: Any, pos: int, end: int, cols: Header) -> tuple[dict, np.ndarray | None] | None:
     """({name: values}, channel codes or None) from ``raw[pos:end]``, or None when the body needs
     a closer look."""
     n = end - pos
@@ -285,7 +285,7 @@ def _lines(raw: Any, pos: int, end: int) -> Iterator[str]:
         pos = stop + 1
 
 
-def _parse_slow(lines: Iterable[str], first: int, cols: _Header, path: str | os.PathLike[str]) -> tuple[dict, np.ndarray | None]:
+def _parse_slow(lines: Iterable[str], first: int, cols: Header, path: str | os.PathLike[str]) -> tuple[dict, np.ndarray | None]:
     """Line by line; raises at the first bad line."""
     names, ncols = cols.names, len(cols.names)
     numeric = [(n, cols.index[n]) for n in cols.numeric]

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from .csv_table import CsvTable, read_table
 
-__all__ = ["READ_AHEAD_BYTES", "ReadAhead", "read_ahead"]
+__all__ = ["READ_AHEAD_BYTES", "ReadAhead", "start_read_ahead"]
 
 READ_AHEAD_BYTES = 2 << 20
 """CSV files of at least this many bytes (about 25,000 rows) are parsed by a helper process: below
@@ -92,7 +92,7 @@ def _stop(process: subprocess.Popen) -> None:
         process.stdout.close()
 
 
-def read_ahead(path: str | os.PathLike[str]) -> ReadAhead | None:
+def start_read_ahead(path: str | os.PathLike[str]) -> ReadAhead | None:
     """A :class:`ReadAhead` of ``path`` where one pays: a regular ``.csv`` file of at least
     :data:`READ_AHEAD_BYTES`, two cores or more, not turned off (:data:`ENVIRONMENT`); else None."""
     if os.environ.get(ENVIRONMENT, "1") == "0" or Path(path).suffix.lower() != ".csv" or _cores() < 2:

@@ -16,6 +16,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     submod_attrs={
         "cook_torrance": ['ambient_reflectance', 'brdf', 'brdf_pairs', 'combine_parts', 'diffuse_reflectance', 'fresnel', 'normal_reflectance',
                           'specular_constant', 'specular_geometric', 'transmitted_diffuse_factor'],
+        "direction_pairs": ['unique_direction_pairs'],
         "directions": ['Geometry', 'direction_from_angles_deg', 'geometry', 'geometry_from_angles_deg'],
         "distribution": ['beckmann', 'gaussian'],
         "evaluation": ['evaluate', 'evaluate_at', 'goniometer_directions', 'simulate'],
