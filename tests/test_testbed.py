@@ -36,7 +36,10 @@ def test_testbed_file_reads_and_is_the_plugin_its_header_names(path):
     for got, want in ((d.theta_i, ti), (d.phi_i, pi), (d.theta_o, to), (d.phi_o, po)):
         np.testing.assert_array_equal(got[::3], want)
     # A fresh evaluation of the header's plugin at a few of the file's own pairs (the script's float64 unit vectors:
-    # a float32 ulp of a direction moves the α = 0.05 peak by 10⁻⁴).
+    # a float32 ulp of a direction moves the α = 0.05 peak by 10⁻⁴). Mitsuba's scalar_rgb variant computes in float32,
+    # and its rounding depends on the processor's instructions (Dr.Jit's): the file (made on an AMD EPYC) and an Intel
+    # Xeon with AVX-512 differ by up to 1.3·10⁻⁶ of the value near the rough plastic's peak, so the check allows 10⁻⁵
+    # (a wrong plugin or parameter is off by far more).
     mi.set_variant("scalar_rgb")
     plugin, ctx = mi.load_dict(bsdf), mi.BSDFContext()
     si = mi.SurfaceInteraction3f()
@@ -47,4 +50,4 @@ def test_testbed_file_reads_and_is_the_plugin_its_header_names(path):
         si.wi = mi.Vector3f(*l)
         fresh = np.array(plugin.eval(ctx, si, mi.Vector3f(*v)), dtype=float) / v[2]
         assert d.band[row : row + 3].tolist() == [0, 1, 2]
-        np.testing.assert_allclose(d.brdf[row : row + 3], fresh, rtol=1e-6, err_msg=f"{path.name}, row {row}")
+        np.testing.assert_allclose(d.brdf[row : row + 3], fresh, rtol=1e-5, err_msg=f"{path.name}, row {row}")
