@@ -66,7 +66,7 @@ READ_FLOOR = ("import sys; from ctfit.internal import start_read_ahead; ahead = 
               + "; import ctfit; from ctfit.internal import measurement_from_table; table = ahead.table() if ahead else None; "
               "table is None and ctfit.read_measurement(sys.argv[1]); table is not None and measurement_from_table(table, sys.argv[1])")
 """The floor of a fit of one file: the bare JAX process, and reading the file as ``ctfit fit`` does
-(a CSV of 2 MiB or more parsed by a helper process while JAX is imported: ``ctfit/_io/read_ahead.py``)."""
+(a CSV of 8 MiB or more parsed by a helper process while JAX is imported: ``ctfit/_io/read_ahead.py``)."""
 IN_PROCESS = r"""
 import json, sys, time
 import jax

@@ -28,12 +28,21 @@ def _measurement(n: int, seed: int = 0) -> ctfit.Measurement:
     return ctfit.simulate(metal, n_pairs=n // 2, seed=seed, noise=0.01)
 
 
+BIG = 1 << 20
+"""The helper's size threshold in these tests (the default, 8 MiB, would take a file of 100,000 rows)."""
+
+
+@pytest.fixture(autouse=True)
+def _threshold(monkeypatch):
+    monkeypatch.setattr(ahead_module, "READ_AHEAD_BYTES", BIG)
+
+
 @pytest.fixture(scope="module")
 def big_csv(tmp_path_factory):
-    """A CSV above the helper's size threshold (about 2 MiB)."""
+    """A CSV above the tests' size threshold."""
     path = tmp_path_factory.mktemp("ahead") / "big.csv"
     ctfit.write_csv(_measurement(30_000), path)
-    assert os.path.getsize(path) >= ahead_module.READ_AHEAD_BYTES
+    assert os.path.getsize(path) >= BIG
     return path
 
 
@@ -181,7 +190,7 @@ def test_the_bundled_measurements_read_the_same_through_the_helper(monkeypatch):
 
 def test_ctfit_fit_starts_the_helper_before_it_imports_jax(big_csv):
     """The helper's parse overlaps the command's import of JAX only if it starts first."""
-    code = ("import sys\nfrom ctfit._io import read_ahead as r\ninit = r.ReadAhead.__init__\n"
+    code = (f"import sys\nfrom ctfit._io import read_ahead as r\nr.READ_AHEAD_BYTES = {BIG}\ninit = r.ReadAhead.__init__\n"
             "def spy(self, path):\n    print('jax imported:', 'jax' in sys.modules, flush=True)\n    init(self, path)\n"
             "r.ReadAhead.__init__ = spy\nfrom ctfit.cli import main\n"
             f"sys.argv = ['ctfit', 'fit', {str(big_csv)!r}, '--lobes', '99']\ntry:\n    main()\nexcept SystemExit:\n    pass\n")
