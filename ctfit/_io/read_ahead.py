@@ -77,6 +77,9 @@ class ReadAhead:
         except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
             _stop(process)
             return None
+        except BaseException:  # Ctrl-C while waiting: the helper stopped too
+            _stop(process)
+            raise
         return table if isinstance(table, CsvTable) else None
 
     def cancel(self) -> None:
