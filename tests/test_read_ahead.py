@@ -46,6 +46,19 @@ def big_csv(tmp_path_factory):
     return path
 
 
+def _spy(monkeypatch, method: str, note) -> list:
+    """A list that gets ``note(helper, result)`` at every call of ``ReadAhead.<method>``."""
+    notes, real = [], getattr(ReadAhead, method)
+
+    def spy(self, *args):
+        result = real(self, *args)
+        notes.append(note(self, result))
+        return result
+
+    monkeypatch.setattr(ReadAhead, method, spy)
+    return notes
+
+
 def _same_measurement(a: ctfit.Measurement, b: ctfit.Measurement) -> None:
     for name in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf", "sigma", "wavelength_nm"):
         assert (getattr(a, name) is None) == (getattr(b, name) is None), name
@@ -137,15 +150,7 @@ def test_ctfit_fit_gives_the_same_result_with_and_without_the_helper(tmp_path, m
     path = tmp_path / "metal.csv"
     ctfit.write_csv(_measurement(400, seed=3), path)
     monkeypatch.setattr(ahead_module, "READ_AHEAD_BYTES", 10)
-    taken = []
-    table = ReadAhead.table
-
-    def spy(self):
-        got = table(self)
-        taken.append(got is not None)
-        return got
-
-    monkeypatch.setattr(ReadAhead, "table", spy)
+    taken = _spy(monkeypatch, "table", lambda helper, table: table is not None)
     runner = CliRunner()
     docs = []
     for setting in ("1", "0"):
@@ -163,14 +168,7 @@ def test_ctfit_fit_refusing_an_option_leaves_no_helper_running(tmp_path, monkeyp
     path = tmp_path / "metal.csv"
     ctfit.write_csv(_measurement(40, seed=4), path)
     monkeypatch.setattr(ahead_module, "READ_AHEAD_BYTES", 10)
-    started = []
-    init = ReadAhead.__init__
-
-    def spy(self, p):
-        init(self, p)
-        started.append(self._process)
-
-    monkeypatch.setattr(ReadAhead, "__init__", spy)
+    started = _spy(monkeypatch, "__init__", lambda helper, _: helper._process)
     r = CliRunner().invoke(app, ["fit", str(path), "--lobes", "99"])
     assert r.exit_code == 2 and "--lobes" in r.output
     assert len(started) == 1 and started[0].returncode is not None  # started, then stopped
