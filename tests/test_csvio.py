@@ -379,8 +379,11 @@ def test_given_direction_pairs_are_checked():
         m.with_directions(np.zeros((1, 3)), np.zeros(4, int))
     with pytest.raises(ValueError, match="integers"):
         m.with_directions(np.zeros((1, 4)), np.zeros(4))
+    assert m.repeats  # found (from m's own pairs) and kept on m
     given = m.with_directions([[0.0, 0.0, 1.0, 0.0]], np.zeros(4, np.int32))
     assert given is not m and given.directions()[1].dtype == np.int32 and len(m.directions()[0]) == 1
+    assert "repeats" not in given.__dict__ and given.repeats  # found again, from the pairs given
+    assert given.theta_i is m.theta_i  # the same samples: no copy, and no second check of them
 
 
 # --- hostile input: binary files, long lines, old line endings ------------------------------------

@@ -11,6 +11,7 @@ G once per pair and F per (pair, band).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 from collections.abc import Sequence
@@ -199,7 +200,8 @@ class Measurement:
             raise ValueError(f"pairs must have shape (D, 4) and index ({len(self)},) integers; got {pairs.shape} and {index.shape} {index.dtype}")
         pairs.setflags(write=False)
         index.setflags(write=False)
-        new = dataclasses.replace(self)
+        new = copy.copy(self)  # the same samples, checked already: no second check of every value (0.07 s on a MERL table)
+        new.__dict__.pop("repeats", None)  # found from the direction pairs
         new.__dict__["_directions"] = (pairs, index)
         return new
 
