@@ -5,9 +5,8 @@ own: they may change between versions. Everything meant for users is in :mod:`ct
   out, padded to its size bucket): ``.problem``, ``.u0`` (the start in the fit's coordinates).
 - :func:`normal_equations`: ``(½‖r‖², Jᵀr, JᵀJ)`` of a prepared problem at free values ``u``,
   the one evaluation a Levenberg–Marquardt step of the fit is built on.
-- :func:`start_read_ahead` and :func:`measurement_from_table`: a large CSV parsed in a helper
-  process, and its table made a checked Measurement, as ``ctfit fit`` reads its file while it
-  imports JAX (the floor of ``scripts/bench_fit.py``).
+- :func:`start_read_ahead`: a large CSV parsed in a helper process (its ``.measurement()``), as
+  ``ctfit fit`` reads its file while it imports JAX (the floor of ``scripts/bench_fit.py``).
 - ``LOSSES``: the names ``ctfit.fit(..., loss=...)`` accepts besides "auto" (a search over
   every fit, ``scripts/bench_real.py``).
 """
@@ -19,11 +18,11 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from ._fitting import LOSSES, normal_equations, prepare_fit
-    from ._io import measurement_from_table, start_read_ahead
+    from ._io import start_read_ahead
 
-__all__ = ["LOSSES", "measurement_from_table", "normal_equations", "prepare_fit", "start_read_ahead"]
+__all__ = ["LOSSES", "normal_equations", "prepare_fit", "start_read_ahead"]
 
-_HOME = {"LOSSES": "_fitting", "normal_equations": "_fitting", "prepare_fit": "_fitting", "measurement_from_table": "_io", "start_read_ahead": "_io"}
+_HOME = {"LOSSES": "_fitting", "normal_equations": "_fitting", "prepare_fit": "_fitting", "start_read_ahead": "_io"}
 
 
 def __getattr__(name: str) -> Any:

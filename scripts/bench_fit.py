@@ -63,8 +63,7 @@ PY = sys.executable
 CTFIT = str(Path(sys.executable).with_name("ctfit"))
 JAX_FLOOR = "import jax; jax.jit(lambda x: x + 1)(1.0).block_until_ready()"
 READ_FLOOR = ("import sys; from ctfit.internal import start_read_ahead; ahead = start_read_ahead(sys.argv[1]); " + JAX_FLOOR
-              + "; import ctfit; from ctfit.internal import measurement_from_table; table = ahead.table() if ahead else None; "
-              "table is None and ctfit.read_measurement(sys.argv[1]); table is not None and measurement_from_table(table, sys.argv[1])")
+              + "; import ctfit; ahead.measurement() if ahead else ctfit.read_measurement(sys.argv[1])")
 """The floor of a fit of one file: the bare JAX process, and reading the file as ``ctfit fit`` does
 (a CSV of 8 MiB or more parsed by a helper process while JAX is imported: ``ctfit/_io/read_ahead.py``)."""
 IN_PROCESS = r"""

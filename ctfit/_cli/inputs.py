@@ -47,16 +47,12 @@ def load_material_file(path: Path):
 
 def read_data(path: Path, param_out: str | None = None, ahead=None):
     """Read a measurement (once); ``--param-out`` serves only an ALTA file without its own #PARAM_OUT
-    line. ``ahead``: a :class:`~ctfit._io.read_ahead.ReadAhead` of ``path`` (its table, checked
-    here as the reader checks it; read here when it has none)."""
+    line. ``ahead``: a :class:`~ctfit._io.read_ahead.ReadAhead` of ``path`` (its measurement)."""
     from .._fitting import read_input
 
     check_param_out(param_out)
-    table = ahead.table() if ahead is not None and ahead.path == str(path) else None
-    if table is not None:
-        from .._io import measurement_from_table
-
-        return measurement_from_table(table, path)
+    if ahead is not None and ahead.path == str(path):
+        return ahead.measurement()
     return read_input(path, param_out)
 
 

@@ -9,7 +9,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
         "alta": ['read_alta'],
-        "csv_files": ['measurement_from_table', 'read_csv', 'write_csv'],
+        "csv_files": ['read_csv', 'write_csv'],
         "csv_table": ['CsvTable', 'read_table'],
         "errors": ['DataError', 'DataWarning', 'MaterialError'],
         "files": ['TEMPORARY', 'atomic_save', 'atomic_write', 'remove_stale_temporaries', 'remove_temporaries', 'replace_links_in'],

@@ -24,8 +24,12 @@ import pickle
 import subprocess
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .csv_table import CsvTable, read_table
+
+if TYPE_CHECKING:
+    from .._model import Measurement
 
 __all__ = ["READ_AHEAD_BYTES", "ReadAhead", "start_read_ahead"]
 
@@ -51,8 +55,8 @@ def _identity(path: str | os.PathLike[str]) -> tuple[int, int, int, int]:
 
 
 class ReadAhead:
-    """A helper process parsing one CSV; :meth:`table` waits for it and returns its table, or None
-    (the caller then reads the file itself)."""
+    """A helper process parsing one CSV; :meth:`measurement` waits for it and returns the file's
+    measurement (:meth:`table`: the parsed table, or None)."""
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = os.fspath(path)
@@ -81,6 +85,15 @@ class ReadAhead:
             _stop(process)
             raise
         return table if isinstance(table, CsvTable) else None
+
+    def measurement(self) -> Measurement:
+        """The checked :class:`~ctfit.Measurement` of the file: from the helper's table
+        (:func:`~ctfit._io.csv_files.measurement_from_table`: the reader's checks and errors), or
+        read here (:func:`~ctfit.read_csv`) where the helper has none. Imports JAX (the Measurement)."""
+        from .csv_files import measurement_from_table, read_csv
+
+        table = self.table()
+        return read_csv(self.path) if table is None else measurement_from_table(table, self.path)
 
     def cancel(self) -> None:
         """Stop the helper (its table is not wanted)."""
