@@ -108,3 +108,24 @@ def test_what_the_directions_give_is_computed_once_for_members_of_one_geometry(m
     fresh = scattered(300, 12)
     diagnostics.half_angle_deg(fresh)
     assert len(calls) == 1  # other pairs: computed
+
+
+def test_a_group_of_several_calls_makes_its_program_first_on_members_all_skipped(monkeypatch):
+    """The store checks a program it loads by running it, under a lock: made by the first of
+    several calls running side by side, it would keep the others waiting for that call's whole
+    solve. So it is made first, with every member inactive (skipped), and every call finds it."""
+    events = []
+    for name in ("stored_program", "cached_call"):
+        real = getattr(shared_geometry, name)
+        spy = lambda *a, _name=name, _real=real, **kw: events.append((_name, a[0], np.asarray(a[5]).tolist())) or _real(*a, **kw)
+        monkeypatch.setattr(shared_geometry, name, spy)
+    patch_module(monkeypatch, shared_geometry, "SHARED_CALL", 2)
+    data = same_geometry([0.15, 0.2, 0.25, 0.3, 0.35], n_pairs=90, seed=3)
+    got = ctfit.fit_batch(data, ST)
+    assert events[0] == ("stored_program", "fit_shared", [False, False])
+    assert events[1:] == [("cached_call", "fit_shared", on) for on in ([True, True], [True, True], [True, False])]
+    assert_same_fit(got[4], ctfit.fit(data[4], ST))
+    events.clear()
+    patch_module(monkeypatch, shared_geometry, "SHARED_CALL", 8)
+    ctfit.fit_batch(data, ST)  # one call: it makes the program itself
+    assert events == [("cached_call", "fit_shared", [True] * 5 + [False] * 3)]
