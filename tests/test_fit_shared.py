@@ -108,6 +108,8 @@ def test_what_the_directions_give_is_computed_once_for_members_of_one_geometry(m
     fresh = scattered(300, 12)
     diagnostics.half_angle_deg(fresh)
     assert len(calls) == 1  # other pairs: computed
+    diagnostics.relative_residual_structure(fresh.directions()[0], fresh.brdf, index=fresh.directions()[1])
+    assert len(calls) == 1  # the groups of α (and of L·V away from the peak) take the pairs' α computed above
 
 
 def test_a_group_of_several_calls_makes_its_program_first_on_members_all_skipped(monkeypatch):

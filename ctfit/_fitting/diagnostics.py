@@ -40,9 +40,10 @@ _OFF_PEAK_DEG = 10.0
 """The retro-reflection group counts samples at least this far (half-vector angle α) from the peak."""
 
 
-def _angle_lv_off_peak(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
-    """The angle between L and V, NaN (no bin) within ``_OFF_PEAK_DEG`` of the specular peak."""
-    return np.where(_half_angle(ti, pi, to, po) >= _OFF_PEAK_DEG, _angle_lv(ti, pi, to, po), np.nan)
+def _angle_lv_off_peak(pairs: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    """The angle between L and V, NaN (no bin) within ``_OFF_PEAK_DEG`` of the specular peak
+    (``alpha``: the pairs' half-vector angles)."""
+    return np.where(alpha >= _OFF_PEAK_DEG, _angle_lv(*pairs.T), np.nan)
 
 
 def _half_angle(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
@@ -53,8 +54,8 @@ def _half_angle(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) 
     return np.rad2deg(np.arctan2(np.hypot(hx, hy), hz))
 
 
-def _max_theta(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
-    return np.maximum(ti, to)
+def _max_theta(pairs: np.ndarray, alpha: np.ndarray) -> np.ndarray:
+    return np.maximum(pairs[:, 0], pairs[:, 2])
 
 
 def angle_lv_deg(data: Measurement) -> np.ndarray:
@@ -67,7 +68,14 @@ def half_angle_deg(data: Measurement) -> np.ndarray:
     computed per direction pair (``data.directions()``) and kept for the next measurement of the
     same pairs (files of one geometry fitted together share them)."""
     pairs, index = data.directions()
-    return _recent(pairs, "half-angle", lambda: _half_angle(*pairs.T))[index]
+    return _pair_half_angles(pairs)[index]
+
+
+def _pair_half_angles(pairs: np.ndarray) -> np.ndarray:
+    """α of every direction pair (D, 4), computed once per array (:func:`_recent`) and block by
+    block (small temporaries): the residual groups and :func:`half_angle_deg` share it."""
+    return _recent(pairs, "half-angle", lambda: np.concatenate([_half_angle(*pairs[i: i + _BLOCK].T) for i in range(0, len(pairs), _BLOCK)]
+                                                               or [np.zeros(0)]))
 
 
 _kept: list = []  # (direction pairs, what, values): the last few computed from a set of pairs
@@ -89,7 +97,7 @@ def _recent(pairs: np.ndarray, what: str, compute: Callable[[], Any]) -> Any:
 
 _GROUPS = (
     ("angle between L and V (α ≥ 10°)", _angle_lv_off_peak, np.array([0, 2, 5, 10, 20, 40, 80, 180.0]), "retro-reflection"),
-    ("half-vector angle α", _half_angle, np.array([0, 2, 5, 10, 20, 40, 90.0]), "the specular peak"),
+    ("half-vector angle α", lambda pairs, alpha: alpha, np.array([0, 2, 5, 10, 20, 40, 90.0]), "the specular peak"),
     ("max(θ_i, θ_o)", _max_theta, np.array([0, 30, 60, 75, 85, 90.0]), "grazing"),
 )
 
@@ -131,6 +139,7 @@ def relative_residual_structure(
     rel = np.asarray(rel)
     per_sample = mask is None
     blocks = [slice(i, i + _BLOCK) for i in range(0, len(rel), _BLOCK)]  # rows at a time: small temporaries
+    alpha = _pair_half_angles(pairs)  # what two of the groups are made of
     out = []
     for name, variable, edges, place in _GROUPS:
         bins = len(edges) - 1
@@ -138,8 +147,8 @@ def relative_residual_structure(
         def bin_of(x: np.ndarray) -> np.ndarray:  # NaN (a sample the group leaves out) → the extra bin ``bins``
             return np.where(np.isnan(x), bins, np.clip(np.digitize(x, edges) - 1, 0, bins - 1)).astype(np.int8)
 
-        b = _recent(pairs, name, lambda: np.concatenate([bin_of(variable(*pairs[s].T)) for s in (slice(i, i + _BLOCK) for i in range(0, len(pairs), _BLOCK))]
-                                                        or [np.zeros(0, np.int8)]))
+        b = _recent(pairs, name, lambda: np.concatenate([bin_of(variable(pairs[s], alpha[s]))
+                                                         for s in (slice(i, i + _BLOCK) for i in range(0, len(pairs), _BLOCK))] or [np.zeros(0, np.int8)]))
         if per_sample:
             b = b[index]
         bins += 1  # the bins' sums below include the left-out bin; it is never reported
