@@ -221,16 +221,24 @@ _lapack_registered = False
 
 def _register_lapack() -> None:
     """Register JAX's LAPACK kernels, which compiled fits call. JAX registers them when it lowers
-    a linear-algebra operation, which a loaded executable skips (its call would crash): lowering
-    one small ``jnp.linalg.eigh`` (never compiled) does it through JAX's public API. Threads
-    asking at once wait for the first. The kernels take their routines from SciPy's
-    ``cython_blas`` and ``cython_lapack``, loaded first on their own (:func:`_scipy_lapack`)."""
+    a linear-algebra operation, which a loaded executable skips (its call would crash). JAX's own
+    loader of serialised programs (``jax.export``) calls ``jax._src.lax.linalg.initialize_lapack``
+    for that, and so does this (0.1 ms); where a JAX lacks it, lowering one small
+    ``jnp.linalg.eigh`` (never compiled) does it through the public API (0.09–0.17 s of every
+    process that loads a program). Threads asking at once wait for the first. The kernels take
+    their routines from SciPy's ``cython_blas`` and ``cython_lapack``, loaded first on their own
+    (:func:`_scipy_lapack`)."""
     global _lapack_registered
     with _lapack_lock:
         if not _lapack_registered:
             loaded = _scipy_lapack()
             try:
-                jax.jit(jnp.linalg.eigh).lower(np.eye(2))
+                try:
+                    from jax._src.lax.linalg import initialize_lapack
+                except ImportError:
+                    jax.jit(jnp.linalg.eigh).lower(np.eye(2))
+                else:
+                    initialize_lapack()
             finally:
                 for name in loaded:  # JAX holds their routines now; ``import scipy.linalg`` makes its own
                     sys.modules.pop(name, None)
