@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._model import Geometry, Measurement, Params, Structure, combine_parts, geometry_from_angles_deg, specular_geometric
-from .._runtime import cached_call
+from .._runtime import cached_call, stored_program
 from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
 from .losses import LOSSES, loss_floor
@@ -96,7 +96,8 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     if fields is None:
         blocks = -(-n // GEOMETRY_BLOCK)
         padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
-        parts = [jax.device_get(cached_call("geometry", _geometry_fields, padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK])) for b in range(blocks)]
+        run = stored_program("geometry", _geometry_fields, padded[:GEOMETRY_BLOCK])
+        parts = jax.device_get([run(padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK]) for b in range(blocks)])  # every block started, then fetched
         fields = {k: np.concatenate([p[k] for p in parts])[:n] for k in parts[0]}
         for v in fields.values():
             v.setflags(write=False)  # shared by the fits of these pairs
