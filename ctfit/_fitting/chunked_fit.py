@@ -298,18 +298,35 @@ class _Kernels:
         return self.normal_equations(flat)
 
 
-def _kernels(parts: list[Problem], u0: dict) -> _Kernels:
-    template = parts[0]
+def _kernels(parts: list[Problem], u0: dict, solver: tuple | None = None, ne: Callable[..., Any] | None = None) -> _Kernels:
+    """The fit's kernels over ``parts``; ``solver`` (:func:`_solver_programs`) and ``ne``
+    (:func:`_ne_program`) where made already (in other threads)."""
+    init, step, zeros = _solver_programs(u0) if solver is None else solver
+    ne = _ne_program(parts[0], u0) if ne is None else ne
+    return _Kernels([_leaves(pt) for pt in parts], parts[0], u0, ne, init, step, zeros)
+
+
+def _ne_program(template: Problem, u0: dict):
+    """``fit_ne`` for chunks like ``template``: the largest of a fit's programs (its load is
+    most of a warm fit's loading)."""
+    size, dtype = _flat_shape(u0)
+    p = _padded_size(size)
+    zeros = [np.zeros(s, dtype) for s in ((), (p,), (p, p))]
+    return _program("fit_ne", _ne_kernel, zeros, template, zeros[1], u0)
+
+
+def _solver_programs(u0: dict) -> tuple:
+    """(``lm_init``, ``lm_step``, the sums' zeros on the device): they depend on the number of
+    parameters alone."""
     size, dtype = _flat_shape(u0)
     p = _padded_size(size)
     flat = jax.device_put(np.zeros(p, dtype))
     zeros = [jax.device_put(np.zeros(s, dtype)) for s in ((), (p,), (p, p))]
-    ne = _program("fit_ne", _ne_kernel, zeros, template, flat, u0)
     tol = jax.device_put(np.zeros(2, dtype))
     init = _program("lm_init", _lm_init, flat, flat, flat, tol)
     state = init(flat, flat, flat, tol)["state"]
     step = _program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat, tol)
-    return _Kernels([_leaves(pt) for pt in parts], template, u0, ne, init, step, zeros)
+    return init, step, zeros
 
 
 def _report_programs(template: Problem, u0: dict, report: bool = True):
@@ -445,12 +462,12 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     shapes = _signature((parts[0], u0, grid, starts, keep_start, report))
     if shapes in _programs:
         seeds, kern = _seeds(seeding, u0, starts, grid, keep_start), _kernels(parts, u0)
-    else:
+    else:  # ``fit_ne`` (the largest) in one thread, the others in a second, the seeds' in this one
         with concurrent.futures.ThreadPoolExecutor(2) as pool:
-            kernels = pool.submit(_kernels, parts, u0)
-            pool.submit(_report_programs, parts[0], u0, report)
+            ne = pool.submit(_ne_program, parts[0], u0)
+            solver = pool.submit(lambda: (_report_programs(parts[0], u0, report), _solver_programs(u0))[1])
             seeds = _seeds(seeding, u0, starts, grid, keep_start)
-            kern = kernels.result()
+            kern = _kernels(parts, u0, solver.result(), ne.result())
         _programs[shapes] = True
     sample, race_samples = None, 0
     if race_parts is not None and seeds["flat"].shape[0] > 1:  # one seed alone is not raced: it is solved on all the data

@@ -286,7 +286,7 @@ def _scipy_lapack() -> list[str]:
 
 
 def prepare_runtime() -> None:
-    """Start :func:`_register_lapack`'s work (0.1 s, mostly a first lowering) in a thread of its own,
+    """Start :func:`_register_lapack`'s work (milliseconds: SciPy's two LAPACK modules) in a thread of its own,
     so that a command's first stored program need not wait for it (the command calls this when
     it sets JAX up, before it reads its files)."""
     threading.Thread(target=_register_lapack, name="ctfit-runtime").start()
