@@ -1,6 +1,8 @@
 """A large grid is summed chunk by chunk (cost, Jᵀr, JᵀJ, seed scores, the residual summary):
 the same numbers as all at once, and the compiled fit's temporaries stay chunk-sized."""
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -68,6 +70,23 @@ def test_chunked_sums_equal_the_whole(small_chunks, loss, layout):
     for a, b in zip(chunked, at_once):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(chunked[0], chunked[1], rtol=1e-12)  # the cost of both routes
+
+
+def test_samples_each_with_their_own_pair_sum_as_with_their_pairs_gathered(small_chunks):
+    """The fit's chunks hold each sample's own pair's geometry (``pair`` None: nothing gathered or
+    summed per pair): the same cost, Jᵀr and JᵀJ as the layout that gathers it, summed chunk by
+    chunk or at once."""
+    prep = _problem_and_start(_scattered(16 * 3 * SMALL_CHUNK - 40))
+    problem, u = prep.problem, dict(prep.u0, m=jnp.log(jnp.array([0.3])))
+    own = dataclasses.replace(problem, geom=jax.tree.map(lambda a: np.asarray(a)[np.asarray(problem.pair)], problem.geom), pair=None)
+    gathered = (jax.jit(half_squared_norm)(problem, u), *jax.jit(normal_equations)(problem, u))
+    assert _chunks.chunk_count(own) == 48
+    chunked = (jax.jit(half_squared_norm)(own, u), *jax.jit(normal_equations)(own, u))
+    _chunks.CHUNK = 10**9
+    at_once = (jax.jit(half_squared_norm)(own, u), *jax.jit(normal_equations)(own, u))
+    for a, b, c in zip(gathered, chunked, at_once):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(c, a, rtol=1e-12, atol=1e-14)
 
 
 @pytest.mark.parametrize("layout", ["grid", "pairs"])

@@ -40,8 +40,9 @@ def test_the_rows_of_the_race_are_a_sample_of_the_data_and_only_of_a_large_file(
     parts = chunked_fit.chunk_problems(problem, rows_of=sample)
     assert len(parts) == chunked_fit.RACE_CHUNKS
     np.testing.assert_array_equal(np.concatenate([np.asarray(p.y) for p in parts]), np.asarray(problem.y)[sample])
-    # each sampled sample keeps its own direction pair's geometry
-    theta = np.concatenate([np.asarray(p.geom.cos_l)[np.asarray(p.pair)] for p in parts])
+    # each sampled sample keeps its own direction pair's geometry (a chunk's ``pair`` None: its own row's)
+    assert all(p.pair is None for p in parts)
+    theta = np.concatenate([np.asarray(p.geom.cos_l) for p in parts])
     np.testing.assert_allclose(theta, np.asarray(problem.geom.cos_l)[np.asarray(problem.pair)[sample]])
 
 

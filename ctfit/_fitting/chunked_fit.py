@@ -74,19 +74,18 @@ def chunk_problems(problem: Problem, limit: int | None = None, rows_of: np.ndarr
     sigma, cos_i, mask = (host(a) for a in (problem.sigma, problem.cos_i, problem.mask))
     geom = jax.tree.map(np.asarray, problem.geom)
     count = y.shape[0] // rows if limit is None else min(limit, y.shape[0] // rows)
-    own = None if problem.spec.grid else jax.device_put(np.arange(rows, dtype=np.asarray(problem.pair).dtype))
     pair, band = host(problem.pair), host(problem.band)
     out = []
     for c in range(count):
         cut = slice(c * rows, (c + 1) * rows)
-        at = (lambda a: a[cut]) if problem.spec.grid else (lambda a: a[pair[cut]])  # type: ignore[index]  # set when not grid
+        at = (lambda a: a[cut]) if problem.spec.grid or pair is None else (lambda a: a[pair[cut]])
         cells = {k: None if a is None else a[cut] for k, a in dict(y=y, sigma=sigma, cos_i=cos_i, mask=mask, band=band).items()}
         g, cells = jax.device_put((jax.tree.map(at, geom), cells))  # one transfer per chunk
         if problem.spec.grid:
             del cells["band"]
             out.append(dataclasses.replace(problem, geom=g, **cells))
         else:
-            out.append(dataclasses.replace(problem, geom=g, pair=own, **cells))
+            out.append(dataclasses.replace(problem, geom=g, pair=None, **cells))  # each sample its own pair's geometry
     return out
 
 

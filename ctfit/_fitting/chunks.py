@@ -96,13 +96,19 @@ def _parts(problem: Problem, k: int):
             return dataclasses.replace(problem, geom=geom, y=y, sigma=sigma, cos_i=cos_i, mask=mask)
 
         return (jax.tree.map(split, problem.geom), *cells), grid_part
+    if problem.pair is None:  # each sample its own direction pair: the geometry is cut as the samples are
+
+        def own_part(x):
+            geom, band, y, sigma, cos_i, mask = x
+            return dataclasses.replace(problem, geom=geom, band=band, y=y, sigma=sigma, cos_i=cos_i, mask=mask)
+
+        return (jax.tree.map(split, problem.geom), split(problem.band), *cells), own_part
     rows = (split(problem.pair), split(problem.band), *cells)
-    own = jnp.arange(CHUNK, dtype=problem.pair.dtype)  # type: ignore[union-attr]  # set when not grid
 
     def part(x):
         pair, band, y, sigma, cos_i, mask = x
-        geom = jax.tree.map(lambda a: a[pair], problem.geom)
-        return dataclasses.replace(problem, geom=geom, pair=own, band=band, y=y, sigma=sigma, cos_i=cos_i, mask=mask)
+        geom = jax.tree.map(lambda a: a[pair], problem.geom)  # each sample its own pair's geometry (``pair`` None)
+        return dataclasses.replace(problem, geom=geom, pair=None, band=band, y=y, sigma=sigma, cos_i=cos_i, mask=mask)
 
     return rows, part
 

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from .chunks import sum_over_chunks
 from .losses import loss_residuals
-from .problem import SHAPE_PARAMETERS, Problem, band_sum, model_values, per_direction, values_from_s
+from .problem import SHAPE_PARAMETERS, Problem, at_samples, band_sum, model_values, per_direction, values_from_s
 
 __all__ = ["DENSE_BAND_COLUMNS", "normal_equations", "half_squared_norm", "residual"]
 
@@ -122,7 +122,9 @@ def _dir_sum(problem: Problem, x):
     """Σ over the samples of each direction pair: (D,) from a layout-shaped array."""
     if problem.spec.grid:
         return jnp.sum(x, axis=1)
-    return jax.ops.segment_sum(x, problem.pair, num_segments=problem.geom.cos_vh.shape[0])  # type: ignore[arg-type]  # set when not grid
+    if problem.pair is None:  # each sample its own pair
+        return x
+    return jax.ops.segment_sum(x, problem.pair, num_segments=problem.geom.cos_vh.shape[0])
 
 
 def _blocks(problem: Problem, r, cols: dict, names: list[str]):
@@ -158,7 +160,7 @@ def _blocks(problem: Problem, r, cols: dict, names: list[str]):
         # shape × band: Σ over samples of band b of a_i e_i J_S[d_i]
         if problem.spec.grid:
             return js.T @ (a * cj)
-        return jax.ops.segment_sum((a * cj)[:, None] * js[problem.pair], problem.band, num_segments=W).T  # type: ignore[arg-type]  # set when not grid
+        return jax.ops.segment_sum((a * cj)[:, None] * at_samples(problem, js), problem.band, num_segments=W).T  # type: ignore[arg-type]  # set when not grid
 
     grad = jnp.concatenate([dense(cols[k][0], cols[k][1], r) for k in names]) if names else jnp.zeros((0,), r.dtype)
     rows = [jnp.concatenate([block(*cols[ki], *cols[kj]) for kj in names], axis=1) for ki in names]
@@ -174,7 +176,7 @@ def _spread(problem: Problem, kind: str, col):
         one_hot = jnp.eye(problem.fixed_bands, dtype=col.dtype)
         return col[..., None] * (one_hot[None] if problem.spec.grid else one_hot[problem.band])
     a, js = col
-    return a[..., None] * (js[:, None, :] if problem.spec.grid else js[problem.pair])
+    return a[..., None] * (js[:, None, :] if problem.spec.grid else at_samples(problem, js))
 
 
 @jax.custom_jvp
@@ -193,7 +195,7 @@ def _residual_jvp(primals, tangents):
         if kind == "shape":
             a, js = col
             ds = js @ t.reshape(-1)
-            dres = dres + a * (ds[:, None] if problem.spec.grid else ds[problem.pair])
+            dres = dres + a * (ds[:, None] if problem.spec.grid else at_samples(problem, ds))
         elif kind == "scalar":
             dres = dres + col * t
         else:

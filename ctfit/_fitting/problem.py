@@ -47,7 +47,8 @@ class Problem(eqx.Module):
     grid layout: values (D, W) with a boolean ``mask`` (False for missing (pair, band) cells),
     ``cos_i`` (D, 1) (None unless the loss weights by cos θ_i);
     pairs layout: values (N,) with ``pair`` and ``band`` indices per sample (``mask`` False for
-    padding).
+    padding); ``pair`` None where each sample has its own direction pair (the geometry per
+    sample: the fit's chunks), so nothing is gathered or summed per pair.
     """
 
     spec: Spec = eqx.field(static=True)
@@ -217,10 +218,16 @@ def values_from_s(problem: Problem, s_dir, u_rest: dict, u_shape: dict):
         cos_lv = (geom.cos_l[:, None], geom.cos_v[:, None]) if transmitted else None
         return combine_parts(spec.structure, params, valid, spec_v, geom.cos_vh[:, None], cos_lv)
     p = _gather_bands(params, problem.band)
-    valid = geom.valid[problem.pair]
-    spec_v = None if s_dir is None else s_dir[problem.pair]
-    cos_lv = (geom.cos_l[problem.pair], geom.cos_v[problem.pair]) if transmitted else None
-    return combine_parts(spec.structure, p, valid, spec_v, geom.cos_vh[problem.pair], cos_lv)
+    at = lambda a: at_samples(problem, a)
+    spec_v = None if s_dir is None else at(s_dir)
+    cos_lv = (at(geom.cos_l), at(geom.cos_v)) if transmitted else None
+    return combine_parts(spec.structure, p, at(geom.valid), spec_v, at(geom.cos_vh), cos_lv)
+
+
+def at_samples(problem: Problem, x):
+    """A per-direction array (pairs layout) at every sample: ``x[pair]``, or ``x`` itself where
+    ``pair`` is None (each sample its own direction pair: the fit's chunks)."""
+    return x if problem.pair is None else x[problem.pair]
 
 
 def band_sum(problem: Problem, x):
