@@ -89,6 +89,22 @@ def test_samples_each_with_their_own_pair_sum_as_with_their_pairs_gathered(small
         np.testing.assert_allclose(c, a, rtol=1e-12, atol=1e-14)
 
 
+@pytest.mark.parametrize("pad", [False, True])
+def test_samples_of_distinct_pairs_are_laid_out_each_with_its_own_pair(pad):
+    """Scattered data (every sample its own direction pair) gets ``pair`` None and the geometry
+    in the samples' order, padded as they are; data whose pairs are shared keeps its index."""
+    data = _grid(300, 3)
+    one = data.replace(**{k: getattr(data, k)[::3] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf")})
+    problem = make_problem(ctfit.Structure(lobes=1), one, fixed_params=ctfit.Params(), pad=pad)
+    assert not problem.spec.grid and problem.pair is None
+    assert problem.geom.cos_vh.shape == problem.y.shape == ((bucket(300),) if pad else (300,))
+    own = ctfit.geometry_from_angles_deg(one.theta_i, one.phi_i, one.theta_o, one.phi_o)  # every sample's, in order
+    np.testing.assert_allclose(np.asarray(problem.geom.cos_vh)[:300], np.asarray(own.cos_vh), rtol=1e-12)
+    np.testing.assert_array_equal(np.asarray(problem.y)[:300], one.brdf)
+    shared = _scattered(600)  # a few pairs hold two samples
+    assert make_problem(ctfit.Structure(lobes=1), shared, fixed_params=ctfit.Params()).pair is not None
+
+
 @pytest.mark.parametrize("layout", ["grid", "pairs"])
 def test_chunked_fit_equals_the_whole_fit(small_chunks, layout):
     prep = _problem_and_start(_grid(16 * SMALL_CHUNK - 5) if layout == "grid" else _scattered(16 * 3 * SMALL_CHUNK - 40))

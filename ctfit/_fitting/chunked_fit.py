@@ -63,12 +63,13 @@ def chunk_problems(problem: Problem, limit: int | None = None, rows_of: np.ndarr
     """``problem`` (rows a multiple of the chunk's: ``make_problem(chunk=ROWS)``) cut into
     problems of one shape, on the host (the first ``limit`` of them); ``rows_of``: only these
     rows (a multiple of the chunk's, e.g. :func:`race_rows`). Pairs layout: each chunk's
-    samples carry their own direction pair's geometry (``pair`` = 0, 1, …)."""
+    samples carry their own direction pair's geometry (``pair`` None)."""
     rows = _rows(problem)
     if rows_of is not None:  # the rows' cells; a grid's rows are direction pairs, so their geometry too
         take = lambda a: None if a is None else np.asarray(a)[rows_of]
         cells: dict[str, Any] = {k: take(getattr(problem, k)) for k in ("y", "sigma", "cos_i", "mask", "band", "pair")}
-        problem = dataclasses.replace(problem, **cells, **({"geom": jax.tree.map(take, problem.geom)} if problem.spec.grid else {}))
+        per_row = problem.spec.grid or problem.pair is None  # the geometry is the rows' own
+        problem = dataclasses.replace(problem, **cells, **({"geom": jax.tree.map(take, problem.geom)} if per_row else {}))
     host = lambda a: None if a is None else np.asarray(a)
     y = np.asarray(problem.y)
     sigma, cos_i, mask = (host(a) for a in (problem.sigma, problem.cos_i, problem.mask))

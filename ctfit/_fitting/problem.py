@@ -146,9 +146,12 @@ def make_problem(
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data) and not data.repeats  # a grid cell holds one sample
+    own = not grid and n_pairs == len(data)  # every sample its own direction pair (scattered data): ``pair`` None
     pad_to, pad = (chunk_padding(grid, n_pairs, len(data), n_bands, chunk) if chunk else pad_to), pad or pad_to is not None or bool(chunk)
     if pad_to is not None and (pad_to[0] < n_pairs or pad_to[1] < len(data)):
         raise ValueError(f"{data.source}: pad_to={pad_to} is smaller than the data ({n_pairs} direction pairs, {len(data)} samples)")
+    if own:  # the geometry in the samples' order, padded as they are
+        pairs, pad_to = pairs[index], None if pad_to is None else (pad_to[1], pad_to[1])
     if pad and n_pairs:
         pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
     put = (lambda a: a) if chunk else jax.device_put  # chunked, the per-row arrays stay on the host
@@ -172,8 +175,8 @@ def make_problem(
         padded = lambda a, fill: np.concatenate([np.asarray(a), np.full(extra, fill, np.asarray(a).dtype)])
         y, mask = padded(data.brdf, 0.0), padded(np.ones(len(data), dtype=bool), False)
         sig = padded(data.sigma, 1.0) if data.sigma is not None else None
-        cos_i = padded(cos_pair[index], 1.0) if loss in ("cosine", "log") else None
-        pair, band = put(padded(index, 0)), put(padded(data.band, 0))  # no conversion program
+        cos_i = padded(cos_pair[: len(data)] if own else cos_pair[index], 1.0) if loss in ("cosine", "log") else None
+        pair, band = None if own else put(padded(index, 0)), put(padded(data.band, 0))  # no conversion program
     spec = Spec(structure=structure, free=free_names(structure, fixed), loss=loss, grid=grid, space=space)
     to = lambda a: None if a is None else jnp.asarray(a, dtype=dtype)
     rows: Callable[[Any], Any] = (lambda a: None if a is None else np.asarray(a, dtype=jnp.dtype(dtype))) if chunk else to
