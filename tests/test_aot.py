@@ -269,6 +269,20 @@ def test_lapack_kernels_are_registered_as_jax_export_does_or_by_lowering_where_j
     assert lowered == [jnp.linalg.eigh] and _aot._lapack_registered
 
 
+def test_a_command_s_runtime_is_prepared_in_a_thread_before_its_first_program(monkeypatch):
+    """``prepare_runtime`` (the ``ctfit`` command calls it before reading its files) registers the
+    LAPACK kernels and computes the environment's part of every key in a thread of its own."""
+    import threading
+
+    monkeypatch.setattr(_aot, "_lapack_registered", False)
+    _aot._environment_digest.cache_clear()
+    _aot.prepare_runtime()
+    for thread in threading.enumerate():
+        if thread.name == "ctfit-runtime":
+            thread.join(120)
+    assert _aot._lapack_registered and _aot._environment_digest.cache_info().currsize == 1
+
+
 def _ignores_its_second(x, unused):
     return {"y": x * 2.0}
 
