@@ -24,7 +24,7 @@ from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
 from .losses import LOSSES, loss_floor
 
-__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "band_sum", "make_problem", "model_parts", "model_values", "per_direction", "values_from_s"]
+__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "at_samples", "band_sum", "make_problem", "model_parts", "model_values", "per_direction", "values_from_s"]
 
 SHAPE_PARAMETERS = ("m", "w")
 """The parameters of S, the per-direction factor of the specular term (everything in R_s but F)."""
@@ -132,17 +132,7 @@ def make_problem(
     (direction pairs, samples; at least the data's) instead of the buckets, so that
     measurements of different buckets can be stacked into one batch (``pad`` is implied).
     ``chunk``: pad to whole chunks instead, per-row arrays left on the host (:func:`chunk_padding`)."""
-    if loss not in LOSSES:
-        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
-    if data.brdf is None:
-        raise ValueError(f"{data.source}: the data has no 'brdf' column to fit")
-    if loss == "sigma" and data.sigma is None:
-        raise ValueError(f"{data.source}: loss 'sigma' needs a 'sigma' column")
-    if loss == "sigma":
-        bad = np.flatnonzero(~(np.asarray(data.sigma) > 0) | ~np.isfinite(data.sigma))
-        if bad.size:
-            raise ValueError(f"{data.source}: loss 'sigma' needs every sigma finite and > 0; {bad.size} of {len(data)} samples are not "
-                             f"(the first is sample {bad[0]}, sigma = {data.sigma[bad[0]]!r}); drop them or choose another loss")
+    _check_fittable_by(data, loss)
     pairs, index = data.directions()
     n_pairs, n_bands = len(pairs), data.n_bands
     grid = n_pairs * n_bands <= 1.5 * len(data) and not data.repeats  # a grid cell holds one sample
@@ -194,6 +184,21 @@ def make_problem(
         fixed_bands=n_bands,
     )
 
+
+
+def _check_fittable_by(data: Measurement, loss: str) -> None:
+    """A ``ValueError`` naming the file where ``data`` cannot be fitted with ``loss`` at all."""
+    if loss not in LOSSES:
+        raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
+    if data.brdf is None:
+        raise ValueError(f"{data.source}: the data has no 'brdf' column to fit")
+    if loss == "sigma" and data.sigma is None:
+        raise ValueError(f"{data.source}: loss 'sigma' needs a 'sigma' column")
+    if loss == "sigma":
+        bad = np.flatnonzero(~(np.asarray(data.sigma) > 0) | ~np.isfinite(data.sigma))
+        if bad.size:
+            raise ValueError(f"{data.source}: loss 'sigma' needs every sigma finite and > 0; {bad.size} of {len(data)} samples are not "
+                             f"(the first is sample {bad[0]}, sigma = {data.sigma[bad[0]]!r}); drop them or choose another loss")
 
 
 def _gather_bands(params: Params, band) -> Params:

@@ -290,7 +290,11 @@ def prepare_runtime() -> None:
     environment's part of every key (:func:`_environment_digest`: package versions, the backend,
     ctfit's source; 0.02–0.04 s) in a thread of its own, so that a command's first stored program
     need not wait for them (the command calls this when it sets JAX up, before it reads its files)."""
-    threading.Thread(target=lambda: (_register_lapack(), _environment_digest()), name="ctfit-runtime").start()
+    def prepare() -> None:
+        _register_lapack()
+        _environment_digest()
+
+    threading.Thread(target=prepare, name="ctfit-runtime").start()
 
 
 def _load(path: pathlib.Path, key: str):
