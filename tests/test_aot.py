@@ -247,28 +247,6 @@ def test_scipy_lapack_leaves_an_imported_scipy_linalg_alone(monkeypatch):
     assert "scipy.linalg" in sys.modules
 
 
-def test_lapack_kernels_are_registered_as_jax_export_does_or_by_lowering_where_jax_lacks_that(monkeypatch):
-    """JAX's loader of serialised programs registers the kernels with ``initialize_lapack``: the
-    store calls it and lowers nothing; a JAX without it gets one ``eigh`` lowered instead. (That a
-    loaded program calling LAPACK then runs: the subprocess test above.)"""
-    from jax._src.lax import linalg
-
-    lowered, initialized = [], []
-    real_jit = jax.jit
-    monkeypatch.setattr(jax, "jit", lambda f, *a, **k: lowered.append(f) or real_jit(f, *a, **k))
-    real_init = linalg.initialize_lapack
-    monkeypatch.setattr(linalg, "initialize_lapack", lambda: initialized.append(1) or real_init())
-    monkeypatch.setattr(_aot, "_lapack_registered", False)
-    _aot._register_lapack()
-    assert initialized == [1] and lowered == [] and _aot._lapack_registered
-    _aot._register_lapack()  # once per process
-    assert initialized == [1]
-    monkeypatch.delattr(linalg, "initialize_lapack")
-    monkeypatch.setattr(_aot, "_lapack_registered", False)
-    _aot._register_lapack()
-    assert lowered == [jnp.linalg.eigh] and _aot._lapack_registered
-
-
 def test_a_command_s_runtime_is_prepared_in_a_thread_before_its_first_program(monkeypatch):
     """``prepare_runtime`` (the ``ctfit`` command calls it before reading its files) registers the
     LAPACK kernels and computes the environment's part of every key in a thread of its own."""

@@ -221,11 +221,11 @@ _lapack_registered = False
 
 def _register_lapack() -> None:
     """Register JAX's LAPACK kernels, which compiled fits call. JAX registers them when it lowers
-    a linear-algebra operation, which a loaded executable skips (its call would crash). JAX's own
-    loader of serialised programs (``jax.export``) calls ``jax._src.lax.linalg.initialize_lapack``
-    for that, and so does this (0.1 ms); where a JAX lacks it, lowering one small
-    ``jnp.linalg.eigh`` (never compiled) does it through the public API (0.09–0.17 s of every
-    process that loads a program). Threads asking at once wait for the first. The kernels take
+    a linear-algebra operation, which a loaded executable skips (its call would crash): lowering
+    one small ``jnp.linalg.eigh`` (never compiled) does it through JAX's public API (0.09–0.17 s;
+    the command does it in a background thread, :func:`prepare_runtime`). JAX's own loader of
+    serialised programs calls a private ``initialize_lapack`` instead, which ctfit may not use
+    (issue 24: public API only). Threads asking at once wait for the first. The kernels take
     their routines from SciPy's ``cython_blas`` and ``cython_lapack``, loaded first on their own
     (:func:`_scipy_lapack`)."""
     global _lapack_registered
@@ -233,12 +233,7 @@ def _register_lapack() -> None:
         if not _lapack_registered:
             loaded = _scipy_lapack()
             try:
-                try:
-                    from jax._src.lax.linalg import initialize_lapack
-                except ImportError:
-                    jax.jit(jnp.linalg.eigh).lower(np.eye(2))
-                else:
-                    initialize_lapack()
+                jax.jit(jnp.linalg.eigh).lower(np.eye(2))
             finally:
                 for name in loaded:  # JAX holds their routines now; ``import scipy.linalg`` makes its own
                     sys.modules.pop(name, None)
@@ -286,10 +281,10 @@ def _scipy_lapack() -> list[str]:
 
 
 def prepare_runtime() -> None:
-    """Start :func:`_register_lapack`'s work (milliseconds: SciPy's two LAPACK modules) and the
-    environment's part of every key (:func:`_environment_digest`: package versions, the backend,
-    ctfit's source; 0.02–0.04 s) in a thread of its own, so that a command's first stored program
-    need not wait for them (the command calls this when it sets JAX up, before it reads its files)."""
+    """Start :func:`_register_lapack`'s work (0.1 s, mostly a first lowering) and the environment's
+    part of every key (:func:`_environment_digest`: package versions, the backend, ctfit's source;
+    0.02–0.04 s) in a thread of its own, so that a command's first stored program need not wait
+    for them (the command calls this when it sets JAX up, before it reads its files)."""
     def prepare() -> None:
         _register_lapack()
         _environment_digest()
