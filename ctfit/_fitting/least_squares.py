@@ -24,7 +24,6 @@ The pieces live beside this module: starting points (``starts.py``), the seeded 
 
 from __future__ import annotations
 
-import concurrent.futures
 import dataclasses
 import math
 import time
@@ -283,14 +282,12 @@ def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: fl
     ``tolerance``, and leaves out the report with ``report=False``), else the one compiled
     program of its size bucket."""
     if solver == "lm" and prep.chunked:
-        with concurrent.futures.ThreadPoolExecutor(1) as early:  # the programs load (or compile) while the data is cut into chunks
-            early.submit(prefetch, prep.problem, prep.u0, prep.grid, prep.k, prep.given_start, report)
-            parts = chunk_problems(prep.problem)
-            sample = race_rows(prep.problem) if prep.k + prep.given_start > 1 else None  # more than one seed: a large file races them on a sample
-            race_parts = None if sample is None else chunk_problems(prep.problem, rows_of=sample)
-            prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
-            return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance,
-                                report=report, race_parts=race_parts)
+        parts = chunk_problems(prep.problem)
+        sample = race_rows(prep.problem) if prep.k + prep.given_start > 1 else None  # more than one seed: a large file races them on a sample
+        race_parts = None if sample is None else chunk_problems(prep.problem, rows_of=sample)
+        prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
+        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance, report=report,
+                            race_parts=race_parts)
     return jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
 
 
