@@ -559,3 +559,24 @@ def test_a_cache_entry_cut_by_ctrl_c_is_removed_without_a_word(tmp_path, monkeyp
             _fileio.atomic_write(tmp_path / name, chunks(tmp_path / name), quiet=quiet)
     assert cut == [[f"{tmp_path / 'fit.json'} was not created"], []]
     assert not list(tmp_path.iterdir())  # no temporary file left, nothing created
+
+
+def test_no_temporary_is_made_after_the_last_sweep_of_an_interrupted_exit(tmp_path):
+    """The interrupted exit sweeps the temporaries, then ends the process. A background thread
+    (the program store's) that starts a write between the two must not leave a new temporary:
+    it waits until the process has gone. Run in a child process: the sweep is final there."""
+    script = f"""
+import os, threading, time
+from ctfit._io import files
+folder = {str(tmp_path)!r}
+files.remove_temporaries(last=True)
+writer = threading.Thread(target=files.atomic_write, args=(os.path.join(folder, "entry.xla"), [b"x"]), kwargs={{"quiet": True}}, daemon=True)
+writer.start()
+writer.join(1.0)
+print(writer.is_alive(), sorted(os.listdir(folder)), flush=True)
+os._exit(130)
+"""
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 130, proc.stderr
+    assert proc.stdout.split() == ["True", "[]"]  # the write waits; no temporary, no entry
+    assert not list(tmp_path.iterdir())

@@ -39,7 +39,7 @@ def exit_interrupted(message: str, notes=()) -> None:
     were not written and kept their old content; ``notes`` adds what else to say. Cleanups
     (:func:`ctfit._io.interrupt.on_interrupt`) run first."""
     _exiting.acquire()  # a second caller waits here until the first has ended the process
-    notes = [*notes, *remove_temporaries()]
+    notes = [*notes, *remove_temporaries(last=True)]
     run_cleanups()
     message = "; ".join([message, *notes])
     for stream in (sys.stdout, sys.stderr):

@@ -7,6 +7,7 @@ import io
 import os
 import re
 import stat
+import threading
 
 from .errors import DataError
 from .interrupt import deferred
@@ -25,6 +26,7 @@ __all__ = [
 ]
 
 _temporaries: dict[str, tuple[str | None, bool]] = {}  # writes under way: temporary → (the user's path, whether a file is there)
+_creating = threading.Lock()  # a temporary is made and listed under it; the last sweep keeps it (see remove_temporaries)
 
 
 MAP_BYTES = 1 << 26
@@ -222,9 +224,10 @@ def atomic_write(path, chunks, *, quiet: bool = False) -> None:
         _swept.add(folder)
         remove_stale_temporaries(folder)
     tmp = os.path.join(folder, f".ctfit-{os.getpid()}-{os.urandom(4).hex()}.tmp")
-    _temporaries[tmp] = (None if quiet else path, mode is not None or os.path.lexists(target))
     try:
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
+        with _creating:  # made and listed together: a sweep sees both or neither
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()
+            _temporaries[tmp] = (None if quiet else path, mode is not None or os.path.lexists(target))
         with os.fdopen(fd, "wb") as f:
             if mode is not None:
                 os.fchmod(f.fileno(), mode)
@@ -252,10 +255,16 @@ def atomic_save(path, save) -> None:
     atomic_write(path, [buffer.getvalue()])
 
 
-def remove_temporaries(paths=None) -> list[str]:
+def remove_temporaries(paths=None, *, last: bool = False) -> list[str]:
     """Remove the temporary files of writes under way (all of them by default): for an exit that
     cannot wait for them to finish (Ctrl-C, see ``_cli/interrupt.py``). Returns what that means
-    for each file: ``"PATH was not written (its old content is kept)"`` (or ``"… not created"``)."""
+    for each file: ``"PATH was not written (its old content is kept)"`` (or ``"… not created"``).
+
+    ``last``: the process ends next (``os._exit``). No temporary is made after this sweep: a write
+    in another thread (the program store's, in the background) waits at its first step until the
+    process has gone, instead of leaving a new temporary file behind."""
+    if last:
+        _creating.acquire()  # never released: the process is ending
     said = []
     for tmp in list(_temporaries if paths is None else paths):
         path, existed = _temporaries.get(tmp, (None, False))
