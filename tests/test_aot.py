@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import ctfit
 from ctfit._fitting import chunked_fit
 from ctfit._runtime import stored_programs as _aot
 
@@ -83,6 +84,24 @@ def test_static_values_and_shapes_are_part_of_the_key(store):
     y_long = _aot.cached_call("toy", _fn, _Box(jnp.arange(4.0), 2.0), jnp.ones(4), power)["y"]
     np.testing.assert_array_equal(y_long, jnp.arange(4.0) * 2.0 + 1.0)
     assert len(list(store.glob("toy-*.xla"))) == 4
+
+
+def test_equal_static_values_share_a_key_whatever_object_holds_them():
+    """A structure whose ``family`` was parsed from a command line (an equal string, not the
+    literal's object) keys as the library's ``Structure(family="metal")``: Equinox's ``repr``
+    hides a field only when its value *is* the default, so keying by it split the programs of
+    ``ctfit fit --family metal`` from those of a library call."""
+    parsed = "".join(["me", "tal"])
+    assert parsed == "metal" and parsed is not "metal"  # noqa: F632 (the identity is the point)
+    a, b = (ctfit.Structure(lobes=2, diffuse="F0/pi", family=f) for f in ("metal", parsed))
+    assert repr(_Static(a)) != repr(_Static(b))  # what the key was made of: it differed
+    x = jnp.ones(3)
+    assert _aot._key("toy", ("run", _Static(a), x)) == _aot._key("toy", ("run", _Static(b), x))
+    assert _aot._key("toy", ("run", _Static(a), x)) != _aot._key("toy", ("run", _Static(ctfit.Structure(lobes=1)), x))
+
+
+class _Static(eqx.Module):
+    structure: ctfit.Structure = eqx.field(static=True)
 
 
 def test_a_damaged_entry_is_replaced_with_a_warning(store, monkeypatch):

@@ -162,8 +162,13 @@ def _key(name: str, args: tuple, constants=None) -> str | None:
     """The entry's key, or None when the static part has no stable ``repr`` (e.g. a closure).
 
     ``args`` count by their static part and the shape and dtype of their arrays; ``constants``
-    (a tree of arrays the program has compiled in) by its structure and its arrays' values."""
-    text = repr(jax.tree.map(_abstract, args))
+    (a tree of arrays the program has compiled in) by its structure and its arrays' values.
+    The static part is read from the tree's structure (its values' own ``repr``, every field
+    shown), not from Equinox's ``repr``, which leaves out a field whose value *is* its default:
+    ``family="metal"`` parsed from a command line is an equal string but not the same object,
+    and the command and a library call would not share their programs."""
+    leaves, treedef = jax.tree.flatten(args)
+    text = f"{treedef}\n{[_abstract(x) for x in leaves]!r}"
     if " at 0x" in text:
         return None
     config = (_CONFIG.jax_enable_x64, _CONFIG.jax_default_matmul_precision, _CONFIG.jax_numpy_rank_promotion)
