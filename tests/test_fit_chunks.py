@@ -171,3 +171,25 @@ def test_the_rms_of_chunks_does_not_overflow(dtype):
         assert rms([[0.0, 0.0], [0.0]], xp) == 0.0
         with np.errstate(invalid="ignore"):
             assert np.isnan(rms([[1.0, np.inf], [2.0]], xp)) and np.isnan(rms([[1.0], [np.nan]], xp))
+
+
+@pytest.mark.parametrize("chunks", [1, 2, 7])
+def test_chunk_sums_add_in_one_order_with_threads_or_without(chunks, monkeypatch):
+    """A pass over the chunks runs as two chains side by side (the normal equations, the seeds'
+    scores); the additions are the same with or without the threads, and on a one-core machine."""
+    from ctfit._fitting import chunked_fit
+
+    rng = np.random.default_rng(chunks)
+    parts = [[jnp.asarray(rng.standard_normal(5) * 10.0 ** rng.integers(-8, 8))] for _ in range(chunks)]
+    add = jax.jit(lambda total, count, x: [total + x, count + 1.0])
+    zeros = [jnp.zeros(5), jnp.zeros(())]
+    threads = chunked_fit.chunk_sums(add, zeros, parts, [])
+    alone = chunked_fit.chunk_sums(add, zeros, parts, [], side_by_side=False)
+    monkeypatch.setattr(chunked_fit, "_sum_pool", [None])  # one core: no threads
+    one_core = chunked_fit.chunk_sums(add, zeros, parts, [])
+    for got in (alone, one_core):
+        np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(threads[0]))
+    assert float(threads[1]) == chunks
+    halves = [parts[: -(-chunks // 2)], parts[-(-chunks // 2):]] if chunks > 1 else [parts]
+    want = sum(sum((np.asarray(p[0]) for p in h), np.zeros(5)) for h in halves if h)
+    np.testing.assert_array_equal(np.asarray(threads[0]), want)  # first half, then the second, added

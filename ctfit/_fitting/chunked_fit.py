@@ -121,6 +121,47 @@ def race_rows(problem: Problem) -> np.ndarray | None:
 
 _programs: dict = {}
 
+SUM_PARTS = 2
+"""A pass that sums over the chunks (the normal equations, the seeds' scores) is made as this
+many chains of calls, the first half of the chunks and the second, added at the end on the
+host: on a machine of two cores or more the chains run side by side (a program runs on one
+core; measured here, 200,000 samples in 128 chunks: 48 ms a pass as one chain, 31 ms as two).
+The additions are in the same order on every machine, so a fit does not depend on its cores."""
+
+_sum_pool: list = []  # the threads of the chains (made on first use where there are cores for them)
+
+
+def _pool() -> concurrent.futures.ThreadPoolExecutor | None:
+    if not _sum_pool:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        _sum_pool.append(concurrent.futures.ThreadPoolExecutor(SUM_PARTS, thread_name_prefix="ctfit-sums") if cores > 1 else None)
+    return _sum_pool[0]
+
+
+def chunk_sums(program: Callable, zeros: list, parts: list[list], rest: list, side_by_side: bool = True) -> list:
+    """``zeros`` + the sums ``program(*acc, *chunk, *rest)`` adds up over the chunks ``parts``
+    (each its array leaves), as :data:`SUM_PARTS` chains; device arrays for one chunk, host
+    arrays otherwise. ``side_by_side`` False: the chains one after the other in this thread
+    (seeds raced side by side keep the cores busy already), added in the same order."""
+
+    def chain(group: list[list]) -> list:
+        acc = zeros
+        for leaves in group:
+            acc = program(*acc, *leaves, *rest)
+        return acc
+
+    if len(parts) < 2:
+        return chain(parts)
+    half = -(-len(parts) // SUM_PARTS)
+    groups = [parts[i: i + half] for i in range(0, len(parts), half)]
+    pool = _pool() if side_by_side else None
+    outs = [chain(g) for g in groups] if pool is None else list(pool.map(chain, groups))
+    got = jax.device_get(outs)
+    total = list(got[0])
+    for g in got[1:]:
+        total = [a + b for a, b in zip(total, g)]
+    return total
+
 
 def _signature(args) -> tuple:
     return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args))
@@ -264,24 +305,21 @@ class _Kernels:
     step: Callable[..., Any]
     zeros: list  # the sums' starting values, on the device once (programs do not donate their inputs)
 
-    def normal_equations(self, flat):
-        """(½‖r‖², Jᵀr, JᵀJ) at ``flat``: device arrays, summed over the chunks."""
-        acc = self.zeros
-        u0 = _leaves(self.u0)
-        for leaves in self.parts:
-            acc = self.ne(*acc, *leaves, flat, *u0)
-        return acc
+    def normal_equations(self, flat, side_by_side: bool = True):
+        """(½‖r‖², Jᵀr, JᵀJ) at ``flat``, summed over the chunks (:func:`chunk_sums`)."""
+        return chunk_sums(self.ne, self.zeros, self.parts, [flat, *_leaves(self.u0)], side_by_side)
 
-    def run(self, y0, lower, upper, budget: int, tol):
+    def run(self, y0, lower, upper, budget: int, tol, alone: bool = True):
         """``_run_solver`` on the host: (value, converged, steps, sound, cost, last), ``last`` the
         point the solver last evaluated and (½‖r‖², Jᵀr, JᵀJ) there, or None; ``tol``: the
-        solver's (stol, gtol) (:func:`~ctfit._fitting.seeded_solve.lm_solver`), a device array."""
+        solver's (stol, gtol) (:func:`~ctfit._fitting.seeded_solve.lm_solver`), a device array.
+        ``alone``: no other seed runs meanwhile (the sums' chains then run side by side)."""
         out = self.init(y0, lower, upper, tol)
         y, leaves, y_eval = y0, out["state"], out["y_eval"]
         done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
         k, cost, last = 0, np.inf, None
         while not done and sound and k < budget:
-            f, grad, hess = self.normal_equations(y_eval)
+            f, grad, hess = self.normal_equations(y_eval, alone)
             last = (y_eval, [f, grad, hess])
             out = self.step(y, *leaves, f, grad, hess, lower, upper, tol)
             y, leaves, y_eval, cost = out["y"], out["state"], out["y_eval"], out["cost"]
@@ -358,8 +396,7 @@ def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> di
         return jax.device_get(pick(*_leaves((template, u0))))
     u0l = _leaves(u0)
     acc = [jax.device_put(np.zeros((grid.shape[0], template.fixed_bands, 3), grid.dtype)) for _ in range(2)]
-    for leaves in chunks:
-        acc = sums(*acc, *leaves, *u0l, grid)
+    acc = chunk_sums(sums, acc, chunks, [*u0l, grid])
     return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1]))))
 
 
@@ -401,7 +438,7 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
 
     def phase(budgets: list[int], on: _Kernels) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
-        run = lambda j: on.run(values[j], lower, upper, budgets[j], tol)
+        run = lambda j: on.run(values[j], lower, upper, budgets[j], tol, len(go) <= 1)
         if len(go) <= 1:  # one seed (a fit from its start alone): no thread
             runs = [run(j) for j in go]
         else:
