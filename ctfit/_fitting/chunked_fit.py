@@ -482,6 +482,23 @@ def _distinct_winners(values: list, costs: list[float]) -> list[int]:
     return out
 
 
+def _made_in_threads(template: Problem, u0: dict, report: bool, seeds: Callable[[], dict], parts: list[Problem]):
+    """(seeds, kernels), the fit's programs made (compiled, or loaded from the store) in four
+    threads at once, as XLA compiles and loads without the GIL: ``fit_ne`` (the largest), the
+    solver's, the report's, and the seeds' (``seeds()``) in this one. The report's are needed
+    only after the race: they may still be being made while it runs (a failure there is met
+    again, and raised, where the report takes them)."""
+    pool = concurrent.futures.ThreadPoolExecutor(3, thread_name_prefix="ctfit-programs")
+    try:
+        ne = pool.submit(_ne_program, template, u0)
+        solver = pool.submit(_solver_programs, u0)
+        pool.submit(_report_programs, template, u0, report)
+        made = seeds()
+        return made, _kernels(parts, u0, solver.result(), ne.result())
+    finally:
+        pool.shutdown(wait=False)
+
+
 def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, keep_start: bool = False, parts: list[Problem] | None = None,
                  tolerance: float | None = None, report: bool = True, race_parts: list[Problem] | None = None) -> dict:
     """``fit_core``'s output (host arrays) for the solver "lm", on chunks: ``problem`` laid out
@@ -494,17 +511,11 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     parts = chunk_problems(problem) if parts is None else parts
     seeding = parts if race_parts is None else race_parts
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
-    # The first time, a structure's programs compile in three threads at once (XLA compiles
-    # without the GIL): the solver's, the report's, and (here) the seeds'.
     shapes = _signature((parts[0], u0, grid, starts, keep_start, report))
     if shapes in _programs:
         seeds, kern = _seeds(seeding, u0, starts, grid, keep_start), _kernels(parts, u0)
-    else:  # ``fit_ne`` (the largest) in one thread, the others in a second, the seeds' in this one
-        with concurrent.futures.ThreadPoolExecutor(2) as pool:
-            ne = pool.submit(_ne_program, parts[0], u0)
-            solver = pool.submit(lambda: (_report_programs(parts[0], u0, report), _solver_programs(u0))[1])
-            seeds = _seeds(seeding, u0, starts, grid, keep_start)
-            kern = _kernels(parts, u0, solver.result(), ne.result())
+    else:
+        seeds, kern = _made_in_threads(parts[0], u0, report, lambda: _seeds(seeding, u0, starts, grid, keep_start), parts)
         _programs[shapes] = True
     sample, race_samples = None, 0
     if race_parts is not None and seeds["flat"].shape[0] > 1:  # one seed alone is not raced: it is solved on all the data
