@@ -20,8 +20,9 @@ def _new_rows(a: np.ndarray) -> np.ndarray:
 def unique_direction_pairs(theta_i: np.ndarray, phi_i: np.ndarray, theta_o: np.ndarray, phi_o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rows (θ_i, φ_i, θ_o, φ_o), shape (D, 4), in lexicographic order, and each
     sample's row index (N,), both read-only: ``np.unique(axis=0, return_inverse=True)``'s result,
-    ~10× faster on large files (a lexsort of the four columns; rows that repeat the row before —
-    the bands of one direction pair, as files usually list them — are sorted once).
+    ~10× faster on large files (a lexsort of the four columns, or one sort where no two rows share
+    θ_i, as in scattered data; rows that repeat the row before — the bands of one direction pair,
+    as files usually list them — are sorted once).
 
     >>> pairs, index = unique_direction_pairs(*np.array([[30.0, 0, 30, 180], [30, 0, 30, 180], [10, 0, 10, 180]]).T)
     >>> pairs.tolist(), index.tolist()
@@ -34,7 +35,9 @@ def unique_direction_pairs(theta_i: np.ndarray, phi_i: np.ndarray, theta_o: np.n
     run_start = _new_rows(a)  # runs of equal consecutive rows
     run = np.cumsum(run_start) - 1
     heads = a[run_start]
-    order = np.lexsort(heads.T[::-1])
+    order = np.argsort(heads[:, 0], kind="stable")
+    if np.any(heads[order[1:], 0] == heads[order[:-1], 0]):  # ties in θ_i (a grid): the whole lexsort
+        order = np.lexsort(heads.T[::-1])
     s = heads[order]
     new = _new_rows(s)
     head_index = np.empty(len(heads), dtype=np.intp)
