@@ -173,10 +173,11 @@ def test_the_rms_of_chunks_does_not_overflow(dtype):
             assert np.isnan(rms([[1.0, np.inf], [2.0]], xp)) and np.isnan(rms([[1.0], [np.nan]], xp))
 
 
-@pytest.mark.parametrize("chunks", [1, 2, 7])
+@pytest.mark.parametrize("chunks", [1, 7, 16, 33])
 def test_chunk_sums_add_in_one_order_with_threads_or_without(chunks, monkeypatch):
-    """A pass over the chunks runs as two chains side by side (the normal equations, the seeds'
-    scores); the additions are the same with or without the threads, and on a one-core machine."""
+    """A pass over many chunks runs as two chains side by side (the normal equations, the seeds'
+    scores), over fewer as one; the additions are the same with or without the threads, and on
+    a one-core machine."""
     from ctfit._fitting import chunked_fit
 
     rng = np.random.default_rng(chunks)
@@ -190,6 +191,7 @@ def test_chunk_sums_add_in_one_order_with_threads_or_without(chunks, monkeypatch
     for got in (alone, one_core):
         np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(threads[0]))
     assert float(threads[1]) == chunks
-    halves = [parts[: -(-chunks // 2)], parts[-(-chunks // 2):]] if chunks > 1 else [parts]
-    want = sum(sum((np.asarray(p[0]) for p in h), np.zeros(5)) for h in halves if h)
+    half = -(-chunks // 2)
+    halves = [parts[:half], parts[half:]] if chunks >= chunked_fit.SPLIT_CHUNKS else [parts]
+    want = sum(sum((np.asarray(p[0]) for p in h), np.zeros(5)) for h in halves)
     np.testing.assert_array_equal(np.asarray(threads[0]), want)  # first half, then the second, added

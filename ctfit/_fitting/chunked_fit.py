@@ -122,11 +122,17 @@ def race_rows(problem: Problem) -> np.ndarray | None:
 _programs: dict = {}
 
 SUM_PARTS = 2
-"""A pass that sums over the chunks (the normal equations, the seeds' scores) is made as this
-many chains of calls, the first half of the chunks and the second, added at the end on the
-host: on a machine of two cores or more the chains run side by side (a program runs on one
-core; measured here, 200,000 samples in 128 chunks: 48 ms a pass as one chain, 31 ms as two).
-The additions are in the same order on every machine, so a fit does not depend on its cores."""
+"""A pass that sums over :data:`SPLIT_CHUNKS` chunks or more (the normal equations, the seeds'
+scores) is made as this many chains of calls, the first half of the chunks and the second,
+added at the end on the host: on a machine of two cores or more the chains run side by side (a
+program runs on one core; measured here, 200,000 samples in 128 chunks: 48 ms a pass as one
+chain, 38 ms as two). The additions are in the same order on every machine, so a fit does not
+depend on its cores."""
+
+SPLIT_CHUNKS = 16
+"""Fewer chunks are summed in one chain on the device: there a pass costs a few milliseconds,
+and the host's additions would cost more than a second core gains (a 20,000-sample race, 10
+chunks: 0.22–0.25 s split against 0.17–0.22 s in one chain; the race's sample has 8)."""
 
 _sum_pool: list = []  # the threads of the chains (made on first use where there are cores for them)
 
@@ -140,9 +146,10 @@ def _pool() -> concurrent.futures.ThreadPoolExecutor | None:
 
 def chunk_sums(program: Callable, zeros: list, parts: list[list], rest: list, side_by_side: bool = True) -> list:
     """``zeros`` + the sums ``program(*acc, *chunk, *rest)`` adds up over the chunks ``parts``
-    (each its array leaves), as :data:`SUM_PARTS` chains; device arrays for one chunk, host
-    arrays otherwise. ``side_by_side`` False: the chains one after the other in this thread
-    (seeds raced side by side keep the cores busy already), added in the same order."""
+    (each its array leaves): as :data:`SUM_PARTS` chains from :data:`SPLIT_CHUNKS` chunks on
+    (host arrays), as one below (device arrays). ``side_by_side`` False: the chains one after
+    the other in this thread (seeds raced side by side keep the cores busy already), added in
+    the same order."""
 
     def chain(group: list[list]) -> list:
         acc = zeros
@@ -150,7 +157,7 @@ def chunk_sums(program: Callable, zeros: list, parts: list[list], rest: list, si
             acc = program(*acc, *leaves, *rest)
         return acc
 
-    if len(parts) < 2:
+    if len(parts) < SPLIT_CHUNKS:
         return chain(parts)
     half = -(-len(parts) // SUM_PARTS)
     groups = [parts[i: i + half] for i in range(0, len(parts), half)]
@@ -418,9 +425,9 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs.
     ``tolerance``: stop where one more Gauss–Newton step promises less than this relative
     decrease of the cost (None: ``lm_solver``'s tests). The seeds of a phase run side by side,
-    one thread each up to the machine's cores (the programs run without the GIL; every seed's
-    steps are those it would take alone). Also returns each seed's :meth:`_Kernels.run` ``last``
-    (over all the data).
+    one thread each, beyond the machine's cores too (the programs run without the GIL: three
+    seeds on two cores end in 1.5 rounds, not two; every seed's steps are those it would take
+    alone). Also returns each seed's :meth:`_Kernels.run` ``last`` (over all the data).
 
     ``sample``: the kernels of a sample of the rows (:func:`race_rows`; given for more than one
     seed). The race runs there, to convergence; then the seeds within ``RACE_CLOSE`` of its
@@ -442,7 +449,7 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
         if len(go) <= 1:  # one seed (a fit from its start alone): no thread
             runs = [run(j) for j in go]
         else:
-            with concurrent.futures.ThreadPoolExecutor(min(len(go), os.cpu_count() or 1)) as pool:
+            with concurrent.futures.ThreadPoolExecutor(len(go)) as pool:
                 runs = list(pool.map(run, go))
         for j, (v, o, k, fine, c, at) in zip(go, runs):
             if k > 0:  # a seed that did not go on keeps what it had
