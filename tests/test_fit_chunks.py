@@ -195,3 +195,38 @@ def test_chunk_sums_add_in_one_order_with_threads_or_without(chunks, monkeypatch
     halves = [parts[:half], parts[half:]] if chunks >= chunked_fit.SPLIT_CHUNKS else [parts]
     want = sum(sum((np.asarray(p[0]) for p in h), np.zeros(5)) for h in halves)
     np.testing.assert_array_equal(np.asarray(threads[0]), want)  # first half, then the second, added
+
+
+@pytest.mark.parametrize("layout", ["grid", "pairs"])
+def test_chunks_sent_through_the_transfer_program_are_those_sent_one_by_one(layout):
+    """The chunks after the first go to the device through one compiled call each
+    (``chunk_put``), placed in the first chunk's problem by their position among its leaves: the
+    same problems, array for array, as ``jax.device_put`` and a problem made for each chunk."""
+    from ctfit._fitting import chunked_fit
+
+    data = _grid(3 * chunked_fit.ROWS // 2) if layout == "grid" else _scattered(3 * chunked_fit.ROWS + 7)
+    prep = _fit.prepare_fit(data, ctfit.Structure(lobes=1), start=None, fixed=(), loss="log", dtype=jnp.float64, starts=1,
+                            chunk=chunked_fit.ROWS)
+    sent = chunked_fit.chunk_problems(prep.problem)
+    assert len(sent) >= 2
+    rows = sent[0].y.shape[0]
+    for c, part in enumerate(sent):
+        one = chunked_fit.chunk_problems(dataclasses.replace(prep.problem, **_rows_from(prep.problem, c * rows, rows)), limit=1)[0]
+        assert jax.tree.structure(part) == jax.tree.structure(one) and part.spec == one.spec
+        for x, y in zip(jax.tree.leaves(part), jax.tree.leaves(one)):
+            assert isinstance(x, jax.Array) and x.dtype == y.dtype
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert not np.array_equal(np.asarray(sent[0].y), np.asarray(sent[1].y))  # each chunk its own rows
+
+
+def _rows_from(problem, start: int, rows: int) -> dict:
+    """The fields of ``problem`` cut to ``rows`` rows from ``start``: a problem whose first chunk is that chunk."""
+    cut = lambda a: None if a is None else np.asarray(a)[start: start + rows]
+    fields = {k: cut(getattr(problem, k)) for k in ("y", "sigma", "cos_i", "mask")}
+    if problem.spec.grid or problem.pair is None:
+        fields["geom"] = jax.tree.map(cut, problem.geom)
+    else:
+        fields["pair"] = cut(problem.pair)
+    if not problem.spec.grid:
+        fields["band"] = cut(problem.band)
+    return fields

@@ -76,17 +76,66 @@ def chunk_problems(problem: Problem, limit: int | None = None, rows_of: np.ndarr
     geom = jax.tree.map(np.asarray, problem.geom)
     count = y.shape[0] // rows if limit is None else min(limit, y.shape[0] // rows)
     pair, band = host(problem.pair), host(problem.band)
-    out = []
-    for c in range(count):
+    grid = problem.spec.grid
+
+    def host_chunk(c: int) -> tuple:
         cut = slice(c * rows, (c + 1) * rows)
-        at = (lambda a: a[cut]) if problem.spec.grid or pair is None else (lambda a: a[pair[cut]])
-        cells = {k: None if a is None else a[cut] for k, a in dict(y=y, sigma=sigma, cos_i=cos_i, mask=mask, band=band).items()}
-        g, cells = jax.device_put((jax.tree.map(at, geom), cells))  # one transfer per chunk
-        if problem.spec.grid:
+        at = (lambda a: a[cut]) if grid or pair is None else (lambda a: a[pair[cut]])
+        return _chunk_arrays(jax.tree.map(at, geom), *(None if a is None else a[cut] for a in (y, sigma, cos_i, mask, None if grid else band)))
+
+    def problem_of(g, cells: dict) -> Problem:
+        if grid:
             del cells["band"]
-            out.append(dataclasses.replace(problem, geom=g, **cells))
-        else:
-            out.append(dataclasses.replace(problem, geom=g, pair=None, **cells))  # each sample its own pair's geometry
+            return dataclasses.replace(problem, geom=g, **cells)
+        return dataclasses.replace(problem, geom=g, pair=None, **cells)  # each sample its own pair's geometry
+
+    if count == 0:
+        return []
+    first = host_chunk(0)
+    first_dev = jax.device_put(first)
+    template = problem_of(*first_dev)
+    if count == 1:
+        return [template]
+    return [template, *_more_chunks(template, jax.tree.leaves(first_dev), map(host_chunk, range(1, count)))]
+
+
+def _chunk_arrays(geom, y, sigma, cos_i, mask, band) -> tuple:
+    """A chunk's own arrays (``band`` None in the grid layout), as one tree."""
+    return geom, dict(y=y, sigma=sigma, cos_i=cos_i, mask=mask, band=band)
+
+
+def _copies(*leaves):
+    return list(leaves)
+
+
+def transfer_program(template: Problem) -> Callable:
+    """``chunk_put``: a program that returns its arguments, the arrays of one chunk like
+    ``template``'s (:func:`_chunk_arrays`' leaves). The chunks after a fit's first go to the
+    device through it: a compiled call takes host arrays at a few microseconds each, where
+    ``jax.device_put`` costs about 55 µs an array here, and a chunk has about ten (a MERL
+    table's 2,304 chunks: 1.3–1.5 s one array at a time, 0.7–1.0 s so). It depends on the
+    layout alone; a structure's first fit makes it with its other programs, so a file of another
+    size compiles nothing."""
+    t = template
+    leaves = jax.tree.leaves(_chunk_arrays(t.geom, t.y, t.sigma, t.cos_i, t.mask, None if t.spec.grid else t.band))
+    return _program("chunk_put", _copies, *leaves)
+
+
+def _more_chunks(template: Problem, first: list, chunks) -> list[Problem]:
+    """The problems of ``chunks`` (host trees like the first chunk's, whose device arrays are
+    ``first``), made from ``template`` (the first chunk's problem) by putting each chunk's
+    arrays where the first's are in its leaves: no Equinox ``__init__`` per chunk (a quarter of a
+    millisecond each)."""
+    leaves, treedef = jax.tree.flatten(template)
+    where = {id(a): i for i, a in enumerate(leaves)}
+    slots = [where[id(a)] for a in first]  # a Problem holds the arrays it is given (tests/test_fit_chunks.py)
+    put = transfer_program(template)
+    out = []
+    for tree in chunks:
+        new = list(leaves)
+        for i, a in zip(slots, put(*jax.tree.leaves(tree))):
+            new[i] = a
+        out.append(jax.tree.unflatten(treedef, new))
     return out
 
 
@@ -416,6 +465,7 @@ def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = F
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
     _kernels([template], u0)
     _report_programs(template, u0, report)
+    transfer_program(template)
     _seed_programs(template, u0, starts, grid, keep_start)
     _programs[_signature((template, u0, grid, starts, keep_start, report))] = True
 
@@ -490,18 +540,20 @@ def _distinct_winners(values: list, costs: list[float]) -> list[int]:
 
 
 def _made_in_threads(template: Problem, u0: dict, report: bool, seeds: Callable[[], dict], parts: list[Problem]):
-    """(seeds, kernels), the fit's programs made (compiled, or loaded from the store) in four
-    threads at once, as XLA compiles and loads without the GIL: ``fit_ne`` (the largest), the
-    solver's, the report's, and the seeds' (``seeds()``) in this one. The report's are needed
-    only after the race: they may still be being made while it runs (a failure there is met
-    again, and raised, where the report takes them)."""
+    """(seeds, kernels, rest), the fit's programs made (compiled, or loaded from the store) in
+    four threads at once, as XLA compiles and loads without the GIL: ``fit_ne`` (the largest),
+    the solver's, the report's (and ``chunk_put``), and the seeds' (``seeds()``) in this one.
+    The report's are needed only after the race: they may still be being made while it runs (a
+    failure there is met again, and raised, where the report takes them). ``rest``: the
+    future of the report's; the fit waits for it before it returns, so that nothing it started
+    outlives it."""
     pool = concurrent.futures.ThreadPoolExecutor(3, thread_name_prefix="ctfit-programs")
     try:
         ne = pool.submit(_ne_program, template, u0)
         solver = pool.submit(_solver_programs, u0)
-        pool.submit(_report_programs, template, u0, report)
+        rest = pool.submit(lambda: (_report_programs(template, u0, report), transfer_program(template)))
         made = seeds()
-        return made, _kernels(parts, u0, solver.result(), ne.result())
+        return made, _kernels(parts, u0, solver.result(), ne.result()), rest
     finally:
         pool.shutdown(wait=False)
 
@@ -521,9 +573,17 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     shapes = _signature((parts[0], u0, grid, starts, keep_start, report))
     if shapes in _programs:
         seeds, kern = _seeds(seeding, u0, starts, grid, keep_start), _kernels(parts, u0)
-    else:
-        seeds, kern = _made_in_threads(parts[0], u0, report, lambda: _seeds(seeding, u0, starts, grid, keep_start), parts)
-        _programs[shapes] = True
+        return _race_and_report(problem, u0, seeds, kern, race_parts, max_steps, tolerance, report)
+    seeds, kern, rest = _made_in_threads(parts[0], u0, report, lambda: _seeds(seeding, u0, starts, grid, keep_start), parts)
+    _programs[shapes] = True
+    try:
+        return _race_and_report(problem, u0, seeds, kern, race_parts, max_steps, tolerance, report)
+    finally:
+        concurrent.futures.wait([rest])  # nothing the fit started outlives it
+
+
+def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, race_parts, max_steps: int, tolerance, report: bool) -> dict:
+    """:func:`chunked_core` once its programs are made: the race, the sums at the winner, the report."""
     sample, race_samples = None, 0
     if race_parts is not None and seeds["flat"].shape[0] > 1:  # one seed alone is not raced: it is solved on all the data
         sample = dataclasses.replace(kern, parts=[_leaves(pt) for pt in race_parts])
