@@ -100,7 +100,7 @@ def test_small_files_other_formats_one_core_or_turned_off_get_no_helper(big_csv,
     assert start_read_ahead(alta) is None
     assert start_read_ahead(tmp_path / "missing.csv") is None
     assert start_read_ahead(tmp_path) is None
-    monkeypatch.setattr(ahead_module, "_cores", lambda: 1)
+    monkeypatch.setattr(ahead_module, "usable_cores", lambda: 1)
     assert start_read_ahead(big_csv) is None
     monkeypatch.undo()
     monkeypatch.setenv("CTFIT_READ_AHEAD", "0")

@@ -34,7 +34,6 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import math
-import os
 from collections.abc import Callable
 from typing import Any
 
@@ -188,8 +187,9 @@ _sum_pool: list = []  # the threads of the chains (made on first use where there
 
 def _pool() -> concurrent.futures.ThreadPoolExecutor | None:
     if not _sum_pool:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        _sum_pool.append(concurrent.futures.ThreadPoolExecutor(SUM_PARTS, thread_name_prefix="ctfit-sums") if cores > 1 else None)
+        from .._io import usable_cores
+
+        _sum_pool.append(concurrent.futures.ThreadPoolExecutor(SUM_PARTS, thread_name_prefix="ctfit-sums") if usable_cores() > 1 else None)
     return _sum_pool[0]
 
 
@@ -539,7 +539,7 @@ def _distinct_winners(values: list, costs: list[float]) -> list[int]:
     return out
 
 
-def _made_in_threads(template: Problem, u0: dict, report: bool, seeds: Callable[[], dict], parts: list[Problem]):
+def _made_in_threads(parts: list[Problem], u0: dict, report: bool, seeds: Callable[[], dict]):
     """(seeds, kernels, rest), the fit's programs made (compiled, or loaded from the store) in
     four threads at once, as XLA compiles and loads without the GIL: ``fit_ne`` (the largest),
     the solver's, the report's (and ``chunk_put``), and the seeds' (``seeds()``) in this one.
@@ -547,6 +547,7 @@ def _made_in_threads(template: Problem, u0: dict, report: bool, seeds: Callable[
     failure there is met again, and raised, where the report takes them). ``rest``: the
     future of the report's; the fit waits for it before it returns, so that nothing it started
     outlives it."""
+    template = parts[0]
     pool = concurrent.futures.ThreadPoolExecutor(3, thread_name_prefix="ctfit-programs")
     try:
         ne = pool.submit(_ne_program, template, u0)
@@ -574,7 +575,7 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     if shapes in _programs:
         seeds, kern = _seeds(seeding, u0, starts, grid, keep_start), _kernels(parts, u0)
         return _race_and_report(problem, u0, seeds, kern, race_parts, max_steps, tolerance, report)
-    seeds, kern, rest = _made_in_threads(parts[0], u0, report, lambda: _seeds(seeding, u0, starts, grid, keep_start), parts)
+    seeds, kern, rest = _made_in_threads(parts, u0, report, lambda: _seeds(seeding, u0, starts, grid, keep_start))
     _programs[shapes] = True
     try:
         return _race_and_report(problem, u0, seeds, kern, race_parts, max_steps, tolerance, report)

@@ -19,7 +19,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
                  'merl_phi_d_index', 'merl_theta_d_index', 'merl_theta_h_index', 'merl_table', 'read_merl', 'write_merl'],
         "optical_constants": ['read_optical_constants'],
         "output_paths": ['broken_link', 'check_backend', 'check_output', 'check_output_folder', 'result_targets', 'same_file', 'unconverged_target'],
-        "read_ahead": ['ReadAhead', 'start_read_ahead'],
+        "read_ahead": ['ReadAhead', 'start_read_ahead', 'usable_cores'],
         "readers": ['read_measurement', 'reader_for'],
         "rgl": ['bilinear', 'marginal_sample', 'read_rgl', 'read_tensor_file'],
         "untrusted": ['check_input_file', 'parse_json', 'quote', 'read_json_or_none', 'shorten'],

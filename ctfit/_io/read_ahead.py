@@ -31,7 +31,7 @@ from .csv_table import CsvTable, read_table
 if TYPE_CHECKING:
     from .._model import Measurement
 
-__all__ = ["READ_AHEAD_BYTES", "ReadAhead", "start_read_ahead"]
+__all__ = ["READ_AHEAD_BYTES", "ReadAhead", "start_read_ahead", "usable_cores"]
 
 READ_AHEAD_BYTES = 8 << 20
 """CSV files of at least this many bytes (about 100,000 rows) are parsed by a helper process. Below
@@ -43,7 +43,8 @@ ENVIRONMENT = "CTFIT_READ_AHEAD"
 """``CTFIT_READ_AHEAD=0`` in the environment: no helper process, every file read in-process."""
 
 
-def _cores() -> int:
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity where the system has one)."""
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1
@@ -113,7 +114,7 @@ def _stop(process: subprocess.Popen) -> None:
 def start_read_ahead(path: str | os.PathLike[str]) -> ReadAhead | None:
     """A :class:`ReadAhead` of ``path`` where one pays: a regular ``.csv`` file of at least
     :data:`READ_AHEAD_BYTES`, two cores or more, not turned off (:data:`ENVIRONMENT`); else None."""
-    if os.environ.get(ENVIRONMENT, "1") == "0" or Path(path).suffix.lower() != ".csv" or _cores() < 2:
+    if os.environ.get(ENVIRONMENT, "1") == "0" or Path(path).suffix.lower() != ".csv" or usable_cores() < 2:
         return None
     try:
         if not Path(path).is_file() or os.path.getsize(path) < READ_AHEAD_BYTES:
