@@ -37,13 +37,12 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from .._model import Params, Structure
+from .._model import Params, Structure, array_leaves, is_array, split_arrays
 from .._runtime import stored_program
 from .fit_report import combined_rms, light_report_core, report_core, summary_of_part, zero_model_cost
 from .jacobian import normal_equations
@@ -220,7 +219,7 @@ def chunk_sums(program: Callable, zeros: list, parts: list[list], rest: list, si
 
 
 def _signature(args) -> tuple:
-    return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if eqx.is_array(a) else a for a in jax.tree.leaves(args))
+    return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if is_array(a) else a for a in jax.tree.leaves(args))
 
 
 _CALLED_OFTEN = ("fit_ne", "lm_step", "fit_grid_sums", "fit_summary")
@@ -243,7 +242,7 @@ def _program(name: str, fn, *args):
 
 
 def _leaves(tree) -> list:
-    return jax.tree.leaves(eqx.filter(tree, eqx.is_array))
+    return array_leaves(tree)
 
 
 def _flat_shape(u0: dict) -> tuple[int, np.dtype]:
@@ -341,8 +340,7 @@ def _lm_step(y, leaves: list, f, grad, hess, lower, upper, tol):
     import optimistix as optx
 
     solver, template = _lm(y, lower, upper, grad, hess, tol)
-    dynamic, static = eqx.partition(template, eqx.is_array)
-    state = eqx.combine(jax.tree.unflatten(jax.tree.structure(dynamic), leaves), static)
+    state = split_arrays(template)[1](leaves)
     y, state, _ = solver.step(_cost_given, y, f, {}, state, frozenset())
     done, result = solver.terminate(_cost_given, y, f, {}, state, frozenset())
     sound = (result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(y))
@@ -601,10 +599,9 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     if not report:
         zero_program, light = _report_programs(kern.template, u0, report=False)
         zero = jax.device_put(np.zeros((), costs.dtype))
-        dynamic, static = eqx.partition(kern.template, eqx.is_array)
-        treedef = jax.tree.structure(dynamic)
+        rebuild = split_arrays(kern.template)[1]
         for leaves in kern.parts:  # each chunk with no structure in it (``fit_zero`` is shared)
-            zero = zero_program(zero, *_leaves(_data_only(eqx.combine(jax.tree.unflatten(treedef, leaves), static))))
+            zero = zero_program(zero, *_leaves(_data_only(rebuild(leaves))))
         zero = np.asarray(jax.device_get(zero))
         out = jax.device_get(light(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
         return dict(out, **solved, zero_cost=zero)

@@ -29,7 +29,6 @@ import math
 import time
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -310,6 +309,8 @@ def seed_params(
     (2, ['0.171', '0.243'])
     """
     prep = prepare_fit(data, structure, start=None, fixed=(), loss=loss, dtype=dtype, starts=starts)
+    import equinox as eqx  # (here: a fit whose programs are stored does not import Equinox)
+
     seeds = jax.device_get(eqx.filter_jit(seed_points)(prep.problem, prep.u0, prep.k, prep.grid))
     count = len(jax.tree.leaves(seeds)[0])
     out = []

@@ -13,12 +13,11 @@ import hashlib
 from collections.abc import Callable
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._model import Geometry, Measurement, Params, Structure, combine_parts, geometry_from_angles_deg, specular_geometric
+from .._model import STATIC, Geometry, Measurement, Params, Structure, combine_parts, geometry_from_angles_deg, pytree, specular_geometric
 from .._runtime import cached_call, stored_program
 from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
@@ -41,7 +40,9 @@ class Spec:
     space: str = "box"
 
 
-class Problem(eqx.Module):
+@pytree
+@dataclasses.dataclass(frozen=True, eq=False)
+class Problem:
     """Data and static spec of one fit. Arrays are laid out as the model evaluates them:
 
     grid layout: values (D, W) with a boolean ``mask`` (False for missing (pair, band) cells),
@@ -51,7 +52,7 @@ class Problem(eqx.Module):
     sample: the fit's chunks), so nothing is gathered or summed per pair.
     """
 
-    spec: Spec = eqx.field(static=True)
+    spec: Spec = dataclasses.field(metadata=STATIC)
     geom: Geometry
     y: jax.Array
     sigma: jax.Array | None
@@ -61,7 +62,7 @@ class Problem(eqx.Module):
     band: jax.Array | None
     floor: jax.Array
     fixed: Params
-    fixed_bands: int = eqx.field(static=True)
+    fixed_bands: int = dataclasses.field(metadata=STATIC)
 
 
 

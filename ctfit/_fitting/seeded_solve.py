@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -102,6 +101,7 @@ def _run_solver(solver, y0, data, budget):
     """optimistix's iteration (``solver.init``, then ``step`` until ``terminate``) for at most
     ``budget`` steps — a *traced* count, so one compiled loop serves every phase of the race.
     Returns (value, converged, steps); the solver's own tests decide ``converged``."""
+    import equinox as eqx  # (with optimistix: a fit whose programs are stored imports neither)
     import optimistix as optx
 
     f_struct = jax.ShapeDtypeStruct((), y0.dtype)

@@ -10,9 +10,9 @@ gives the sums that both the amplitudes and the loss after them are made of
 
 from __future__ import annotations
 
+import functools
 import itertools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -116,8 +116,20 @@ def grid_costs(num, den, amplitudes):
     return jnp.maximum(jnp.sum(cost, axis=-1), 0)
 
 
-@eqx.filter_jit
 def _score_grid(problem: Problem, u0: dict, grid):
+    """:func:`_grid_scores` through ``eqx.filter_jit`` (Equinox imported here, where a program
+    is traced: a fit whose programs are stored does not import it)."""
+    return _score_grid_program()(problem, u0, grid)
+
+
+@functools.cache
+def _score_grid_program():
+    import equinox as eqx
+
+    return eqx.filter_jit(_grid_scores)
+
+
+def _grid_scores(problem: Problem, u0: dict, grid):
     """Loss of each grid point of log m after the best amplitudes of its two parts (weighted
     linear least squares, :func:`grid_amplitudes`, :func:`grid_costs`), and the whole model's
     best per-band scale — one pass, chunk by chunk on a large grid

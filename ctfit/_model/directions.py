@@ -17,16 +17,20 @@ Everything that depends on direction only (cosines, tan²α, sines for Smith's G
 
 from __future__ import annotations
 
-import equinox as eqx
+import dataclasses
+
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .numerics import safe_sqrt
+from .pytrees import pytree
 
 __all__ = ["Geometry", "geometry", "direction_from_angles_deg", "geometry_from_angles_deg"]
 
 
-class Geometry(eqx.Module):
+@pytree
+@dataclasses.dataclass(frozen=True, eq=False)
+class Geometry:
     """Per-direction-pair quantities (all broadcast to one batch shape).
 
     Fields: ``cos_l`` = N·L, ``cos_v`` = N·V, ``sin_l``, ``sin_v``, ``cos_h`` = N·H,

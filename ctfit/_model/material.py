@@ -12,11 +12,11 @@ import dataclasses
 from collections.abc import Callable, Sequence
 from typing import Literal
 
-import equinox as eqx
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .measurement import band_labels
+from .pytrees import pytree
 
 __all__ = ["Structure", "Params", "Material", "used", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "FAMILIES", "MAX_LOBES"]
 
@@ -130,7 +130,9 @@ class Structure:
         return self.family == "plastic"
 
 
-class Params(eqx.Module):
+@pytree
+@dataclasses.dataclass(frozen=True, eq=False)
+class Params:
     """Parameters of a material; fields a structure does not use are None.
 
     - ``s``: specular fraction (scalar), d = 1 − s (only when both parts exist).

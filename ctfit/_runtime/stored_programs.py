@@ -50,13 +50,13 @@ import warnings
 from collections.abc import Callable
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.experimental import serialize_executable
 
 from .._io import atomic_write
+from .._model import array_leaves, is_array, split_arrays
 from .compile_cache import program_store_folder, unsafe_folder, warn_once
 
 _FORMAT = 4  # 1: jax.export programs (compiled again in every process); 2: executables; 3: with their key; 4: compile efforts
@@ -118,8 +118,8 @@ def _environment_digest() -> str:
             versions.append(f"{dist}={importlib.metadata.version(dist)}")
         except importlib.metadata.PackageNotFoundError:
             versions.append(f"{dist}=?")
-    backend = jax.extend.backend.get_backend()
     device = jax.devices()[0]
+    backend = device.client  # (jax.extend.backend.get_backend(): importing jax.extend costs 40 ms)
     parts = [f"format={_FORMAT}", *versions, backend.platform, backend.platform_version, device.device_kind, _cpu_flags(), _source_digest()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
@@ -153,7 +153,7 @@ def _trusted(store: pathlib.Path) -> pathlib.Path | None:
 
 
 def _abstract(x):
-    if eqx.is_array(x):
+    if is_array(x):
         return jax.ShapeDtypeStruct(x.shape, x.dtype)
     return x
 
@@ -406,24 +406,24 @@ def _plain(treedef) -> bool:
 def cached_call(name: str, fn: Callable, *args, effort: str = "run"):
     """``fn(*args)`` through a compiled executable kept in memory and, when enabled, on disk.
 
-    ``fn`` is traced with the arrays of ``args`` (anything :func:`equinox.is_array` accepts) as
+    ``fn`` is traced with the arrays of ``args`` (JAX and NumPy arrays: :func:`~ctfit._model.is_array`) as
     inputs and everything else static, as :func:`equinox.filter_jit` would. The result is the
     same as ``eqx.filter_jit(fn)(*args)``. The output must be built of dicts, lists, tuples,
     ``None`` and arrays only (its structure is stored with the executable, and JAX cannot
     store the structure of an Equinox module). ``effort``: how hard XLA optimises it
     (:data:`COMPILE_EFFORT`).
     """
-    leaves = jax.tree.leaves(eqx.filter(args, eqx.is_array))
+    leaves = array_leaves(args)
     run, out = _program(name, fn, args, leaves, effort)
     return run(*leaves) if out is None else out
 
 
 def stored_program(name: str, fn: Callable, *args, effort: str = "run") -> Callable:
     """The program :func:`cached_call` runs for ``fn(*args)``, to be called many times: it takes
-    the array leaves of arguments like ``args`` (``jax.tree.leaves(eqx.filter(args,
-    eqx.is_array))``, same shapes and dtypes) and returns ``fn``'s output. Kept in memory and on
+    the array leaves of arguments like ``args`` (:func:`~ctfit._model.array_leaves`, same
+    shapes and dtypes) and returns ``fn``'s output. Kept in memory and on
     disk as :func:`cached_call`'s; ``args`` give the shapes (a stored program is tried on them)."""
-    leaves = jax.tree.leaves(eqx.filter(args, eqx.is_array))
+    leaves = array_leaves(args)
     return _program(name, fn, args, leaves, effort)[0]
 
 
@@ -431,11 +431,12 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     """(program, its output on ``leaves`` or None): the output when a stored program was tried."""
     options = COMPILE_EFFORT[effort]
     digest = _key(name, (effort, *args))
-    dynamic, static = eqx.partition(args, eqx.is_array)
-    in_def = jax.tree.structure(dynamic)
-    if digest is None:
+    rebuild = split_arrays(args)[1]
+    if digest is None:  # (Equinox only here: not imported by a fit whose programs are stored)
+        import equinox as eqx
+
         jitted = eqx.filter_jit(fn)
-        return (lambda *ls: jitted(*eqx.combine(jax.tree.unflatten(in_def, list(ls)), static))), None
+        return (lambda *ls: jitted(*rebuild(ls))), None
     key = f"{name}-{digest}"
     run = _recall(key)
     if run is not None:
@@ -446,14 +447,14 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
         run = _recall(key)
         if run is not None:
             return run, None
-        return _load_or_compile(name, fn, static, in_def, leaves, key, digest, options)
+        return _load_or_compile(name, fn, rebuild, leaves, key, digest, options)
 
 
 _making: dict[str, threading.Lock] = {}  # key → the lock of the thread making that program
 _making_guard = threading.Lock()
 
 
-def _load_or_compile(name: str, fn: Callable, static, in_def, leaves: list, key: str, digest: str, options: dict):
+def _load_or_compile(name: str, fn: Callable, rebuild: Callable, leaves: list, key: str, digest: str, options: dict):
     """:func:`_program`'s work once the program is not in memory: load it from the store, or
     trace, compile and store it. (program, its output on ``leaves`` or None)."""
     store = _store()
@@ -473,7 +474,7 @@ def _load_or_compile(name: str, fn: Callable, static, in_def, leaves: list, key:
     # The program takes a flat list of arrays and returns plain containers, which is what
     # an executable can be stored with.
     def flat(*ls):
-        out = fn(*eqx.combine(jax.tree.unflatten(in_def, list(ls)), static))
+        out = fn(*rebuild(ls))
         if not _plain(jax.tree.structure(out)):
             raise TypeError(f"cached_call({name!r}): the output must be built of dicts, lists, tuples, None and arrays")
         return out
