@@ -24,14 +24,16 @@ point is projected onto the box. A parameter that belongs on its bound (s = 1, F
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
-from jaxtyping import Array
+
+if TYPE_CHECKING:
+    from jaxtyping import Array
 
 __all__ = ["StructuredLevenbergMarquardt", "ProjectedDampedNewtonDescent", "active_set", "predicted_decrease", "small_change"]
 

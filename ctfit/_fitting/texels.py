@@ -21,14 +21,13 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.typing import DTypeLike
-from jaxtyping import Array, ArrayLike, Float
 
 from .._model import Material, Measurement, Params, Structure, value_rules
 from .._runtime import cached_call
@@ -39,6 +38,9 @@ from .options import takes_fit_options
 from .problem import Problem
 from .status import judge_converged
 from .validate import representable_range
+
+if TYPE_CHECKING:
+    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["fit_texels", "texel_status", "TexelFits", "ValueLayout", "with_values", "CHUNK", "TEXEL_STATUS"]
 

@@ -15,11 +15,10 @@ the lobe sum — is computed once per direction (:func:`specular_geometric`), an
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
 
 from .directions import Geometry
 from .distribution import beckmann, gaussian
@@ -33,6 +32,9 @@ from .fresnel_equations import (
 )
 from .material import Params, Structure, used
 from .shadowing import smith_g1_reduced, smith_rational_g1_reduced, v_cavity_reduced
+
+if TYPE_CHECKING:
+    from jaxtyping import Array, ArrayLike, Float, Int
 
 __all__ = [
     "brdf",

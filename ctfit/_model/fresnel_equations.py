@@ -37,12 +37,14 @@ References
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+
+if TYPE_CHECKING:
+    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = [
     "f0_from_n",

@@ -15,12 +15,14 @@ import copy
 import dataclasses
 import functools
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from jaxtyping import ArrayLike, Float, Int
 
 from .direction_pairs import unique_direction_pairs
+
+if TYPE_CHECKING:
+    from jaxtyping import ArrayLike, Float, Int
 
 __all__ = ["Measurement", "band_labels", "check_samples", "format_value", "invalid_value", "value_rules"]
 

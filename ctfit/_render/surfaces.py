@@ -14,10 +14,12 @@
 from __future__ import annotations
 
 import functools
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
-from jaxtyping import ArrayLike
+
+if TYPE_CHECKING:
+    from jaxtyping import ArrayLike
 
 __all__ = ["SHAPES", "VIEW_DIRECTION", "Surface", "surface_normals", "vase_profile"]
 
