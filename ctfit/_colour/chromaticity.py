@@ -4,16 +4,13 @@ NumPy, for reports) against the spectral locus of colour-science's colour-matchi
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype, safe_div
 from .tristimulus import DEFAULT_OBSERVER, observer_cmfs
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["XYZ_to_xy", "dominant_wavelength", "excitation_purity"]
 

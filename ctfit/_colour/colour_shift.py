@@ -28,15 +28,11 @@ References
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import fresnel_conductor, fresnel_dielectric, fresnel_dielectric_f0
 from .tristimulus import SpectralWeights, spectrum_to_XYZ
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = [
     "average_normal_reflectance",

@@ -4,14 +4,10 @@ black and at achromatic colours."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype, safe_sqrt
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["XYZ_to_Lab", "delta_E_CIE2000"]
 

@@ -25,15 +25,12 @@ other pixel is affected.
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .._model import float_dtype
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Bool, Float
 
 __all__ = ["desaturate_to_gamut", "in_gamut", "scale_to_display", "srgb_luminance"]
 

@@ -22,10 +22,11 @@ report refuses it.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .._io import float_list
 from .._model import Material, ambient_reflectance, fresnel
@@ -33,9 +34,6 @@ from .chromaticity import XYZ_to_xy, dominant_wavelength, excitation_purity
 from .gamut import in_gamut
 from .rgb import RGB_to_XYZ, RGBConversion, XYZ_to_display_RGB, XYZ_to_RGB, encode_RGB, rgb_conversion
 from .tristimulus import DEFAULT_OBSERVER, colour_science, observer_cmfs, spectral_weights, spectrum_to_XYZ
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["colour_report", "reflectance_spectrum"]
 

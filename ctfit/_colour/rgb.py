@@ -9,18 +9,16 @@ References: IEC 61966-2-1:1999 (sRGB); ``docs/colour.md``.
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype
 from .gamut import desaturate_to_gamut
 from .tristimulus import SpectralWeights, colour_science, spectrum_to_XYZ, table_entry
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["RGBConversion", "rgb_conversion", "XYZ_to_RGB", "RGB_to_XYZ", "eotf_inverse_sRGB", "encode_RGB", "XYZ_to_display_RGB", "spectrum_to_RGB"]
 

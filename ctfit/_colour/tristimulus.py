@@ -50,16 +50,14 @@ from __future__ import annotations
 
 import functools
 import warnings
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["DEFAULT_OBSERVER", "SpectralResamplingWarning", "SpectralWeights", "colour_science", "observer_cmfs", "spectral_weights", "spectrum_to_XYZ",
            "table_entry"]

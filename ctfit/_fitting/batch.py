@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from .._model import Measurement, Structure
 from .._runtime import cached_call
@@ -43,9 +44,6 @@ from .chunked_fit import ROWS
 from .least_squares import FitResult, PreparedFit, finish_fit, fit, fit_core, prepare_fit, solve_prepared
 from .options import takes_fit_options
 from .problem import Problem
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, Float
 
 if TYPE_CHECKING:  # texels imports this module
     from .texels import TexelFits

@@ -21,16 +21,13 @@ model does not represent the material, and where it fails worst.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .._model import Material, Measurement, Params, Structure
 from .diagnostics import half_angle_deg
 from .fit_warnings import FitWarning
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike, Float
 
 __all__ = ["MODEL_LIMIT", "TAIL_LIMIT", "GRAZING_DEG", "fit_quality", "quality_from_relative", "quality_warning"]
 

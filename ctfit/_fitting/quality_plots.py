@@ -24,16 +24,14 @@ from __future__ import annotations
 import os
 import textwrap
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .._io import angles_deg_to_half_diff_deg
 from .._model import Material, Measurement, evaluate, evaluate_at
 from .least_squares import FitResult
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike, Float
 
 __all__ = ["plot_polar", "plot_residual_map", "draw_polar", "draw_residual_map", "residual_cells", "PLANE_TOL_DEG"]
 

@@ -9,17 +9,15 @@ where ``stderr`` mirrors the parameters (``s``, ``lobes[j].m``, ``lobes[j].weigh
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike
 
 from .._io import material_to_dict
 from .._model import Material
 from .fit_warnings import FitWarning
 from .least_squares import FitResult
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike
 
 __all__ = ["fit_result_to_dict", "format_fit_table", "stderr_block"]
 

@@ -24,16 +24,14 @@ point is projected onto the box. A parameter that belongs on its bound (s = 1, F
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
-
-if TYPE_CHECKING:
-    from jaxtyping import Array
+from jaxtyping import Array
 
 __all__ = ["StructuredLevenbergMarquardt", "ProjectedDampedNewtonDescent", "active_set", "predicted_decrease", "small_change"]
 

@@ -6,18 +6,16 @@ import concurrent.futures
 import os
 import queue
 from collections.abc import Callable, Iterable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax
 import numpy as np
+from jaxtyping import Array
 
 from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg, x64_enabled
 from .._runtime import cached_call
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
-
-if TYPE_CHECKING:
-    from jaxtyping import Array
 
 __all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error",
            "DIFFUSE_FORMS",

@@ -21,13 +21,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.typing import DTypeLike
+from jaxtyping import Array, ArrayLike, Float
 
 from .._model import Material, Measurement, Params, Structure, value_rules
 from .._runtime import cached_call
@@ -38,9 +39,6 @@ from .options import takes_fit_options
 from .problem import Problem
 from .status import judge_converged
 from .validate import representable_range
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["fit_texels", "texel_status", "TexelFits", "ValueLayout", "with_values", "CHUNK", "TEXEL_STATUS"]
 

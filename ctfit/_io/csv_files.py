@@ -12,17 +12,14 @@ import math
 import os
 import re
 from collections.abc import Iterator, Mapping
-from typing import TYPE_CHECKING
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .._model import Measurement, format_value as _fmt, invalid_value
 from .csv_table import ANGLES, CHANNELS, KNOWN_COLUMNS, CsvTable, Header, measurement_columns, read_table
 from .errors import DataError
 from .files import atomic_write
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike, Float
 
 __all__ = ["measurement_from_table", "read_csv", "write_csv"]
 

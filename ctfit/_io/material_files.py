@@ -33,9 +33,10 @@ import pathlib
 import re
 import tomllib
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike
 
 from .._model import (
     DISTRIBUTIONS,
@@ -55,9 +56,6 @@ from .errors import MaterialError
 from .files import atomic_write
 from .optical_constants import TABLE_FOLDERS, is_table_name, read_material_text, read_optical_constants, table_folders, table_names
 from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike
 
 __all__ = ["load_material", "material_from_dict", "material_to_dict", "save_material_json", "float_list", "jsonable"]
 

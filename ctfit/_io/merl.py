@@ -30,17 +30,15 @@ import math
 import os
 import warnings
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float, Int
 
 from .._model import Measurement
 from .errors import DataError
 from .files import atomic_write
 from .untrusted import check_input_file
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike, Float, Int
 
 __all__ = [
     "MERL_SCALE",

@@ -15,10 +15,11 @@ the lobe sum — is computed once per direction (:func:`specular_geometric`), an
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from .directions import Geometry
 from .distribution import beckmann, gaussian
@@ -32,9 +33,6 @@ from .fresnel_equations import (
 )
 from .material import Params, Structure, used
 from .shadowing import smith_g1_reduced, smith_rational_g1_reduced, v_cavity_reduced
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float, Int
 
 __all__ = [
     "brdf",

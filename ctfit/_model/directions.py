@@ -18,15 +18,12 @@ Everything that depends on direction only (cosines, tan²α, sines for Smith's G
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from .numerics import safe_sqrt
 from .pytrees import pytree
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Bool, Float
 
 __all__ = ["Geometry", "geometry", "direction_from_angles_deg", "geometry_from_angles_deg"]
 

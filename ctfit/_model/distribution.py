@@ -18,13 +18,9 @@ m ≤ 10³ and the Gaussian's equals its value at α = 90° (exp(−(π/2m)²) t
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import jax.numpy as jnp
 import numpy as np
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["beckmann", "gaussian", "gaussian_norm_integral"]
 

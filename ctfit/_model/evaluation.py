@@ -14,21 +14,18 @@ uncertainty that was used, floored so that no sample gets an infinite weight). E
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.typing import DTypeLike
+from jaxtyping import Array, ArrayLike, Float
 
 from .cook_torrance import brdf
 from .directions import geometry, geometry_from_angles_deg
 from .material import Material, Params, Structure
 from .measurement import Measurement
 from .numerics import x64_enabled
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["simulate", "goniometer_directions", "evaluate", "evaluate_at"]
 

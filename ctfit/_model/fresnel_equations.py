@@ -37,14 +37,12 @@ References
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 __all__ = [
     "f0_from_n",

@@ -30,18 +30,15 @@ References
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .cook_torrance import ambient_reflectance, brdf
 from .directions import geometry
 from .material import Params, Structure
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["Light", "reflected_intensity"]
 

@@ -10,15 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from .measurement import band_labels
 from .pytrees import pytree
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["Structure", "Params", "Material", "used", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "FAMILIES", "MAX_LOBES"]
 

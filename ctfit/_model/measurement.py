@@ -15,14 +15,12 @@ import copy
 import dataclasses
 import functools
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+from jaxtyping import ArrayLike, Float, Int
 
 from .direction_pairs import unique_direction_pairs
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike, Float, Int
 
 __all__ = ["Measurement", "band_labels", "check_samples", "format_value", "invalid_value", "value_rules"]
 

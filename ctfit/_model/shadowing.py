@@ -26,13 +26,9 @@ References
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import jax.numpy as jnp
 from jax.scipy.special import erf
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 __all__ = ["v_cavity_reduced", "smith_g1_reduced", "smith_rational_g1_reduced"]
 

@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
+from jaxtyping import ArrayLike, Float
 
 from .._colour import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion
 from .._io import angles_deg_to_half_diff_deg
@@ -34,9 +35,6 @@ from .._model import Light, Material, Measurement, evaluate_at
 from .scene import LIGHT_DIRECTIONS, SOLID_ANGLES, Scene, Tile, render_bands, scene_lights, white_scale
 from .surfaces import VIEW_DIRECTION, surface_normals
 from .tone import tone_map
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike, Float
 
 __all__ = ["MeasuredBRDF", "Comparison", "half_diff_folded_deg", "render_comparison"]
 

@@ -8,19 +8,17 @@ tile; see :func:`render_compare`.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
+from jaxtyping import Float, UInt8
 
 from .._model import Material, Measurement, ambient_reflectance
 from .scene import Scene, Tile, render_scene, shade_tile, white_scale
 from .sheet import assemble_sheet, tile_label
 from .surfaces import VIEW_DIRECTION, Surface, surface_normals
 from .tone import BACKGROUND, tone_map
-
-if TYPE_CHECKING:
-    from jaxtyping import Float, UInt8
 
 __all__ = ["render_compare"]
 

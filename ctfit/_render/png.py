@@ -4,14 +4,11 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
+from jaxtyping import UInt8
 
 from .._io import atomic_save
-
-if TYPE_CHECKING:
-    from jaxtyping import UInt8
 
 __all__ = ["save_png"]
 

@@ -26,20 +26,18 @@ import functools
 import math
 import warnings
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
+from jaxtyping import Array, ArrayLike, Float
 
 from .._colour import colour_science, rgb_conversion, spectral_weights
 from .._io import DataWarning
 from .._model import Light, Material, Params, Structure, reflected_intensity
 from .surfaces import VIEW_DIRECTION, Surface, surface_normals
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float
 
 __all__ = [
     "WAVELENGTH_STEP_NM",

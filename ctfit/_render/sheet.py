@@ -7,18 +7,16 @@ drawn with Pillow in DejaVu Sans (shipped with matplotlib), cut with "…" when 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from jaxtyping import Float, UInt8
 
 from .._colour import eotf_inverse_sRGB
 from .._model import Material
 from .scene import render_linear
 from .tone import BACKGROUND, tone_map
-
-if TYPE_CHECKING:
-    from jaxtyping import Float, UInt8
 
 __all__ = ["grid_layout", "assemble_sheet", "tile_label", "render_material", "render_materials"]
 

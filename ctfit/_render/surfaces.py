@@ -14,12 +14,10 @@
 from __future__ import annotations
 
 import functools
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike
+from jaxtyping import ArrayLike
 
 __all__ = ["SHAPES", "VIEW_DIRECTION", "Surface", "surface_normals", "vase_profile"]
 

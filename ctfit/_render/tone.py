@@ -13,18 +13,14 @@ tiles only under ``"reference"`` and only among tiles whose highlights are not b
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
+from jaxtyping import Array, ArrayLike, Float, UInt8
 
 from .._colour import desaturate_to_gamut, eotf_inverse_sRGB, scale_to_display
 from .scene import Tile
-
-if TYPE_CHECKING:
-    from jaxtyping import Array, ArrayLike, Float, UInt8
 
 __all__ = ["EXPOSURES", "BACKGROUND", "tone_map"]
 

@@ -9,11 +9,11 @@ lays out the sampled coordinates (:class:`~ctfit._sampling.logprob.Layout`), the
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
+from jaxtyping import ArrayLike, Float
 
 from .._fitting import LOSSES, FitResult, from_params, make_problem
 from .._model import Material, Measurement, x64_enabled
@@ -21,9 +21,6 @@ from .engine import Engine
 from .logprob import Layout
 from .priors import normalise_priors
 from .start import optimum_point, resolve_fit, start_params
-
-if TYPE_CHECKING:
-    from jaxtyping import ArrayLike, Float
 
 __all__ = ["default_walkers", "PosteriorSetup", "set_up_posterior", "LogProbability", "log_probability"]
 
