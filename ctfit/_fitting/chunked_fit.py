@@ -241,10 +241,6 @@ def _program(name: str, fn, *args):
     return run
 
 
-def _leaves(tree) -> list:
-    return array_leaves(tree)
-
-
 def _flat_shape(u0: dict) -> tuple[int, np.dtype]:
     """The size and dtype of ``ravel_pytree(u0)[0]``, on the host (an eager ``ravel_pytree``
     compiles a concatenation per shape, in every process)."""
@@ -332,7 +328,7 @@ def _lm_init(y, lower, upper, tol):
     solver, state = _lm(y, lower, upper, jnp.zeros((p,), y.dtype), jnp.zeros((p, p), y.dtype), tol)
     done, result = solver.terminate(_cost_given, y, jnp.zeros((), y.dtype), {}, state, frozenset())
     sound = (result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(y))
-    return dict(state=_leaves(state), y_eval=state.y_eval, done=done, sound=sound)
+    return dict(state=array_leaves(state), y_eval=state.y_eval, done=done, sound=sound)
 
 
 def _lm_step(y, leaves: list, f, grad, hess, lower, upper, tol):
@@ -344,7 +340,7 @@ def _lm_step(y, leaves: list, f, grad, hess, lower, upper, tol):
     y, state, _ = solver.step(_cost_given, y, f, {}, state, frozenset())
     done, result = solver.terminate(_cost_given, y, f, {}, state, frozenset())
     sound = (result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(y))
-    return dict(y=y, state=_leaves(state), y_eval=state.y_eval, done=done, sound=sound, cost=state.f_info.f)
+    return dict(y=y, state=array_leaves(state), y_eval=state.y_eval, done=done, sound=sound, cost=state.f_info.f)
 
 
 @dataclasses.dataclass
@@ -361,7 +357,7 @@ class _Kernels:
 
     def normal_equations(self, flat, side_by_side: bool = True):
         """(½‖r‖², Jᵀr, JᵀJ) at ``flat``, summed over the chunks (:func:`chunk_sums`)."""
-        return chunk_sums(self.ne, self.zeros, self.parts, [flat, *_leaves(self.u0)], side_by_side)
+        return chunk_sums(self.ne, self.zeros, self.parts, [flat, *array_leaves(self.u0)], side_by_side)
 
     def run(self, y0, lower, upper, budget: int, tol, alone: bool = True):
         """``_run_solver`` on the host: (value, converged, steps, sound, cost, last), ``last`` the
@@ -395,7 +391,7 @@ def _kernels(parts: list[Problem], u0: dict, solver: tuple | None = None, ne: Ca
     (:func:`_ne_program`) where made already (in other threads)."""
     init, step, zeros = _solver_programs(u0) if solver is None else solver
     ne = _ne_program(parts[0], u0) if ne is None else ne
-    return _Kernels([_leaves(pt) for pt in parts], parts[0], u0, ne, init, step, zeros)
+    return _Kernels([array_leaves(pt) for pt in parts], parts[0], u0, ne, init, step, zeros)
 
 
 def _ne_program(template: Problem, u0: dict):
@@ -444,14 +440,14 @@ def _seed_programs(template: Problem, u0: dict, k: int, grid, keep_start: bool):
 def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> dict:
     """The flat seeds and the bounds (host arrays): the scores' sums over the chunks (one pass),
     then the choice (:func:`~ctfit._fitting.starts.seed_points`' steps)."""
-    template, chunks = parts[0], [_leaves(pt) for pt in parts]
+    template, chunks = parts[0], [array_leaves(pt) for pt in parts]
     sums, pick = _seed_programs(template, u0, k, grid, keep_start)
     if sums is None:
-        return jax.device_get(pick(*_leaves((template, u0))))
-    u0l = _leaves(u0)
+        return jax.device_get(pick(*array_leaves((template, u0))))
+    u0l = array_leaves(u0)
     acc = [jax.device_put(np.zeros((grid.shape[0], template.fixed_bands, 3), grid.dtype)) for _ in range(2)]
     acc = chunk_sums(sums, acc, chunks, [*u0l, grid])
-    return jax.device_get(pick(*_leaves((template, u0, grid, acc[0], acc[1]))))
+    return jax.device_get(pick(*array_leaves((template, u0, grid, acc[0], acc[1]))))
 
 
 def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False, report: bool = True) -> None:
@@ -585,7 +581,7 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     """:func:`chunked_core` once its programs are made: the race, the sums at the winner, the report."""
     sample, race_samples = None, 0
     if race_parts is not None and seeds["flat"].shape[0] > 1:  # one seed alone is not raced: it is solved on all the data
-        sample = dataclasses.replace(kern, parts=[_leaves(pt) for pt in race_parts])
+        sample = dataclasses.replace(kern, parts=[array_leaves(pt) for pt in race_parts])
         race_samples = int(sum(np.sum(np.asarray(pt.mask)) for pt in race_parts))
     values, sound, steps, costs, last = _race(kern, seeds, max_steps, tolerance, sample)
     best = int(np.argmin(costs))
@@ -601,20 +597,20 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
         zero = jax.device_put(np.zeros((), costs.dtype))
         rebuild = split_arrays(kern.template)[1]
         for leaves in kern.parts:  # each chunk with no structure in it (``fit_zero`` is shared)
-            zero = zero_program(zero, *_leaves(_data_only(rebuild(leaves))))
+            zero = zero_program(zero, *array_leaves(_data_only(rebuild(leaves))))
         zero = np.asarray(jax.device_get(zero))
-        out = jax.device_get(light(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
+        out = jax.device_get(light(*array_leaves((kern.template, u, cost, jtr, jtj, zero))))
         return dict(out, **solved, zero_cost=zero)
     return dict(_report(kern, problem, u, cost, jtr, jtj, costs.dtype), **solved)
 
 
 def _report(kern: _Kernels, problem: Problem, u: dict, cost, jtr, jtj, dtype) -> dict:
     """The residual summary (chunk by chunk) and the report at the solution ``u``."""
-    summary, ul = _program("fit_summary", _summary_kernel, kern.template, u), _leaves(u)
+    summary, ul = _program("fit_summary", _summary_kernel, kern.template, u), array_leaves(u)
     parts = jax.device_get([summary(*leaves, *ul) for leaves in kern.parts])
     zero = np.asarray(np.sum([c["zero"] for c in parts]), dtype)
     report = _program("fit_report", report_core, kern.template, u, cost, jtr, jtj, zero)
-    out = jax.device_get(report(*_leaves((kern.template, u, cost, jtr, jtj, zero))))
+    out = jax.device_get(report(*array_leaves((kern.template, u, cost, jtr, jtj, zero))))
     n = max(int(np.sum(np.asarray(problem.mask))), 1)
     stats = [[np.array([c["stats"][i][j] for c in parts]) for j in (0, 1)] for i in (0, 1)]
     with np.errstate(invalid="ignore", over="ignore"):  # a value that is not finite gives NaN, as in a program

@@ -116,14 +116,10 @@ def grid_costs(num, den, amplitudes):
     return jnp.maximum(jnp.sum(cost, axis=-1), 0)
 
 
-def _score_grid(problem: Problem, u0: dict, grid):
+@functools.cache
+def _score_grid():
     """:func:`_grid_scores` through ``eqx.filter_jit`` (Equinox imported here, where a program
     is traced: a fit whose programs are stored does not import it)."""
-    return _score_grid_program()(problem, u0, grid)
-
-
-@functools.cache
-def _score_grid_program():
     import equinox as eqx
 
     return eqx.filter_jit(_grid_scores)
@@ -154,7 +150,7 @@ def seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool 
     """
     if "m" not in u0 or k < 1 or grid is None:
         return jax.tree.map(lambda a: jnp.asarray(a)[None], u0)
-    costs, scales = _score_grid(problem, u0, grid)
+    costs, scales = _score_grid()(problem, u0, grid)
     return seeds_from_scores(problem, u0, k, grid, costs, scales, keep_start)
 
 

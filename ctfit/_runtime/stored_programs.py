@@ -431,11 +431,10 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     """(program, its output on ``leaves`` or None): the output when a stored program was tried."""
     options = COMPILE_EFFORT[effort]
     digest = _key(name, (effort, *args))
-    rebuild = split_arrays(args)[1]
     if digest is None:  # (Equinox only here: not imported by a fit whose programs are stored)
         import equinox as eqx
 
-        jitted = eqx.filter_jit(fn)
+        jitted, rebuild = eqx.filter_jit(fn), split_arrays(args)[1]
         return (lambda *ls: jitted(*rebuild(ls))), None
     key = f"{name}-{digest}"
     run = _recall(key)
@@ -447,14 +446,14 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
         run = _recall(key)
         if run is not None:
             return run, None
-        return _load_or_compile(name, fn, rebuild, leaves, key, digest, options)
+        return _load_or_compile(name, fn, args, leaves, key, digest, options)
 
 
 _making: dict[str, threading.Lock] = {}  # key → the lock of the thread making that program
 _making_guard = threading.Lock()
 
 
-def _load_or_compile(name: str, fn: Callable, rebuild: Callable, leaves: list, key: str, digest: str, options: dict):
+def _load_or_compile(name: str, fn: Callable, args: tuple, leaves: list, key: str, digest: str, options: dict):
     """:func:`_program`'s work once the program is not in memory: load it from the store, or
     trace, compile and store it. (program, its output on ``leaves`` or None)."""
     store = _store()
@@ -473,6 +472,8 @@ def _load_or_compile(name: str, fn: Callable, rebuild: Callable, leaves: list, k
 
     # The program takes a flat list of arrays and returns plain containers, which is what
     # an executable can be stored with.
+    rebuild = split_arrays(args)[1]
+
     def flat(*ls):
         out = fn(*rebuild(ls))
         if not _plain(jax.tree.structure(out)):
