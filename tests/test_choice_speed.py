@@ -91,13 +91,15 @@ def test_each_compile_effort_is_its_own_program(tmp_path, monkeypatch):
     x = jnp.arange(4.0)
     try:
         fast = stored_programs.cached_call("effort", jnp.sin, x, effort="once")
+        small = stored_programs.cached_call("effort", jnp.sin, x, effort="step")
         tuned = stored_programs.cached_call("effort", jnp.sin, x, effort="run")
     finally:
         jax.config.update("jax_compilation_cache_dir", folder)
         compilation_cache.reset_cache()
     np.testing.assert_allclose(fast, tuned, rtol=1e-12)
-    assert len(list(tmp_path.glob("effort-*.xla"))) == 2
-    assert set(stored_programs.COMPILE_EFFORT) == {"run", "once"}
+    np.testing.assert_allclose(small, tuned, rtol=1e-12)
+    assert len(list(tmp_path.glob("effort-*.xla"))) == 3  # each XLA accepted its options
+    assert set(stored_programs.COMPILE_EFFORT) == {"run", "step", "once"}
     with pytest.raises(KeyError):
         stored_programs.cached_call("effort", jnp.sin, x, effort="fastest")
 

@@ -222,12 +222,12 @@ def _signature(args) -> tuple:
     return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if is_array(a) else a for a in jax.tree.leaves(args))
 
 
-_CALLED_OFTEN = ("fit_ne", "lm_step", "fit_grid_sums", "fit_summary")
-"""The programs a fit calls at every Levenberg–Marquardt step or once per chunk (a MERL table has
-1,600 chunks), compiled for speed (:data:`~ctfit._runtime.COMPILE_EFFORT` "run"); the others
-(the seeds' choice, ``lm_init``, the report) run once per fit and are compiled for a short
-compile ("once"). One effort per program whatever the data's size: a file of another size
-compiles nothing."""
+_EFFORT = {"fit_ne": "run", "fit_grid_sums": "run", "lm_step": "step", "fit_summary": "step"}
+"""The compile effort of each program (:data:`~ctfit._runtime.COMPILE_EFFORT`): "run" for the
+kernels that read the data at every Levenberg–Marquardt step or once per chunk (a MERL table has
+1,600 chunks), "step" for the solver's step and the per-chunk summary (called as often, but
+small), "once" for the others (the seeds' choice, ``lm_init``, the report: once per fit). One
+effort per program whatever the data's size: a file of another size compiles nothing."""
 
 
 def _program(name: str, fn, *args):
@@ -237,7 +237,7 @@ def _program(name: str, fn, *args):
     sig = (name, *_signature(args))
     run = _programs.get(sig)
     if run is None:
-        run = _programs[sig] = stored_program(name, fn, *args, effort="run" if name in _CALLED_OFTEN else "once")
+        run = _programs[sig] = stored_program(name, fn, *args, effort=_EFFORT.get(name, "once"))
     return run
 
 

@@ -98,7 +98,7 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     if fields is None:
         blocks = -(-n // GEOMETRY_BLOCK)
         padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
-        run = stored_program("geometry", _geometry_fields, padded[:GEOMETRY_BLOCK])
+        run = stored_program("geometry", _geometry_fields, padded[:GEOMETRY_BLOCK], effort="step")
         parts = jax.device_get([run(padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK]) for b in range(blocks)])  # every block started, then fetched
         fields = {k: np.concatenate([p[k] for p in parts])[:n] for k in parts[0]}
         for v in fields.values():
