@@ -90,7 +90,7 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
     pairs = np.asarray(pairs)
     n = len(pairs)
     if n == 0:
-        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs)))
+        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs), effort="step"))
     put = (lambda a: a) if on_host else jax.device_put
     key = (pairs.dtype.str, pairs.shape, hashlib.blake2b(np.ascontiguousarray(pairs).tobytes(),
                                                          digest_size=16).digest()) if n <= RECENT_GEOMETRY_PAIRS else None

@@ -59,7 +59,7 @@ from .._io import atomic_write
 from .._model import array_leaves, is_array, split_arrays
 from .compile_cache import program_store_folder, unsafe_folder, warn_once
 
-_FORMAT = 5  # 1: jax.export programs (compiled again in every process); 2: executables; 3: with their key; 4: compile efforts; 5: "step"
+_FORMAT = 4  # 1: jax.export programs (compiled again in every process); 2: executables; 3: with their key; 4: compile efforts
 
 _CONFIG: Any = jax.config  # JAX's flags are attributes added at run time, unknown to type checkers
 
@@ -70,9 +70,10 @@ COMPILE_EFFORT: dict[str, dict[str, bool | int]] = {
 }
 """XLA's options per compile effort (``Lowered.compile(compiler_options=...)``). LLVM's expensive
 passes are left out of all three, which cuts their compile by 20–50 % here and leaves their run
-time as it was. "run": the programs that read the data at every Levenberg–Marquardt step (the
-normal equations over a chunk, the seeds' sums), compiled with XLA's fusion emitters, which run
-them 1.7–2.4× faster. "step": programs called many times that are small or read little (the
+time as it was. "run" (the default): the programs that read the data at every
+Levenberg–Marquardt step (the normal equations over a chunk, the seeds' sums, the one-program
+solves of the other solvers, texels and batches), compiled with XLA's fusion emitters, which run
+the chunk kernels 1.7–2.4× faster. "step": programs called many times that are small or read little (the
 solver's step, the residual summary per chunk, the geometry): XLA's older fusion code, which
 compiles them in 50–70 % of the time and runs them as fast. "once": programs called once per fit
 (the seeds' choice, the report, the screen's held-out values): the older fusion code and LLVM not
