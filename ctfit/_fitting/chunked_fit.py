@@ -359,15 +359,20 @@ class _Kernels:
         """(½‖r‖², Jᵀr, JᵀJ) at ``flat``, summed over the chunks (:func:`chunk_sums`)."""
         return chunk_sums(self.ne, self.zeros, self.parts, [flat, *array_leaves(self.u0)], side_by_side)
 
-    def run(self, y0, lower, upper, budget: int, tol, alone: bool = True):
-        """``_run_solver`` on the host: (value, converged, steps, sound, cost, last), ``last`` the
-        point the solver last evaluated and (½‖r‖², Jᵀr, JᵀJ) there, or None; ``tol``: the
-        solver's (stol, gtol) (:func:`~ctfit._fitting.seeded_solve.lm_solver`), a device array.
-        ``alone``: no other seed runs meanwhile (the sums' chains then run side by side)."""
-        out = self.init(y0, lower, upper, tol)
-        y, leaves, y_eval = y0, out["state"], out["y_eval"]
-        done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
-        k, cost, last = 0, np.inf, None
+    def run(self, y0, lower, upper, budget: int, tol, alone: bool = True, resume: tuple | None = None):
+        """``_run_solver`` on the host: (value, converged, steps, sound, cost, last, paused),
+        ``last`` the point the solver last evaluated and (½‖r‖², Jᵀr, JᵀJ) there, or None;
+        ``paused`` what ``resume`` takes to go on with this solve (its state), or None where it
+        took no step. ``tol``: the solver's (stol, gtol) (:func:`~ctfit._fitting.seeded_solve.lm_solver`),
+        a device array. ``alone``: no other seed runs meanwhile (the sums' chains then run side
+        by side). ``resume``: a ``paused`` of a solve on the same data, going on from ``y0``."""
+        if resume is None:
+            out = self.init(y0, lower, upper, tol)
+            leaves, y_eval = out["state"], out["y_eval"]
+            done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
+        else:
+            (leaves, y_eval), done, sound = resume, False, True
+        y, k, cost, last = y0, 0, np.inf, None
         while not done and sound and k < budget:
             f, grad, hess = self.normal_equations(y_eval, alone)
             last = (y_eval, [f, grad, hess])
@@ -375,7 +380,7 @@ class _Kernels:
             y, leaves, y_eval, cost = out["y"], out["state"], out["y_eval"], out["cost"]
             done, sound = (bool(v) for v in jax.device_get((out["done"], out["sound"])))
             k += 1
-        return y, done and sound, k, sound, float(cost), last
+        return y, done and sound, k, sound, float(cost), last, ((leaves, y_eval) if k > 0 else None)
 
     def normal_equations_at(self, flat, last):
         """:meth:`normal_equations` at ``flat``, or the sums of ``last`` (:meth:`run`'s) where
@@ -466,7 +471,8 @@ def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = F
 
 def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None, sample: _Kernels | None = None):
     """``_structured_lm``'s race on the host: every seed ``RACE_STEPS`` steps, then those within
-    ``RACE_MARGIN`` of the lowest cost go on. Returns flat values, sound, steps, costs.
+    ``RACE_MARGIN`` of the lowest cost go on with their solves (the solver's state, its damping
+    included, carried over). Returns flat values, sound, steps, costs.
     ``tolerance``: stop where one more Gauss–Newton step promises less than this relative
     decrease of the cost (None: ``lm_solver``'s tests). The seeds of a phase run side by side,
     one thread each, beyond the machine's cores too (the programs run without the GIL: three
@@ -485,19 +491,20 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     values = [jax.device_put(v) for v in flat]
     ok, steps, costs, sound = [False] * n, [0] * n, [math.inf] * n, [True] * n
     last: list = [None] * n
+    paused: list = [None] * n  # each seed's solver state after its last step (:meth:`_Kernels.run`'s)
     race = n > 1 and max_steps > RACE_STEPS
 
     def phase(budgets: list[int], on: _Kernels) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
-        run = lambda j: on.run(values[j], lower, upper, budgets[j], tol, len(go) <= 1)
+        run = lambda j: on.run(values[j], lower, upper, budgets[j], tol, len(go) <= 1, paused[j] if sound[j] else None)
         if len(go) <= 1:  # one seed (a fit from its start alone): no thread
             runs = [run(j) for j in go]
         else:
             with concurrent.futures.ThreadPoolExecutor(len(go)) as pool:
                 runs = list(pool.map(run, go))
-        for j, (v, o, k, fine, c, at) in zip(go, runs):
+        for j, (v, o, k, fine, c, at, state) in zip(go, runs):
             if k > 0:  # a seed that did not go on keeps what it had
-                values[j], ok[j], sound[j], costs[j], last[j] = v, o, fine, (c if math.isfinite(c) else math.inf), at
+                values[j], ok[j], sound[j], costs[j], last[j], paused[j] = v, o, fine, (c if math.isfinite(c) else math.inf), at, state
             steps[j] += k
 
     first = sample or kern
@@ -507,9 +514,9 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
         phase([RACE_STEPS] * n, first)
         lowest = min(costs)
         phase([max_steps - RACE_STEPS if (not ok[j] and costs[j] <= RACE_MARGIN * lowest) else 0 for j in range(n)], first)
-    if sample is not None:  # the sample's winners, over all the data
+    if sample is not None:  # the sample's winners, over all the data: a new solve each (other data)
         go = _distinct_winners(jax.device_get(values), costs)
-        ok, steps, costs, last = [False] * n, [0] * n, [math.inf] * n, [None] * n
+        ok, steps, costs, last, paused = [False] * n, [0] * n, [math.inf] * n, [None] * n, [None] * n
         phase([max_steps if j in go else 0 for j in range(n)], kern)
     return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype), last
 

@@ -97,22 +97,25 @@ def _with_aux(flat, data):
     return _half_squared_norm(flat, data), None
 
 
-def _run_solver(solver, y0, data, budget):
+def _run_solver(solver, y0, data, budget, paused=None):
     """optimistix's iteration (``solver.init``, then ``step`` until ``terminate``) for at most
     ``budget`` steps — a *traced* count, so one compiled loop serves every phase of the race.
-    Returns (value, converged, steps); the solver's own tests decide ``converged``."""
+    ``paused``: (whether, state) — where ``whether`` (traced), go on with the solve whose state
+    (the array leaves of the solver's state) a run from ``y0`` on the same data returned, instead
+    of starting one. Returns (value, converged, steps, sound, state)."""
     import equinox as eqx  # (with optimistix: a fit whose programs are stored imports neither)
     import optimistix as optx
 
     f_struct = jax.ShapeDtypeStruct((), y0.dtype)
-    state = solver.init(_with_aux, y0, data, {}, f_struct, None, frozenset())
-    dynamic, static = eqx.partition(state, eqx.is_array)
+    dynamic, static = eqx.partition(solver.init(_with_aux, y0, data, {}, f_struct, None, frozenset()), eqx.is_array)
+    if paused is not None:
+        dynamic = jax.tree.map(lambda a, b: jnp.where(paused[0], b, a), dynamic, paused[1])
 
     def stop_and_result(y, st):
         done, result = solver.terminate(_with_aux, y, data, {}, st, frozenset())
         return done, optx.RESULTS.where(jnp.all(jnp.isfinite(y)), result, optx.RESULTS.nonfinite)
 
-    done, result = stop_and_result(y0, state)
+    done, result = stop_and_result(y0, eqx.combine(static, dynamic))
 
     def cond(carry):
         _, k, _, done, result = carry
@@ -125,9 +128,9 @@ def _run_solver(solver, y0, data, budget):
         done, result = stop_and_result(y, st)
         return y, k + 1, eqx.partition(st, eqx.is_array)[0], done, result
 
-    y, k, _, done, result = jax.lax.while_loop(cond, body, (y0, jnp.zeros((), jnp.int32), dynamic, done, result))
+    y, k, dynamic, done, result = jax.lax.while_loop(cond, body, (y0, jnp.zeros((), jnp.int32), dynamic, done, result))
     sound = result == optx.RESULTS.successful  # no numerical failure (a spent budget is none)
-    return y, done & sound, k, sound
+    return y, done & sound, k, sound, dynamic
 
 
 def stop_tolerances(dtype, tolerance: float | None = None) -> tuple[float, float]:
@@ -157,11 +160,14 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     """optimistix Levenberg–Marquardt on the structured normal equations, the seeds raced.
 
     Every seed gets ``RACE_STEPS`` steps; the seeds whose cost is then within ``RACE_MARGIN``
-    of the lowest go on to convergence (a fresh solve from where they stopped, unless converged
-    already). The others keep their cost after the race, so they can only lose. With one seed
-    this is a plain solve. Both phases are one scan over (seed, phase) tasks around *one*
-    instance of the solver loop, which keeps the compiled program small.
+    of the lowest go on to convergence (their solves resumed: the solver's state, its damping
+    included, carried over, so a seed takes the steps of one solve), unless converged already.
+    The others keep their cost after the race, so they can only lose. With one seed this is a
+    plain solve. Both phases are one scan over (seed, phase) tasks around *one* instance of the
+    solver loop, which keeps the compiled program small.
     """
+    import equinox as eqx
+
     flat_seeds = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
     unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
     data = (problem, jax.tree_util.Partial(unravel))
@@ -170,27 +176,32 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     n = flat_seeds.shape[0]
     race = n > 1 and max_steps > RACE_STEPS
     tasks = jnp.arange(2 * n if race else n)
+    f_struct = jax.ShapeDtypeStruct((), flat_seeds.dtype)
+    template = eqx.filter(solver.init(_with_aux, flat_seeds[0], data, {}, f_struct, None, frozenset()), eqx.is_array)
+    no_states = jax.tree.map(lambda a: jnp.zeros((n, *a.shape), a.dtype), template)
 
     def task(carry, i):
-        values, ok, steps, costs, sound = carry
+        values, ok, steps, costs, sound, states = carry
         j = i % n
         if race:
             second = i >= n
             go = ~ok[j] & (costs[j] <= RACE_MARGIN * jnp.min(costs))
             budget = jnp.where(second, jnp.where(go, max_steps - RACE_STEPS, 0), RACE_STEPS)
+            paused = (second & sound[j], jax.tree.map(lambda a: a[j], states))
         else:
-            budget = jnp.asarray(max_steps)
-        v, o, k, fine = _run_solver(solver, values[j], data, budget)
+            budget, paused = jnp.asarray(max_steps), None
+        v, o, k, fine, state = _run_solver(solver, values[j], data, budget, paused)
         c = _half_squared_norm(v, data)
         keep = k > 0  # a seed that did not go on keeps what it had
         values = values.at[j].set(jnp.where(keep, v, values[j]))
         ok = ok.at[j].set(jnp.where(keep, o, ok[j]))
         sound = sound.at[j].set(jnp.where(keep, fine, sound[j]))
         costs = costs.at[j].set(jnp.where(keep, jnp.where(jnp.isfinite(c), c, jnp.inf), costs[j]))
-        return (values, ok, steps.at[j].add(k), costs, sound), None
+        states = jax.tree.map(lambda a, b: a.at[j].set(jnp.where(keep, b, a[j])), states, state)
+        return (values, ok, steps.at[j].add(k), costs, sound, states), None
 
-    init = (flat_seeds, jnp.zeros(n, bool), jnp.zeros(n, jnp.int32), jnp.full(n, jnp.inf, flat_seeds.dtype), jnp.ones(n, bool))
-    (values, ok, steps, costs, sound), _ = jax.lax.scan(task, init, tasks)
+    init = (flat_seeds, jnp.zeros(n, bool), jnp.zeros(n, jnp.int32), jnp.full(n, jnp.inf, flat_seeds.dtype), jnp.ones(n, bool), no_states)
+    (values, ok, steps, costs, sound, _), _ = jax.lax.scan(task, init, tasks)
     # Reported per seed: no numerical failure. Whether the point is a minimum is judged after the
     # solve, by first-order optimality on the free variables (``STATIONARY_TOLERANCE``), so a
     # stationary point reached at the step limit (a flat valley the data does not determine) counts.
