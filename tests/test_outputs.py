@@ -61,6 +61,27 @@ def test_output_equal_to_an_input_is_refused(tmp_path):
     assert check_output(tmp_path / "out.csv", [MATERIAL, data]) == tmp_path / "out.csv"
 
 
+def test_many_outputs_are_checked_against_many_inputs_in_linear_time(tmp_path, monkeypatch):
+    """A folder of n files: each of n outputs checked against all n inputs looks each path up
+    once (2n lookups, not n²: 10,000 files took minutes); the first input that is the same file
+    is the one named."""
+    from ctfit._io import output_paths
+
+    files = [tmp_path / f"f{i}.csv" for i in range(300)]
+    for f in files:
+        f.write_text("x\n")
+    (tmp_path / "alias.csv").symlink_to(files[7])
+    calls = []
+    real = output_paths._identity
+    monkeypatch.setattr(output_paths, "_identity", lambda p: calls.append(p) or real(p))
+    inputs = output_paths.InputFiles([*files, tmp_path / "alias.csv"])
+    for i in range(300):
+        check_output(tmp_path / "out" / f"f{i}.fit.json", inputs, chosen=True)
+    assert len(calls) == 301 + 300
+    with pytest.raises(OutputError, match=r"is the input .*f7\.csv"):
+        check_output(tmp_path / "alias.csv", inputs)
+
+
 def test_read_only_target_is_refused_even_for_root(tmp_path):
     target = read_only(tmp_path / "result.json")
     with pytest.raises(OutputError, match=r"-o .*result.json: the file is read-only \(mode -r--r--r--\)"):

@@ -235,9 +235,9 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     several files, a folder of them, a trailing slash, an existing folder): distinct files in it
     (``result_targets``), none a symbolic link, and ``summary.json`` beside the results.
     """
-    from .._io import check_backend, check_output, check_output_folder, result_targets
+    from .._io import InputFiles, check_backend, check_output, check_output_folder, result_targets
 
-    many = len(files) > 1
+    many, inputs = len(files) > 1, InputFiles(files)  # each input looked up once, not once per output
 
     def targets(key, value, option, suffix, check):
         if value is None:
@@ -248,13 +248,13 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
         return {p: check(target, True) for p, target in found.items()}
 
     def chain(target, chosen):
-        return check_backend(target, files, resume=o.resume, overwrite=o.overwrite, chosen=chosen)
+        return check_backend(target, inputs, resume=o.resume, overwrite=o.overwrite, chosen=chosen)
 
-    json_ = targets("output", o.output, "-o", ".fit.json", lambda t, c: check_output(t, files, option="-o", chosen=c))
-    plot = targets("plot", o.plot, "--plot", ".fit.png", lambda t, c: _plot_format(check_output(t, files, option="--plot", chosen=c)))
+    json_ = targets("output", o.output, "-o", ".fit.json", lambda t, c: check_output(t, inputs, option="-o", chosen=c))
+    plot = targets("plot", o.plot, "--plot", ".fit.png", lambda t, c: _plot_format(check_output(t, inputs, option="--plot", chosen=c)))
     backend = targets("backend", o.backend if o.sample_ else None, "--backend", ".h5", chain)
     if o.output is not None and o.folders["output"]:
-        check_output(o.output / SUMMARY, files, option="-o", chosen=True)
+        check_output(o.output / SUMMARY, inputs, option="-o", chosen=True)
     names = result_targets(files, Path(), "") if many else {files[0]: Path(files[0].stem)}
     return {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
 

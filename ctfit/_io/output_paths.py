@@ -9,7 +9,6 @@ The writing itself is :func:`ctfit._io.files.atomic_write`.
 from __future__ import annotations
 
 import errno
-import functools
 import hashlib
 import os
 import stat
@@ -23,6 +22,7 @@ __all__ = [
     "check_output",
     "check_output_folder",
     "check_backend",
+    "InputFiles",
     "same_file",
     "result_targets",
     "unconverged_target",
@@ -49,10 +49,26 @@ def _identity(p) -> frozenset:
     return frozenset(found)
 
 
-@functools.lru_cache(maxsize=4096)
-def _input_identity(p: str) -> frozenset:
-    """:func:`_identity` of an input, looked up once per run (inputs are read, never written)."""
-    return _identity(p)
+class InputFiles:
+    """A run's input files, each :func:`_identity` looked up once (inputs are read, never
+    written): ``which(path)`` is the first input that is the same file as ``path``, in time
+    independent of their number, so checking one output per input of a database is linear.
+
+    >>> InputFiles(["a.csv", "b.csv"]).which("./b.csv")
+    'b.csv'
+    """
+
+    def __init__(self, paths=()):
+        self._first: dict = {}
+        for i, p in enumerate(paths):
+            if p is not None:
+                for atom in _identity(p):
+                    self._first.setdefault(atom, (i, p))
+
+    def which(self, path):
+        """The first input that is the same file as ``path``, or None."""
+        found = [self._first[a] for a in _identity(path) if a in self._first]
+        return min(found, key=lambda f: f[0])[1] if found else None
 
 
 def same_file(a, b) -> bool:
@@ -129,6 +145,7 @@ def check_output(path, inputs=(), *, option: str = "-o", chosen: bool = False) -
     folder; it exists and is read-only (no write bit in its mode, even for root, or not writable
     by this user); its folder cannot be created or written. Missing parent folders are created.
     Messages start with ``option`` and the path (``option=""``: the path alone).
+    ``inputs``: paths, or an :class:`InputFiles` made once for the checks of many outputs.
     The same file means the same physical file, whatever the spelling: links, hard links, and
     ``..`` after folders that do not exist yet. A name longer than the file system takes is
     refused. A symbolic link is checked at its target (the write goes through it); ``chosen``
@@ -141,10 +158,9 @@ def check_output(path, inputs=(), *, option: str = "-o", chosen: bool = False) -
     limit = _name_max(path.parent)
     if len(os.fsencode(path.name)) > limit:
         raise OutputError(f"{_at(option, path)}: the file name is {len(os.fsencode(path.name))} bytes long; the file system takes at most {limit}")
-    mine = _identity(path)  # once, compared with every input's (each looked up once per run)
-    for inp in inputs:
-        if inp is not None and mine & _input_identity(os.path.abspath(inp)):
-            raise OutputError(f"{_at(option, path)}: is the input {inp}; write the result to another file")
+    inp = (inputs if isinstance(inputs, InputFiles) else InputFiles(inputs)).which(path)
+    if inp is not None:
+        raise OutputError(f"{_at(option, path)}: is the input {inp}; write the result to another file")
     if path.is_symlink() and _loops(path):
         raise OutputError(f"{_at(option, path)}: is a symbolic link that leads to itself; remove it or choose another name")
     if path.is_dir():
