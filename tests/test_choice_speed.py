@@ -158,3 +158,15 @@ def test_a_fit_whose_programs_are_stored_imports_neither_equinox_optimistix_nor_
     assert first.returncode == 0 and second.returncode == 0, first.stderr[-2000:] + second.stderr[-2000:]
     assert first.stdout.splitlines()[-1] == "['equinox', 'lineax', 'optimistix']"  # it compiled: it traced the solver
     assert second.stdout.splitlines()[-1] == "[]"
+    # A folder of one geometry (fitted together, ctfit/_fitting/shared_geometry.py): none either.
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    base = ctfit.simulate(ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1),
+                          f0=np.array([0.9])), wavelength_nm=np.array([550.0])), n_pairs=60, seed=0)
+    for i in range(4):
+        ctfit.write_csv(base.replace(brdf=np.asarray(base.brdf) * (1 + 0.1 * i)), folder / f"f{i}.csv")
+    run = lambda: subprocess.run([sys.executable, "-c", _WARM_FIT, str(folder), str(tmp_path / "out")], capture_output=True, text=True,
+                                 env=env, timeout=600)
+    first, second = run(), run()
+    assert first.returncode == 0 and second.returncode == 0, first.stderr[-2000:] + second.stderr[-2000:]
+    assert second.stdout.splitlines()[-1] == "[]"

@@ -23,7 +23,6 @@ import dataclasses
 import time
 from typing import Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -236,8 +235,9 @@ class ValueLayout:
 
 def with_values(problem: Problem, y: Array, floor: Array) -> Problem:
     """``problem`` with another measurement's values ``y`` (laid out by :class:`ValueLayout`) and
-    loss floor: a texel, or a member of a group of one geometry."""
-    return eqx.tree_at(lambda q: (q.y, q.floor), problem, (y, floor))
+    loss floor: a texel, or a member of a group of one geometry. (A dataclass replace, not
+    Equinox's ``tree_at``: the fits of a folder import no Equinox when their programs are stored.)"""
+    return dataclasses.replace(problem, y=y, floor=floor)
 
 
 def _texel_core(problem: Problem, ys: Array, floors: Array, active: Array, u0: dict, grid: Any, width: int, *options: Any) -> Any:
