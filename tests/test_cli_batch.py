@@ -3,6 +3,7 @@
 
 import json
 import re
+import threading
 import warnings
 
 import numpy as np
@@ -71,6 +72,27 @@ def test_batch_goes_on_after_a_bad_file_and_summarises(tmp_path):
     assert [(row["outcome"], row["result"]) for row in rows] == [
         ("converged", str(out / "a.fit.json")), ("failed", None), ("converged", str(out / "c.fit.json"))]
     assert r.stdout.count("fit of ") == 2
+
+
+def test_a_batch_stopped_by_an_unexpected_error_ends_its_threads_at_once(tmp_path, monkeypatch):
+    """The windows' reader and fitter threads end when the batch stops, in the command's thread,
+    not whenever the garbage collector meets the abandoned generator (which once closed it inside
+    Python's lock of thread starts: the next command in the process hung for good)."""
+    import ctfit._cli.fit_command as fit_command
+
+    data = tmp_path / "data"
+    for k in range(3):
+        write(data, f"{k}.csv", seed=k)
+
+    def broken(*args, **kw):
+        raise RuntimeError("a report that fails")
+
+    monkeypatch.setattr(fit_command, "report_file", broken)
+    before = set(threading.enumerate())
+    r = run("fit", data, "--no-diffuse", "--lobes", "1", "-o", tmp_path / "fits")
+    assert r.exit_code != 0 and isinstance(r.exception, RuntimeError)  # the result keeps the traceback, and so the frames
+    left = [t.name for t in set(threading.enumerate()) - before if t.name.startswith(("ctfit-read", "ctfit-fit", "ThreadPoolExecutor-"))]
+    assert not left, left
 
 
 def test_exit_1_when_a_fit_does_not_converge_and_none_failed(tmp_path):

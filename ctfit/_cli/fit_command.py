@@ -284,26 +284,34 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool, ahead=None) ->
     outcomes: list[tuple[str, str]] = []
     windows = _windows(files, o, base) if together else None
     fitted: dict[Path, Any] = {}  # path → (measurement, FitResult), or an exception (_windows)
-    for path in bar(files, desc="files", enabled=show and len(files) > 1):
-        try:
-            if not together:
-                outcome = _fit_file(path, o, base, plan[path], show, ahead)
-            else:
-                if path not in fitted:
-                    assert windows is not None  # together
-                    fitted = next(windows)
-                got = fitted.pop(path)
-                if isinstance(got, Exception):
-                    raise got
-                meas, res = got
-                outcome = report_file(path, meas, res, o, plan[path], show)
-            outcomes.append((outcome, str(path)))
-        except (UserError, ValueError, OSError, KeyError) as e:
-            if len(files) == 1:
-                raise
-            line = failure_line(path, e)
-            echo(f"error: {line}", err=True)
-            outcomes.append(("failed", line))
+    try:
+        for path in bar(files, desc="files", enabled=show and len(files) > 1):
+            try:
+                if not together:
+                    outcome = _fit_file(path, o, base, plan[path], show, ahead)
+                else:
+                    if path not in fitted:
+                        assert windows is not None  # together
+                        fitted = next(windows)
+                    got = fitted.pop(path)
+                    if isinstance(got, Exception):
+                        raise got
+                    meas, res = got
+                    outcome = report_file(path, meas, res, o, plan[path], show)
+                outcomes.append((outcome, str(path)))
+            except (UserError, ValueError, OSError, KeyError) as e:
+                if len(files) == 1:
+                    raise
+                line = failure_line(path, e)
+                echo(f"error: {line}", err=True)
+                outcomes.append(("failed", line))
+    finally:
+        # Stopped by anything else (Ctrl-C, an error of ctfit's own): the windows' threads end
+        # here, in this thread. Left to the garbage collector, the generator's close (which
+        # joins them) ran wherever a collection happened, once inside Python's own lock of
+        # thread starts: a later command in the process hung for good.
+        if windows is not None:
+            windows.close()
     return outcomes
 
 
@@ -318,7 +326,9 @@ def _windows(files: list[Path], o, base):
     (:func:`_read_window`, in another thread)."""
     import concurrent.futures
 
-    with concurrent.futures.ThreadPoolExecutor(1) as reader, concurrent.futures.ThreadPoolExecutor(1) as fitter:
+    reader = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="ctfit-read")
+    fitter = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="ctfit-fit")
+    try:
         reading: concurrent.futures.Future | None = reader.submit(_read_window, files, o, base)
         fitting: concurrent.futures.Future | None = None
         while reading is not None:
@@ -330,6 +340,9 @@ def _windows(files: list[Path], o, base):
                 yield fitted.result()
         if fitting is not None:
             yield fitting.result()
+    finally:  # closed early (the caller stopped): what has not started is dropped, what runs ends first
+        for pool in (reader, fitter):
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 UNUSABLE = "posterior not usable"
