@@ -40,3 +40,37 @@ def compilations():
     jax.monitoring.register_event_duration_secs_listener(listener)
     yield seen
     jax.monitoring.unregister_event_duration_listener(listener)
+
+
+MAPS_CLEAR = 40_000
+
+
+def _memory_maps() -> int:
+    """The memory maps this process holds (Linux; 0 elsewhere)."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return f.read().count(b"\n")
+    except OSError:
+        return 0
+
+
+@pytest.fixture(autouse=True)
+def _few_enough_memory_maps():
+    """A test worker lives for a thousand tests, and every compiled program holds memory maps of
+    its own (about 95 for a fit's kernels). ctfit keeps at most ``MEMORY_PROGRAMS`` programs, but
+    JAX keeps every executable of a jitted function the tests call with new shapes; past
+    ``vm.max_map_count`` (65,530) XLA aborts the worker. Past ``MAPS_CLEAR`` maps after a test,
+    the worker drops every compiled program, JAX's and ctfit's, as a fresh process would not
+    have them."""
+    yield
+    if _memory_maps() > MAPS_CLEAR:
+        import gc
+
+        from ctfit._fitting import chunked_fit
+        from ctfit._runtime import stored_programs
+
+        jax.clear_caches()
+        stored_programs._memory.clear()
+        chunked_fit._programs.clear()
+        chunked_fit._made.clear()
+        gc.collect()

@@ -3,6 +3,8 @@ tracing, lowering and compiling."""
 
 from __future__ import annotations
 
+import sys
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -11,6 +13,7 @@ import pytest
 
 import ctfit
 from ctfit._fitting import chunked_fit
+from ctfit._model import array_leaves
 from ctfit._runtime import stored_programs as _aot
 
 
@@ -383,6 +386,39 @@ def test_kept_programs_are_built_once_per_key_and_the_least_recently_used_droppe
     kept("a", (1,), jnp.arange(3.0))  # built again; "c" is dropped
     assert built == ["a", "b", "c", "a"]
     assert sorted(k.partition("-")[0] for k in _aot._memory) == ["toy", "toy_kept", "toy_kept"]
+
+
+def _maps() -> int:
+    with open("/proc/self/maps") as f:
+        return sum(1 for _ in f)
+
+
+def test_memory_keeps_at_most_its_bound_and_frees_what_it_drops(store, monkeypatch):
+    """At most MEMORY_PROGRAMS programs in memory, the least recently used dropped: a dropped
+    executable is freed, its memory maps with it (each compiled program holds maps of its own;
+    a process that kept every program ran out of them, and XLA aborted it), also when a fit's
+    fast lookup (chunked_fit._program) had handed it out; asked for again, it is loaded from the
+    store, not traced."""
+    import gc
+    import weakref
+
+    monkeypatch.setattr(_aot, "MEMORY_PROGRAMS", 3)
+    monkeypatch.setattr(chunked_fit, "_programs", {})
+    box, x, _ = _args()
+    made = [weakref.ref(chunked_fit._program("toy", _fn, box, x, power)) for power in range(2, 8)]
+    assert len(_aot._memory) == 3
+    gc.collect()
+    assert [r() is not None for r in made] == [False, False, False, True, True, True]
+    if sys.platform.startswith("linux"):
+        before = _maps()
+        monkeypatch.setattr(_aot, "MEMORY_PROGRAMS", 0)
+        _aot._remember("toy-none", lambda: None)  # drops every program (the bound is 0 now)
+        gc.collect()
+        assert _maps() < before  # the executables' maps are unmapped
+        monkeypatch.setattr(_aot, "MEMORY_PROGRAMS", 3)
+    _forbid_tracing(monkeypatch)
+    again = chunked_fit._program("toy", _fn, box, x, 2)  # dropped: loaded from the store
+    np.testing.assert_array_equal(again(*array_leaves((box, x, 2)))["y"], _fn(box, x, 2)["y"])
 
 
 def test_an_entry_copied_over_another_programs_name_is_not_run(store, monkeypatch):

@@ -34,6 +34,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import math
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -166,7 +167,8 @@ def race_rows(problem: Problem) -> np.ndarray | None:
     return np.sort(np.random.default_rng(0).choice(real, RACE_CHUNKS * rows, replace=False))
 
 
-_programs: dict = {}
+_programs: dict = {}  # (name, shapes) → a weak reference to the program (the store's memory owns it)
+_made: set = set()  # the signatures of fits whose programs were all made once in this process
 
 SUM_PARTS = 2
 """A pass that sums over :data:`SPLIT_CHUNKS` chunks or more (the normal equations, the seeds'
@@ -235,9 +237,13 @@ def _program(name: str, fn, *args):
     compute (the arguments' tree, shapes and dtypes): a database calls this a few times a file.
     Threads asking for one program at once (:func:`prefetch`) make it once (the store's lock)."""
     sig = (name, *_signature(args))
-    run = _programs.get(sig)
-    if run is None:
-        run = _programs[sig] = stored_program(name, fn, *args, effort=_EFFORT.get(name, "once"))
+    ref = _programs.get(sig)
+    run = ref() if ref is not None else None
+    if run is None:  # not made yet, or dropped from the store's memory (MEMORY_PROGRAMS): held weakly here
+        run = stored_program(name, fn, *args, effort=_EFFORT.get(name, "once"))
+        # A program the store keeps in memory is held weakly (it owns it); one it cannot key (a
+        # closure in the static part), held here as before, as nothing else keeps it.
+        _programs[sig] = weakref.ref(run) if isinstance(run, jax.stages.Compiled) else (lambda run=run: run)
     return run
 
 
@@ -466,7 +472,7 @@ def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = F
     _report_programs(template, u0, report)
     transfer_program(template)
     _seed_programs(template, u0, starts, grid, keep_start)
-    _programs[_signature((template, u0, grid, starts, keep_start, report))] = True
+    _made.add(_signature((template, u0, grid, starts, keep_start, report)))
 
 
 def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None, sample: _Kernels | None = None):
@@ -573,11 +579,11 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     seeding = parts if race_parts is None else race_parts
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
     shapes = _signature((parts[0], u0, grid, starts, keep_start, report))
-    if shapes in _programs:
+    if shapes in _made:
         seeds, kern = _seeds(seeding, u0, starts, grid, keep_start), _kernels(parts, u0)
         return _race_and_report(problem, u0, seeds, kern, race_parts, max_steps, tolerance, report)
     seeds, kern, rest = _made_in_threads(parts, u0, report, lambda: _seeds(seeding, u0, starts, grid, keep_start))
-    _programs[shapes] = True
+    _made.add(shapes)
     try:
         return _race_and_report(problem, u0, seeds, kern, race_parts, max_steps, tolerance, report)
     finally:

@@ -27,10 +27,12 @@ its programs are run, the folder is made with mode 0700 and is not used (one war
 or JAX's cache folder around it, belongs to another user or others can write to it
 (:func:`ctfit._runtime.compile_cache.unsafe_folder`).
 
-In memory, programs are kept under the same key: :func:`cached_call`'s executables for the
-process's lifetime, and programs that :func:`kept_program` builds once and hands out, to be
-called directly (the sampler's log-probability, called thousands of times per run, with the
-goniometer geometry compiled in: its key holds the geometry's values; the last few used).
+In memory, programs are kept under the same key: :func:`cached_call`'s executables, and
+programs that :func:`kept_program` builds once and hands out, to be called directly (the
+sampler's log-probability, called thousands of times per run, with the goniometer geometry
+compiled in: its key holds the geometry's values; the last few used). At most
+:data:`MEMORY_PROGRAMS` in all, the least recently used dropped beyond: a process that fits
+many layouts (a notebook, a long analysis) must not run out of memory maps.
 """
 
 from __future__ import annotations
@@ -81,6 +83,18 @@ optimising at all, a quarter to a half of what "run" would compile; they run a f
 per fit
 (docs/fitting.md, "Compiled programs are kept"; ``scripts/compile_times.py``)."""
 _memory: dict[str, Callable] = {}  # "name-key" → program, the least recently used first
+_memory_guard = threading.Lock()  # held while _memory changes (threads make programs at once)
+
+MEMORY_PROGRAMS = 192
+"""Programs kept in a process's memory (:func:`_remember`); beyond, the least recently used is
+dropped (loaded from the store, or compiled, when asked for again). A compiled program holds
+its machine code in memory maps of its own, one per kernel and section: a fit's programs take
+about 95 maps each, and a default fit (its structure chosen among several) keeps about 56
+programs, 4,800 maps. Linux allows a process 65,530 maps (``vm.max_map_count``); past it XLA
+aborts the process (``LLVM ERROR: Unable to allocate section memory``, or an abort inside
+``executable.serialize()``). Kept without a bound, 14 fits of different layouts (pairs and
+grids, float32 and float64, several band counts) in one process came near it. 192 programs
+(about 18,000 maps) hold three default fits' programs at once."""
 _jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
 _thread_hits = threading.local()  # .count: the same, in this thread (JAX reports a hit in the thread that compiles)
 
@@ -192,20 +206,25 @@ def _key(name: str, args: tuple, constants=None) -> str | None:
 
 def _recall(key: str) -> Callable | None:
     """The program kept in memory under ``key`` (from now on the most recently used), or None."""
-    run = _memory.pop(key, None)
-    if run is not None:
-        _memory[key] = run
+    with _memory_guard:
+        run = _memory.pop(key, None)
+        if run is not None:
+            _memory[key] = run
     return run
 
 
 def _remember(key: str, run: Callable, limit: int | None = None) -> Callable:
     """Keep ``run`` in memory under ``key``; with ``limit``, only that many programs of its name
-    (the key up to "-"), the least recently used dropped."""
-    _memory[key] = run
-    if limit is not None:
-        prefix = key.partition("-")[0] + "-"
-        same = [k for k in _memory if k.startswith(prefix)]
-        for k in same[: max(len(same) - limit, 0)]:
+    (the key up to "-"), and :data:`MEMORY_PROGRAMS` in all, the least recently used dropped."""
+    with _memory_guard:
+        _memory.pop(key, None)
+        _memory[key] = run
+        if limit is not None:
+            prefix = key.partition("-")[0] + "-"
+            same = [k for k in _memory if k.startswith(prefix)]
+            for k in same[: max(len(same) - limit, 0)]:
+                del _memory[k]
+        for k in list(_memory)[: max(len(_memory) - MEMORY_PROGRAMS, 0)]:
             del _memory[k]
     return run
 
