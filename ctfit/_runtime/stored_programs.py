@@ -92,9 +92,9 @@ its machine code in memory maps of its own, one per kernel and section: a fit's 
 about 95 maps each, and a default fit (its structure chosen among several) keeps about 56
 programs, 4,800 maps. Linux allows a process 65,530 maps (``vm.max_map_count``); past it XLA
 aborts the process (``LLVM ERROR: Unable to allocate section memory``, or an abort inside
-``executable.serialize()``). Kept without a bound, 14 fits of different layouts (pairs and
-grids, float32 and float64, several band counts) in one process came near it. 192 programs
-(about 18,000 maps) hold three default fits' programs at once."""
+``executable.serialize()``). Kept without a bound, 14 default fits of different layouts (pairs
+and grids, float32 and float64, several band counts) in one process would pass it; a test
+worker did. 192 programs (about 18,000 maps) hold three default fits' programs at once."""
 _jax_cache_hits = 0  # executables this process loaded from JAX's persistent cache
 _thread_hits = threading.local()  # .count: the same, in this thread (JAX reports a hit in the thread that compiles)
 
