@@ -45,7 +45,7 @@ def compilations():
 MAPS_CLEAR = 40_000
 
 
-def _memory_maps() -> int:
+def memory_maps() -> int:
     """The memory maps this process holds (Linux; 0 elsewhere)."""
     try:
         with open("/proc/self/maps", "rb") as f:
@@ -63,7 +63,7 @@ def _few_enough_memory_maps():
     the worker drops every compiled program, JAX's and ctfit's, as a fresh process would not
     have them."""
     yield
-    if _memory_maps() > MAPS_CLEAR:
+    if memory_maps() > MAPS_CLEAR:
         import gc
 
         from ctfit._fitting import chunked_fit

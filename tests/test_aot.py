@@ -16,6 +16,8 @@ from ctfit._fitting import chunked_fit
 from ctfit._model import array_leaves
 from ctfit._runtime import stored_programs as _aot
 
+from conftest import memory_maps
+
 
 class _Box(eqx.Module):
     a: jax.Array
@@ -388,11 +390,6 @@ def test_kept_programs_are_built_once_per_key_and_the_least_recently_used_droppe
     assert sorted(k.partition("-")[0] for k in _aot._memory) == ["toy", "toy_kept", "toy_kept"]
 
 
-def _maps() -> int:
-    with open("/proc/self/maps") as f:
-        return sum(1 for _ in f)
-
-
 def test_memory_keeps_at_most_its_bound_and_frees_what_it_drops(store, monkeypatch):
     """At most MEMORY_PROGRAMS programs in memory, the least recently used dropped: a dropped
     executable is freed, its memory maps with it (each compiled program holds maps of its own;
@@ -410,11 +407,11 @@ def test_memory_keeps_at_most_its_bound_and_frees_what_it_drops(store, monkeypat
     gc.collect()
     assert [r() is not None for r in made] == [False, False, False, True, True, True]
     if sys.platform.startswith("linux"):
-        before = _maps()
+        before = memory_maps()
         monkeypatch.setattr(_aot, "MEMORY_PROGRAMS", 0)
         _aot._remember("toy-none", lambda: None)  # drops every program (the bound is 0 now)
         gc.collect()
-        assert _maps() < before  # the executables' maps are unmapped
+        assert memory_maps() < before  # the executables' maps are unmapped
         monkeypatch.setattr(_aot, "MEMORY_PROGRAMS", 3)
     _forbid_tracing(monkeypatch)
     again = chunked_fit._program("toy", _fn, box, x, 2)  # dropped: loaded from the store
