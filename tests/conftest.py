@@ -66,11 +66,8 @@ def _few_enough_memory_maps():
     if memory_maps() > MAPS_CLEAR:
         import gc
 
-        from ctfit._fitting import chunked_fit
         from ctfit._runtime import stored_programs
 
         jax.clear_caches()
-        stored_programs._memory.clear()
-        chunked_fit._programs.clear()
-        chunked_fit._made.clear()
+        stored_programs._memory.clear()  # the only owner: chunked_fit's lookup holds them weakly
         gc.collect()

@@ -224,8 +224,8 @@ def _remember(key: str, run: Callable, limit: int | None = None) -> Callable:
             same = [k for k in _memory if k.startswith(prefix)]
             for k in same[: max(len(same) - limit, 0)]:
                 del _memory[k]
-        for k in list(_memory)[: max(len(_memory) - MEMORY_PROGRAMS, 0)]:
-            del _memory[k]
+        while len(_memory) > MEMORY_PROGRAMS:
+            del _memory[next(iter(_memory))]
     return run
 
 
