@@ -43,3 +43,32 @@ def test_other_wavelengths_are_interpolated_and_the_horizon_gives_zero():
 def test_directions_must_be_given_one_way(kwargs):
     with pytest.raises(ValueError, match="either as angles"):
         ctfit.evaluate_at(GOLD, **kwargs)
+
+
+def test_any_number_of_directions_compiles_at_most_three_programs_and_padding_changes_no_value():
+    """``evaluate`` and ``evaluate_at`` pad to 512, 2,048 or 8,192 direction pairs and cut more into
+    blocks of 8,192: a loop over files of many sizes compiles three programs, not one per size (each
+    took 0.3 s and its memory maps), and every value equals the model on the unpadded directions."""
+    import jax
+
+    from ctfit._model import evaluation
+
+    mat = ctfit.Material(ctfit.Structure(lobes=2, diffuse="F0/pi"), ctfit.Params(s=np.asarray(0.7), m=np.array([0.15, 0.4]), w=np.array([0.3, 0.7]),
+                         f0=np.array([0.3, 0.5, 0.9])), wavelength_nm=np.array([450.0, 550.0, 650.0]))
+    rng = np.random.default_rng(3)
+    grid_before, vectors_before = evaluation._grid_values._cache_size(), evaluation._vector_values._cache_size()
+    for n in (1, 2, 7, 511, 512, 513, 1500, 2049, 8191, 8193, 20_000):
+        ti, to, pi, po = rng.uniform(0, 89, n), rng.uniform(0, 89, n), rng.uniform(0, 360, n), rng.uniform(0, 360, n)
+        got = ctfit.evaluate_at(mat, theta_i=ti, phi_i=pi, theta_o=to, phi_o=po)
+        exact = np.asarray(jax.jit(ctfit.brdf, static_argnums=0)(mat.structure, mat.params, ctfit.geometry_from_angles_deg(ti, pi, to, po)))
+        assert got.shape == (n, 3)
+        np.testing.assert_allclose(got, exact, rtol=1e-13, atol=0)
+        sample = ctfit.simulate(mat, n, seed=n)
+        each = ctfit.geometry_from_angles_deg(sample.theta_i, sample.phi_i, sample.theta_o, sample.phi_o)
+        exact = np.asarray(jax.jit(ctfit.brdf, static_argnums=0)(mat.structure, mat.params, each))[np.arange(len(sample)), sample.band]
+        np.testing.assert_allclose(ctfit.evaluate(mat, sample), exact, rtol=1e-13, atol=0)
+        l = np.stack([np.sin(np.deg2rad(ti)), np.zeros(n), np.cos(np.deg2rad(ti))], -1)
+        v = np.stack([-np.sin(np.deg2rad(to)), np.zeros(n), np.cos(np.deg2rad(to))], -1)
+        np.testing.assert_allclose(ctfit.evaluate_at(mat, l=l, v=v), ctfit.evaluate_at(mat, theta_i=ti, theta_o=to, phi_o=180.0), rtol=1e-10, atol=1e-300)
+    assert evaluation._grid_values._cache_size() - grid_before <= 3  # 512, 2,048, 8,192 rows
+    assert evaluation._vector_values._cache_size() - vectors_before <= 3

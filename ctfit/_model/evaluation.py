@@ -13,7 +13,7 @@ uncertainty that was used, floored so that no sample gets an infinite weight). E
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -109,8 +109,7 @@ def evaluate(material: Material, measurement: Measurement, *, dtype: DTypeLike |
     pairs, index = measurement.directions()
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
-    values = _grid_values(material.structure, params, jnp.asarray(pairs, dtype=dt))
-    return np.asarray(values)[index, measurement.band]
+    return _by_blocks(_grid_values, material.structure, params, np.asarray(pairs, dtype=dt), _NORMAL_PAIR)[index, measurement.band]
 
 
 def evaluate_at(
@@ -147,15 +146,46 @@ def evaluate_at(
     params = material.params_at(wavelength_nm)
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
+    pad: tuple[float, ...]
     if by_angles:
         angles = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)))
-        geom = geometry_from_angles_deg(*(jnp.asarray(a, dtype=dt) for a in angles))
+        shape, rows, run, pad = angles[0].shape, np.stack([a.reshape(-1) for a in angles], axis=1), _grid_values, _NORMAL_PAIR
     else:
-        geom = geometry(jnp.asarray(l, dtype=dt), jnp.asarray(v, dtype=dt))
-    return np.asarray(_values(material.structure, params, geom))
+        lv = np.broadcast_arrays(np.asarray(l, dtype=float), np.asarray(v, dtype=float))
+        if lv[0].shape[-1:] != (3,):
+            raise ValueError(f"l and v must be unit vectors of shape (..., 3), got shapes {np.shape(lv[0])} and {np.shape(lv[1])}")
+        shape, rows, run, pad = lv[0].shape[:-1], np.concatenate([a.reshape(-1, 3) for a in lv], axis=1), _vector_values, _NORMAL_VECTORS
+    return _by_blocks(run, material.structure, params, rows.astype(dt), pad).reshape(*shape, -1)
 
 
-_values = jax.jit(brdf, static_argnums=0)
+EVAL_BLOCK = 8192
+"""Direction pairs per call of the compiled model in :func:`evaluate` and :func:`evaluate_at`.
+Fewer are padded to 512 or 2,048 (or this), more are cut into blocks of this many: one structure
+compiles at most three programs (per bands and dtype) whatever the number of directions, where a
+program per size cost 0.3 s of compiling each, and its memory maps (a process is allowed 65,530;
+a program takes a few dozen), which a loop over files of many sizes ran out of."""
+
+_NORMAL_PAIR = (0.0, 0.0, 0.0, 0.0)  # padding rows: light and viewer at the normal (θ_i, φ_i, θ_o, φ_o)
+_NORMAL_VECTORS = (0.0, 0.0, 1.0, 0.0, 0.0, 1.0)  # (l, v) at the normal
+
+
+def _block_rows(n: int) -> int:
+    """The padded size of a call of ``n`` rows: 512, 2,048 or :data:`EVAL_BLOCK`."""
+    size = 512
+    while size < min(n, EVAL_BLOCK):
+        size *= 4
+    return min(size, EVAL_BLOCK)
+
+
+def _by_blocks(run: Callable[..., Array], structure: Structure, params: Params, rows: np.ndarray, pad: tuple[float, ...]) -> np.ndarray:
+    """``run(structure, params, block)`` over ``rows`` (n, k) in blocks of :func:`_block_rows`
+    rows, the last one padded with ``pad``: the values (n, bands), as NumPy."""
+    n = rows.shape[0]
+    size = _block_rows(n)
+    total = -(-max(n, 1) // size) * size
+    padded = np.concatenate([rows, np.broadcast_to(np.asarray(pad, rows.dtype), (total - n, rows.shape[1]))])
+    blocks = [run(structure, params, padded[at: at + size]) for at in range(0, total, size)]  # queued, then fetched
+    return np.concatenate([np.asarray(b) for b in blocks])[:n]
 
 
 def _grid_values_impl(structure: Structure, params: Params, pairs: Float[Array, "pairs 4"]) -> Float[Array, "pairs bands"]:
@@ -164,6 +194,13 @@ def _grid_values_impl(structure: Structure, params: Params, pairs: Float[Array, 
 
 
 _grid_values = jax.jit(_grid_values_impl, static_argnums=0)
+
+
+def _vector_values_impl(structure: Structure, params: Params, lv: Float[Array, "pairs 6"]) -> Float[Array, "pairs bands"]:
+    return brdf(structure, params, geometry(lv[:, :3], lv[:, 3:]))
+
+
+_vector_values = jax.jit(_vector_values_impl, static_argnums=0)
 
 
 def simulate(

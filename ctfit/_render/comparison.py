@@ -236,24 +236,15 @@ def _bands_of(material: Material, data: Measurement) -> tuple[np.ndarray, np.nda
         for k, c in enumerate("RGB"):
             to_rgb[list(data.channels).index(c), k] = 1.0
         take = [list(material.channels).index(c) for c in data.channels]
-        return np.ones(data.n_bands), to_rgb, lambda ti, to, dp: _evaluate_padded(material, ti, to, dp)[..., take]
+        return np.ones(data.n_bands), to_rgb, lambda ti, to, dp: evaluate_at(material, theta_i=ti, theta_o=to, phi_o=dp)[..., take]
     if material.is_rgb:
         raise ValueError(f"{data.source}: spectral data needs a spectral material; {material.name!r} has RGB channels")
     if data.band_unknown:
         _, spectrum, to_rgb = render_bands(material)
-        return spectrum, to_rgb, lambda ti, to, dp: _evaluate_padded(material, ti, to, dp)
+        return spectrum, to_rgb, lambda ti, to, dp: evaluate_at(material, theta_i=ti, theta_o=to, phi_o=dp)
     wl = np.asarray(data.wavelength_nm, dtype=float)
     _, spectrum, to_rgb = render_bands(material, wavelength_nm=wl)
-    return spectrum, to_rgb, lambda ti, to, dp: _evaluate_padded(material, ti, to, dp, wavelength_nm=wl)
-
-
-def _evaluate_padded(material: Material, theta_i: np.ndarray, theta_o: np.ndarray, dphi: np.ndarray, **options: Any) -> np.ndarray:
-    """:func:`ctfit.evaluate_at` (φ_i = 0) on arrays padded to a power of two: one compiled
-    program serves every number of lit pixels of that order."""
-    n = len(theta_i)
-    size = 1 << max(n - 1, 1).bit_length()
-    pad = lambda a: np.concatenate([a, np.zeros(size - n)])
-    return evaluate_at(material, theta_i=pad(theta_i), theta_o=pad(theta_o), phi_o=pad(dphi), **options)[:n]
+    return spectrum, to_rgb, lambda ti, to, dp: evaluate_at(material, theta_i=ti, theta_o=to, phi_o=dp, wavelength_nm=wl)
 
 
 def _local_angles_deg(normals: np.ndarray, light: np.ndarray, view: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
