@@ -378,11 +378,16 @@ def test_commands_refuse_an_output_that_is_an_input(tmp_path, no_work):
         (("render", mat, "-o", mat), mat),
         (("sample", mat, data, "-o", data), data),
         (("sample", mat, data, "-o", tmp_path / "x.json", "--backend", data), data),
+        (("fit", data, "--material", mat, "-o", mat), mat),  # the material that starts the fit: it was overwritten
+        (("fit", data, "--material", mat, "--plot", mat), mat),
+        (("fit", data, "--material", mat, "-o", tmp_path / "x.json", "--sample", "--backend", mat), mat),
     ]:
         r = run(*args)
         assert r.exit_code == 2, (args, r.output)
         assert r.output.startswith("error: ") and f"is the input {victim}" in r.output, r.output
     assert (data.read_bytes(), mat.read_bytes()) == before
+    r = run("fit", data, "-o", tmp_path / "result.toml")  # JSON in a .toml file would not load back
+    assert r.exit_code == 2 and "name it .json" in r.output and not (tmp_path / "result.toml").exists(), r.output
 
 
 def test_commands_refuse_read_only_and_unmakeable_outputs(tmp_path, no_work):

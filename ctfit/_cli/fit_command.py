@@ -237,7 +237,7 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     """
     from .._io import InputFiles, check_backend, check_output, check_output_folder, result_targets
 
-    many, inputs = len(files) > 1, InputFiles(files)  # each input looked up once, not once per output
+    many, inputs = len(files) > 1, InputFiles([*files, o.material])  # each input looked up once, not once per output
 
     def targets(key, value, option, suffix, check):
         if value is None:
@@ -250,13 +250,21 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     def chain(target, chosen):
         return check_backend(target, inputs, resume=o.resume, overwrite=o.overwrite, chosen=chosen)
 
-    json_ = targets("output", o.output, "-o", ".fit.json", lambda t, c: check_output(t, inputs, option="-o", chosen=c))
+    json_ = targets("output", o.output, "-o", ".fit.json", lambda t, c: _json_name(check_output(t, inputs, option="-o", chosen=c)))
     plot = targets("plot", o.plot, "--plot", ".fit.png", lambda t, c: _plot_format(check_output(t, inputs, option="--plot", chosen=c)))
     backend = targets("backend", o.backend if o.sample_ else None, "--backend", ".h5", chain)
     if o.output is not None and o.folders["output"]:
         check_output(o.output / SUMMARY, inputs, option="-o", chosen=True)
     names = result_targets(files, Path(), "") if many else {files[0]: Path(files[0].stem)}
     return {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
+
+
+def _json_name(path: Path) -> Path:
+    """``path`` for a fit-result JSON; refused when it is named ``.toml``, which ctfit reads as TOML:
+    the result would not load (``ctfit color``, ``--material``) and a material file there is lost."""
+    if path.suffix.lower() == ".toml":
+        raise UserError(f"-o {path}: a fit result is written as JSON; name it .json (a .toml file is read as TOML)")
+    return path
 
 
 def _plot_format(path: Path) -> Path:
