@@ -15,12 +15,26 @@ from ctfit._fitting import shared_geometry
 from ctfit.cli import app
 
 
+@pytest.fixture(autouse=True)
+def any_group_makes_its_program(monkeypatch):
+    """Groups of any size take the shared path, their program made if need be (by default a group
+    smaller than ``SHARED_COMPILE_FILES`` whose program is not made is fitted on chunks: tested below)."""
+    patch_module(monkeypatch, shared_geometry, "SHARED_COMPILE_FILES", 0)
+
+
 @pytest.fixture
 def shared_calls(monkeypatch):
-    """The sizes of the groups ``fit_shared`` is given."""
+    """The sizes of the groups ``fit_shared`` fitted (not those it handed back to fit one by one)."""
     calls = []
     real = shared_geometry.fit_shared
-    monkeypatch.setattr(shared_geometry, "fit_shared", lambda ms, *a, **kw: calls.append(len(ms)) or real(ms, *a, **kw))
+
+    def spy(ms, *a, **kw):
+        out = real(ms, *a, **kw)
+        if out is not None:
+            calls.append(len(ms))
+        return out
+
+    monkeypatch.setattr(shared_geometry, "fit_shared", spy)
     return calls
 
 
@@ -131,3 +145,30 @@ def test_a_group_of_several_calls_makes_its_program_first_on_members_all_skipped
     patch_module(monkeypatch, shared_geometry, "SHARED_CALL", 8)
     ctfit.fit_batch(data, ST)  # one call: it makes the program itself
     assert events == [("cached_call", "fit_shared", [True] * 5 + [False] * 3)]
+
+
+def test_a_small_group_of_a_layout_whose_program_is_not_made_is_fitted_on_chunks(monkeypatch):
+    """A new size of file compiles nothing: fewer than ``SHARED_COMPILE_FILES`` files of a layout
+    whose shared program is made neither in memory nor on disk are fitted one by one on chunks
+    (programs every size shares); once the program is made (here by a larger group), a small group
+    of that layout uses it. The results are the same either way."""
+    from ctfit._runtime import stored_programs
+
+    monkeypatch.setattr(stored_programs, "_store", lambda: None)  # no disk store: what a run of the suite before left there does not count
+    monkeypatch.setattr(stored_programs, "_memory", {})  # nor what the tests before made in this process (one program per size bucket)
+    patch_module(monkeypatch, shared_geometry, "SHARED_COMPILE_FILES", 6)
+    made = []
+    real = shared_geometry.cached_call
+    monkeypatch.setattr(shared_geometry, "cached_call", lambda name, *a, **kw: made.append(name) or real(name, *a, **kw))
+    data = same_geometry([0.15, 0.2, 0.25, 0.3, 0.35], n_pairs=97, seed=21)
+    alone = [ctfit.fit(d, ST) for d in data]
+    one_by_one = ctfit.fit_batch(data, ST)
+    assert made == []  # no shared call: its program would have been compiled
+    six = ctfit.fit_batch([*data, data[0].replace(source="<again>")], ST)  # 6 files: worth compiling
+    assert made == ["fit_shared"]
+    shared = ctfit.fit_batch(data, ST)  # 5 again: the program is made now, so they share it
+    assert made == ["fit_shared", "fit_shared"]
+    for a, b, c, d in zip(alone, one_by_one, six, shared):
+        assert_same_fit(b, a)
+        assert_same_fit(c, a)
+        assert_same_fit(d, a)

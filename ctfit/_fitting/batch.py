@@ -110,6 +110,8 @@ def fit_batch(
         for group in shared_groups(measurements, begins):
             shared = fit_shared([measurements[i] for i in group], structure, start=begins[group[0]], solver=solver, max_steps=max_steps,
                                 return_errors=return_errors, **options)
+            if shared is None:  # too few to pay for compiling their layout's program: one by one, below
+                continue
             for i, res in zip(group, shared):
                 results[i] = res
             together.update(group)

@@ -32,7 +32,7 @@ import jax
 import numpy as np
 
 from .._model import Measurement
-from .._runtime import cached_call, stored_program
+from .._runtime import cached_call, program_made, stored_program
 from .batch import SAMPLE_BUDGET, mapped
 from .fit_report import PARAM_FIELDS
 from .least_squares import PreparedFit, check_fit_arguments, finish_fit, fit_core, prepare_fit
@@ -40,7 +40,7 @@ from .many import geometry_key
 from .texels import ValueLayout, with_values
 from .validate import check_fittable
 
-__all__ = ["fit_shared", "shared_groups", "SHARED_CALL", "SHARED_MIN", "SHARED_SAMPLES"]
+__all__ = ["fit_shared", "shared_groups", "SHARED_CALL", "SHARED_COMPILE_FILES", "SHARED_MIN", "SHARED_SAMPLES"]
 
 SHARED_CALL = 32
 """Members per program call (fewer when their samples exceed :data:`~ctfit._fitting.batch.SAMPLE_BUDGET`);
@@ -54,6 +54,13 @@ core): while one call's members are reported, the others' solve."""
 SHARED_MIN = 4
 """The fewest measurements of one geometry fitted together; fewer are fitted one after the
 other on chunks (:mod:`~ctfit._fitting.chunked_fit`), whose programs every size shares."""
+
+SHARED_COMPILE_FILES = 64
+"""The fewest measurements of one geometry for which :func:`fit_shared` makes (compiles) its program
+when it is not made yet: about 8 s of compiling on two cores here, against some 60 ms a file saved
+(a file of 2,000 samples: 23 ms in a shared call against 85 ms on chunks, warm). A smaller group of
+a layout whose program is not made is fitted on chunks, whose programs every size shares: a new
+size of file compiles nothing. (A folder is read ``ctfit fit``'s window at a time, 64 files.)"""
 
 SHARED_SAMPLES = 1 << 16
 """The most samples of a measurement fitted together with others: where the per-file costs
@@ -87,10 +94,13 @@ def _start_key(start) -> object:
     return tuple(None if getattr(start, k) is None else np.asarray(getattr(start, k), float).tobytes() for k in PARAM_FIELDS)
 
 
-def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, starts, solver: str, max_steps: int, return_errors: bool) -> list:
+def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, starts, solver: str, max_steps: int,
+               return_errors: bool) -> list | None:
     """One :class:`~ctfit.FitResult` (or, with ``return_errors``, the ``ValueError`` that stopped
     it) per measurement of one geometry (:func:`shared_groups`), each what :func:`~ctfit.fit`
     gives for it alone (to the solver's tolerance); arguments as for :func:`~ctfit.fit_batch`.
+    None, having fitted nothing, where the group's program is not made and the group has fewer
+    than :data:`SHARED_COMPILE_FILES` measurements: the caller fits them one by one, on chunks.
 
     >>> import numpy as np, ctfit
     >>> def gold(m):
@@ -110,6 +120,8 @@ def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, star
         try:
             if template is None:
                 template = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
+                if len(measurements) < SHARED_COMPILE_FILES and not _made(template, measurements[i], solver, max_steps, dtype):
+                    return None
             else:
                 check_fit_arguments(data, structure)
                 check_fittable(data, template.structure, fixed=template.fixed, loss=template.loss, dtype=dtype)
@@ -145,6 +157,14 @@ def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, star
                 running.append(pool.submit(solve, c))
             _report(done, template, measurements, results, solver, max_steps, t0, return_errors)
     return results
+
+
+def _made(template: PreparedFit, data, solver: str, max_steps: int, dtype) -> bool:
+    """Whether the shared program of ``template``'s layout is made (in memory or stored): the
+    arguments :func:`fit_shared` calls it with, ``data``'s values standing for every member."""
+    size = max(1, min(SHARED_CALL, SAMPLE_BUDGET // max(template.problem.y.size, 1)))
+    ys, floors = ValueLayout(template.problem, template.data)(np.broadcast_to(np.asarray(data.brdf, float), (size, len(data))), dtype)
+    return program_made("fit_shared", template.problem, ys, floors, np.zeros(size, bool), template.u0, template.grid, *template.options(solver, max_steps))
 
 
 def _report(call, template: PreparedFit, measurements: list, results: list, solver: str, max_steps: int, t0: float, return_errors: bool) -> None:

@@ -13,6 +13,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "extras": ['EXTRAS', 'MissingExtraError', 'need'],
         "memory": ['return_large_blocks'],
         "progress": ['ProgressLines', 'bar', 'closed_pipe', 'echo', 'progress_enabled', 'progress_mode'],
-        "stored_programs": ['COMPILE_EFFORT', 'cached_call', 'kept_program', 'prepare_runtime', 'stored_program'],
+        "stored_programs": ['COMPILE_EFFORT', 'cached_call', 'kept_program', 'prepare_runtime', 'program_made', 'stored_program'],
     },
 )

@@ -453,6 +453,19 @@ def stored_program(name: str, fn: Callable, *args, effort: str = "run") -> Calla
     return _program(name, fn, args, leaves, effort)[0]
 
 
+def program_made(name: str, *args, effort: str = "run") -> bool:
+    """Whether the program :func:`stored_program` gives for ``name`` and ``args`` is made
+    already: kept in this process's memory, or in the store on disk (not loaded here, nor
+    checked). A caller can then choose another way where making it would cost more than it saves."""
+    digest = _key(name, (effort, *args))
+    if digest is None:
+        return False
+    if _recall(f"{name}-{digest}") is not None:
+        return True
+    store = _store()
+    return store is not None and (store / f"{name}-{digest[:32]}.xla").is_file()
+
+
 def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     """(program, its output on ``leaves`` or None): the output when a stored program was tried."""
     options = COMPILE_EFFORT[effort]
