@@ -398,3 +398,14 @@ def test_a_new_lobe_is_sought_from_the_grid_and_a_new_diffuse_part_from_the_smal
     assert starts["metal, 1 lobe, diffuse F0/pi"] == 1 and starts["metal, 1 lobe, diffuse spectrum"] == 1  # a diffuse part added
     grown = [label for label in starts if not label.split(", ")[1].startswith("1 ")]
     assert grown and all(starts[label] == 4 for label in grown[:1])  # the first with more lobes: the smaller fit and 3 grid seeds
+
+
+def test_a_few_samples_get_the_lobes_they_can_determine_not_an_error():
+    """Three samples of one band: the first candidates with more free parameters than samples are
+    left out, and so is a second lobe (5 parameters for 3 samples): the default fit is the one-lobe
+    fit, where it used to stop on the second lobe's "3 samples, 5 free parameters"."""
+    data = ctfit.Measurement(theta_i=np.full(3, 30.0), phi_i=np.zeros(3), theta_o=np.array([30.0, 40.0, 20.0]), phi_o=np.full(3, 180.0),
+                             band=np.zeros(3, int), wavelength_nm=np.array([550.0]), brdf=np.array([1.0, 0.5, 0.5]))
+    best, tried = ctfit.choose_structure(data)
+    assert best.material.structure.lobes == 1
+    assert tried and all(int(r.stats["n_params"]) <= len(data) for _, r in tried)

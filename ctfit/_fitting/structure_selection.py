@@ -190,6 +190,8 @@ def choose_structure(
         best_st, best = _preferred(tried, better)
         for i, j in enumerate(lobes[1:], start=2):
             bigger = Structure(**{**best_st.__dict__, "lobes": j})
+            if n_free_parameters(bigger, data.n_bands, kwargs.get("fixed", ())) > len(data):
+                break  # more free parameters than samples: no fit determines them (as for the first ones, _first_combos)
             if i < len(lobes):
                 ahead(Structure(**{**best_st.__dict__, "lobes": lobes[i]}))
             res = fit_tried(bigger, _embedded_start(best, bigger))
