@@ -82,6 +82,7 @@ def fitted(tmp_path_factory):
     (("fit", "{d}/cu.csv", "--param-out", "x"), "--param-out must be one of"),
     (("eval", COPPER, "{d}/cu.csv", "-o", "{d}/e.csv", "--param-out", "x"), "--param-out must be one of"),
     (("simulate", COPPER, "-o", "{d}/n.csv", "--samples", 3, "--noise", 1e308), "--noise=1e+308 is too large"),
+    (("simulate", COPPER, "-o", "{d}/m.csv", "--samples", 999_999_999_999_999), "not enough memory"),  # was a 64-line traceback
     (("render", COPPER, "-o", "{d}/r.png", "--size", 16, "--ambient", "inf"), "--ambient must be a finite fraction"),
     (("color", COPPER, "--angle", 95), "--angle must be in [0, 90]"),
 ])

@@ -67,7 +67,8 @@ def show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def run_body(fn):
-    """Run a command body: warnings as one line each, input errors as one line and exit status 2."""
+    """Run a command body: warnings as one line each, input errors (and a request for more memory than
+    the machine has) as one line and exit status 2."""
     import warnings
 
     with warnings.catch_warnings():
@@ -89,6 +90,9 @@ def run_body(fn):
             raise typer.Exit(2) from None
         except (ValueError, KeyError) as e:
             echo(f"error: {cli_message(str(e))}", err=True)
+            raise typer.Exit(2) from None
+        except MemoryError as e:  # an allocation the machine cannot hold (``simulate --samples 10**15``): one line, not a traceback
+            echo(f"error: not enough memory{f' ({e})' if str(e) else ''}: ask for less (fewer samples or files at once)", err=True)
             raise typer.Exit(2) from None
 
 
