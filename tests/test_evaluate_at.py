@@ -70,5 +70,22 @@ def test_any_number_of_directions_compiles_at_most_three_programs_and_padding_ch
         l = np.stack([np.sin(np.deg2rad(ti)), np.zeros(n), np.cos(np.deg2rad(ti))], -1)
         v = np.stack([-np.sin(np.deg2rad(to)), np.zeros(n), np.cos(np.deg2rad(to))], -1)
         np.testing.assert_allclose(ctfit.evaluate_at(mat, l=l, v=v), ctfit.evaluate_at(mat, theta_i=ti, theta_o=to, phi_o=180.0), rtol=1e-10, atol=1e-300)
+    assert ctfit.evaluate_at(mat, theta_i=[], theta_o=[]).shape == (0, 3)  # none: shape (0, bands), as evaluate gives
+    assert ctfit.evaluate_at(mat, l=np.zeros((0, 3)), v=np.zeros((0, 3))).shape == (0, 3)
     assert evaluation._grid_values._cache_size() - grid_before <= 3  # 512, 2,048, 8,192 rows
     assert evaluation._vector_values._cache_size() - vectors_before <= 3
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    ({"theta_i": 30.0, "theta_o": [10.0, np.nan], "phi_o": 180.0}, "theta_o[1] is nan"),
+    ({"theta_i": 30.0, "theta_o": 10.0, "phi_o": np.inf}, "phi_o is inf"),
+    ({"l": [0.5, 0.0, 0.866], "v": [[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]]}, "v must be unit vectors: |v[1]| = 2"),
+    ({"l": [np.nan, 0.0, 1.0], "v": [0.0, 0.0, 1.0]}, "l[0] is nan"),
+    ({"theta_i": 30.0, "theta_o": 10.0, "wavelength_nm": [np.nan]}, "wavelength_nm must be positive finite"),
+])
+def test_directions_and_wavelengths_that_are_no_numbers_or_not_unit_are_refused_by_name(kwargs, words):
+    """A NaN or infinite angle, a vector of another length than 1 or a NaN wavelength gave NaN, 0 or a
+    wrong value without a word: each is a ValueError naming the argument (and the entry)."""
+    with pytest.raises(ValueError) as err:
+        ctfit.evaluate_at(GOLD, **kwargs)
+    assert words in str(err.value)

@@ -143,19 +143,40 @@ def evaluate_at(
         raise ValueError("give the directions either as angles (theta_i and theta_o, with phi_i, phi_o) or as unit vectors (l and v)")
     if wavelength_nm is not None and material.wavelength_nm is None:
         raise ValueError(f"material {material.name!r} has RGB channels; it has no values at wavelengths")
+    if wavelength_nm is not None and not np.all(np.isfinite(np.asarray(wavelength_nm, dtype=float)) & (np.asarray(wavelength_nm, dtype=float) > 0)):
+        raise ValueError(f"wavelength_nm must be positive finite numbers of nm, got {np.asarray(wavelength_nm).tolist()!r}")
     params = material.params_at(wavelength_nm)
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
     pad: tuple[float, ...]
     if by_angles:
         angles = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)))
+        for name, a in zip(("theta_i", "phi_i", "theta_o", "phi_o"), angles):
+            _check_finite(name, a)
         shape, rows, run, pad = angles[0].shape, np.stack([a.reshape(-1) for a in angles], axis=1), _grid_values, _NORMAL_PAIR
     else:
         lv = np.broadcast_arrays(np.asarray(l, dtype=float), np.asarray(v, dtype=float))
         if lv[0].shape[-1:] != (3,):
             raise ValueError(f"l and v must be unit vectors of shape (..., 3), got shapes {np.shape(lv[0])} and {np.shape(lv[1])}")
+        for name, a in zip("lv", lv):
+            _check_finite(name, a)
+            length = np.linalg.norm(a, axis=-1)
+            if np.any(np.abs(length - 1) > 1e-3):  # (rounded input, 0.866 for √3/2, passes; a vector not normalised does not)
+                at = np.unravel_index(np.argmax(np.abs(length - 1)), length.shape)
+                raise ValueError(f"{name} must be unit vectors: |{name}{_index(at)}| = {float(length[at]):.6g}")
         shape, rows, run, pad = lv[0].shape[:-1], np.concatenate([a.reshape(-1, 3) for a in lv], axis=1), _vector_values, _NORMAL_VECTORS
-    return _by_blocks(run, material.structure, params, rows.astype(dt), pad).reshape(*shape, -1)
+    values = _by_blocks(run, material.structure, params, rows.astype(dt), pad)
+    return values.reshape(*shape, values.shape[-1])
+
+
+def _check_finite(name: str, a: np.ndarray) -> None:
+    if not np.all(np.isfinite(a)):
+        at = np.unravel_index(np.argmin(np.isfinite(a)), a.shape)
+        raise ValueError(f"{name}{_index(at)} is {a[at]}: directions must be finite numbers")
+
+
+def _index(at: tuple) -> str:
+    return f"[{', '.join(str(int(i)) for i in at)}]" if at else ""
 
 
 EVAL_BLOCK = 8192
