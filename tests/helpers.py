@@ -267,11 +267,17 @@ def ctfit_brdf(structure, params, l, v):
 
 
 def patch_module(monkeypatch, module, name, value):
-    """Set ``module.name`` for one test, where every importer sees it: a subpackage's ``__init__``
-    keeps what it has handed out once (``lazy_loader``), so that copy is dropped too."""
+    """Set ``module.name`` for one test, where every importer sees it: a package keeps what it
+    has handed out once (``lazy_loader``), so the module's package, and each package above it
+    that exports the name (``ctfit.fit_batch``), holds the value for the test and is left as it
+    was after it (a package that first handed the name out during the test kept the test's
+    value for good: ``test_exported`` found ``ctfit.fit_batch`` a test's spy)."""
     monkeypatch.setattr(module, name, value)
-    package = sys.modules[module.__name__.rpartition(".")[0]]
-    monkeypatch.delitem(package.__dict__, name, raising=False)
+    parts = module.__name__.split(".")
+    for k in range(len(parts) - 1, 0, -1):
+        package = sys.modules[".".join(parts[:k])]
+        if k == len(parts) - 1 or name in getattr(package, "__all__", ()):
+            monkeypatch.setitem(package.__dict__, name, value)  # undone after the test: as it was, or not there
 
 
 def peak_traced_bytes(call) -> int:
