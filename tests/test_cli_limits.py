@@ -95,3 +95,19 @@ def test_negative_seeds_are_refused_by_name():
     with pytest.raises(ValueError, match="seed must be ≥ 0"):
         ctfit.simulate(mat, 3, seed=-1)
     assert "--seed" in run("simulate", COPPER, "-o", "never.csv", "--seed", -1).output
+
+
+def test_simulate_refuses_what_it_would_ignore_or_trip_on():
+    """``channels`` for a spectral material and ``wavelength_nm`` for an RGB one were ignored without a
+    word; a fractional ``n_pairs`` or ``seed`` stopped inside NumPy (IndexError, TypeError)."""
+    spectral = ctfit.load_material(COPPER)
+    rgb = ctfit.material_from_dict({"s": 0, "d": 1, "channels": ["R", "G", "B"], "Rd": [0.2, 0.1, 0.05]})
+    for call, words in [
+        (lambda: ctfit.simulate(spectral, 4, channels=["R", "G", "B"]), "is spectral; channels"),
+        (lambda: ctfit.simulate(rgb, 4, wavelength_nm=[500.0]), "has RGB channels"),
+        (lambda: ctfit.simulate(spectral, 1.5), "n_pairs must be a whole number"),
+        (lambda: ctfit.simulate(spectral, 4, seed=1.5), "seed must be a whole number"),
+    ]:
+        with pytest.raises(ValueError, match=words):
+            call()
+    assert ctfit.simulate(spectral, np.int64(3)).directions()[0].shape[0] == 3  # a NumPy integer is a whole number

@@ -79,7 +79,7 @@ def simulate(
     seed: int = typer.Option(0, "--seed", min=0),
     noise: float = typer.Option(0.0, "--noise", min=0.0, help="Relative Gaussian noise (0.02 = 2 %); adds a sigma column."),
     wavelengths: Optional[str] = typer.Option(None, "--wavelengths", help=WAVELENGTHS_HELP),
-    max_theta: float = typer.Option(85.0, "--max-theta", min=0.0, max=90.0, help="Largest polar angle of light and viewer, degrees."),
+    max_theta: float = typer.Option(85.0, "--max-theta", help="Largest polar angle of light and viewer, degrees: above 0, below 90."),
 ):
     """Synthetic goniometric measurements of MATERIAL (denser near the mirror direction)."""
 
@@ -265,7 +265,7 @@ def render(
                                                                    "BRDF."),
     labels: bool = typer.Option(True, "--labels/--no-labels", help="Write each material's name under its tile."),
     columns: Optional[int] = typer.Option(None, "--columns", min=1, help="Tiles per row (default: up to 6)."),
-    step: float = typer.Option(5.0, "--step", min=0.0, help="Wavelength step of spectral rendering over 380–780 nm: 1 to 400 nm."),
+    step: float = typer.Option(5.0, "--step", help="Wavelength step of spectral rendering over 380–780 nm: 1 to 400 nm."),
     supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
     ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
     exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),

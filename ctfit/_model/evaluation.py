@@ -254,8 +254,15 @@ def simulate(
     """
     if not 0 <= noise < np.inf:
         raise ValueError(f"noise must be a finite number ≥ 0, got {noise}")
+    for name, value in (("n_pairs", n_pairs), ("seed", seed)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"{name} must be a whole number, got {value!r}")
     if seed < 0:
         raise ValueError(f"seed must be ≥ 0 (NumPy's generators take no negative seed), got seed={seed}")
+    if material.is_rgb and wavelength_nm is not None:
+        raise ValueError(f"material {material.name!r} has RGB channels; it has no values at wavelength_nm")
+    if not material.is_rgb and channels is not None:
+        raise ValueError(f"material {material.name!r} is spectral; channels name the bands of an RGB material")
     if material.is_rgb:
         channels = tuple(channels or material.channels or ())
         wl = None
