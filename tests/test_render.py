@@ -246,6 +246,11 @@ def test_compare_rejects_mismatched_bands(simulated):
     _, data = simulated
     with pytest.raises(ValueError, match="spectral material"):
         render_compare(lambert_material(), data, 8, supersample=1)
+    mat, _ = simulated
+    one = ctfit.simulate(mat, 50, wavelength_nm=[550.0], seed=1).replace(source="one.csv")
+    for show in (render_compare, lambda m, d, size, supersample: ctfit.render_comparison(m, d, size=size, supersample=supersample)):
+        with pytest.raises(ValueError, match=r"^one.csv: one band \(550 nm\)"):  # was "wavelength_nm must be a 1-D array of at least 2 …"
+            show(mat, one, 8, supersample=1)
 
 
 def test_cli_render(tmp_path):

@@ -32,6 +32,7 @@ from jaxtyping import ArrayLike, Float
 from .._colour import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion
 from .._io import angles_deg_to_half_diff_deg
 from .._model import Light, Material, Measurement, evaluate_at
+from .measured import check_colour_bands
 from .scene import LIGHT_DIRECTIONS, SOLID_ANGLES, Scene, Tile, render_bands, scene_lights, white_scale
 from .surfaces import VIEW_DIRECTION, surface_normals
 from .tone import tone_map
@@ -242,6 +243,7 @@ def _bands_of(material: Material, data: Measurement) -> tuple[np.ndarray, np.nda
     if data.band_unknown:
         _, spectrum, to_rgb = render_bands(material)
         return spectrum, to_rgb, lambda ti, to, dp: evaluate_at(material, theta_i=ti, theta_o=to, phi_o=dp)
+    check_colour_bands(data)
     wl = np.asarray(data.wavelength_nm, dtype=float)
     _, spectrum, to_rgb = render_bands(material, wavelength_nm=wl)
     return spectrum, to_rgb, lambda ti, to, dp: evaluate_at(material, theta_i=ti, theta_o=to, phi_o=dp, wavelength_nm=wl)

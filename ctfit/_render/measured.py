@@ -85,6 +85,14 @@ def _check_bands(material: Material, data: Measurement) -> None:
             )
     elif material.is_rgb:
         raise ValueError(f"{data.source}: spectral data needs a spectral material; {material.name!r} has RGB channels")
+    check_colour_bands(data)
+
+
+def check_colour_bands(data: Measurement) -> None:
+    """Spectral data is shown in colour on its own bands: at least two wavelengths."""
+    if data.channels is None and not data.band_unknown and data.n_bands < 2:
+        raise ValueError(f"{data.source}: one band ({float(data.wavelength_nm[0]):g} nm): a measurement is shown in colour, "
+                         "which takes at least two wavelengths")
 
 
 def measured_tile(
