@@ -103,18 +103,7 @@ def fit_batch(
     results: list = [None] * len(measurements)
     preps: dict[int, PreparedFit] = {}
     chunked = solver == "lm" and width == 1  # one after the other: each on chunks, sharing their programs
-    together = set()
-    if chunked:  # many of one geometry: one program call for a group of them
-        from .shared_geometry import fit_shared, shared_groups
-
-        for group in shared_groups(measurements, begins):
-            shared = fit_shared([measurements[i] for i in group], structure, start=begins[group[0]], solver=solver, max_steps=max_steps,
-                                return_errors=return_errors, **options)
-            if shared is None:  # too few to pay for compiling their layout's program: one by one, below
-                continue
-            for i, res in zip(group, shared):
-                results[i] = res
-            together.update(group)
+    together = _fit_together(measurements, begins, results, structure, solver, max_steps, return_errors, options) if chunked else set()
     for i, (data, begin) in enumerate(zip(measurements, begins)):
         if i in together:
             continue
@@ -137,6 +126,24 @@ def fit_batch(
         if isinstance(r, FitResult):
             r.stats["time_s"] = share
     return results
+
+
+def _fit_together(measurements: list, begins: list, results: list, structure: Structure | None, solver: str, max_steps: int, return_errors: bool,
+                  options: dict) -> set[int]:
+    """Fit the groups of one geometry (:func:`~ctfit._fitting.shared_geometry.shared_groups`) a
+    program call for many, their results into ``results``; the indices fitted."""
+    from .shared_geometry import fit_shared, shared_groups
+
+    together: set[int] = set()
+    for group in shared_groups(measurements, begins):
+        shared = fit_shared([measurements[i] for i in group], structure, start=begins[group[0]], solver=solver, max_steps=max_steps,
+                            return_errors=return_errors, **options)
+        if shared is None:  # too few to pay for compiling their layout's program: one by one, on chunks
+            continue
+        for i, res in zip(group, shared):
+            results[i] = res
+        together.update(group)
+    return together
 
 
 _T = TypeVar("_T")

@@ -95,12 +95,13 @@ def _start_key(start) -> object:
 
 
 def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, starts, solver: str, max_steps: int,
-               return_errors: bool) -> list | None:
+               return_errors: bool, compile_from: int | None = None) -> list | None:
     """One :class:`~ctfit.FitResult` (or, with ``return_errors``, the ``ValueError`` that stopped
     it) per measurement of one geometry (:func:`shared_groups`), each what :func:`~ctfit.fit`
     gives for it alone (to the solver's tolerance); arguments as for :func:`~ctfit.fit_batch`.
     None, having fitted nothing, where the group's program is not made and the group has fewer
-    than :data:`SHARED_COMPILE_FILES` measurements: the caller fits them one by one, on chunks.
+    than ``compile_from`` measurements (None: :data:`SHARED_COMPILE_FILES`): the caller fits them
+    one by one, on chunks.
 
     >>> import numpy as np, ctfit
     >>> def gold(m):
@@ -109,7 +110,7 @@ def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, star
     >>> base = ctfit.simulate(gold(0.2), n_pairs=60, seed=1)
     >>> data = [base.replace(brdf=np.asarray(ctfit.evaluate(gold(m), base))) for m in (0.1, 0.2, 0.3, 0.4)]
     >>> fits = fit_shared(data, gold(0.2).structure, start=None, fixed=(), loss="auto", dtype=np.float64, starts=3, solver="lm",
-    ...                   max_steps=256, return_errors=False)
+    ...                   max_steps=256, return_errors=False, compile_from=0)  # made for 4 files, if need be
     >>> [round(float(r.material.params.m[0]), 4) for r in fits]
     [0.1, 0.2, 0.3, 0.4]
     """
@@ -120,7 +121,8 @@ def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, star
         try:
             if template is None:
                 template = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
-                if len(measurements) < SHARED_COMPILE_FILES and not _made(template, measurements[i], solver, max_steps, dtype):
+                least = SHARED_COMPILE_FILES if compile_from is None else compile_from
+                if len(measurements) < least and not _made(template, measurements[i], solver, max_steps, dtype):
                     return None
             else:
                 check_fit_arguments(data, structure)

@@ -134,28 +134,26 @@ def choose_structure(
     """The data-chosen default structure: family × diffuse part × lobe count, by BIC or, on large
     data, by the median relative error on held-out direction pairs.
 
-    Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse``
-    given) is fitted with the fewest ``lobes``; the one preferred (:func:`_better`) then gets more
-    lobes in turn (nested starts, :func:`select_structure`) while that improves; if it got more, the
-    family's other diffuse parts are fitted with as many lobes too (from its lobes: a diffuse part
-    chosen at one lobe may have stood in for a second lobe). Fits of one measurement in
-    one loss, so their BICs compare. A candidate with one lobe more is solved from the smaller
-    one's fit and from the grid seeds (``starts``: where its new lobe goes is open); one that only
-    adds or changes the diffuse part, from the smaller one's fit alone (its lobes are placed).
-    Data of more than :data:`SCREEN_SAMPLES` samples is screened:
-    the candidates are fitted to a random subset of its direction pairs and compared by their
-    median relative error on other pairs (:func:`heldout_sample`, :func:`heldout_error`; their BICs
-    scaled to the whole data for the table; ``stats["structure_screening"]`` the sizes). The
-    candidates are fitted without the report (``report=False``: no standard errors, residual
-    summary or warnings; their ``quality`` holds the median relative error alone); the structure
-    chosen is then fitted to all the data, with the report, from its candidate's fit.
-    ``fresnel``: "f0" (default) or "conductor" for a metal.
-    Returns the best fit and every (structure, fit) tried, in order.
+    Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse`` given) is
+    fitted with the fewest ``lobes``; the one preferred (:func:`_better`) then gets more lobes in turn
+    (nested starts, :func:`select_structure`) while that improves; if it got more, the family's other diffuse
+    parts are fitted with as many lobes too (from its lobes: a diffuse part chosen at one lobe may have
+    stood in for a second lobe). Fits of one measurement in one loss, so their BICs compare. A candidate
+    with more free parameters than samples is not tried. A candidate with one lobe more is solved from the
+    smaller one's fit and from the grid seeds (``starts``: where its new lobe goes is open); one that only
+    adds or changes the diffuse part, from the smaller one's fit alone (its lobes are placed). Data of more
+    than :data:`SCREEN_SAMPLES` samples is screened: the candidates are fitted to a random subset of its
+    direction pairs and compared by their median relative error on other pairs (:func:`heldout_sample`,
+    :func:`heldout_error`; their BICs scaled to the whole data for the table;
+    ``stats["structure_screening"]`` the sizes). The candidates are fitted without the report
+    (``report=False``: no standard errors, residual summary or warnings; their ``quality`` holds the median
+    relative error alone); the structure chosen is then fitted to all the data, with the report, from its
+    candidate's fit. ``fresnel``: "f0" (default) or "conductor" for a metal. Returns the best fit and
+    every (structure, fit) tried, in order.
 
     >>> import numpy as np, ctfit
-    >>> rubber = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"),  # the paper's plastic
-    ...                         ctfit.Params(s=np.asarray(0.4), m=np.array([0.3]), w=np.ones(1), n=np.full(2, 1.52),
-    ...                                      rd=np.array([0.019, 0.022])), wavelength_nm=np.array([450.0, 650.0]))
+    >>> params = ctfit.Params(s=np.asarray(0.4), m=np.array([0.3]), w=np.ones(1), n=np.full(2, 1.52), rd=np.array([0.019, 0.022]))
+    >>> rubber = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"), params, wavelength_nm=np.array([450.0, 650.0]))  # the paper's
     >>> data = ctfit.simulate(rubber, n_pairs=600, noise=0.01, seed=1)
     >>> best, tried = ctfit.choose_structure(data, lobes=(1, 2))
     >>> best.material.structure.family, best.material.structure.lobes
@@ -190,8 +188,8 @@ def choose_structure(
         best_st, best = _preferred(tried, better)
         for i, j in enumerate(lobes[1:], start=2):
             bigger = Structure(**{**best_st.__dict__, "lobes": j})
-            if n_free_parameters(bigger, data.n_bands, kwargs.get("fixed", ())) > len(data):
-                break  # more free parameters than samples: no fit determines them (as for the first ones, _first_combos)
+            if n_free_parameters(bigger, data.n_bands, kwargs.get("fixed", ())) > len(data):  # none determines them (_first_combos)
+                break
             if i < len(lobes):
                 ahead(Structure(**{**best_st.__dict__, "lobes": lobes[i]}))
             res = fit_tried(bigger, _embedded_start(best, bigger))
