@@ -152,8 +152,8 @@ def choose_structure(
     every (structure, fit) tried, in order.
 
     >>> import numpy as np, ctfit
-    >>> params = ctfit.Params(s=np.asarray(0.4), m=np.array([0.3]), w=np.ones(1), n=np.full(2, 1.52), rd=np.array([0.019, 0.022]))
-    >>> rubber = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"), params, wavelength_nm=np.array([450.0, 650.0]))  # the paper's
+    >>> params = ctfit.Params(s=np.asarray(0.4), m=np.array([0.3]), w=np.ones(1), n=np.full(2, 1.52), rd=np.array([0.019, 0.022]))  # the paper's
+    >>> rubber = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"), params, wavelength_nm=np.array([450.0, 650.0]))  # plastic
     >>> data = ctfit.simulate(rubber, n_pairs=600, noise=0.01, seed=1)
     >>> best, tried = ctfit.choose_structure(data, lobes=(1, 2))
     >>> best.material.structure.family, best.material.structure.lobes

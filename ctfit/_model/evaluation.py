@@ -130,7 +130,10 @@ def evaluate_at(
     (viewer), broadcast together — or unit vectors ``l`` (to the light) and ``v`` (to the
     viewer), shape (..., 3), normal +z (``docs/conventions.md``). Bands: the material's own, or
     ``wavelength_nm`` (interpolated as :meth:`Material.params_at` does; spectral materials).
-    Returns shape ``directions + (bands,)``; directions at or below the horizon give 0.
+    Returns shape ``directions + (bands,)``; directions at or below the horizon give 0. A NaN or
+    infinite direction, a vector whose length is not 1 (to 10⁻³) or a wavelength that is not a
+    positive number raises ``ValueError``, naming it. One structure compiles at most three
+    programs, whatever the number of directions (:data:`EVAL_BLOCK`).
 
     >>> import numpy as np, ctfit
     >>> gold = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
