@@ -157,6 +157,10 @@ def test_the_library_refuses_to_wipe_a_chain(tmp_path):
     with pytest.raises(OutputError, match="resume=True.* overwrite=True"):
         ctfit.sample(None, None, backend=chain)  # refused before the material or data are looked at
     assert chain.read_bytes() == before
+    for burn, thin, words in ((500, 1, r"burn must be in \[0, steps\), got 500 with steps=200"), (150, 60, "thin must be at most steps − burn = 50")):
+        with pytest.raises(ValueError, match=words):  # refused before --overwrite empties the chain, not after a whole run
+            ctfit.sample(None, None, steps=200, burn=burn, thin=thin, backend=chain, overwrite=True)
+        assert chain.read_bytes() == before
 
 
 # --- result_targets, unconverged_target ---------------------------------------------------------

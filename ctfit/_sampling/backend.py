@@ -43,7 +43,7 @@ def open_run(backend, *, resume: bool, overwrite: bool, steps: int, shape: tuple
     if resume and path.exists() and be.initialized and be.iteration > 0:
         if be.shape != shape:
             raise ValueError(
-                f"{path}: the stored run has (walkers, ndim) = {be.shape}, this one {shape}; "
+                f"{path}: the stored run has (walkers, ndim) = {tuple(int(x) for x in be.shape)}, this one {tuple(int(x) for x in shape)}; "
                 "pass the same walkers, or start again (overwrite=True)"
             )
         stored = _read_attr(path, "ctfit_fingerprint")

@@ -159,6 +159,10 @@ def sample(
         raise ValueError(f"steps and thin must be ≥ 1, got steps={steps}, thin={thin}")
     if thin > steps:
         raise ValueError(f"thin must be at most steps ({steps}) to keep a draw, got thin={thin}")
+    if burn is not None and not 0 <= burn < steps:  # before the backend is touched (--overwrite empties it) or a step is run
+        raise ValueError(f"burn must be in [0, steps), got {burn} with steps={steps}")
+    if burn is not None and steps - burn < thin:
+        raise ValueError(f"thin must be at most steps − burn = {steps - burn} to keep a draw, got thin={thin} (burn={burn})")
     if seed < 0:
         raise ValueError(f"seed must be ≥ 0 (NumPy's generators take no negative seed), got seed={seed}")
     if resume and backend is None:
