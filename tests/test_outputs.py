@@ -610,3 +610,29 @@ os._exit(130)
     assert proc.returncode == 130, proc.stderr
     assert proc.stdout.split() == ["True", "[]"]  # the write waits; no temporary, no entry
     assert not list(tmp_path.iterdir())
+
+
+def test_a_folder_run_replaces_only_its_own_results(tmp_path):
+    """``ctfit fit DIR -o OUT``: a file in OUT at a result's name that this input's earlier fit did
+    not write (notes by hand, another folder's fit of an input of the same name), or a
+    ``summary.json`` that is not ctfit's, is kept and the run refused before any work; a rerun
+    replaces its own results."""
+    first, other, out = tmp_path / "in1", tmp_path / "in2", tmp_path / "out"
+    for folder, seed in ((first, 1), (other, 2)):
+        folder.mkdir()
+        assert run("simulate", MATERIAL, "-o", folder / "a.csv", "--samples", 40, "--wavelengths", "450,650", "--seed", seed).exit_code == 0
+    args = ("--lobes", 1, "--no-diffuse", "-q", "-o", out)
+    out.mkdir()
+    for name in ("a.fit.json", "summary.json"):
+        (out / name).write_text("my notes\n")
+        r = run("fit", first, *args)
+        assert r.exit_code == 2 and f"{out / name}: the file exists and is not a" in r.output, r.output
+        assert (out / name).read_text() == "my notes\n"
+        (out / name).unlink()
+    assert run("fit", first, *args).exit_code == 0
+    again = run("fit", first, *args)  # a rerun: its own results replaced
+    assert again.exit_code == 0, again.output
+    before = (out / "a.fit.json").read_bytes()
+    r = run("fit", other, *args)
+    assert r.exit_code == 2 and "holds the fit of another input" in r.output and str(first / "a.csv") in r.output, r.output
+    assert (out / "a.fit.json").read_bytes() == before

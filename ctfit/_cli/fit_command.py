@@ -235,7 +235,7 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     several files, a folder of them, a trailing slash, an existing folder): distinct files in it
     (``result_targets``), none a symbolic link, and ``summary.json`` beside the results.
     """
-    from .._io import InputFiles, check_backend, check_output, check_output_folder, result_targets
+    from .._io import InputFiles, check_backend, check_output, check_output_folder, check_rerun_target, result_targets
 
     many, inputs = len(files) > 1, InputFiles([*files, o.material])  # each input looked up once, not once per output
 
@@ -253,8 +253,10 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     json_ = targets("output", o.output, "-o", ".fit.json", lambda t, c: _json_name(check_output(t, inputs, option="-o", chosen=c)))
     plot = targets("plot", o.plot, "--plot", ".fit.png", lambda t, c: _plot_format(check_output(t, inputs, option="--plot", chosen=c)))
     backend = targets("backend", o.backend if o.sample_ else None, "--backend", ".h5", chain)
-    if o.output is not None and o.folders["output"]:
-        check_output(o.output / SUMMARY, inputs, option="-o", chosen=True)
+    if o.output is not None and o.folders["output"]:  # a folder: what is there and not this run's own is kept
+        for p, target in json_.items():
+            check_rerun_target(target, p)
+        check_rerun_target(check_output(o.output / SUMMARY, inputs, option="-o", chosen=True))
     names = result_targets(files, Path(), "") if many else {files[0]: Path(files[0].stem)}
     return {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
 

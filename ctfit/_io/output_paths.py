@@ -15,7 +15,7 @@ import stat
 from pathlib import Path
 
 from .files import replace_links_in, writes_in_place
-from .untrusted import read_json_or_none
+from .untrusted import quote, read_json_or_none
 
 __all__ = [
     "OutputError",
@@ -25,6 +25,7 @@ __all__ = [
     "InputFiles",
     "same_file",
     "result_targets",
+    "check_rerun_target",
     "unconverged_target",
 ]
 
@@ -262,6 +263,29 @@ def result_targets(inputs, folder, suffix: str) -> dict[Path, Path]:
     paths = list(dict.fromkeys(Path(p) for p in inputs))
     folder = Path(folder)
     return {p: folder / (n + suffix) for p, n in zip(paths, _names(paths))}
+
+
+def check_rerun_target(target, data=None) -> None:
+    """Refuse, with an :class:`OutputError`, an existing ``target`` in an output folder that a run
+    would replace but did not write: a file that is not a fit result of ctfit, or the result of
+    another input than ``data`` (another folder's inputs fitted into the same folder). A rerun
+    replaces its own earlier results. ``data`` None: ``target`` is the folder's ``summary.json``,
+    replaced only when it is one ctfit wrote."""
+    target = Path(target)
+    if not os.path.lexists(target):
+        return
+    doc = read_json_or_none(target)
+    if data is None:
+        if isinstance(doc, dict) and isinstance(doc.get("results"), list) and "files" in doc:
+            return
+        why = "is not a summary of ctfit"
+    else:
+        earlier = doc.get("data") if isinstance(doc, dict) and isinstance(doc.get("fit"), dict) else None
+        if isinstance(earlier, str) and (same_file(earlier, data) or os.path.normpath(earlier) == os.path.normpath(data)):
+            return
+        why = f"holds the fit of another input, {quote(earlier, 4096)}" if isinstance(earlier, str) else "is not a fit result of ctfit"  # (a path: whole)
+    raise OutputError(f"{target}: the file exists and {why}; a run replaces only its own results: move it, or write the results "
+                      "to another folder")
 
 
 def _holds_converged_fit(path: Path) -> bool:
