@@ -612,7 +612,7 @@ os._exit(130)
     assert not list(tmp_path.iterdir())
 
 
-def test_a_folder_run_replaces_only_its_own_results(tmp_path):
+def test_a_folder_run_replaces_only_its_own_results(tmp_path, monkeypatch):
     """``ctfit fit DIR -o OUT``: a file in OUT at a result's name that this input's earlier fit did
     not write (notes by hand, another folder's fit of an input of the same name), or a
     ``summary.json`` that is not ctfit's, is kept and the run refused before any work; a rerun
@@ -632,6 +632,10 @@ def test_a_folder_run_replaces_only_its_own_results(tmp_path):
     assert run("fit", first, *args).exit_code == 0
     again = run("fit", first, *args)  # a rerun: its own results replaced
     assert again.exit_code == 0, again.output
+    monkeypatch.chdir(tmp_path)  # results that name their input relative to the folder the run started in
+    assert run("fit", "in1", "--lobes", 1, "--no-diffuse", "-q", "-o", "out").exit_code == 0
+    monkeypatch.chdir(first)  # a rerun started elsewhere, naming the folder otherwise: still its own results
+    assert run("fit", first, *args).exit_code == 0
     before = (out / "a.fit.json").read_bytes()
     r = run("fit", other, *args)
     assert r.exit_code == 2 and "holds the fit of another input" in r.output and str(first / "a.csv") in r.output, r.output

@@ -281,11 +281,21 @@ def check_rerun_target(target, data=None) -> None:
         why = "is not a summary of ctfit"
     else:
         earlier = doc.get("data") if isinstance(doc, dict) and isinstance(doc.get("fit"), dict) else None
-        if isinstance(earlier, str) and (same_file(earlier, data) or os.path.normpath(earlier) == os.path.normpath(data)):
+        if isinstance(earlier, str) and _same_input(earlier, data):
             return
         why = f"holds the fit of another input, {quote(earlier, 4096)}" if isinstance(earlier, str) else "is not a fit result of ctfit"  # (a path: whole)
     raise OutputError(f"{target}: the file exists and {why}; a run replaces only its own results: move it, or write the results "
                       "to another folder")
+
+
+def _same_input(earlier: str, data) -> bool:
+    """Whether a result's ``data`` (the input as its run named it) is ``data``: the same file, or a
+    relative name that ``data``'s absolute path ends with (the earlier run was started in
+    another folder: ``fits/a.fit.json`` of ``data/a.csv``, rerun on ``/home/me/data``)."""
+    if same_file(earlier, data) or os.path.normpath(earlier) == os.path.normpath(data):
+        return True
+    tail = os.path.normpath(earlier)
+    return not os.path.isabs(tail) and not tail.startswith("..") and os.path.abspath(data).endswith(os.sep + tail)
 
 
 def _holds_converged_fit(path: Path) -> bool:
