@@ -121,9 +121,6 @@ def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, star
         try:
             if template is None:
                 template = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts)
-                least = SHARED_COMPILE_FILES if compile_from is None else compile_from
-                if len(measurements) < least and not _made(template, measurements[i], solver, max_steps, dtype):
-                    return None
             else:
                 check_fit_arguments(data, structure)
                 check_fittable(data, template.structure, fixed=template.fixed, loss=template.loss, dtype=dtype)
@@ -149,8 +146,11 @@ def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, star
         return chunk, ys, floors, jax.device_get(out)
 
     calls = [members[a: a + size] for a in range(0, len(members), size)]
+    idle = (template.problem, *values(calls[0]), np.zeros(size, bool), template.u0, template.grid, *options)  # every member inactive
+    if len(measurements) < (SHARED_COMPILE_FILES if compile_from is None else compile_from) and not program_made("fit_shared", *idle):
+        return None
     if len(calls) > 1:  # made here, on members all inactive (skipped: milliseconds), so the calls run side by side at once
-        stored_program("fit_shared", _shared_core, template.problem, *values(calls[0]), np.zeros(size, bool), template.u0, template.grid, *options)
+        stored_program("fit_shared", _shared_core, *idle)
     with concurrent.futures.ThreadPoolExecutor(min(SOLVE_THREADS, len(calls))) as pool:
         running = collections.deque(pool.submit(solve, c) for c in calls[:SOLVE_THREADS])
         for c in calls[SOLVE_THREADS:] + [None] * len(running):
@@ -159,14 +159,6 @@ def fit_shared(measurements: list, structure, *, start, fixed, loss, dtype, star
                 running.append(pool.submit(solve, c))
             _report(done, template, measurements, results, solver, max_steps, t0, return_errors)
     return results
-
-
-def _made(template: PreparedFit, data, solver: str, max_steps: int, dtype) -> bool:
-    """Whether the shared program of ``template``'s layout is made (in memory or stored): the
-    arguments :func:`fit_shared` calls it with, ``data``'s values standing for every member."""
-    size = max(1, min(SHARED_CALL, SAMPLE_BUDGET // max(template.problem.y.size, 1)))
-    ys, floors = ValueLayout(template.problem, template.data)(np.broadcast_to(np.asarray(data.brdf, float), (size, len(data))), dtype)
-    return program_made("fit_shared", template.problem, ys, floors, np.zeros(size, bool), template.u0, template.grid, *template.options(solver, max_steps))
 
 
 def _report(call, template: PreparedFit, measurements: list, results: list, solver: str, max_steps: int, t0: float, return_errors: bool) -> None:

@@ -463,7 +463,12 @@ def program_made(name: str, *args, effort: str = "run") -> bool:
     if _recall(f"{name}-{digest}") is not None:
         return True
     store = _store()
-    return store is not None and (store / f"{name}-{digest[:32]}.xla").is_file()
+    return store is not None and _entry(store, name, digest).is_file()
+
+
+def _entry(store: pathlib.Path, name: str, digest: str) -> pathlib.Path:
+    """The store's file of the program ``name`` keyed by ``digest``."""
+    return store / f"{name}-{digest[:32]}.xla"
 
 
 def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
@@ -496,7 +501,7 @@ def _load_or_compile(name: str, fn: Callable, args: tuple, leaves: list, key: st
     """:func:`_program`'s work once the program is not in memory: load it from the store, or
     trace, compile and store it. (program, its output on ``leaves`` or None)."""
     store = _store()
-    path = store / f"{name}-{digest[:32]}.xla" if store is not None else None
+    path = _entry(store, name, digest) if store is not None else None
     if path is not None and path.is_file():
         try:
             run = _load(path, key)
