@@ -175,7 +175,7 @@ def test_float32_normal_equations_match_float64(n_pairs):
 
 
 @pytest.mark.parametrize(("bands", "scattered", "family"),  # RGB, dense: one JᵀJ of the spread columns; else block by block
-                         [(3, False, "metal"), (3, True, "metal"), (16, False, "metal"), (16, True, "plastic"), (3, False, "plastic")])
+                         [(3, False, "metal"), (3, True, "metal"), (16, False, "metal"), (16, True, "metal"), (16, True, "plastic"), (3, False, "plastic")])
 def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
     """½‖r‖², Jᵀr and JᵀJ of the fit's chunk kernel against J from ``jax.jacfwd`` of the plain residual."""
     from jax.flatten_util import ravel_pytree
@@ -204,7 +204,7 @@ def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
     assert ((3 if family == "metal" else 1) * bands > DENSE_BAND_COLUMNS) is (bands == 16)  # n, k, R_d or R_d per band: dense only with RGB
     plain = lambda pr, f: loss_residuals(pr, model_values(pr, unflat(f)), pr.y)
     r, jac = eqx.filter_jit(lambda pr, f: (plain(pr, f), jax.jacfwd(lambda g: plain(pr, g))(f)))(problem, flat)
-    for dense in (False, True):  # block by block, and the chunk kernel's form
+    for dense in (False, True):  # block by block, and the chunk kernel's form (stacked columns, or packed sums on samples)
         cost, grad, hess = eqx.filter_jit(lambda pr, uu, d=dense: normal_equations(pr, uu, dense=d))(problem, u)
         np.testing.assert_allclose(cost, 0.5 * r @ r, rtol=1e-12)
         np.testing.assert_allclose(grad, jac.T @ r, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ r)))

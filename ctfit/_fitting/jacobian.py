@@ -105,8 +105,11 @@ def _normal_equations(problem: Problem, u: dict, dense: bool = False):
     for the N samples of a chunk) and multiplied at once: one JᵀJ. The fit's chunk kernel
     (``chunked_fit.py``, a stored program every process loads) takes that form: its program
     has a fifth of the instructions, loads 3–4× and compiles ~1.4× faster, and runs faster on
-    its chunks. A fit of many small problems at once (texels), compiled once and run long,
-    takes the blocks, faster there (1,710 against 1,360 texels per second, float32).
+    its chunks; with more band columns, on samples (not a grid), it takes :func:`_packed`, which
+    compiles in about half the time of the blocks and runs about as fast. A fit of many small
+    problems at once (texels, a folder's files of one geometry), compiled once and run long,
+    takes the blocks, faster there (1,710 against 1,360 texels per second, float32; 4 % on 256
+    files of 31 bands against :func:`_packed`).
     """
     res, _, cols = _columns(problem, u, problem.y)
     names = sorted(u)
@@ -114,8 +117,66 @@ def _normal_equations(problem: Problem, u: dict, dense: bool = False):
     if dense and banded <= DENSE_BAND_COLUMNS:
         jac = jnp.concatenate([_spread(problem, *cols[k]).reshape(res.shape[0], -1) for k in names] or [jnp.zeros((res.shape[0], 0), res.dtype)], axis=1)
         return 0.5 * jnp.sum(res * res), jac.T @ res, jac.T @ jac
-    grad, hess = _blocks(problem, res.reshape(problem.y.shape), cols, names)
+    blocks = _packed if dense and not problem.spec.grid else _blocks
+    grad, hess = blocks(problem, res.reshape(problem.y.shape), cols, names)
     return 0.5 * jnp.sum(res * res), grad, hess
+
+
+def _packed(problem: Problem, r, cols: dict, names: list[str]):
+    """(Jᵀr, JᵀJ) of a layout of samples (not a grid) from the factored columns, in two kinds of
+    product: the columns of the shape and scalar parameters at every sample, stacked (``C``,
+    N × q), give CᵀC and Cᵀr in one product each; every sum over a band's values (the band parameters' Jᵀr, their products with
+    ``C`` and with each other) is one :func:`band_sum` of those products stacked side by side.
+    :func:`_blocks` forms the same block by block (a sum per block: 16 for 4 names), which runs
+    as fast but compiles slower: 1.1 s against 0.65 s for a chunk of 2,048 samples of 31 bands
+    (F0 per band, two lobes), 1.6 s against 0.8 s with n, k and R_d per band of RGB; a fit
+    compiles one such program per structure it tries (``scripts/compile_times.py``). On a grid,
+    :func:`_blocks` is as fast to compile and faster to run (it forms the shape columns' products
+    per direction, not per value)."""
+    W = problem.fixed_bands
+    lead = r.shape
+    kinds = {k: cols[k][0] for k in names}
+    dense = [k for k in names if kinds[k] != "band"]
+    banded = [k for k in names if kinds[k] == "band"]
+
+    def spread(k):  # a shape or scalar parameter's columns at every value: layout + (size,)
+        kind, col = cols[k]
+        if kind == "scalar":
+            return col[..., None]
+        a, js = col
+        return a[..., None] * at_samples(problem, js)
+
+    c = jnp.concatenate([spread(k) for k in dense], axis=-1) if dense else jnp.zeros((*lead, 0), r.dtype)
+    e = jnp.stack([cols[k][1] for k in banded], axis=-1) if banded else jnp.zeros((*lead, 0), r.dtype)
+    q, nb = c.shape[-1], e.shape[-1]
+    parts = [e * r[..., None], (e[..., :, None] * c[..., None, :]).reshape(*lead, nb * q), (e[..., :, None] * e[..., None, :]).reshape(*lead, nb * nb)]
+    sums = band_sum(problem, jnp.concatenate(parts, axis=-1))  # (W, nb + nb·q + nb²)
+    g_band = sums[:, :nb]
+    h_band_c = sums[:, nb: nb + nb * q].reshape(W, nb, q)
+    h_band_band = sums[:, nb + nb * q:].reshape(W, nb, nb)
+    flat_c = c.reshape(-1, q)
+    g_c, h_cc = flat_c.T @ r.reshape(-1), flat_c.T @ flat_c
+    at, where = 0, {}
+    for k in dense:
+        where[k] = slice(at, at + _spread_size(cols[k]))
+        at = where[k].stop
+
+    def block(ki, kj):
+        if kinds[ki] == "band":
+            i = banded.index(ki)
+            return jnp.diag(h_band_band[:, i, banded.index(kj)]) if kinds[kj] == "band" else h_band_c[:, i, where[kj]]
+        return h_band_c[:, banded.index(kj), where[ki]].T if kinds[kj] == "band" else h_cc[where[ki], where[kj]]
+
+    if not names:
+        return jnp.zeros((0,), r.dtype), jnp.zeros((0, 0), r.dtype)
+    grad = jnp.concatenate([g_band[:, banded.index(k)] if kinds[k] == "band" else g_c[where[k]] for k in names])
+    return grad, jnp.concatenate([jnp.concatenate([block(ki, kj) for kj in names], axis=1) for ki in names], axis=0)
+
+
+def _spread_size(col) -> int:
+    """The number of entries of a shape or scalar parameter from its factored column."""
+    kind, c = col
+    return 1 if kind == "scalar" else c[1].shape[1]
 
 
 def _dir_sum(problem: Problem, x):
