@@ -265,3 +265,38 @@ def test_cli_render(tmp_path):
     assert out.exists()
     res = CliRunner().invoke(app, ["render", cfg, "-o", str(out), "--shape", "cube"])
     assert res.exit_code == 2 and "shape" in res.output
+
+
+
+def test_pictures_of_sizes_in_one_bucket_compile_nothing_new_and_padding_changes_no_pixel():
+    """Shading runs in blocks of fixed sizes and the tone mapping on sides padded to a power of 2:
+    after one picture, sizes up to the same power of 2 compile nothing (each new size compiled
+    three programs, ~1 s and ~70 memory maps), and every pixel and scale is that of the picture
+    shaded and mapped without padding."""
+    import jax
+
+    from ctfit._render import tone
+    from ctfit._render.scene import shade_tile
+
+    gold = ctfit.material_from_dict({"s": 1, "lobes": [{"m": 0.3}], "optical_constants": "Au"})
+    scene, sizes = render_scene(gold), (65, 90, 127, 128)
+    render_material(gold, 100, "sphere", supersample=3)  # sides 65–128: one bucket
+    compiled: list = []
+
+    def listener(event, duration, **kw):
+        if event == "/jax/core/compile/backend_compile_duration":
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        pictures = {n: (tile, *tone_map(tile)) for n in sizes for tile in [shade_tile(gold.structure, scene, surface_normals("sphere", n, 3), 3)]}
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+    assert compiled == []
+    for n, (tile, image, scale) in pictures.items():  # against the same steps unpadded (a program per size)
+        assert image.shape == (n, n, 3)
+        normals = surface_normals("sphere", n, 3).normal[tile.mask]
+        np.testing.assert_allclose(tile.rgb[tile.mask], np.asarray(shade_linear(gold.structure, scene, normals)), rtol=1e-12, atol=0)
+        rgb = np.where(tile.mask[..., None], tile.rgb, 0.0)
+        assert scale == min(float(tone._paper_scale(rgb)), tile.white_scale)
+        np.testing.assert_array_equal(image, np.asarray(tone._compose(rgb, tile.mask, jnp.asarray(scale), np.asarray(BACKGROUND), 3)))

@@ -19,7 +19,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "direction_pairs": ['unique_direction_pairs'],
         "directions": ['Geometry', 'direction_from_angles_deg', 'geometry', 'geometry_from_angles_deg'],
         "distribution": ['beckmann', 'gaussian'],
-        "evaluation": ['evaluate', 'evaluate_at', 'goniometer_directions', 'simulate'],
+        "evaluation": ['by_blocks', 'evaluate', 'evaluate_at', 'goniometer_directions', 'simulate'],
         "fresnel_equations": ['f0_from_n', 'f0_from_nk', 'fresnel_conductor', 'fresnel_dielectric', 'fresnel_dielectric_f0', 'fresnel_diffuse_reflectance',
                               'n_from_f0'],
         "intensity": ['Light', 'reflected_intensity'],

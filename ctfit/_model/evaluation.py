@@ -27,7 +27,7 @@ from .material import Material, Params, Structure
 from .measurement import Measurement
 from .numerics import x64_enabled
 
-__all__ = ["simulate", "goniometer_directions", "evaluate", "evaluate_at"]
+__all__ = ["simulate", "goniometer_directions", "evaluate", "evaluate_at", "by_blocks"]
 
 
 def goniometer_directions(
@@ -202,13 +202,20 @@ def _block_rows(n: int) -> int:
 
 
 def _by_blocks(run: Callable[..., Array], structure: Structure, params: Params, rows: np.ndarray, pad: tuple[float, ...]) -> np.ndarray:
-    """``run(structure, params, block)`` over ``rows`` (n, k) in blocks of :func:`_block_rows`
-    rows, the last one padded with ``pad``: the values (n, bands), as NumPy."""
+    """``run(structure, params, block)`` over ``rows`` (n, k) by :func:`by_blocks`: the values
+    (n, bands), as NumPy."""
+    return by_blocks(lambda block: run(structure, params, block), rows, pad)
+
+
+def by_blocks(run: Callable[[np.ndarray], Array], rows: np.ndarray, pad: tuple[float, ...]) -> np.ndarray:
+    """``run(block)`` over ``rows`` (n, k) in blocks of 512, 2,048 or :data:`EVAL_BLOCK` rows, the
+    last one padded with rows ``pad``: a compiled ``run`` sees at most three shapes, whatever n.
+    Its results (one row per row) concatenated, the padding dropped, as NumPy."""
     n = rows.shape[0]
     size = _block_rows(n)
     total = -(-max(n, 1) // size) * size
     padded = np.concatenate([rows, np.broadcast_to(np.asarray(pad, rows.dtype), (total - n, rows.shape[1]))])
-    blocks = [run(structure, params, padded[at: at + size]) for at in range(0, total, size)]  # queued, then fetched
+    blocks = [run(padded[at: at + size]) for at in range(0, total, size)]  # queued, then fetched
     return np.concatenate([np.asarray(b) for b in blocks])[:n]
 
 

@@ -36,7 +36,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._colour import colour_science, rgb_conversion, spectral_weights
 from .._io import DataWarning
-from .._model import Light, Material, Params, Structure, reflected_intensity
+from .._model import Light, Material, Params, Structure, by_blocks, reflected_intensity
 from .surfaces import VIEW_DIRECTION, Surface, surface_normals
 
 __all__ = [
@@ -232,18 +232,21 @@ def white_scale(normals: np.ndarray, scene: Scene) -> float:
 
 
 def shade_tile(structure: Structure, scene: Scene, surface: Surface, supersample: int) -> Tile:
-    """The :class:`Tile` of ``scene`` on ``surface``: only samples on the object are shaded."""
+    """The :class:`Tile` of ``scene`` on ``surface``: only samples on the object are shaded, in
+    blocks of a few fixed sizes (:func:`~ctfit._model.evaluation.by_blocks`), so a picture of
+    another size compiles nothing new."""
     normals = surface.normal[surface.mask]
     rgb = np.zeros(surface.mask.shape + (3,))
-    rgb[surface.mask] = np.asarray(shade_linear(structure, scene, normals), dtype=float)
+    shaded = by_blocks(lambda block: shade_linear(structure, scene, block), normals, tuple(VIEW_DIRECTION))
+    rgb[surface.mask] = np.asarray(shaded, dtype=float)
     return Tile(rgb, surface.mask, supersample, white_scale(normals, scene))
 
 
 def render_linear(material: Material, size: int = 256, shape: str = "sphere", *, supersample: int = 2, **scene: Any) -> Tile:
     """Unscaled linear sRGB of ``material`` on ``shape``: ``(rgb, mask, supersample, white_scale)``.
 
-    ``rgb`` has side ``size * supersample``; only samples on the object are shaded (one
-    compiled function per structure, band count and number of object samples). ``scene``:
+    ``rgb`` has side ``size * supersample``; only samples on the object are shaded (compiled
+    per structure and band count, in blocks of a few fixed sizes: another ``size`` compiles nothing). ``scene``:
     the options of :func:`render_scene` (``directions``, ``solid_angles``, ``ambient``,
     ``wavelength_step``, ``wavelength_nm``).
 

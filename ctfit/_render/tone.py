@@ -28,9 +28,21 @@ EXPOSURES = ("reference", "tile")
 BACKGROUND = (0.1, 0.1, 0.1)  # linear sRGB: a neutral dark grey (encoded 89/255)
 
 
+def _padded_side(n: int) -> int:
+    """A picture's side rounded up to a power of 2 (at least 64): the tone mapping's programs
+    are compiled per side, so pictures of sides 65–128, 129–256, … share theirs."""
+    return max(64, 1 << (max(n, 1) - 1).bit_length())
+
+
+def _padded(a: np.ndarray, side: int) -> np.ndarray:
+    """``a`` (n, n, …) padded with zeros to (side, side, …)."""
+    extra = side - a.shape[0]
+    return np.pad(a, [(0, extra), (0, extra)] + [(0, 0)] * (a.ndim - 2))
+
+
 @eqx.filter_jit
 def _paper_scale(rgb: np.ndarray) -> Array:
-    return scale_to_display(rgb.reshape(-1, 3))[1]
+    return scale_to_display(rgb.reshape(-1, 3))[1]  # padding (black) changes nothing: the scale is set by the brightest
 
 
 @eqx.filter_jit
@@ -69,9 +81,12 @@ def tone_map(
     if exposure not in EXPOSURES:
         raise ValueError(f"exposure must be one of {EXPOSURES}, got {exposure!r}")
     rgb = np.where(tile.mask[..., None], tile.rgb, 0.0)
+    side = rgb.shape[0] // tile.supersample  # pixels; padded (black, off the object), cut after
+    samples = _padded_side(side) * tile.supersample
+    rgb, mask = _padded(rgb, samples), _padded(tile.mask, samples)
     if scale is None:
         scale = float(_paper_scale(rgb))
         if exposure == "reference":
             scale = min(scale, float(tile.white_scale))
-    img = _compose(rgb, tile.mask, jnp.asarray(float(scale)), np.asarray(background, dtype=float), tile.supersample)
-    return np.asarray(img), float(scale)
+    img = _compose(rgb, mask, jnp.asarray(float(scale)), np.asarray(background, dtype=float), tile.supersample)
+    return np.asarray(img)[:side, :side], float(scale)
