@@ -305,8 +305,8 @@ def _seeds_program(part: Problem, u0: dict, k: int, grid, num, den, keep_start: 
     if grid is None:
         seeds = jax.tree.map(lambda a: a[None], u0)
     else:
-        costs = grid_costs(num, den, grid_amplitudes(num, den))
-        seeds = seeds_from_scores(part, u0, k, grid, costs, grid_scales(num, den), keep_start)
+        amplitudes = grid_amplitudes(num, den)
+        seeds = seeds_from_scores(part, u0, k, grid, grid_costs(num, den, amplitudes), grid_scales(num, den), keep_start, amplitudes)
     flat = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
     lower, upper = flat_bounds(part, u0)
     return dict(flat=flat, lower=lower, upper=upper)
