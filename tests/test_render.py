@@ -269,18 +269,18 @@ def test_cli_render(tmp_path):
 
 
 def test_pictures_of_sizes_in_one_bucket_compile_nothing_new_and_padding_changes_no_pixel():
-    """Shading runs in blocks of fixed sizes and the tone mapping on sides padded to a power of 2:
-    after one picture, sizes up to the same power of 2 compile nothing (each new size compiled
-    three programs, ~1 s and ~70 memory maps), and every pixel and scale is that of the picture
-    shaded and mapped without padding."""
+    """Shading runs in blocks of fixed sizes and the tone mapping on sides padded to four sizes
+    per octave: after one picture, sides in its bucket (113–128 pixels) compile nothing (each
+    new size compiled three programs, ~1 s and ~70 memory maps), and every pixel and scale is
+    that of the picture shaded and mapped without padding."""
     import jax
 
     from ctfit._render import tone
     from ctfit._render.scene import shade_tile
 
     gold = ctfit.material_from_dict({"s": 1, "lobes": [{"m": 0.3}], "optical_constants": "Au"})
-    scene, sizes = render_scene(gold), (65, 90, 127, 128)
-    render_material(gold, 100, "sphere", supersample=3)  # sides 65–128: one bucket
+    scene, sizes = render_scene(gold), (113, 117, 127, 128)
+    render_material(gold, 120, "sphere", supersample=3)  # sides 113–128: one bucket
     compiled: list = []
 
     def listener(event, duration, **kw):
@@ -293,6 +293,7 @@ def test_pictures_of_sizes_in_one_bucket_compile_nothing_new_and_padding_changes
     finally:
         jax.monitoring.unregister_event_duration_listener(listener)
     assert compiled == []
+    assert [tone._padded_side(n) for n in (1, 64, 65, 80, 81, 128, 129, 160, 2049)] == [64, 64, 80, 80, 96, 128, 160, 160, 2560]
     for n, (tile, image, scale) in pictures.items():  # against the same steps unpadded (a program per size)
         assert image.shape == (n, n, 3)
         normals = surface_normals("sphere", n, 3).normal[tile.mask]

@@ -125,8 +125,9 @@ def _normal_equations(problem: Problem, u: dict, dense: bool = False):
 def _packed(problem: Problem, r, cols: dict, names: list[str]):
     """(Jᵀr, JᵀJ) of a layout of samples (not a grid) from the factored columns, in two kinds of
     product: the columns of the shape and scalar parameters at every sample, stacked (``C``,
-    N × q), give CᵀC and Cᵀr in one product each; every sum over a band's values (the band parameters' Jᵀr, their products with
-    ``C`` and with each other) is one :func:`band_sum` of those products stacked side by side.
+    N × q), give CᵀC and Cᵀr in one product each; every sum over a band's samples (the band
+    parameters' Jᵀr, their products with ``C`` and with each other) is one :func:`band_sum` of
+    those products stacked side by side.
     :func:`_blocks` forms the same block by block (a sum per block: 16 for 4 names), which runs
     as fast but compiles slower: 1.1 s against 0.65 s for a chunk of 2,048 samples of 31 bands
     (F0 per band, two lobes), 1.6 s against 0.8 s with n, k and R_d per band of RGB; a fit
@@ -139,7 +140,7 @@ def _packed(problem: Problem, r, cols: dict, names: list[str]):
     dense = [k for k in names if kinds[k] != "band"]
     banded = [k for k in names if kinds[k] == "band"]
 
-    def spread(k):  # a shape or scalar parameter's columns at every value: layout + (size,)
+    def spread(k):  # a shape or scalar parameter's columns at every sample: (N, size)
         kind, col = cols[k]
         if kind == "scalar":
             return col[..., None]

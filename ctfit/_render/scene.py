@@ -246,9 +246,9 @@ def render_linear(material: Material, size: int = 256, shape: str = "sphere", *,
     """Unscaled linear sRGB of ``material`` on ``shape``: ``(rgb, mask, supersample, white_scale)``.
 
     ``rgb`` has side ``size * supersample``; only samples on the object are shaded (compiled
-    per structure and band count, in blocks of a few fixed sizes: another ``size`` compiles nothing). ``scene``:
-    the options of :func:`render_scene` (``directions``, ``solid_angles``, ``ambient``,
-    ``wavelength_step``, ``wavelength_nm``).
+    per structure and band count, in blocks of a few fixed sizes: another ``size`` compiles
+    nothing). ``scene``: the options of :func:`render_scene` (``directions``, ``solid_angles``,
+    ``ambient``, ``wavelength_step``, ``wavelength_nm``).
 
     >>> from ctfit import material_from_dict
     >>> matte = material_from_dict({"s": 0, "d": 1, "channels": ["R", "G", "B"], "Rd": [0.2, 0.1, 0.05]})

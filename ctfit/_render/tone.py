@@ -29,9 +29,14 @@ BACKGROUND = (0.1, 0.1, 0.1)  # linear sRGB: a neutral dark grey (encoded 89/255
 
 
 def _padded_side(n: int) -> int:
-    """A picture's side rounded up to a power of 2 (at least 64): the tone mapping's programs
-    are compiled per side, so pictures of sides 65–128, 129–256, … share theirs."""
-    return max(64, 1 << (max(n, 1) - 1).bit_length())
+    """A picture's side in pixels rounded up to one of four sizes per octave (at least 64): the
+    tone mapping's programs are compiled per side, so the sides 113–128 share theirs, as do
+    129–160, 161–192, …, while the padding adds at most a quarter to the side (a picture of
+    2,049 pixels is mapped at 2,560, not 4,096)."""
+    if n <= 64:
+        return 64
+    step = 1 << ((n - 1).bit_length() - 3)
+    return -(-n // step) * step
 
 
 def _padded(a: np.ndarray, side: int) -> np.ndarray:
@@ -42,7 +47,7 @@ def _padded(a: np.ndarray, side: int) -> np.ndarray:
 
 @eqx.filter_jit
 def _paper_scale(rgb: np.ndarray) -> Array:
-    return scale_to_display(rgb.reshape(-1, 3))[1]  # padding (black) changes nothing: the scale is set by the brightest
+    return scale_to_display(rgb.reshape(-1, 3))[1]  # the padding (black) changes nothing: the brightest sets it
 
 
 @eqx.filter_jit
