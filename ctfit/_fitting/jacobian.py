@@ -134,50 +134,30 @@ def _packed(problem: Problem, r, cols: dict, names: list[str]):
     compiles one such program per structure it tries (``scripts/compile_times.py``). On a grid,
     :func:`_blocks` is as fast to compile and faster to run (it forms the shape columns' products
     per direction, not per value)."""
-    W = problem.fixed_bands
-    lead = r.shape
-    kinds = {k: cols[k][0] for k in names}
-    dense = [k for k in names if kinds[k] != "band"]
-    banded = [k for k in names if kinds[k] == "band"]
-
-    def spread(k):  # a shape or scalar parameter's columns at every sample: (N, size)
-        kind, col = cols[k]
-        if kind == "scalar":
-            return col[..., None]
-        a, js = col
-        return a[..., None] * at_samples(problem, js)
-
-    c = jnp.concatenate([spread(k) for k in dense], axis=-1) if dense else jnp.zeros((*lead, 0), r.dtype)
-    e = jnp.stack([cols[k][1] for k in banded], axis=-1) if banded else jnp.zeros((*lead, 0), r.dtype)
-    q, nb = c.shape[-1], e.shape[-1]
-    parts = [e * r[..., None], (e[..., :, None] * c[..., None, :]).reshape(*lead, nb * q), (e[..., :, None] * e[..., None, :]).reshape(*lead, nb * nb)]
-    sums = band_sum(problem, jnp.concatenate(parts, axis=-1))  # (W, nb + nb·q + nb²)
+    W, n = problem.fixed_bands, r.shape[0]
+    banded = [k for k in names if cols[k][0] == "band"]  # some: called with more than DENSE_BAND_COLUMNS of them
+    spread = {k: _spread(problem, *cols[k]) for k in names if cols[k][0] != "band"}  # (N, size) each
+    where, at = {}, 0
+    for k, col in spread.items():
+        where[k], at = slice(at, at + col.shape[1]), at + col.shape[1]
+    c = jnp.concatenate(list(spread.values()), axis=1) if spread else jnp.zeros((n, 0), r.dtype)
+    e = jnp.stack([cols[k][1] for k in banded], axis=1)
+    q, nb = c.shape[1], e.shape[1]
+    parts = [e * r[:, None], (e[:, :, None] * c[:, None, :]).reshape(n, nb * q), (e[:, :, None] * e[:, None, :]).reshape(n, nb * nb)]
+    sums = band_sum(problem, jnp.concatenate(parts, axis=1))  # (W, nb + nb·q + nb²)
     g_band = sums[:, :nb]
     h_band_c = sums[:, nb: nb + nb * q].reshape(W, nb, q)
     h_band_band = sums[:, nb + nb * q:].reshape(W, nb, nb)
-    flat_c = c.reshape(-1, q)
-    g_c, h_cc = flat_c.T @ r.reshape(-1), flat_c.T @ flat_c
-    at, where = 0, {}
-    for k in dense:
-        where[k] = slice(at, at + _spread_size(cols[k]))
-        at = where[k].stop
+    g_c, h_cc = c.T @ r, c.T @ c
 
     def block(ki, kj):
-        if kinds[ki] == "band":
+        if ki in banded:
             i = banded.index(ki)
-            return jnp.diag(h_band_band[:, i, banded.index(kj)]) if kinds[kj] == "band" else h_band_c[:, i, where[kj]]
-        return h_band_c[:, banded.index(kj), where[ki]].T if kinds[kj] == "band" else h_cc[where[ki], where[kj]]
+            return jnp.diag(h_band_band[:, i, banded.index(kj)]) if kj in banded else h_band_c[:, i, where[kj]]
+        return h_band_c[:, banded.index(kj), where[ki]].T if kj in banded else h_cc[where[ki], where[kj]]
 
-    if not names:
-        return jnp.zeros((0,), r.dtype), jnp.zeros((0, 0), r.dtype)
-    grad = jnp.concatenate([g_band[:, banded.index(k)] if kinds[k] == "band" else g_c[where[k]] for k in names])
+    grad = jnp.concatenate([g_band[:, banded.index(k)] if k in banded else g_c[where[k]] for k in names])
     return grad, jnp.concatenate([jnp.concatenate([block(ki, kj) for kj in names], axis=1) for ki in names], axis=0)
-
-
-def _spread_size(col) -> int:
-    """The number of entries of a shape or scalar parameter from its factored column."""
-    kind, c = col
-    return 1 if kind == "scalar" else c[1].shape[1]
 
 
 def _dir_sum(problem: Problem, x):

@@ -109,7 +109,8 @@ def evaluate(material: Material, measurement: Measurement, *, dtype: DTypeLike |
     pairs, index = measurement.directions()
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
-    return _by_blocks(_grid_values, material.structure, params, np.asarray(pairs, dtype=dt), _NORMAL_PAIR)[index, measurement.band]
+    values = by_blocks(lambda block: _grid_values(material.structure, params, block), np.asarray(pairs, dtype=dt), _NORMAL_PAIR)
+    return values[index, measurement.band]
 
 
 def evaluate_at(
@@ -146,7 +147,8 @@ def evaluate_at(
         raise ValueError("give the directions either as angles (theta_i and theta_o, with phi_i, phi_o) or as unit vectors (l and v)")
     if wavelength_nm is not None and material.wavelength_nm is None:
         raise ValueError(f"material {material.name!r} has RGB channels; it has no values at wavelengths")
-    if wavelength_nm is not None and not np.all(np.isfinite(np.asarray(wavelength_nm, dtype=float)) & (np.asarray(wavelength_nm, dtype=float) > 0)):
+    wl = None if wavelength_nm is None else np.asarray(wavelength_nm, dtype=float)
+    if wl is not None and not np.all(np.isfinite(wl) & (wl > 0)):
         raise ValueError(f"wavelength_nm must be positive finite numbers of nm, got {np.asarray(wavelength_nm).tolist()!r}")
     params = material.params_at(wavelength_nm)
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
@@ -168,7 +170,7 @@ def evaluate_at(
                 at = np.unravel_index(np.argmax(np.abs(length - 1)), length.shape)
                 raise ValueError(f"{name} must be unit vectors: |{name}{_index(at)}| = {float(length[at]):.6g}")
         shape, rows, run, pad = lv[0].shape[:-1], np.concatenate([a.reshape(-1, 3) for a in lv], axis=1), _vector_values, _NORMAL_VECTORS
-    values = _by_blocks(run, material.structure, params, rows.astype(dt), pad)
+    values = by_blocks(lambda block: run(material.structure, params, block), rows.astype(dt), pad)
     return values.reshape(*shape, values.shape[-1])
 
 
@@ -199,12 +201,6 @@ def _block_rows(n: int) -> int:
     while size < min(n, EVAL_BLOCK):
         size *= 4
     return min(size, EVAL_BLOCK)
-
-
-def _by_blocks(run: Callable[..., Array], structure: Structure, params: Params, rows: np.ndarray, pad: tuple[float, ...]) -> np.ndarray:
-    """``run(structure, params, block)`` over ``rows`` (n, k) by :func:`by_blocks`: the values
-    (n, bands), as NumPy."""
-    return by_blocks(lambda block: run(structure, params, block), rows, pad)
 
 
 def by_blocks(run: Callable[[np.ndarray], Array], rows: np.ndarray, pad: tuple[float, ...]) -> np.ndarray:
