@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import ctfit
-from ctfit._fitting import problem as problem_module
+from ctfit._fitting import problem as problem_module, structure_selection
 from ctfit._fitting.least_squares import fit_to_tolerance, prefetch_fit
 from ctfit._fitting.seeded_solve import STATIONARY_TOLERANCE
 from ctfit._fitting.structure_selection import SCREEN_TOLERANCE
@@ -170,3 +170,42 @@ def test_a_fit_whose_programs_are_stored_imports_neither_equinox_optimistix_nor_
     first, second = run(), run()
     assert first.returncode == 0 and second.returncode == 0, first.stderr[-2000:] + second.stderr[-2000:]
     assert second.stdout.splitlines()[-1] == "[]"
+
+
+def _metal(n_pairs: int, seed: int) -> ctfit.Measurement:
+    """Copper-coloured metal data: a plastic (index at most 2.5) cannot reach its specular part."""
+    truth = ctfit.Material(ctfit.Structure(lobes=1, diffuse="F0/pi"), ctfit.Params(s=np.asarray(0.9), m=np.array([0.25]), w=np.ones(1),
+                                                                                    f0=np.array([0.95, 0.64, 0.54])), channels=("R", "G", "B"))
+    return ctfit.simulate(truth, n_pairs=n_pairs, noise=0.01, seed=seed)
+
+
+def test_a_candidate_that_cannot_describe_the_data_stops_at_its_step_budget_and_the_choice_is_unchanged(monkeypatch):
+    """A plastic fitted to a metal's data crawls (s → 1 while R_d grows); stopped at
+    CANDIDATE_STEPS it loses even at its reach, so it is not solved on, and the choice and its fit
+    are those of candidates all solved to max_steps."""
+    data = _metal(500, 1)
+    best, tried = ctfit.choose_structure(data, lobes=(1,))
+    stopped = [r for st, r in tried if r.stats["fit_status"] == "max_steps"]
+    assert stopped and all(r.material.structure.family == "plastic" and r.stats["steps"] == structure_selection.CANDIDATE_STEPS for r in stopped)
+    chosen = next(r for st, r in tried if st == best.material.structure)
+    for r in stopped:
+        reach = structure_selection._reach(r)
+        assert reach.stats["cost"] < r.stats["cost"] and reach.stats["bic"] < r.stats["bic"] and r.stats["bic"] - reach.stats["bic"] > 0
+        assert not structure_selection._better(reach, chosen, len(data), heldout=False)
+    monkeypatch.setattr(structure_selection, "CANDIDATE_STEPS", 256)  # every candidate solved to max_steps
+    full_best, full_tried = ctfit.choose_structure(data, lobes=(1,))
+    assert full_best.material.structure == best.material.structure and best.converged
+    assert best.stats["cost"] == pytest.approx(full_best.stats["cost"], rel=1e-9)
+    assert sum(r.stats["steps"] for _, r in tried) < sum(r.stats["steps"] for _, r in full_tried)
+
+
+def test_a_candidate_stopped_at_its_budget_is_solved_on_where_that_could_change_the_choice(monkeypatch):
+    data = _plastic(300, 2)
+    free_best, _ = ctfit.choose_structure(data, lobes=(1, 2))
+    monkeypatch.setattr(structure_selection, "CANDIDATE_STEPS", 2)  # every candidate stops at 2 steps
+    best, tried = ctfit.choose_structure(data, lobes=(1, 2))
+    assert best.material.structure == free_best.material.structure
+    assert best.stats["cost"] == pytest.approx(free_best.stats["cost"], rel=1e-9)
+    chosen = next(r for st, r in tried if st == best.material.structure)
+    assert chosen.stats["steps"] > 2 and chosen.converged  # solved on from where the budget stopped it
+    assert any(r.stats["fit_status"] == "max_steps" for _, r in tried)  # others lose even at their reach: left as they stopped

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import concurrent.futures
+import dataclasses
 import os
 import queue
 from collections.abc import Callable, Iterable, Sequence
@@ -147,8 +148,9 @@ def choose_structure(
     :func:`heldout_error`; their BICs scaled to the whole data for the table;
     ``stats["structure_screening"]`` the sizes). The candidates are fitted without the report
     (``report=False``: no standard errors, residual summary or warnings; their ``quality`` holds the median
-    relative error alone); the structure chosen is then fitted to all the data, with the report, from its
-    candidate's fit. ``fresnel``: "f0" (default) or "conductor" for a metal. Returns the best fit and
+    relative error alone), each seed :data:`CANDIDATE_STEPS` steps at most (solved on where that could change
+    the choice: :class:`_Candidates`); the structure chosen is then fitted to all the data, with the report,
+    from its candidate's fit. ``fresnel``: "f0" (default) or "conductor" for a metal. Returns the best fit and
     every (structure, fit) tried, in order.
 
     >>> import numpy as np, ctfit
@@ -165,19 +167,16 @@ def choose_structure(
     user_start = kwargs.pop("start", None)
     given = user_start is None  # the choice gives nested starts unless the caller gave a start
     tried: list[tuple[Structure, FitResult]] = []
+    candidates = _Candidates(screen, held, n_full, tolerance, kwargs)
 
     def fit_screen(st: Structure, start: Params | None, seeded: bool = True) -> FitResult:
-        res = fit_to_tolerance(screen, st, start=start if given else user_start, tolerance=tolerance, report=False, **_seeding(kwargs, given and not seeded))
-        res.stats["quality"] = {"median_relative_error": model_median_error(res, screen)}
-        if held is not None:
-            res.stats["heldout_median_relative_error"] = heldout_error(res, held)
-        return res
+        return candidates.fit(st, start if given else user_start, given and not seeded)
 
     def fit_tried(st: Structure, start: Params | None, seeded: bool = True) -> FitResult:
         tried.append((st, fit_screen(st, start, seeded)))
         return tried[-1][1]
 
-    better = lambda new, old: _better(new, old, n_full, held is not None)
+    better = candidates.better
 
     # Each stage's later fits have their programs made (loaded or compiled) in the background
     # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
@@ -319,6 +318,89 @@ CHOICE_GAIN = 0.02
 """Compared on held-out pairs, a candidate with more parameters is chosen over one with fewer only
 if its median relative error there is lower by more than this fraction; one with fewer only
 if not higher by more than it (:func:`_better`)."""
+
+
+CANDIDATE_STEPS = 64
+"""Levenberg–Marquardt steps each seed of a candidate of the data-chosen default gets before the
+candidates are compared (``max_steps`` if fewer). A candidate stopped there is solved on, from
+where it stopped and up to ``max_steps`` in all, only where that could change a comparison
+(:class:`_Candidates`): most never need more, but one that cannot describe the data may crawl
+for hundreds of steps (a plastic on a metal's data: its index at its bound, s → 1 while R_d
+grows, 737 steps to converge to a cost twice the metal's)."""
+CANDIDATE_REACH = (2.0, 0.1)
+"""How much lower a candidate stopped at :data:`CANDIDATE_STEPS` is taken to be able to end
+(:func:`_reach`): this multiple of the relative decrease one more Gauss–Newton step promises
+(``gauss_newton_decrease``), and this fraction of its cost at least."""
+
+
+def _reach(res: FitResult) -> FitResult:
+    """``res``, a fit stopped at its step budget, as it might end if solved on: its cost lower by
+    the fraction :data:`CANDIDATE_REACH` gives (at most 99.9 %), its BIC and held-out median
+    relative error with it (the error taken ∝ √cost). A stand-in for comparisons only."""
+    s = res.stats
+    factor, least = CANDIDATE_REACH
+    x = min(max(factor * float(s["gauss_newton_decrease"]), least), 0.999)
+    n = max(int(s["n_samples"]), 1)
+    bic = s["bic"] - 2 * s["cost"] * x if s["loss"] == "sigma" else s["bic"] + n * np.log1p(-x)
+    stats = s.copy()
+    stats["cost"], stats["bic"] = s["cost"] * (1 - x), bic
+    if "heldout_median_relative_error" in s:
+        stats["heldout_median_relative_error"] = s["heldout_median_relative_error"] * np.sqrt(1 - x)
+    return dataclasses.replace(res, stats=stats)
+
+
+class _Candidates:
+    """The data-chosen default's candidates, fitted to the screening sample without the report,
+    each seed :data:`CANDIDATE_STEPS` steps at most, and compared (:meth:`better`). A candidate
+    stopped at that budget is solved on where its :func:`_reach` would change a comparison; one
+    that loses even so keeps its fit as it stopped (``fit_status`` "max_steps" in the table)."""
+
+    def __init__(self, screen: Measurement, held: Measurement | None, n_full: int, tolerance: float | None, kwargs: dict):
+        self.screen, self.held, self.n_full, self.tolerance, self.kwargs = screen, held, n_full, tolerance, kwargs
+        self.max_steps = int(kwargs.get("max_steps", 256))
+        self.budget = min(CANDIDATE_STEPS, self.max_steps)
+        self.solved_on: set[int] = set()  # id() of the fits solved on past the budget
+
+    def fit(self, st: Structure, start: Params | None, start_only: bool) -> FitResult:
+        """``st`` fitted from ``start`` (``start_only``: from it alone, else with the grid's seeds)."""
+        res = fit_to_tolerance(self.screen, st, start=start, tolerance=self.tolerance, report=False,
+                               **dict(_seeding(self.kwargs, start_only), max_steps=self.budget))
+        return self._judged(res)
+
+    def _judged(self, res: FitResult) -> FitResult:
+        res.stats["quality"] = {"median_relative_error": model_median_error(res, self.screen)}
+        if self.held is not None:
+            res.stats["heldout_median_relative_error"] = heldout_error(res, self.held)
+        return res
+
+    def stopped(self, res: FitResult) -> bool:
+        """Whether ``res`` stopped at the budget, short of ``max_steps``, and was not solved on."""
+        return res.stats.get("fit_status") == "max_steps" and self.budget < self.max_steps and id(res) not in self.solved_on
+
+    def solve_on(self, res: FitResult) -> None:
+        """``res`` solved on from where it stopped (its seed alone), up to ``max_steps`` steps in
+        all; ``res`` becomes that fit (its steps and time those of both)."""
+        more = fit_to_tolerance(self.screen, res.material.structure, start=res.material.params, tolerance=self.tolerance, report=False,
+                                **dict(_seeding(self.kwargs, True), max_steps=self.max_steps - self.budget))
+        more = self._judged(more)
+        more.stats["steps"] += res.stats["steps"]
+        more.stats["time_s"] += res.stats["time_s"]
+        for f in dataclasses.fields(res):
+            setattr(res, f.name, getattr(more, f.name))
+        self.solved_on.add(id(res))
+
+    def better(self, new: FitResult, old: FitResult) -> bool:
+        """:func:`_better`, each fit stopped at the budget first solved on where its :func:`_reach`
+        would give the other verdict."""
+        heldout = self.held is not None
+        while True:
+            verdict = _better(new, old, self.n_full, heldout)
+            if not verdict and self.stopped(new) and _better(_reach(new), old, self.n_full, heldout):
+                self.solve_on(new)
+            elif verdict and self.stopped(old) and not _better(new, _reach(old), self.n_full, heldout):
+                self.solve_on(old)
+            else:
+                return verdict
 
 
 def _better(new: FitResult, old: FitResult, n_full: int, heldout: bool) -> bool:
