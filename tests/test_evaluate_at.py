@@ -56,17 +56,21 @@ def test_any_number_of_directions_compiles_at_most_three_programs_and_padding_ch
     mat = ctfit.Material(ctfit.Structure(lobes=2, diffuse="F0/pi"), ctfit.Params(s=np.asarray(0.7), m=np.array([0.15, 0.4]), w=np.array([0.3, 0.7]),
                          f0=np.array([0.3, 0.5, 0.9])), wavelength_nm=np.array([450.0, 550.0, 650.0]))
     rng = np.random.default_rng(3)
+    sizes = (1, 2, 7, 511, 512, 513, 1500, 2049, 8191, 8193, 20_000)
+    angles = [tuple(rng.uniform(0, hi, n) for hi in (89, 89, 360, 360)) for n in sizes]
+    samples = [ctfit.simulate(mat, n, seed=n) for n in sizes]
+    # The model on every size's directions at once (one reference program, not one per size): values per direction do not depend on the others
+    model = lambda ti, pi, to, po: np.asarray(jax.jit(ctfit.brdf, static_argnums=0)(mat.structure, mat.params, ctfit.geometry_from_angles_deg(ti, pi, to, po)))
+    ends = np.cumsum(sizes)[:-1]
+    exact_at = np.split(model(*(np.concatenate([a[j] for a in angles]) for j in (0, 2, 1, 3))), ends)
+    exact_each = np.split(model(*(np.concatenate([getattr(d, k) for d in samples]) for k in ("theta_i", "phi_i", "theta_o", "phi_o"))),
+                          np.cumsum([len(d) for d in samples])[:-1])
     grid_before, vectors_before = evaluation._grid_values._cache_size(), evaluation._vector_values._cache_size()
-    for n in (1, 2, 7, 511, 512, 513, 1500, 2049, 8191, 8193, 20_000):
-        ti, to, pi, po = rng.uniform(0, 89, n), rng.uniform(0, 89, n), rng.uniform(0, 360, n), rng.uniform(0, 360, n)
+    for n, (ti, to, pi, po), sample, exact, each in zip(sizes, angles, samples, exact_at, exact_each):
         got = ctfit.evaluate_at(mat, theta_i=ti, phi_i=pi, theta_o=to, phi_o=po)
-        exact = np.asarray(jax.jit(ctfit.brdf, static_argnums=0)(mat.structure, mat.params, ctfit.geometry_from_angles_deg(ti, pi, to, po)))
         assert got.shape == (n, 3)
         np.testing.assert_allclose(got, exact, rtol=1e-13, atol=0)
-        sample = ctfit.simulate(mat, n, seed=n)
-        each = ctfit.geometry_from_angles_deg(sample.theta_i, sample.phi_i, sample.theta_o, sample.phi_o)
-        exact = np.asarray(jax.jit(ctfit.brdf, static_argnums=0)(mat.structure, mat.params, each))[np.arange(len(sample)), sample.band]
-        np.testing.assert_allclose(ctfit.evaluate(mat, sample), exact, rtol=1e-13, atol=0)
+        np.testing.assert_allclose(ctfit.evaluate(mat, sample), each[np.arange(len(sample)), sample.band], rtol=1e-13, atol=0)
         l = np.stack([np.sin(np.deg2rad(ti)), np.zeros(n), np.cos(np.deg2rad(ti))], -1)
         v = np.stack([-np.sin(np.deg2rad(to)), np.zeros(n), np.cos(np.deg2rad(to))], -1)
         np.testing.assert_allclose(ctfit.evaluate_at(mat, l=l, v=v), ctfit.evaluate_at(mat, theta_i=ti, theta_o=to, phi_o=180.0), rtol=1e-10, atol=1e-300)
