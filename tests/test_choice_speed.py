@@ -5,6 +5,7 @@ computed once, and the run-once programs compiled for a short compile (COMPILE_E
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import jax.numpy as jnp
@@ -192,6 +193,8 @@ def test_a_candidate_that_cannot_describe_the_data_stops_at_its_step_budget_and_
         reach = structure_selection._reach(r)
         assert reach.stats["cost"] < r.stats["cost"] and reach.stats["bic"] < r.stats["bic"] and r.stats["bic"] - reach.stats["bic"] > 0
         assert not structure_selection._better(reach, chosen, len(data), heldout=False)
+    unknown = dataclasses.replace(stopped[0], stats={**stopped[0].stats, "gauss_newton_decrease": float("nan")})
+    assert structure_selection._reach(unknown).stats["cost"] == pytest.approx(1e-3 * stopped[0].stats["cost"])  # no promise known: the most
     monkeypatch.setattr(structure_selection, "CANDIDATE_STEPS", 256)  # every candidate solved to max_steps
     full_best, full_tried = ctfit.choose_structure(data, lobes=(1,))
     assert full_best.material.structure == best.material.structure and best.converged

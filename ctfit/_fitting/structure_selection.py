@@ -335,11 +335,12 @@ CANDIDATE_REACH = (2.0, 0.1)
 
 def _reach(res: FitResult) -> FitResult:
     """``res``, a fit stopped at its step budget, as it might end if solved on: its cost lower by
-    the fraction :data:`CANDIDATE_REACH` gives (at most 99.9 %), its BIC and held-out median
+    the fraction :data:`CANDIDATE_REACH` gives (at most, and where the promise is not finite, 99.9 %), its BIC and held-out median
     relative error with it (the error taken ∝ √cost). A stand-in for comparisons only."""
     s = res.stats
     factor, least = CANDIDATE_REACH
-    x = min(max(factor * float(s["gauss_newton_decrease"]), least), 0.999)
+    promise = float(s["gauss_newton_decrease"])
+    x = min(max(factor * promise, least), 0.999) if np.isfinite(promise) else 0.999  # no promise known: the most
     n = max(int(s["n_samples"]), 1)
     bic = s["bic"] - 2 * s["cost"] * x if s["loss"] == "sigma" else s["bic"] + n * np.log1p(-x)
     stats = s.copy()
