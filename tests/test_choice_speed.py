@@ -212,3 +212,12 @@ def test_a_candidate_stopped_at_its_budget_is_solved_on_where_that_could_change_
     chosen = next(r for st, r in tried if st == best.material.structure)
     assert chosen.stats["steps"] > 2 and chosen.converged  # solved on from where the budget stopped it
     assert any(r.stats["fit_status"] == "max_steps" for _, r in tried)  # others lose even at their reach: left as they stopped
+
+
+def test_only_levenberg_marquardt_candidates_get_the_step_budget():
+    """The other solvers' one program is compiled per step limit: their candidates keep max_steps."""
+    data = _metal(20, 1)
+    budget = lambda **kw: structure_selection._Candidates(data, None, len(data), None, kw).budget
+    assert budget() == budget(solver="lm", max_steps=256) == structure_selection.CANDIDATE_STEPS
+    assert budget(solver="lm", max_steps=10) == 10
+    assert budget(solver="dogleg", max_steps=256) == budget(solver="bfgs", max_steps=256) == 256

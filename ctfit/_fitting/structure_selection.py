@@ -322,7 +322,7 @@ if not higher by more than it (:func:`_better`)."""
 
 CANDIDATE_STEPS = 64
 """Levenberg–Marquardt steps each seed of a candidate of the data-chosen default gets before the
-candidates are compared (``max_steps`` if fewer). A candidate stopped there is solved on, from
+candidates are compared (``max_steps`` if fewer; the solver "lm" only). A candidate stopped there is solved on, from
 where it stopped and up to ``max_steps`` in all, only where that could change a comparison
 (:class:`_Candidates`): most never need more, but one that cannot describe the data may crawl
 for hundreds of steps (a plastic on a metal's data: its index at its bound, s → 1 while R_d
@@ -359,7 +359,9 @@ class _Candidates:
     def __init__(self, screen: Measurement, held: Measurement | None, n_full: int, tolerance: float | None, kwargs: dict):
         self.screen, self.held, self.n_full, self.tolerance, self.kwargs = screen, held, n_full, tolerance, kwargs
         self.max_steps = int(kwargs.get("max_steps", 256))
-        self.budget = min(CANDIDATE_STEPS, self.max_steps)
+        # Levenberg–Marquardt on chunks takes its step limit at run time; the other solvers' one
+        # program is compiled per limit, so they keep theirs (a budget would compile two more)
+        self.budget = min(CANDIDATE_STEPS, self.max_steps) if kwargs.get("solver", "lm") == "lm" else self.max_steps
         self.solved_on: set[int] = set()  # id() of the fits solved on past the budget
 
     def fit(self, st: Structure, start: Params | None, start_only: bool) -> FitResult:
