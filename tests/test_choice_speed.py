@@ -191,7 +191,7 @@ def test_a_candidate_that_cannot_describe_the_data_stops_at_its_step_budget_and_
     chosen = next(r for st, r in tried if st == best.material.structure)
     for r in stopped:
         reach = structure_selection._reach(r)
-        assert reach.stats["cost"] < r.stats["cost"] and reach.stats["bic"] < r.stats["bic"] and r.stats["bic"] - reach.stats["bic"] > 0
+        assert reach.stats["cost"] < r.stats["cost"] and reach.stats["bic"] < r.stats["bic"]
         assert not structure_selection._better(reach, chosen, len(data), heldout=False)
     unknown = dataclasses.replace(stopped[0], stats={**stopped[0].stats, "gauss_newton_decrease": float("nan")})
     assert structure_selection._reach(unknown).stats["cost"] == pytest.approx(1e-3 * stopped[0].stats["cost"])  # no promise known: the most

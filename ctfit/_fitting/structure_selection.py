@@ -322,11 +322,11 @@ if not higher by more than it (:func:`_better`)."""
 
 CANDIDATE_STEPS = 64
 """Levenberg–Marquardt steps each seed of a candidate of the data-chosen default gets before the
-candidates are compared (``max_steps`` if fewer; the solver "lm" only). A candidate stopped there is solved on, from
-where it stopped and up to ``max_steps`` in all, only where that could change a comparison
-(:class:`_Candidates`): most never need more, but one that cannot describe the data may crawl
-for hundreds of steps (a plastic on a metal's data: its index at its bound, s → 1 while R_d
-grows, 737 steps to converge to a cost twice the metal's)."""
+candidates are compared (``max_steps`` if fewer; the solver "lm" only). A candidate stopped
+there is solved on, from where it stopped and up to ``max_steps`` in all, only where that could
+change a comparison (:class:`_Candidates`): most never need more, but one that cannot describe
+the data may crawl for hundreds of steps (a plastic on a metal's data: its index at its bound,
+s → 1 while R_d grows, 737 steps to converge to a cost twice the metal's)."""
 CANDIDATE_REACH = (2.0, 0.1)
 """How much lower a candidate stopped at :data:`CANDIDATE_STEPS` is taken to be able to end
 (:func:`_reach`): this multiple of the relative decrease one more Gauss–Newton step promises
@@ -335,8 +335,9 @@ CANDIDATE_REACH = (2.0, 0.1)
 
 def _reach(res: FitResult) -> FitResult:
     """``res``, a fit stopped at its step budget, as it might end if solved on: its cost lower by
-    the fraction :data:`CANDIDATE_REACH` gives (at most, and where the promise is not finite, 99.9 %), its BIC and held-out median
-    relative error with it (the error taken ∝ √cost). A stand-in for comparisons only."""
+    the fraction :data:`CANDIDATE_REACH` gives (at most, and where the promise is not finite,
+    99.9 %), its BIC and held-out median relative error with it (the error taken ∝ √cost). A
+    stand-in for comparisons only."""
     s = res.stats
     factor, least = CANDIDATE_REACH
     promise = float(s["gauss_newton_decrease"])
