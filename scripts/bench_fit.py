@@ -19,7 +19,8 @@ scratch folder (``_bench_fit_data.py`` describes them).
 - **Warm from another size**: each scattered file fitted with a cache that one fit of a 50,000-sample
   file (``--small``: 5,000) filled, put back before every run (issue 21).
 - **Batch**: 256 files × 2,000 samples of one geometry (``--small``: 8), one ``ctfit fit DIR -o
-  OUT`` process against one SciPy process looping over the files.
+  OUT`` process against one SciPy process looping over the files; its floor, a bare JAX process
+  that reads the files one after another with ctfit's reader.
 - **MERL-sized**: a MERL ``.binary`` file (every cell above the horizon: 1,096,216 pairs × RGB;
   ``--small``: 100,000 pairs), ``ctfit fit FILE --no-diffuse`` warm: time and peak memory.
 - **Per texel**: ``ctfit.fit_batch(geometry, values=...)`` on 100,000 texels × 201 samples (67
@@ -66,6 +67,10 @@ READ_FLOOR = ("import sys; from ctfit.internal import start_read_ahead; ahead = 
               + "; import ctfit; ahead.measurement() if ahead else ctfit.read_measurement(sys.argv[1])")
 """The floor of a fit of one file: the bare JAX process, and reading the file as ``ctfit fit`` does
 (a CSV of 8 MiB or more parsed by a helper process while JAX is imported: ``ctfit/_io/read_ahead.py``)."""
+READ_DIR_FLOOR = (JAX_FLOOR + "; import pathlib, sys, ctfit; "
+                  "[ctfit.read_measurement(p) for p in sorted(pathlib.Path(sys.argv[1]).glob('*.csv'))]")
+"""The floor of a fit of a folder: the bare JAX process, and reading its files one after another
+with ctfit's reader (``ctfit fit DIR`` reads them in a thread while it fits)."""
 IN_PROCESS = r"""
 import json, sys, time
 import jax
@@ -258,10 +263,11 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     cache = b.folder("batch-cache")
     b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o",
              str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
-    t_scipy, t_ctfit = [], []
+    t_scipy, t_ctfit, t_floor = [], [], []
     for _ in range(b.repeat):
         r, sp = scipy_run(b, start, files)
         t_scipy.append(r.wall_s)
+        t_floor.append(run([PY, "-c", READ_DIR_FLOOR, str(folder / "files")], env=b.env).check("a bare JAX process reading the files").wall_s)
         out = b.folder("batch-out")
         r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o", str(out)],
                        cache, "ctfit fit DIR")
@@ -272,11 +278,13 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     ct_cost = {k.split(".")[0]: d["fit"]["cost"] for k, d in docs.items()}
     rel = np.array([(ct_cost[k] - sp_cost[k]) / sp_cost[k] for k in sp_cost if k in ct_cost])
     conv = sum(bool(d["fit"]["converged"]) for d in docs.values())
-    res = dict(files=n_files, samples=n_samples, scipy=median(t_scipy), ctfit=median(t_ctfit), peak_mb=peak, results=len(docs), converged=conv,
+    res = dict(files=n_files, samples=n_samples, scipy=median(t_scipy), ctfit=median(t_ctfit), read_floor=median(t_floor), peak_mb=peak,
+               results=len(docs), converged=conv,
                fit_s=sum(d["fit"]["time_s"] for d in docs.values()),
                same=int(np.sum(np.abs(rel) <= 1e-6)), ctfit_lower=int(np.sum(rel < -1e-6)), scipy_lower=int(np.sum(rel > 1e-6)),
                worst=float(np.max(np.abs(rel))) if rel.size else float("nan"))
-    print(f"batch {n_files} × {n_samples:,}: SciPy loop {res['scipy']:.2f} s, ctfit fit DIR {res['ctfit']:.2f} s ({res['scipy'] / res['ctfit']:.1f}×); "
+    print(f"batch {n_files} × {n_samples:,}: SciPy loop {res['scipy']:.2f} s, ctfit fit DIR {res['ctfit']:.2f} s ({res['scipy'] / res['ctfit']:.1f}×), "
+          f"floor (bare JAX process reading the files) {res['read_floor']:.2f} s; "
           f"{res['results']} results, {conv} converged; cost equal (1e-6) in {res['same']}, lower for ctfit in {res['ctfit_lower']}, "
           f"for SciPy in {res['scipy_lower']}", flush=True)
     return res
@@ -518,8 +526,13 @@ def targets_21(fl: dict, cases: list[dict], bat: dict | None) -> list[tuple[str,
         ratio_row(f"{c['n']:,} samples, first run on a machine (cold): ≥ 0.67× the SciPy script", c["cold"], c["scipy"], 0.67, *read_floor(c),
                   f", {compiling:.2f} s of it compiling ctfit's programs (cold fit() − warm fit())")
     if bat and "failed" not in bat:
+        calls = f" (of ctfit's time, its `fit_batch` calls take {_s(bat['fit_s'])}: the solves and each file's report)"
+        if "read_floor" in bat:
+            floor_at, what = bat["read_floor"], f"bare JAX process reading the {bat['files']} files one after another{calls}"
+        else:
+            floor_at, what = fl["jax"], f"bare JAX process{calls}"
         ratio_row(f"{bat['files']} files × {bat['samples']:,} samples, one process: ≥ 20× the SciPy loop", bat["ctfit"], bat["scipy"], 20.0,
-                  fl["jax"], f"bare JAX process (of ctfit's time, its `fit_batch` calls take {_s(bat['fit_s'])}: the solves and each file's report)")
+                  floor_at, what)
     return rows
 
 

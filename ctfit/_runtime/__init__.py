@@ -12,6 +12,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "compile_cache": ['enable_compilation_cache', 'matplotlib_config_fallback'],
         "extras": ['EXTRAS', 'MissingExtraError', 'need'],
         "memory": ['return_large_blocks'],
+        "program_preload": ['Preload', 'programs_asked', 'record_programs', 'start_preload'],
         "progress": ['ProgressLines', 'bar', 'closed_pipe', 'echo', 'progress_enabled', 'progress_mode'],
         "stored_programs": ['COMPILE_EFFORT', 'cached_call', 'kept_program', 'prepare_runtime', 'program_made', 'stored_program'],
     },

@@ -481,6 +481,7 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
         jitted, rebuild = eqx.filter_jit(fn), split_arrays(args)[1]
         return (lambda *ls: jitted(*rebuild(ls))), None
     key = f"{name}-{digest}"
+    _used.setdefault(key, (name, digest))
     run = _recall(key)
     if run is not None:
         return run, None
@@ -495,6 +496,9 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
 
 _making: dict[str, threading.Lock] = {}  # key → the lock of the thread making that program
 _making_guard = threading.Lock()
+_used: dict[str, tuple[str, str]] = {}  # key → (name, digest) of every program asked for, in order (program_preload.py)
+_preloaded: dict[str, Callable] = {}  # key → a stored program loaded ahead of its use, not yet tried (program_preload.py)
+_missed: list[Callable[[str], None]] = []  # told the key of a program asked for that was not loaded ahead (program_preload.py)
 
 
 def _load_or_compile(name: str, fn: Callable, args: tuple, leaves: list, key: str, digest: str, options: dict):
@@ -502,9 +506,13 @@ def _load_or_compile(name: str, fn: Callable, args: tuple, leaves: list, key: st
     trace, compile and store it. (program, its output on ``leaves`` or None)."""
     store = _store()
     path = _entry(store, name, digest) if store is not None else None
-    if path is not None and path.is_file():
+    ahead = _preloaded.pop(key, None)  # loaded in the background (program_preload.py): tried here as any other
+    if ahead is None:
+        for told in list(_missed):
+            told(key)
+    if path is not None and (ahead is not None or path.is_file()):
         try:
-            run = _load(path, key)
+            run = ahead if ahead is not None else _load(path, key)
             out = jax.block_until_ready(run(*leaves))  # a damaged program fails here, not later
         except FileNotFoundError:
             pass  # deleted meanwhile (another process kept its store under STORE_LIMIT): compiled below

@@ -1,0 +1,137 @@
+"""The programs a command used last time, loaded from the store while it reads its files.
+
+A warm fit still loads its compiled programs from the store (:mod:`~ctfit._runtime.stored_programs`:
+about 0.1–0.2 s for one structure), and it can ask for them only once its data is read: their
+keys hold the data's bands and layout. The same command with the same options (a user fitting
+one file of an instrument after another) asks for the same programs; so the ``ctfit fit`` command
+records, at its end, the programs it asked for (:func:`record_programs`: their names and keys, in a
+small file of the store named by a digest of the options that shape them), and the next run with
+those options loads them in a thread of its own while it reads its files (:func:`start_preload`).
+
+A program loaded ahead is kept aside, not used as it is: when the fit asks for it, it is tried on
+the fit's arguments as any program loaded from the store (a damaged one is dropped there, and
+compiled again). One the fit does not ask for is only dropped. The first program the fit asks for
+that the record does not name (data of other bands, say) stops the loading: the rest would be
+loaded for nothing. The thread and what it loaded end with the command (:meth:`Preload.finish`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import threading
+import time
+
+from .._io import atomic_write
+from . import stored_programs as sp
+
+__all__ = ["Preload", "programs_asked", "record_programs", "start_preload", "RECORDS_KEPT", "RECORD_PROGRAMS"]
+
+RECORDS_KEPT = 32
+"""Records kept in the store (one per set of options); beyond, the oldest are deleted."""
+
+RECORD_PROGRAMS = 96
+"""The most programs a record names (a default fit, its structure chosen among several, asks for
+about 56)."""
+
+_PREFIX = "recent-"
+
+
+def _record_path(signature: str):
+    store = sp._store()
+    if store is None:
+        return None
+    return store / f"{_PREFIX}{hashlib.sha256(signature.encode()).hexdigest()[:32]}.json"
+
+
+class Preload:
+    """A background load of the programs a record names (:func:`start_preload`)."""
+
+    def __init__(self, entries: list[tuple[str, str]]):
+        self._stop = threading.Event()
+        self.loaded: list[str] = []
+        self._keys = {f"{name}-{digest}" for name, digest in entries}
+        sp._missed.append(self._missed)
+        self._thread = threading.Thread(target=self._run, args=(entries,), name="ctfit-preload", daemon=True)
+        self._thread.start()
+
+    def _missed(self, key: str) -> None:
+        """A program the record does not name was asked for: this run's data is not like the last
+        run's (other bands, say), so the rest would be loaded for nothing."""
+        if key not in self._keys:
+            self._stop.set()
+
+    def _run(self, entries: list[tuple[str, str]]) -> None:
+        store = sp._store()
+        for name, digest in entries:
+            if self._stop.is_set() or store is None:
+                return
+            key = f"{name}-{digest}"
+            with sp._making_guard:
+                making = sp._making.setdefault(key, threading.Lock())
+            with making:  # the fit, asking for it meanwhile, waits for this load instead of making its own
+                if sp._recall(key) is not None or key in sp._preloaded:
+                    continue
+                with contextlib.suppress(Exception):  # missing or stale: the fit makes it as usual
+                    sp._preloaded[key] = sp._load(sp._entry(store, name, digest), key)
+                    self.loaded.append(key)
+
+    def finish(self) -> None:
+        """Stop after the program being loaded, wait for it, and drop what no fit asked for."""
+        self._stop.set()
+        self._thread.join()
+        with contextlib.suppress(ValueError):
+            sp._missed.remove(self._missed)
+        for key in self.loaded:
+            sp._preloaded.pop(key, None)
+
+
+def start_preload(signature: str) -> Preload | None:
+    """Start loading, in a thread, the programs the last commands of ``signature`` (a text naming
+    the options that shape its programs) recorded; None where there is no store or no record."""
+    path = _record_path(signature)
+    try:
+        entries = _entries(path) if path is not None else []
+    except (OSError, ValueError, KeyError, TypeError):  # no record, or not one of ours: nothing ahead
+        return None
+    return Preload(entries) if entries else None
+
+
+def _entries(path) -> list[tuple[str, str]]:
+    """The (name, digest) pairs a record holds; OSError, ValueError, KeyError or TypeError where it is
+    missing or malformed."""
+    entries = [(n, d) for n, d in json.loads(path.read_text())["programs"]]
+    if not all(isinstance(x, str) for e in entries for x in e):
+        raise TypeError("a record's programs are pairs of strings")
+    return entries
+
+
+def programs_asked() -> int:
+    """How many programs this process has asked the store for: a mark for :func:`record_programs`."""
+    return len(sp._used)
+
+
+def record_programs(signature: str, since: int = 0) -> None:
+    """Record the programs this process asked for after the mark ``since`` (:func:`programs_asked`),
+    in order, for the next command of ``signature`` to load ahead, then those of the record before
+    not among them (one folder of small files and one large file, fitted in turn, each find theirs),
+    :data:`RECORD_PROGRAMS` at most; keep :data:`RECORDS_KEPT` records."""
+    path = _record_path(signature)
+    programs = [list(e) for e in list(sp._used.values())[since:]]
+    if path is None or not programs:
+        return
+    with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
+        programs += [list(e) for e in _entries(path) if list(e) not in programs]
+    with contextlib.suppress(OSError):
+        atomic_write(path, [json.dumps({"programs": programs[:RECORD_PROGRAMS]}).encode()], quiet=True)
+        records = sorted(path.parent.glob(f"{_PREFIX}*.json"), key=_mtime)
+        for old in records[: max(len(records) - RECORDS_KEPT, 0)]:
+            old.unlink(missing_ok=True)
+
+
+def _mtime(path) -> float:
+    try:
+        return path.stat().st_mtime
+    except OSError:  # deleted meanwhile (another process keeping its records)
+        return time.time()

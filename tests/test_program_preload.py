@@ -1,0 +1,203 @@
+"""ctfit/_runtime/program_preload.py: the programs a command used last time, loaded from the store
+while the next one with the same options reads its files."""
+
+from __future__ import annotations
+
+import json
+import threading
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import ctfit
+from ctfit._cli.fit_command import PROGRAM_OPTIONS, program_signature
+from ctfit._fitting import chunked_fit
+from ctfit._runtime import program_preload as preload, stored_programs as _aot
+from ctfit.cli import app
+
+
+def _fn(a, x, power):
+    return {"y": a * 2.0 + x**power}
+
+
+def _toy(power: int = 2):
+    return _aot.cached_call("toy", _fn, jnp.arange(3.0), jnp.array([1.0, 2.0, 3.0]), power)
+
+
+@pytest.fixture
+def loads(tmp_path, monkeypatch):
+    """The store in ``tmp_path`` (JAX's persistent cache off, as in tests/test_aot.py), its loads
+    from disk counted (a list of keys), the memory of programs and of what was asked emptied."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    monkeypatch.setattr(_aot, "_store", lambda: tmp_path)
+    monkeypatch.setattr(_aot, "_memory", {})
+    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
+    folder = jax.config.jax_compilation_cache_dir
+    jax.config.update("jax_compilation_cache_dir", None)
+    compilation_cache.reset_cache()
+    seen: list[str] = []
+    real = _aot._load
+
+    def counted(path, key):
+        seen.append(key)
+        return real(path, key)
+
+    monkeypatch.setattr(_aot, "_load", counted)
+    monkeypatch.setattr(_aot, "_used", {})
+    monkeypatch.setattr(_aot, "_preloaded", {})
+    monkeypatch.setattr(_aot, "_missed", [])
+    yield seen
+    jax.config.update("jax_compilation_cache_dir", folder)
+    compilation_cache.reset_cache()
+
+
+def _no_tracing(monkeypatch):
+    def traced(*a, **k):
+        raise AssertionError("traced again although the program was loaded ahead")
+
+    monkeypatch.setattr(_aot.jax, "jit", traced)
+
+
+def test_recorded_programs_are_loaded_ahead_and_used_without_another_load(loads, monkeypatch):
+    want = _toy()
+    preload.record_programs("sig", 0)
+    monkeypatch.setattr(_aot, "_memory", {})  # as in a new process
+    ahead = preload.start_preload("sig")
+    assert ahead is not None
+    ahead._thread.join()
+    assert len(loads) == 1 and list(_aot._preloaded) == loads
+    _no_tracing(monkeypatch)
+    got = _toy()
+    np.testing.assert_array_equal(got["y"], want["y"])
+    assert len(loads) == 1 and _aot._preloaded == {}  # taken, not loaded again
+    ahead.finish()
+
+
+def test_a_damaged_program_loaded_ahead_is_dropped_with_a_warning_and_compiled_again(loads, monkeypatch):
+    _toy()
+    preload.record_programs("sig", 0)
+    monkeypatch.setattr(_aot, "_memory", {})
+    (key,) = _aot._used
+
+    def damaged(*leaves):
+        raise RuntimeError("cannot run")
+
+    _aot._preloaded[key] = damaged
+    with pytest.warns(RuntimeWarning, match="ignoring the compiled-program cache entry"):
+        got = _toy()
+    np.testing.assert_array_equal(got["y"], jnp.arange(3.0) * 2.0 + jnp.array([1.0, 4.0, 9.0]))
+
+
+def test_programs_no_fit_asks_for_are_dropped_when_the_command_ends(loads, monkeypatch):
+    _toy()
+    preload.record_programs("sig", 0)
+    monkeypatch.setattr(_aot, "_memory", {})
+    ahead = preload.start_preload("sig")
+    assert ahead is not None
+    ahead.finish()
+    assert len(loads) == 1 and _aot._preloaded == {}
+
+
+def test_a_record_names_this_run_s_programs_first_then_the_last_run_s(loads, monkeypatch):
+    _toy(2)
+    preload.record_programs("sig", 0)
+    mark = preload.programs_asked()
+    _toy(3)  # another program (its static power)
+    preload.record_programs("sig", mark)
+    (path,) = _aot._store().glob("recent-*.json")
+    names = [tuple(e) for e in json.loads(path.read_text())["programs"]]
+    assert names == list(_aot._used.values())[::-1]  # the new one first
+
+
+def test_a_missing_or_malformed_record_loads_nothing(loads):
+    assert preload.start_preload("never recorded") is None
+    path = preload._record_path("sig")
+    for text in ("not json", '{"other": 1}', '{"programs": [["toy", 3]]}', '{"programs": [["toy"]]}', '{"programs": []}'):
+        path.write_text(text)
+        assert preload.start_preload("sig") is None, text
+    preload.record_programs("sig", 0)  # nothing asked for: the record is left as it was
+    assert path.read_text() == '{"programs": []}'
+
+
+def test_records_beyond_the_limit_are_deleted_oldest_first(loads, monkeypatch):
+    import os
+
+    monkeypatch.setattr(preload, "RECORDS_KEPT", 2)
+    _toy()
+    for i, sig in enumerate(("a", "b", "c")):
+        preload.record_programs(sig, 0)
+        os.utime(preload._record_path(sig), (1000 + i, 1000 + i))
+    preload.record_programs("c", 0)
+    assert sorted(p.name for p in _aot._store().glob("recent-*.json")) == sorted(preload._record_path(s).name for s in ("b", "c"))
+
+
+def test_the_signature_names_the_options_that_shape_programs_not_the_files():
+    o = SimpleNamespace(**dict.fromkeys(PROGRAM_OPTIONS) | dict(data=["a.csv"], output="a.fit.json", lobes=2, loss="relative"))
+    same = SimpleNamespace(**vars(o) | dict(data=["b.csv"], output="out/", quiet=True))
+    assert program_signature(o, None) == program_signature(same, None)
+    assert program_signature(o, None) != program_signature(SimpleNamespace(**vars(o) | dict(lobes=3)), None)
+    assert program_signature(o, None) != program_signature(SimpleNamespace(**vars(o) | dict(float32=True)), None)
+    material = SimpleNamespace(structure="Structure(lobes=1)")
+    assert program_signature(o, material) != program_signature(o, None)
+
+
+def test_a_program_the_record_does_not_name_stops_the_loading_ahead(loads, monkeypatch):
+    _toy(2)
+    preload.record_programs("sig", 0)
+    monkeypatch.setattr(_aot, "_memory", {})
+    gate = threading.Event()
+    real = _aot._load
+
+    def slow(path, key):
+        gate.wait(5)  # the fit asks for another program before this load ends
+        return real(path, key)
+
+    monkeypatch.setattr(_aot, "_load", slow)
+    ahead = preload.start_preload("sig")
+    assert ahead is not None and not ahead._stop.is_set()
+    _toy(3)  # not in the record: a fit of other data
+    assert ahead._stop.is_set()
+    gate.set()
+    ahead.finish()
+    assert _aot._missed == [] and _aot._preloaded == {}
+
+
+def test_a_second_fit_command_with_the_same_options_takes_its_programs_loaded_ahead(tmp_path, monkeypatch):
+    """Whole ``ctfit fit`` commands in this process (its store, as a new process finds it): the
+    second, on a file of another size, asks for nothing the first's record did not name, and
+    every program loaded ahead is the one it runs."""
+    mat = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.3]), w=np.ones(1), f0=np.array([0.5, 0.8])),
+                         wavelength_nm=np.array([480.0, 620.0]))
+    for name, pairs in (("a.csv", 300), ("b.csv", 700)):
+        ctfit.write_csv(ctfit.simulate(mat, pairs, noise=0.01, seed=pairs), tmp_path / name)
+    options = ["--lobes", "1", "--no-diffuse", "--starts", "3", "--loss", "relative", "-q"]
+    run = lambda name: CliRunner().invoke(app, ["fit", str(tmp_path / name), *options, "-o", str(tmp_path / f"{name}.json")])
+    assert run("a.csv").exit_code == 0
+    for module, name, empty in ((_aot, "_memory", {}), (chunked_fit, "_programs", {}), (chunked_fit, "_made", set()), (_aot, "_preloaded", {})):
+        monkeypatch.setattr(module, name, empty)  # as in a new process
+    made: list = []
+    outside: list[str] = []  # programs asked for that the record does not name
+    real_init, real_missed = preload.Preload.__init__, preload.Preload._missed
+
+    def kept(self, entries):
+        made.append(self)
+        real_init(self, entries)
+
+    def missed(self, key):
+        if key not in self._keys:
+            outside.append(key)
+        real_missed(self, key)
+
+    monkeypatch.setattr(preload.Preload, "__init__", kept)
+    monkeypatch.setattr(preload.Preload, "_missed", missed)
+    result = run("b.csv")
+    assert result.exit_code == 0, result.output
+    (ahead,) = made
+    assert ahead.loaded and outside == []
+    assert set(ahead.loaded) <= set(_aot._memory), "a program loaded ahead was not the one run"
+    assert _aot._preloaded == {} and _aot._missed == []
