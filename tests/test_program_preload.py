@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import threading
+import time
 from types import SimpleNamespace
 
 import jax
@@ -48,7 +49,7 @@ def loads(tmp_path, monkeypatch):
         return real(path, key)
 
     monkeypatch.setattr(_aot, "_load", counted)
-    monkeypatch.setattr(_aot, "_used", {})
+    monkeypatch.setattr(_aot, "_askers", [])
     monkeypatch.setattr(_aot, "_preloaded", {})
     monkeypatch.setattr(_aot, "_missed", [])
     yield seen
@@ -63,12 +64,26 @@ def _no_tracing(monkeypatch):
     monkeypatch.setattr(_aot.jax, "jit", traced)
 
 
+def _recorded(signature: str = "sig", power: int = 2) -> dict:
+    asked = preload.programs_asked()
+    out = _toy(power)
+    preload.record_programs(signature, asked)
+    return dict(asked=asked, out=out)
+
+
+def _ahead(signature: str) -> list[str]:
+    """The programs a preload of ``signature`` loads (all of them: nothing asked meanwhile), dropped."""
+    ahead = preload.start_preload(signature)
+    ahead._thread.join()
+    loaded = list(ahead.loaded)
+    ahead.finish()
+    return loaded
+
+
 def test_recorded_programs_are_loaded_ahead_and_used_without_another_load(loads, monkeypatch):
-    want = _toy()
-    preload.record_programs("sig", 0)
+    want = _recorded()["out"]
     monkeypatch.setattr(_aot, "_memory", {})  # as in a new process
     ahead = preload.start_preload("sig")
-    assert ahead is not None
     ahead._thread.join()
     assert len(loads) == 1 and list(_aot._preloaded) == loads
     _no_tracing(monkeypatch)
@@ -79,10 +94,8 @@ def test_recorded_programs_are_loaded_ahead_and_used_without_another_load(loads,
 
 
 def test_a_damaged_program_loaded_ahead_is_dropped_with_a_warning_and_compiled_again(loads, monkeypatch):
-    _toy()
-    preload.record_programs("sig", 0)
+    (key,) = _recorded()["asked"]
     monkeypatch.setattr(_aot, "_memory", {})
-    (key,) = _aot._used
 
     def damaged(*leaves):
         raise RuntimeError("cannot run")
@@ -94,45 +107,63 @@ def test_a_damaged_program_loaded_ahead_is_dropped_with_a_warning_and_compiled_a
 
 
 def test_programs_no_fit_asks_for_are_dropped_when_the_command_ends(loads, monkeypatch):
-    _toy()
-    preload.record_programs("sig", 0)
+    _recorded()
     monkeypatch.setattr(_aot, "_memory", {})
-    ahead = preload.start_preload("sig")
-    assert ahead is not None
-    ahead.finish()
-    assert len(loads) == 1 and _aot._preloaded == {}
+    assert _ahead("sig") == loads and len(loads) == 1
+    assert _aot._preloaded == {} and _aot._missed == []
 
 
-def test_a_record_names_this_run_s_programs_first_then_the_last_run_s(loads, monkeypatch):
-    _toy(2)
-    preload.record_programs("sig", 0)
-    mark = preload.programs_asked()
-    _toy(3)  # another program (its static power)
-    preload.record_programs("sig", mark)
+def test_a_record_names_this_run_s_programs_first_then_the_last_run_s(loads):
+    (first,) = _recorded(power=2)["asked"].values()
+    (second,) = _recorded(power=3)["asked"].values()  # another program (its static power)
     (path,) = _aot._store().glob("recent-*.json")
-    names = [tuple(e) for e in json.loads(path.read_text())["programs"]]
-    assert names == list(_aot._used.values())[::-1]  # the new one first
+    assert [tuple(e) for e in json.loads(path.read_text())["programs"]] == [second, first]
+    assert _aot._askers == []  # each recording ended
+
+
+def test_a_run_stopped_midway_leaves_the_record_as_it_was(loads):
+    _recorded(power=2)
+    path = preload._record_path("sig")
+    before = path.read_text()
+    asked = preload.programs_asked()
+    _toy(3)
+    preload.record_programs("sig", asked, write=False)
+    assert path.read_text() == before and _aot._askers == []
 
 
 def test_a_missing_or_malformed_record_loads_nothing(loads):
-    assert preload.start_preload("never recorded") is None
+    assert _ahead("never recorded") == []
     path = preload._record_path("sig")
-    for text in ("not json", '{"other": 1}', '{"programs": [["toy", 3]]}', '{"programs": [["toy"]]}', '{"programs": []}'):
+    env, digest = _aot._environment_digest(), "0" * 64
+    for programs in ('3', '[["toy", 3]]', '[["toy"]]', f'[["../toy", "{digest}"]]', '[["toy", "../../x"]]', '[]'):
+        path.write_text(f'{{"environment": "{env}", "programs": {programs}}}')
+        assert _ahead("sig") == [], programs  # (a name or digest that could lead out of the store: refused)
+    for text in ("not json", '{"other": 1}', f'{{"programs": [["toy", "{digest}"]]}}'):
         path.write_text(text)
-        assert preload.start_preload("sig") is None, text
-    preload.record_programs("sig", 0)  # nothing asked for: the record is left as it was
-    assert path.read_text() == '{"programs": []}'
+        assert _ahead("sig") == [], text
+    path.write_text(f'{{"environment": "{env}", "programs": []}}')
+    preload.record_programs("sig", preload.programs_asked())  # nothing asked for: the record is left as it was
+    assert json.loads(path.read_text())["programs"] == []
+
+
+def test_a_record_of_another_ctfit_is_neither_loaded_nor_kept(loads):
+    _recorded(power=2)
+    path = preload._record_path("sig")
+    doc = json.loads(path.read_text())
+    path.write_text(json.dumps(dict(doc, environment="another ctfit's source or JAX")))
+    assert _ahead("sig") == []
+    (key,) = _recorded(power=3)["asked"].values()
+    assert [tuple(e) for e in json.loads(path.read_text())["programs"]] == [key]  # the other's programs are left out
 
 
 def test_records_beyond_the_limit_are_deleted_oldest_first(loads, monkeypatch):
     import os
 
     monkeypatch.setattr(preload, "RECORDS_KEPT", 2)
-    _toy()
     for i, sig in enumerate(("a", "b", "c")):
-        preload.record_programs(sig, 0)
+        _recorded(sig)
         os.utime(preload._record_path(sig), (1000 + i, 1000 + i))
-    preload.record_programs("c", 0)
+    _recorded("c")
     assert sorted(p.name for p in _aot._store().glob("recent-*.json")) == sorted(preload._record_path(s).name for s in ("b", "c"))
 
 
@@ -147,8 +178,7 @@ def test_the_signature_names_the_options_that_shape_programs_not_the_files():
 
 
 def test_a_program_the_record_does_not_name_stops_the_loading_ahead(loads, monkeypatch):
-    _toy(2)
-    preload.record_programs("sig", 0)
+    _recorded(power=2)
     monkeypatch.setattr(_aot, "_memory", {})
     gate = threading.Event()
     real = _aot._load
@@ -159,7 +189,9 @@ def test_a_program_the_record_does_not_name_stops_the_loading_ahead(loads, monke
 
     monkeypatch.setattr(_aot, "_load", slow)
     ahead = preload.start_preload("sig")
-    assert ahead is not None and not ahead._stop.is_set()
+    while ahead._keys is None:  # the record read (then its load waits for the gate)
+        time.sleep(0.001)
+    assert not ahead._stop.is_set()
     _toy(3)  # not in the record: a fit of other data
     assert ahead._stop.is_set()
     gate.set()

@@ -111,14 +111,15 @@ def _fit_command(o, ahead) -> int:
     if o.workers is not None or o.scheduler is not None:
         outcomes, hashes = fit_on_cluster(files, o, base, plan, progress_enabled(o.quiet))
     else:
-        signature, mark = program_signature(o, base), programs_asked()
+        signature, asked = program_signature(o, base), programs_asked()
         preload = start_preload(signature)  # last run's programs, loaded while the files are read
+        ended = False
         try:
             outcomes, hashes = _fit_each(files, o, base, plan, progress_enabled(o.quiet), ahead), {}
+            ended = True
         finally:
-            if preload is not None:
-                preload.finish()
-        record_programs(signature, mark)
+            preload.finish()
+            record_programs(signature, asked, write=ended)  # a run stopped midway leaves the record as it was
     if o.output is not None and o.folders["output"]:
         write_summary(o.output / SUMMARY, files, outcomes, plan, hashes)
     return fit_exit_status(outcomes)

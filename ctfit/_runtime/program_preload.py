@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import re
 import threading
 import time
 
@@ -36,6 +37,8 @@ RECORD_PROGRAMS = 96
 about 56)."""
 
 _PREFIX = "recent-"
+_NAME = re.compile(r"[A-Za-z0-9_]+")
+_DIGEST = re.compile(r"[0-9a-f]{64}")
 
 
 def _record_path(signature: str):
@@ -46,23 +49,31 @@ def _record_path(signature: str):
 
 
 class Preload:
-    """A background load of the programs a record names (:func:`start_preload`)."""
+    """A background load of the programs the record of ``signature`` names (:func:`start_preload`):
+    the thread finds the store (registering JAX's LAPACK kernels, 0.1 s), reads the record and loads
+    them, so the command goes on reading its files at once."""
 
-    def __init__(self, entries: list[tuple[str, str]]):
+    def __init__(self, signature: str):
         self._stop = threading.Event()
         self.loaded: list[str] = []
-        self._keys = {f"{name}-{digest}" for name, digest in entries}
+        self._keys: set[str] | None = None  # the record's, once read
         sp._missed.append(self._missed)
-        self._thread = threading.Thread(target=self._run, args=(entries,), name="ctfit-preload", daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(signature,), name="ctfit-preload", daemon=True)
         self._thread.start()
 
     def _missed(self, key: str) -> None:
         """A program the record does not name was asked for: this run's data is not like the last
         run's (other bands, say), so the rest would be loaded for nothing."""
-        if key not in self._keys:
+        if self._keys is not None and key not in self._keys:
             self._stop.set()
 
-    def _run(self, entries: list[tuple[str, str]]) -> None:
+    def _run(self, signature: str) -> None:
+        path = _record_path(signature)
+        try:
+            entries = _entries(path) if path is not None else []
+        except (OSError, ValueError, KeyError, TypeError):  # no record, or not one of ours: nothing ahead
+            entries = []
+        self._keys = {f"{name}-{digest}" for name, digest in entries}
         store = sp._store()
         for name, digest in entries:
             if self._stop.is_set() or store is None:
@@ -87,44 +98,50 @@ class Preload:
             sp._preloaded.pop(key, None)
 
 
-def start_preload(signature: str) -> Preload | None:
+def start_preload(signature: str) -> Preload:
     """Start loading, in a thread, the programs the last commands of ``signature`` (a text naming
-    the options that shape its programs) recorded; None where there is no store or no record."""
-    path = _record_path(signature)
-    try:
-        entries = _entries(path) if path is not None else []
-    except (OSError, ValueError, KeyError, TypeError):  # no record, or not one of ours: nothing ahead
-        return None
-    return Preload(entries) if entries else None
+    the options that shape its programs) recorded, if any (none without a store or a record)."""
+    return Preload(signature)
 
 
 def _entries(path) -> list[tuple[str, str]]:
-    """The (name, digest) pairs a record holds; OSError, ValueError, KeyError or TypeError where it is
-    missing or malformed."""
-    entries = [(n, d) for n, d in json.loads(path.read_text())["programs"]]
-    if not all(isinstance(x, str) for e in entries for x in e):
-        raise TypeError("a record's programs are pairs of strings")
+    """The (name, digest) pairs a record holds; none where it was written by another ctfit (its
+    source, or the versions of JAX and its libraries: :func:`~ctfit._runtime.stored_programs._environment_digest`),
+    whose programs no run of this one asks for; OSError, ValueError, KeyError or TypeError where it
+    is missing or malformed."""
+    doc = json.loads(path.read_text())
+    if doc["environment"] != sp._environment_digest():
+        return []
+    entries = [(n, d) for n, d in doc["programs"]]
+    if not all(isinstance(n, str) and isinstance(d, str) and _NAME.fullmatch(n) and _DIGEST.fullmatch(d) for n, d in entries):
+        raise ValueError("a record's programs are pairs of a name and a hexadecimal digest")  # (nothing outside the store is read)
     return entries
 
 
-def programs_asked() -> int:
-    """How many programs this process has asked the store for: a mark for :func:`record_programs`."""
-    return len(sp._used)
+def programs_asked() -> dict[str, tuple[str, str]]:
+    """From now on, every program asked for (in this process, any thread), in the order first
+    asked: key → (name, digest); for :func:`record_programs`, which ends it."""
+    asked: dict[str, tuple[str, str]] = {}
+    sp._askers.append(asked)
+    return asked
 
 
-def record_programs(signature: str, since: int = 0) -> None:
-    """Record the programs this process asked for after the mark ``since`` (:func:`programs_asked`),
+def record_programs(signature: str, asked: dict[str, tuple[str, str]], write: bool = True) -> None:
+    """End the recording ``asked`` (:func:`programs_asked`) and, with ``write``, record its programs,
     in order, for the next command of ``signature`` to load ahead, then those of the record before
     not among them (one folder of small files and one large file, fitted in turn, each find theirs),
     :data:`RECORD_PROGRAMS` at most; keep :data:`RECORDS_KEPT` records."""
-    path = _record_path(signature)
-    programs = [list(e) for e in list(sp._used.values())[since:]]
+    with contextlib.suppress(ValueError):
+        sp._askers.remove(asked)
+    path = _record_path(signature) if write else None
+    programs = [list(e) for e in asked.values()]
     if path is None or not programs:
         return
     with contextlib.suppress(OSError, ValueError, KeyError, TypeError):
         programs += [list(e) for e in _entries(path) if list(e) not in programs]
     with contextlib.suppress(OSError):
-        atomic_write(path, [json.dumps({"programs": programs[:RECORD_PROGRAMS]}).encode()], quiet=True)
+        doc = {"environment": sp._environment_digest(), "programs": programs[:RECORD_PROGRAMS]}
+        atomic_write(path, [json.dumps(doc).encode()], quiet=True)
         records = sorted(path.parent.glob(f"{_PREFIX}*.json"), key=_mtime)
         for old in records[: max(len(records) - RECORDS_KEPT, 0)]:
             old.unlink(missing_ok=True)

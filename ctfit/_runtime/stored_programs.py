@@ -481,7 +481,8 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
         jitted, rebuild = eqx.filter_jit(fn), split_arrays(args)[1]
         return (lambda *ls: jitted(*rebuild(ls))), None
     key = f"{name}-{digest}"
-    _used.setdefault(key, (name, digest))
+    for asked in _askers:
+        asked.setdefault(key, (name, digest))
     run = _recall(key)
     if run is not None:
         return run, None
@@ -496,7 +497,7 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
 
 _making: dict[str, threading.Lock] = {}  # key → the lock of the thread making that program
 _making_guard = threading.Lock()
-_used: dict[str, tuple[str, str]] = {}  # key → (name, digest) of every program asked for, in order (program_preload.py)
+_askers: list[dict[str, tuple[str, str]]] = []  # each told key → (name, digest) of every program asked for, in order (program_preload.py)
 _preloaded: dict[str, Callable] = {}  # key → a stored program loaded ahead of its use, not yet tried (program_preload.py)
 _missed: list[Callable[[str], None]] = []  # told the key of a program asked for that was not loaded ahead (program_preload.py)
 
