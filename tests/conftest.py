@@ -29,6 +29,26 @@ BACKEND_COMPILE = "/jax/core/compile/backend_compile_duration"
 
 
 @pytest.fixture
+def store(tmp_path, monkeypatch):
+    """ctfit's program store in ``tmp_path``, as in a fresh process without JAX's persistent cache:
+    a process that loaded a program from that cache stores nothing, and the CLI's tests leave it
+    enabled (in HOME) in the worker that ran them."""
+    from jax.experimental.compilation_cache import compilation_cache
+
+    from ctfit._runtime import stored_programs
+
+    monkeypatch.setattr(stored_programs, "_store", lambda: tmp_path)
+    monkeypatch.setattr(stored_programs, "_memory", {})
+    monkeypatch.setattr(stored_programs, "_jax_cache_hits", 0)
+    folder = jax.config.jax_compilation_cache_dir
+    jax.config.update("jax_compilation_cache_dir", None)
+    compilation_cache.reset_cache()  # JAX opens its cache once: make it look again (and find none)
+    yield tmp_path
+    jax.config.update("jax_compilation_cache_dir", folder)
+    compilation_cache.reset_cache()
+
+
+@pytest.fixture
 def compilations():
     """A list that grows by one entry per XLA (backend) compilation while the test runs."""
     seen = []

@@ -28,24 +28,6 @@ def _fn(box, x, power):
     return {"y": box.a * box.scale + x**power, "parts": [jnp.sum(x), None]}
 
 
-@pytest.fixture
-def store(tmp_path, monkeypatch):
-    """The store in ``tmp_path``, as in a fresh process without JAX's persistent cache: a process
-    that loaded a program from that cache stores nothing, and the CLI's tests leave it enabled
-    (in HOME) in the worker that ran them."""
-    from jax.experimental.compilation_cache import compilation_cache
-
-    monkeypatch.setattr(_aot, "_store", lambda: tmp_path)
-    monkeypatch.setattr(_aot, "_memory", {})
-    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
-    folder = jax.config.jax_compilation_cache_dir
-    jax.config.update("jax_compilation_cache_dir", None)
-    compilation_cache.reset_cache()  # JAX opens its cache once: make it look again (and find none)
-    yield tmp_path
-    jax.config.update("jax_compilation_cache_dir", folder)
-    compilation_cache.reset_cache()
-
-
 def _args():
     return _Box(jnp.arange(3.0), 2.0), jnp.array([1.0, 2.0, 3.0]), 2
 

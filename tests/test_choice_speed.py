@@ -78,28 +78,15 @@ def test_the_geometry_of_one_set_of_pairs_is_computed_once(monkeypatch):
         again.cos_vh[0] = 0.0  # shared by the fits of these pairs: read-only
 
 
-def test_each_compile_effort_is_its_own_program(tmp_path, monkeypatch):
-    """As in a fresh process without JAX's cache (tests/test_aot.py's ``store``)."""
-    import jax
-    from jax.experimental.compilation_cache import compilation_cache
-
-    monkeypatch.setattr(stored_programs, "_store", lambda: tmp_path)
-    monkeypatch.setattr(stored_programs, "_memory", {})
-    monkeypatch.setattr(stored_programs, "_jax_cache_hits", 0)
-    folder = jax.config.jax_compilation_cache_dir
-    jax.config.update("jax_compilation_cache_dir", None)
-    compilation_cache.reset_cache()
+def test_each_compile_effort_is_its_own_program(store):
+    """As in a fresh process without JAX's cache (conftest's ``store``)."""
     x = jnp.arange(4.0)
-    try:
-        fast = stored_programs.cached_call("effort", jnp.sin, x, effort="once")
-        small = stored_programs.cached_call("effort", jnp.sin, x, effort="step")
-        tuned = stored_programs.cached_call("effort", jnp.sin, x, effort="run")
-    finally:
-        jax.config.update("jax_compilation_cache_dir", folder)
-        compilation_cache.reset_cache()
+    fast = stored_programs.cached_call("effort", jnp.sin, x, effort="once")
+    small = stored_programs.cached_call("effort", jnp.sin, x, effort="step")
+    tuned = stored_programs.cached_call("effort", jnp.sin, x, effort="run")
     np.testing.assert_allclose(fast, tuned, rtol=1e-12)
     np.testing.assert_allclose(small, tuned, rtol=1e-12)
-    assert len(list(tmp_path.glob("effort-*.xla"))) == 3  # each XLA accepted its options
+    assert len(list(store.glob("effort-*.xla"))) == 3  # each XLA accepted its options
     assert set(stored_programs.COMPILE_EFFORT) == {"run", "step", "once"}
     with pytest.raises(KeyError):
         stored_programs.cached_call("effort", jnp.sin, x, effort="fastest")

@@ -8,7 +8,6 @@ import threading
 import time
 from types import SimpleNamespace
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -30,17 +29,9 @@ def _toy(power: int = 2):
 
 
 @pytest.fixture
-def loads(tmp_path, monkeypatch):
-    """The store in ``tmp_path`` (JAX's persistent cache off, as in tests/test_aot.py), its loads
-    from disk counted (a list of keys), the memory of programs and of what was asked emptied."""
-    from jax.experimental.compilation_cache import compilation_cache
-
-    monkeypatch.setattr(_aot, "_store", lambda: tmp_path)
-    monkeypatch.setattr(_aot, "_memory", {})
-    monkeypatch.setattr(_aot, "_jax_cache_hits", 0)
-    folder = jax.config.jax_compilation_cache_dir
-    jax.config.update("jax_compilation_cache_dir", None)
-    compilation_cache.reset_cache()
+def loads(store, monkeypatch):
+    """The store in a fresh folder (conftest's ``store``), its loads from disk counted (a list of
+    keys), what was asked for and loaded ahead emptied."""
     seen: list[str] = []
     real = _aot._load
 
@@ -52,9 +43,7 @@ def loads(tmp_path, monkeypatch):
     monkeypatch.setattr(_aot, "_askers", [])
     monkeypatch.setattr(_aot, "_preloaded", {})
     monkeypatch.setattr(_aot, "_missed", [])
-    yield seen
-    jax.config.update("jax_compilation_cache_dir", folder)
-    compilation_cache.reset_cache()
+    return seen
 
 
 def _no_tracing(monkeypatch):
