@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 import ctfit
 from ctfit._cli.fit_command import PROGRAM_OPTIONS, program_signature
-from ctfit._fitting import chunked_fit
+from ctfit._fitting import chunked_fit, problem
 from ctfit._runtime import program_preload as preload, stored_programs as _aot
 from ctfit.cli import app
 
@@ -198,9 +198,15 @@ def test_a_second_fit_command_with_the_same_options_takes_its_programs_loaded_ah
         ctfit.write_csv(ctfit.simulate(mat, pairs, noise=0.01, seed=pairs), tmp_path / name)
     options = ["--lobes", "1", "--no-diffuse", "--starts", "3", "--loss", "relative", "-q"]
     run = lambda name: CliRunner().invoke(app, ["fit", str(tmp_path / name), *options, "-o", str(tmp_path / f"{name}.json")])
+
+    def new_process():  # what this worker's earlier fits left in memory: the store is asked for every program
+        for module, name, empty in ((_aot, "_memory", {}), (chunked_fit, "_programs", {}), (chunked_fit, "_made", set()), (_aot, "_preloaded", {}),
+                                    (problem, "_recent_geometry", {})):
+            monkeypatch.setattr(module, name, empty)
+
+    new_process()
     assert run("a.csv").exit_code == 0
-    for module, name, empty in ((_aot, "_memory", {}), (chunked_fit, "_programs", {}), (chunked_fit, "_made", set()), (_aot, "_preloaded", {})):
-        monkeypatch.setattr(module, name, empty)  # as in a new process
+    new_process()
     made: list = []
     outside: list[str] = []  # programs asked for that the record does not name
     real_init, real_missed = preload.Preload.__init__, preload.Preload._missed
