@@ -110,6 +110,14 @@ def test_a_record_names_this_run_s_programs_first_then_the_last_run_s(loads):
     assert _aot._askers == []  # each recording ended
 
 
+def test_ending_one_recording_leaves_another_of_equal_contents_going(loads):
+    first, second = preload.programs_asked(), preload.programs_asked()  # both empty: equal, not the same
+    preload.record_programs("sig", second, write=False)
+    assert len(_aot._askers) == 1 and _aot._askers[0] is first
+    preload.record_programs("sig", first, write=False)
+    assert _aot._askers == []
+
+
 def test_a_run_stopped_midway_leaves_the_record_as_it_was(loads):
     _recorded(power=2)
     path = preload._record_path("sig")

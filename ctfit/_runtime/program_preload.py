@@ -131,8 +131,7 @@ def record_programs(signature: str, asked: dict[str, tuple[str, str]], write: bo
     in order, for the next command of ``signature`` to load ahead, then those of the record before
     not among them (one folder of small files and one large file, fitted in turn, each find theirs),
     :data:`RECORD_PROGRAMS` at most; keep :data:`RECORDS_KEPT` records."""
-    with contextlib.suppress(ValueError):
-        sp._askers.remove(asked)
+    sp._askers[:] = [a for a in sp._askers if a is not asked]  # (by identity: two recorders may hold equal contents)
     path = _record_path(signature) if write else None
     programs = [list(e) for e in asked.values()]
     if path is None or not programs:
