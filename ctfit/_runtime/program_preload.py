@@ -74,19 +74,11 @@ class Preload:
         except (OSError, ValueError, KeyError, TypeError):  # no record, or not one of ours: nothing ahead
             entries = []
         self._keys = {f"{name}-{digest}" for name, digest in entries}
-        store = sp._store()
         for name, digest in entries:
-            if self._stop.is_set() or store is None:
+            if self._stop.is_set():
                 return
-            key = f"{name}-{digest}"
-            with sp._making_guard:
-                making = sp._making.setdefault(key, threading.Lock())
-            with making:  # the fit, asking for it meanwhile, waits for this load instead of making its own
-                if sp._recall(key) is not None or key in sp._preloaded:
-                    continue
-                with contextlib.suppress(Exception):  # missing or stale: the fit makes it as usual
-                    sp._preloaded[key] = sp._load(sp._entry(store, name, digest), key)
-                    self.loaded.append(key)
+            if sp.load_ahead(name, digest):
+                self.loaded.append(f"{name}-{digest}")
 
     def finish(self) -> None:
         """Stop after the program being loaded, wait for it, and drop what no fit asked for."""

@@ -486,9 +486,7 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
     run = _recall(key)
     if run is not None:
         return run, None
-    with _making_guard:
-        making = _making.setdefault(key, threading.Lock())
-    with making:  # threads asking for one program at once (a fit and the background's) make it once
+    with _making_lock(key):  # threads asking for one program at once (a fit and the background's) make it once
         run = _recall(key)
         if run is not None:
             return run, None
@@ -497,6 +495,29 @@ def _program(name: str, fn: Callable, args: tuple, leaves: list, effort: str):
 
 _making: dict[str, threading.Lock] = {}  # key → the lock of the thread making that program
 _making_guard = threading.Lock()
+
+
+def _making_lock(key: str) -> threading.Lock:
+    """The lock a thread making (or loading ahead) the program ``key`` holds meanwhile."""
+    with _making_guard:
+        return _making.setdefault(key, threading.Lock())
+
+
+def load_ahead(name: str, digest: str) -> bool:
+    """Load the stored program ``name`` of key ``digest`` for a later :func:`_program` to take and
+    try (``program_preload.py``), unless it is in memory or loaded ahead already; a thread asking
+    for it meanwhile waits for this load. Whether it was loaded (not where it is missing or stale)."""
+    store, key = _store(), f"{name}-{digest}"
+    if store is None:
+        return False
+    with _making_lock(key):
+        if _recall(key) is not None or key in _preloaded:
+            return False
+        try:
+            _preloaded[key] = _load(_entry(store, name, digest), key)
+        except Exception:  # missing or stale: the fit makes it as usual (and says why, where it is damaged)
+            return False
+    return True
 _askers: list[dict[str, tuple[str, str]]] = []  # each told key → (name, digest) of every program asked for, in order (program_preload.py)
 _preloaded: dict[str, Callable] = {}  # key → a stored program loaded ahead of its use, not yet tried (program_preload.py)
 _missed: list[Callable[[str], None]] = []  # told the key of a program asked for that was not loaded ahead (program_preload.py)
