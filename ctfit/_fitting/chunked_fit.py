@@ -461,18 +461,18 @@ def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> di
     return jax.device_get(pick(*array_leaves((template, u0, grid, acc[0], acc[1]))))
 
 
-def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False, report: bool = True) -> None:
+def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False, report: bool = True) -> list[Callable]:
     """Make (load from the store, or compile) every program :func:`chunked_core` calls for a fit
-    of ``problem``'s layout from ``u0``'s shapes (with the report or without), without fitting.
-    Run in a background thread while another fit runs, it takes the loading or compiling off
-    that fit's path."""
+    of ``problem``'s layout from ``u0``'s shapes (with the report or without), without fitting;
+    returns them. Run in a background thread while another fit runs, it takes the loading or
+    compiling off that fit's path."""
     (template,) = chunk_problems(problem, limit=1)
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
-    _kernels([template], u0)
-    _report_programs(template, u0, report)
-    transfer_program(template)
-    _seed_programs(template, u0, starts, grid, keep_start)
+    kern = _kernels([template], u0)
+    made = [kern.ne, kern.init, kern.step, *_report_programs(template, u0, report), transfer_program(template),
+            *_seed_programs(template, u0, starts, grid, keep_start)]
     _made.add(_signature((template, u0, grid, starts, keep_start, report)))
+    return [run for run in made if run is not None]
 
 
 def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None, sample: _Kernels | None = None):

@@ -27,6 +27,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import weakref
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -268,11 +270,27 @@ def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool =
     that cannot be prepared (its own fit says why)."""
     if solver != "lm":
         return
+    key = (structure, given_start, tuple(fixed), loss, jnp.dtype(dtype).name, starts, report, data.n_bands, data.sigma is not None, len(data))
+    if all(ref() is not None for ref in _prefetched.get(key, [lambda: None])):
+        return  # made for a file like this one, and still in memory: a database's later files skip laying out the data again
     try:
         prep = prepare_fit(data, structure, start=None, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS)
     except (ValueError, TypeError):
         return
-    prefetch(prep.problem, prep.u0, prep.grid, prep.k, given_start, report)
+    made = prefetch(prep.problem, prep.u0, prep.grid, prep.k, given_start, report)
+    _prefetched[key] = [_held(run) for run in made]
+
+
+def _held(run: Callable) -> Callable[[], Any]:
+    """A compiled program held weakly (the store's memory owns it); another (one the store could
+    not key, which ``chunked_fit`` holds) as it is."""
+    return weakref.ref(run) if isinstance(run, jax.stages.Compiled) else (lambda: run)
+
+
+_prefetched: dict[tuple, list[Callable[[], Any]]] = {}
+""":func:`prefetch_fit`'s programs by the options and the data's bands, sigma and size (held
+weakly: a program the store dropped from memory (``MEMORY_PROGRAMS``) is made again). Another
+layout of that size (a grid, say) is prefetched no more; its fit makes its programs itself."""
 
 
 def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: float | None = None, report: bool = True) -> dict:
