@@ -84,6 +84,11 @@ def test_programs_made_ahead_for_a_file_like_this_one_are_not_made_again_while_i
     least_squares._prefetched[key] = [*refs[:-1], lambda: None]  # one of them dropped from memory
     prefetch_fit(_plastic(100, 8), st)
     assert len(prepared) == 4
+    monkeypatch.setattr(least_squares, "PREFETCHED_KEPT", 2)
+    prefetch_fit(_plastic(140, 8), st)  # a fourth kind: the oldest remembered is forgotten
+    assert len(least_squares._prefetched) == 2 and len(prepared) == 5
+    prefetch_fit(_plastic(120, 9), st)
+    assert len(prepared) == 6
 
 
 def test_the_geometry_of_one_set_of_pairs_is_computed_once(monkeypatch):

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
 import weakref
 from collections.abc import Callable
@@ -278,7 +279,10 @@ def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool =
     except (ValueError, TypeError):
         return
     made = prefetch(prep.problem, prep.u0, prep.grid, prep.k, given_start, report)
-    _prefetched[key] = [_held(run) for run in made]
+    with _prefetched_guard:  # (background threads of several fits)
+        _prefetched[key] = [_held(run) for run in made]
+        while len(_prefetched) > PREFETCHED_KEPT:
+            del _prefetched[next(iter(_prefetched))]
 
 
 def _held(run: Callable) -> Callable[[], Any]:
@@ -287,6 +291,10 @@ def _held(run: Callable) -> Callable[[], Any]:
     return weakref.ref(run) if isinstance(run, jax.stages.Compiled) else (lambda: run)
 
 
+PREFETCHED_KEPT = 64
+"""The most kinds of file :func:`prefetch_fit` remembers; past it (files of ever new sizes) the
+oldest is forgotten, and prefetched again if met again."""
+_prefetched_guard = threading.Lock()
 _prefetched: dict[tuple, list[Callable[[], Any]]] = {}
 """:func:`prefetch_fit`'s programs by the options and the data's bands, sigma and size (held
 weakly: a program the store dropped from memory (``MEMORY_PROGRAMS``) is made again). Another
