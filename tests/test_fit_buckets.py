@@ -32,7 +32,9 @@ def test_bucket_sizes():
         assert bucket(b) == b
 
 
-def test_new_sample_count_in_a_bucket_compiles_nothing(compilations):
+def test_new_sample_count_in_a_bucket_compiles_nothing(store, compilations):
+    """(A fresh store: the first fit compiles whatever other tests of this worker, or another
+    worker through the shared cache, made before.)"""
     st = ctfit.Structure(lobes=1)
     a, b = _scattered(1900, 1), _scattered(2000, 2)  # same bucket (2048), two sample counts
     first = ctfit.fit(a, st, solver="gauss-newton")
