@@ -267,8 +267,9 @@ def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool =
                  solver: str = "lm", dtype: DTypeLike = jnp.float64, starts: int = 3, report: bool = True, **_: Any) -> None:
     """Make (load or compile) the programs a :func:`fit_to_tolerance` of ``structure`` to ``data``
     will call (with a start given or not, with the report or not), without fitting: for a
-    background thread, while other fits run. Nothing for solvers other than "lm", or for a fit
-    that cannot be prepared (its own fit says why)."""
+    background thread, while other fits run. Nothing for solvers other than "lm", for a fit
+    that cannot be prepared (its own fit says why), or where this made them for data of the same
+    bands, sigma column and size and they are still in memory (:data:`_prefetched`)."""
     if solver != "lm":
         return
     key = (structure, given_start, tuple(fixed), loss, jnp.dtype(dtype).name, starts, report, data.n_bands, data.sigma is not None, len(data))
