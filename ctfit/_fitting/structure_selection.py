@@ -379,12 +379,11 @@ class _Candidates:
         return res
 
     def stopped(self, res: FitResult) -> bool:
-        """Whether ``res`` stopped at the budget, short of ``max_steps``, and was not solved on. Its
-        best seed took every step of the budget: unconverged ("max_steps"), or judged converged by
-        a loose stationarity test (float32's 10⁻³: a two-lobe candidate so stopped 1.2 % above
-        its minimum, and a third lobe was chosen over it)."""
-        spent = res.stats.get("fit_status") == "max_steps" or int(res.stats.get("steps", 0)) >= self.budget
-        return spent and self.budget < self.max_steps and id(res) not in self.solved_on
+        """Whether ``res`` stopped at the budget, short of ``max_steps``, and was not solved on: its
+        best seed took every step of the budget, unconverged ("max_steps") or judged converged by a
+        loose stationarity test (float32's 10⁻³: a two-lobe candidate so stopped 1.2 % above its
+        minimum, and a third lobe was chosen over it)."""
+        return int(res.stats["steps"]) >= self.budget and self.budget < self.max_steps and id(res) not in self.solved_on
 
     def solve_on(self, res: FitResult) -> None:
         """``res`` solved on from where it stopped (its seed alone), up to ``max_steps`` steps in

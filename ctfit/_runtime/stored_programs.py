@@ -518,6 +518,8 @@ def load_ahead(name: str, digest: str) -> bool:
         except Exception:  # missing or stale: the fit makes it as usual (and says why, where it is damaged)
             return False
     return True
+
+
 _askers: list[dict[str, tuple[str, str]]] = []  # each told key → (name, digest) of every program asked for, in order (program_preload.py)
 _preloaded: dict[str, Callable] = {}  # key → a stored program loaded ahead of its use, not yet tried (program_preload.py)
 _missed: list[Callable[[str], None]] = []  # told the key of a program asked for that was not loaded ahead (program_preload.py)
