@@ -42,10 +42,11 @@ fit: install
 	$(BIN)/ctfit simulate configs/copper-vase.toml -o out/copper-vase.csv --samples 2000 --seed 1 --noise 0.02
 	JAX_COMPILATION_CACHE_DIR='$(USER_JAX_CACHE)' $(BIN)/ctfit fit out/copper-vase.csv --material configs/copper-vase.toml -o out/copper-vase.fit.json
 
+# The suite's 25 slowest steps are listed at its end: where its time goes, run by run.
 test: install-test
 	$(BIN)/ruff check ctfit tests scripts docs_hooks
 	$(BIN)/mypy ctfit
-	$(BIN)/python -m pytest -n 2 -q
+	$(BIN)/python -m pytest -n 2 -q --durations=25
 
 # The documentation site in site/ (open site/index.html): the guides of docs/, the API reference
 # and the notebooks with their stored outputs (mkdocs.yml). Strict: a warning stops the build.

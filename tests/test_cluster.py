@@ -68,15 +68,22 @@ class Cluster:
             c.wait_for_workers(n, timeout=60)
 
     def close(self) -> None:
+        """Ask every process to stop, and kill what is still running after ``CLOSE_WAIT`` seconds:
+        a worker whose scheduler stopped first (or whose task was cut) waits out its own timeouts
+        before it exits (the teardown took 20 s)."""
         for p in [*self.workers, self.scheduler]:
             if p.poll() is None:
                 p.terminate()
+        deadline = time.monotonic() + CLOSE_WAIT
         for p in [*self.workers, self.scheduler]:
             try:
-                p.wait(timeout=20)
+                p.wait(timeout=max(deadline - time.monotonic(), 0.01))
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+
+
+CLOSE_WAIT = 3.0
 
 
 @pytest.fixture
