@@ -196,6 +196,27 @@ def test_a_program_the_record_does_not_name_stops_the_loading_ahead(loads, monke
     assert _aot._missed == [] and _aot._preloaded == {}
 
 
+def test_a_program_asked_for_before_the_record_is_read_stops_the_loading_once_it_is(loads, monkeypatch):
+    _recorded(power=2)
+    monkeypatch.setattr(_aot, "_memory", {})
+    gate = threading.Event()
+    real = preload._entries
+
+    def slow(path):
+        gate.wait(5)  # the fit asks for another program before the record is read
+        return real(path)
+
+    monkeypatch.setattr(preload, "_entries", slow)
+    ahead = preload.start_preload("sig")
+    _toy(3)  # not in the record, asked for while the thread still reads it
+    assert ahead._keys is None and not ahead._stop.is_set()
+    gate.set()
+    ahead._thread.join(10)  # the thread ends by itself, before finish() could stop it
+    assert ahead._stop.is_set() and ahead.loaded == []  # nothing of the record loaded for nothing
+    ahead.finish()
+    assert _aot._missed == [] and _aot._preloaded == {}
+
+
 def test_a_second_fit_command_with_the_same_options_takes_its_programs_loaded_ahead(tmp_path, monkeypatch):
     """Whole ``ctfit fit`` commands in this process (its store, as a new process finds it): the
     second, on a file of another size, asks for nothing the first's record did not name, and

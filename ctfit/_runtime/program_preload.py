@@ -57,15 +57,21 @@ class Preload:
         self._stop = threading.Event()
         self.loaded: list[str] = []
         self._keys: set[str] | None = None  # the record's, once read
+        self._early: list[str] = []  # programs asked for that were not loaded ahead, before the record was read
+        self._guard = threading.Lock()  # the record's keys set, and _early read, against _missed
         sp._missed.append(self._missed)
         self._thread = threading.Thread(target=self._run, args=(signature,), name="ctfit-preload", daemon=True)
         self._thread.start()
 
     def _missed(self, key: str) -> None:
         """A program the record does not name was asked for: this run's data is not like the last
-        run's (other bands, say), so the rest would be loaded for nothing."""
-        if self._keys is not None and key not in self._keys:
-            self._stop.set()
+        run's (other bands, say), so the rest would be loaded for nothing. One asked for before
+        the record is read is judged once it is (:meth:`_run`)."""
+        with self._guard:
+            if self._keys is None:
+                self._early.append(key)
+            elif key not in self._keys:
+                self._stop.set()
 
     def _run(self, signature: str) -> None:
         path = _record_path(signature)
@@ -73,7 +79,10 @@ class Preload:
             entries = _entries(path) if path is not None else []
         except (OSError, ValueError, KeyError, TypeError):  # no record, or not one of ours: nothing ahead
             entries = []
-        self._keys = {f"{name}-{digest}" for name, digest in entries}
+        with self._guard:
+            self._keys = {f"{name}-{digest}" for name, digest in entries}
+            if any(key not in self._keys for key in self._early):
+                self._stop.set()
         for name, digest in entries:
             if self._stop.is_set():
                 return
