@@ -95,6 +95,41 @@ def test_a_batch_stopped_by_an_unexpected_error_ends_its_threads_at_once(tmp_pat
     assert not left, left
 
 
+def test_a_result_that_cannot_be_written_fails_that_file_alone(tmp_path, monkeypatch):
+    """Among files fitted together, a result write that fails (a full disk) makes its file
+    "failed", with one error line naming the file and the target, and every other file is written
+    and said to be, all before the summary."""
+    import ctfit._io as io
+
+    data = tmp_path / "data"
+    for name, seed in (("a.csv", 1), ("b.csv", 2), ("c.csv", 3)):
+        write(data, name, seed=seed)
+    out = tmp_path / "fits"
+    save = io.save_material_json
+
+    def failing(material, path, extra=None):
+        if path.name == "b.fit.json":
+            raise OSError(28, "No space left on device", str(path))
+        return save(material, path, extra=extra)
+
+    monkeypatch.setattr(io, "save_material_json", failing)
+    r = run("fit", data, "--no-diffuse", "--lobes", "1", "-o", out)
+    assert r.exit_code == 2, r.output
+    assert [line.split()[0] for line in summary(r.stderr)] == ["converged", "failed", "converged"]
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and str(data / "b.csv") in errors[0] and str(out / "b.fit.json") in errors[0], errors
+    assert "no space left" in errors[0]
+    lines = r.stderr.splitlines()
+    wrote = [line for line in lines if line.startswith("wrote ")]
+    assert wrote == [f"wrote {out / 'a.fit.json'}", f"wrote {out / 'c.fit.json'}", f"wrote {out / 'summary.json'}"]
+    head = next(i for i, line in enumerate(lines) if line.startswith("summary:"))
+    assert lines.index(f"wrote {out / 'c.fit.json'}") < head and lines.index(errors[0]) < head
+    assert sorted(p.name for p in out.iterdir()) == ["a.fit.json", "c.fit.json", "summary.json"]
+    rows = json.loads((out / "summary.json").read_text())["results"]
+    assert [row["outcome"] for row in rows] == ["converged", "failed", "converged"]
+    assert r.stdout.count("fit of ") == 3  # b's table was printed before its write failed
+
+
 def test_exit_1_when_a_fit_does_not_converge_and_none_failed(tmp_path):
     data = tmp_path / "data"
     write(data, "a.csv", seed=1)

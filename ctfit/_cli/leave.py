@@ -25,10 +25,13 @@ _status = {"code": 0}  # the command's exit status, for _leave
 
 
 def console() -> None:
-    """The console script ``ctfit``: ``main``, then an exit that skips the interpreter's finalization."""
-    from .commands import main
+    """The console script ``ctfit``: cyclic garbage collected seldom (:mod:`ctfit._runtime.garbage`),
+    ``main``, then an exit that skips the interpreter's finalization."""
+    from .._runtime import collect_seldom
 
     atexit.register(_leave)  # first registered: runs last
+    collect_seldom()  # before the imports: they allocate most of what a command ever holds
+    from .commands import main
     try:
         main()
     except SystemExit as e:
