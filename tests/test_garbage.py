@@ -38,7 +38,7 @@ def test_garbage_in_cycles_is_still_collected():
     objects pass the threshold, so they never pile up (each holds 1 MiB; 400 of them: 400 MiB)."""
     out = _python(
         "import gc, numpy as np\n"
-        "from ctfit._runtime.garbage import collect_seldom\n"
+        "from ctfit._runtime.garbage import YOUNG_COLLECTION, collect_seldom\n"
         "collect_seldom()\n"
         "runs = []\n"
         "gc.callbacks.append(lambda phase, info: runs.append(info['collected']) if phase == 'stop' else None)\n"
@@ -54,8 +54,9 @@ def test_garbage_in_cycles_is_still_collected():
         "    alive.add(a)\n"
         "    del a, b\n"
         "    most = max(most, len(alive))\n"
-        "print(len(runs), sum(runs), most)\n"
+        "print(len(runs), sum(runs), most, YOUNG_COLLECTION)\n"
     )
-    runs, collected, most = map(int, out.split())
+    runs, collected, most, threshold = map(int, out.split())
     assert runs >= 1 and collected > 0
-    assert most <= 2 + 200_000 // 2_000  # at most a threshold's worth of cycles waits for the collector
+    assert threshold == YOUNG_COLLECTION
+    assert most <= 2 + YOUNG_COLLECTION // 2_000  # at most a threshold's worth of cycles waits for the collector

@@ -11,7 +11,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "cluster": ['dask_client', 'prepare_worker', 'worker_count'],
         "compile_cache": ['enable_compilation_cache', 'matplotlib_config_fallback'],
         "extras": ['EXTRAS', 'MissingExtraError', 'need'],
-        "garbage": ['YOUNG_COLLECTION', 'collect_seldom'],
+        "garbage": ['collect_seldom'],
         "memory": ['return_large_blocks'],
         "program_preload": ['Preload', 'programs_asked', 'record_programs', 'start_preload'],
         "progress": ['ProgressLines', 'bar', 'closed_pipe', 'echo', 'progress_enabled', 'progress_mode'],

@@ -28,9 +28,7 @@ YOUNG_COLLECTION = 200_000
 youngest generation; the older generations keep Python's ratios (every 10th of the one below)."""
 
 
-def collect_seldom() -> tuple[int, int, int]:
-    """Set this process's collection thresholds to ``YOUNG_COLLECTION`` and Python's older
-    ratios; returns the thresholds it had."""
-    before = gc.get_threshold()
-    gc.set_threshold(YOUNG_COLLECTION, *before[1:])
-    return before
+def collect_seldom() -> None:
+    """Set this process's youngest-generation threshold to ``YOUNG_COLLECTION``; the older
+    generations keep their ratios."""
+    gc.set_threshold(YOUNG_COLLECTION, *gc.get_threshold()[1:])
