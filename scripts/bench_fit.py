@@ -7,8 +7,8 @@ memory); each is the median of ``--repeat`` runs, the columns of a case run in i
 rounds so that a drifting machine load touches them alike. Data files are written once into a
 scratch folder (``_bench_fit_data.py`` describes them).
 
-- **Floor**: the interpreter alone, a bare JAX process (import, one tiny jitted call) and
-  ``ctfit --version``.
+- **Floor**: the interpreter alone, a bare JAX process (import JAX, start its CPU backend,
+  leave at once) and ``ctfit --version``.
 - **Scattered samples** (20,000 and 200,000; ``--small``: 2,000): SciPy
   (``_scipy_fit.py``: NumPy reads the CSV, ``least_squares(method="lm")`` on the NumPy model
   ``_numpy_model.py``, from ctfit's default start) against ``ctfit fit FILE --lobes 2 --json``
@@ -62,13 +62,20 @@ from _whole_process import median, run  # noqa: E402
 SECTION = "## Fitting"
 PY = sys.executable
 CTFIT = str(Path(sys.executable).with_name("ctfit"))
-JAX_FLOOR = "import jax; jax.jit(lambda x: x + 1)(1.0).block_until_ready()"
+JAX_FLOOR = "import os, jax; jax.numpy.zeros(()).block_until_ready()"
+"""What every JAX process that computes pays: importing JAX and starting its CPU backend (an array
+put on the device). Not a compile (a warm ctfit loads its compiled programs), and not Python's own
+exit with JAX loaded (about 0.2 s here): the floors end with ``LEAVE``, as the ``ctfit`` command
+does once its output is written (``ctfit/_cli/leave.py``). Until 2026-12-02 the floor compiled a
+tiny program and left the usual way, 0.15–0.25 s more than this: a warm 20,000-sample fit ran
+below it."""
+LEAVE = "; os._exit(0)"
 READ_FLOOR = ("import sys; from ctfit.internal import start_read_ahead; ahead = start_read_ahead(sys.argv[1]); " + JAX_FLOOR
-              + "; import ctfit; ahead.measurement() if ahead else ctfit.read_measurement(sys.argv[1])")
+              + "; import ctfit; ahead.measurement() if ahead else ctfit.read_measurement(sys.argv[1])" + LEAVE)
 """The floor of a fit of one file: the bare JAX process, and reading the file as ``ctfit fit`` does
 (a CSV of 8 MiB or more parsed by a helper process while JAX is imported: ``ctfit/_io/read_ahead.py``)."""
 READ_DIR_FLOOR = (JAX_FLOOR + "; import pathlib, sys, ctfit; "
-                  "[ctfit.read_measurement(p) for p in sorted(pathlib.Path(sys.argv[1]).glob('*.csv'))]")
+                  "[ctfit.read_measurement(p) for p in sorted(pathlib.Path(sys.argv[1]).glob('*.csv'))]" + LEAVE)
 """The floor of a fit of a folder: the bare JAX process, and reading its files one after another
 with ctfit's reader (``ctfit fit DIR`` reads them in a thread while it fits)."""
 IN_PROCESS = r"""
@@ -113,20 +120,21 @@ class Bench:
         path.mkdir(parents=True)
         return path
 
-    def ctfit(self, args: list[str], cache: Path, what: str):
-        """``ctfit ARGS`` with ``cache`` as its cache folder; (Run, parsed --json output or None).
-        Exit status 1 (a fit did not converge) is a result, not a failure; a run is killed after
-        ``TIMEOUT`` seconds (a hung process fails its case, not the benchmark)."""
-        r = run([CTFIT, *args], env=dict(self.env, JAX_COMPILATION_CACHE_DIR=str(cache)), cwd=self.tmp, timeout=TIMEOUT)
+    def ctfit(self, args: list[str], cache: Path, what: str, command: list[str] | None = None):
+        """``ctfit ARGS`` (``command`` in place of ``ctfit``) with ``cache`` as its cache folder;
+        (Run, parsed --json output or None). Exit status 1 (a fit did not converge) is a result,
+        not a failure; a run is killed after ``TIMEOUT`` seconds (a hung process fails its case,
+        not the benchmark)."""
+        r = run([*(command or [CTFIT]), *args], env=dict(self.env, JAX_COMPILATION_CACHE_DIR=str(cache)), cwd=self.tmp, timeout=TIMEOUT)
         if r.returncode not in (0, 1):
             r.check(what)
         return r, (json.loads(r.stdout) if "--json" in args else None)
 
-    def cold(self, args: list[str], what: str):
-        """A run with a fresh, empty cache folder (removed after)."""
+    def cold(self, args: list[str], what: str, command: list[str] | None = None):
+        """A run with a fresh, empty cache folder (removed after); ``command`` in place of ``ctfit``."""
         cache = self.folder("cold-cache")
         try:
-            return self.ctfit(args, cache, what)
+            return self.ctfit(args, cache, what, command)
         finally:
             shutil.rmtree(cache, ignore_errors=True)
 
@@ -146,7 +154,7 @@ class Bench:
 
 
 def floor(b: Bench) -> dict:
-    cmds = {"python": [PY, "-c", "pass"], "jax": [PY, "-c", JAX_FLOOR], "version": [CTFIT, "--version"]}
+    cmds = {"python": [PY, "-c", "pass"], "jax": [PY, "-c", JAX_FLOOR + LEAVE], "version": [CTFIT, "--version"]}
     times = {k: [] for k in cmds}
     for _ in range(b.repeat):
         for k, cmd in cmds.items():
@@ -191,9 +199,15 @@ def primed_by(b: Bench, n: int, seed: int) -> Path:
     return cache
 
 
-def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, primed_other: Path | None = None) -> dict:
-    """SciPy against ctfit cold, warm, (``new_n``) on a file of another size, and (``primed_other``)
-    warm from a cache that a fit of another size filled, one size."""
+CHEAPEST = [PY, str(SCRIPTS / "_cheapest_compile.py")]
+"""``ctfit`` with every program at the cheapest compile effort (``_cheapest_compile.py``): a cold
+run so bounds what compile options alone could gain."""
+
+
+def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, primed_other: Path | None = None, cheapest: bool = False) -> dict:
+    """SciPy against ctfit cold, warm, (``new_n``) on a file of another size, (``primed_other``)
+    warm from a cache that a fit of another size filled, and (``cheapest``) cold with every
+    program at the cheapest compile effort, one size."""
     folder = b.folder(f"scattered-{n}")
     path = data.write_scattered(folder / f"scattered-{n}.csv", n, seed)
     other = data.write_scattered(folder / f"scattered-{new_n}.csv", new_n, seed + 1) if new_n else None
@@ -204,7 +218,7 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
     primed = b.backup(warm_cache) if other else None
     from_other = b.folder("from-other-cache") if primed_other else None
     runs = {k: [] for k in ("scipy", "scipy_fit_s", "scipy_grid", "cold", "warm", "new", "other", "cold_fit_s", "warm_fit_s", "new_fit_s", "other_fit_s",
-                            "read_floor")}
+                            "read_floor", "cold_cheapest")}
     runs["cold"].append(cold.wall_s)
     runs["cold_fit_s"].append(first["fit"]["time_s"])
     res = {}
@@ -225,6 +239,8 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
             r, doc = b.cold(args, "ctfit (cold)")
             runs["cold"].append(r.wall_s)
             runs["cold_fit_s"].append(doc["fit"]["time_s"])
+        if cheapest:
+            runs["cold_cheapest"].append(b.cold(args, "ctfit (cold, cheapest compile)", CHEAPEST)[0].wall_s)
         if other:
             r, res["new"] = b.ctfit(["fit", str(other), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "--json", "-q"],
                                     warm_cache, "ctfit (new size)")
@@ -252,6 +268,7 @@ def scattered(b: Bench, n: int, new_n: int | None, seed: int, grid_peer: bool, p
           f"{out['converged']})" + (f", new size ({new_n:,}) {out['new']:.2f} s" if other else "")
           + (f", warm from another size {out['other']:.2f} s (fit() {out['other_fit_s']:.2f} s)" if primed_other else "")
           + f"; in process: fit() {out['in_process']['first_s']:.2f} s then {out['in_process']['second_s']:.2f} s"
+          + (f"; cold at the cheapest compile {out['cold_cheapest']:.2f} s" if cheapest else "")
           + f"; floor (bare JAX process reading the file) {out['read_floor']:.2f} s", flush=True)
     return out
 
@@ -475,8 +492,8 @@ def targets(fl: dict, cases: list[dict], bat: dict | None, mer: dict | None, mit
     if not failed(target, bat):
         r = bat["scipy"] / bat["ctfit"]
         rows.append((target, f"{_ratio(r)} ({_s(bat['ctfit'])} vs {_s(bat['scipy'])})", "yes" if r >= 20 else f"no: needs ≤ {_s(bat['scipy'] / 20)}",
-                     "" if r >= 20 else f"the batched fits: {bat['fit_s']:.2f} s of {bat['ctfit']:.2f} s (reading and writing the files overlap them; "
-                     f"start-up, the first files' reading and the last ones' writing the rest)"))
+                     "" if r >= 20 else f"the batched fits: {bat['fit_s']:.2f} s of `fit_batch` calls, two windows of files at once, "
+                     f"in a process of {bat['ctfit']:.2f} s (the files' reading and writing overlap them)"))
     target = "MERL-sized: ≤ 5 s warm, ≤ 600 MB peak"
     if not failed(target, mer):
         mb = mer["peak_mb"]
@@ -523,10 +540,12 @@ def targets_21(fl: dict, cases: list[dict], bat: dict | None) -> list[tuple[str,
     if small:
         c = min(small, key=lambda c: c["n"])
         compiling = max(c["cold_fit_s"] - c["warm_fit_s"], 0.0)
+        cheapest = (f"; with every program at the cheapest compile effort (slower programs) a cold run still takes {_s(c['cold_cheapest'])}, "
+                    f"{c['scipy'] / c['cold_cheapest']:.2f}× the SciPy script") if "cold_cheapest" in c else ""
         ratio_row(f"{c['n']:,} samples, first run on a machine (cold): ≥ 0.67× the SciPy script", c["cold"], c["scipy"], 0.67, *read_floor(c),
-                  f", {compiling:.2f} s of it compiling ctfit's programs (cold fit() − warm fit())")
+                  f", {compiling:.2f} s of it compiling ctfit's programs (cold fit() − warm fit()){cheapest}")
     if bat and "failed" not in bat:
-        calls = f" (of ctfit's time, its `fit_batch` calls take {_s(bat['fit_s'])}: the solves and each file's report)"
+        calls = f" (its `fit_batch` calls, two windows of files at once, take {_s(bat['fit_s'])} in all: the solves and each file's report)"
         if "read_floor" in bat:
             floor_at, what = bat["read_floor"], f"bare JAX process reading the {bat['files']} files one after another{calls}"
         else:
@@ -562,7 +581,7 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
         L += ["", "**Warning: ctfit's source changed during this run, so warm runs may have compiled again; these figures are not reliable.**"]
     L += ["", "Floor — what any process of each kind costs here:", "", "| process | wall time |", "|---|---|",
           f"| Python interpreter alone (`python -c pass`) | {_s(fl['python'])} |",
-          f"| bare JAX process (import, one tiny jitted call) | {_s(fl['jax'])} |",
+          f"| bare JAX process (import JAX, start its CPU backend, leave at once: `os._exit`, as `ctfit` does) | {_s(fl['jax'])} |",
           f"| `ctfit --version` | {_s(fl['version'])} |", ""]
     L += ["### Scattered samples", "",
           "Every row its own direction pair, one of 31 bands (400–700 nm) at random; two lobes (m = 0.2, 0.4; w = 0.6, 0.4), s = 0.9 with "
@@ -581,6 +600,8 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
         row("SciPy, F computed on the whole pair × band grid (31× the Fresnel work; the NumPy model behind the issue's 2.1–2.7 s)",
             lambda c: _s(c["scipy_grid"]) if "scipy_grid" in c else "—")
     row("ctfit, cold", lambda c: _s(c["cold"]) + f" (fit() {c['cold_fit_s']:.2f} s)")
+    row("ctfit, cold, every program at the cheapest compile effort (`scripts/_cheapest_compile.py`)",
+        lambda c: _s(c["cold_cheapest"]) if "cold_cheapest" in c else "—")
     row("ctfit, warm", lambda c: _s(c["warm"]) + f" (fit() {c['warm_fit_s']:.2f} s; peak {c['peak_mb']:.0f} MB)")
     row("ctfit, new sample count, warm cache", lambda c: f"{_s(c['new'])} ({c['new_n']:,} samples)" if "new" in c else "—")
     row("ctfit, warm from another size (the cache one fit of another file size left)",
@@ -698,8 +719,8 @@ def main(argv=None) -> int:
         sizes = [(2_000, 1_900)] if args.small else [(20_000, 19_000), (200_000, None)]
         prime = 5_000 if args.small else 50_000
         primed = attempt(f"priming with {prime:,} samples", lambda: {"cache": primed_by(b, prime, seed=11)})
-        cases = [attempt(f"scattered {n:,}", scattered, b, n, new, seed=1 + i, grid_peer=not args.small and n <= 20_000, primed_other=primed.get("cache"))
-                 | {"n": n, "prime_n": prime} for i, (n, new) in enumerate(sizes)]
+        cases = [attempt(f"scattered {n:,}", scattered, b, n, new, seed=1 + i, grid_peer=not args.small and n <= 20_000, primed_other=primed.get("cache"),
+                         cheapest=i == 0) | {"n": n, "prime_n": prime} for i, (n, new) in enumerate(sizes)]
         n_files = 8 if args.small else 256
         bat = None if args.no_batch else {"files": n_files} | attempt("many files", batch, b, n_files, 2_000, seed=7)
         mer = None if args.no_merl else attempt("MERL-sized", merl, b, 100_000 if args.small else None, seed=2)

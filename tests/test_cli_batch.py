@@ -95,6 +95,48 @@ def test_a_batch_stopped_by_an_unexpected_error_ends_its_threads_at_once(tmp_pat
     assert not left, left
 
 
+def test_a_window_is_fitted_as_soon_as_it_is_read_while_the_one_before_is_reported(monkeypatch):
+    """A window's fit starts when its reading ends (on a free fitting thread), not when the caller,
+    reporting the window before, asks for the next; at most three windows are held at once."""
+    import time
+
+    import ctfit._cli.fit_command as fit_command
+
+    files = [f"{k}.csv" for k in range(10)]
+    events, held, lock = [], [0], threading.Lock()
+
+    def note(*what):
+        with lock:
+            events.append(what)
+
+    def read(chunk, o, base):  # two files a window
+        with lock:
+            held[0] += 1
+            assert held[0] <= 3, "more than three windows held"
+        note("read", chunk[0])
+        return [(p, None, None) for p in chunk[:2]], {}, ()
+
+    def fit(ready, failed, fixed, o, base):
+        note("fit", ready[0][0])
+        time.sleep(0.02)
+        return {p: (None, None) for p, _, _ in ready}
+
+    monkeypatch.setattr(fit_command, "_read_window", read)
+    monkeypatch.setattr(fit_command, "_fit_window", fit)
+    got = []
+    for window in fit_command._windows(files, None, None):
+        note("report", next(iter(window)))
+        time.sleep(0.3)  # a slow caller: the next windows are read and fitted meanwhile
+        got += list(window)
+        note("reported", next(iter(window)))
+        with lock:
+            held[0] -= 1
+    assert got == files
+    at = {e: i for i, e in enumerate(events)}
+    assert at[("fit", "4.csv")] < at[("reported", "0.csv")]  # the third window's fit began while the first was reported
+    assert at[("read", "6.csv")] > at[("reported", "0.csv")]  # and the fourth is read only once the first is done
+
+
 def test_a_result_that_cannot_be_written_fails_that_file_alone(tmp_path, monkeypatch):
     """Among files fitted together, a result write that fails (a full disk) makes its file
     "failed", with one error line naming the file and the target, and every other file is written

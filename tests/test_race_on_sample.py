@@ -83,6 +83,45 @@ def test_only_the_distinct_winners_of_the_sample_go_on():
     assert chunked_fit._distinct_winners([a, b], [np.inf, np.inf]) == []
 
 
+def test_seeds_whose_lobes_are_listed_in_another_order_are_one_winner():
+    # flat coordinates as ravel_pytree orders them: f0 (2 bands), m (log, 2 lobes), s, w (stick fraction), padded
+    u0 = {"f0": np.zeros(2), "m": np.zeros(2), "s": np.zeros(()), "w": np.zeros(1)}
+    a = np.array([0.5, 0.6, np.log(0.2), np.log(0.4), 0.9, 0.4, 0.0, 0.0])  # lobes (0.2, w 0.6), (0.4, w 0.4)
+    swapped = np.array([0.5, 0.6, np.log(0.4), np.log(0.2), 0.9, 0.6, 0.0, 0.0])  # the same lobes, listed the other way
+    other = np.array([0.5, 0.6, np.log(0.4), np.log(0.2), 0.9, 0.4, 0.0, 0.0])  # the same slopes, other weights
+    np.testing.assert_allclose(chunked_fit._lobes_in_order(swapped, u0), chunked_fit._lobes_in_order(a, u0))
+    assert chunked_fit._distinct_winners([a, swapped, other], [1.0, 1.0, 1.0], u0) == [0, 2]
+    assert chunked_fit._distinct_winners([a, swapped], [1.0, 1.0]) == [0, 1]  # without the layout: the coordinates as they are
+    one_lobe = {"f0": np.zeros(2), "m": np.zeros(1), "s": np.zeros(())}
+    np.testing.assert_array_equal(chunked_fit._lobes_in_order(a[:4], one_lobe), a[:4])
+
+
+def test_a_race_whose_winners_differ_in_the_order_of_their_lobes_goes_on_once(monkeypatch):
+    data = _pairs(40_000, 3)
+    u0 = _prepared(data).u0
+    at = np.cumsum([0] + [int(np.size(u0[k])) for k in sorted(u0)])
+    m, w = (slice(at[i], at[i + 1]) for i in (sorted(u0).index("m"), sorted(u0).index("w")))
+    seeds = chunked_fit._seeds
+
+    def mirrored(*args):  # two seeds: the first, and it with its two lobes listed the other way
+        out = seeds(*args)
+        flat = np.array(out["flat"][:2])
+        flat[1] = flat[0]
+        flat[1, m], flat[1, w] = flat[0, m][::-1], 1 - flat[0, w]
+        return dict(out, flat=flat)
+
+    monkeypatch.setattr(chunked_fit, "_seeds", mirrored)
+    runs = _full_runs(monkeypatch)
+    seen = []
+    distinct = chunked_fit._distinct_winners
+    monkeypatch.setattr(chunked_fit, "_distinct_winners", lambda values, costs, u0=None: seen.append(values) or distinct(values, costs, u0))
+    out = _core(data)
+    (values,) = seen
+    assert not np.allclose(values[1], values[0], rtol=1e-2, atol=1e-2)  # the race ends with its lobes the other way ...
+    np.testing.assert_allclose(values[1][m], values[0][m][::-1], rtol=1e-6)  # ... at the same point
+    assert len(runs) == 1 and np.isfinite(out["costs"]).sum() == 1 and out["costs"].size == 2  # one of the two goes on
+
+
 def _full_runs(monkeypatch) -> list[int]:
     """Spy: the steps of every run over all the data (more chunks than the race's sample)."""
     runs, run = [], chunked_fit._Kernels.run

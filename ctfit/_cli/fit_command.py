@@ -357,26 +357,34 @@ the programs loaded ahead: 0.88× the time of one window at a time, paired)."""
 
 def _windows(files: list[Path], o, base):
     """The fits of ``files`` a window at a time (path → (measurement, FitResult) or the exception
-    that stopped it), in three stages that overlap: while the caller waits for one window's fits
-    and reports them, the next is fitted too (:func:`_fit_window`, in a second thread:
-    :data:`FITTING_WINDOWS`) and the one after it read (:func:`_read_window`, in another thread);
-    three windows are held at most."""
+    that stopped it), in three stages that overlap: while the caller reports one window's fits,
+    the next windows are fitted (:func:`_fit_window`, :data:`FITTING_WINDOWS` at once, in threads)
+    and the one after them read (:func:`_read_window`, in another thread). A window's fit is
+    started by the thread that read it, as soon as it is read (its fit waits there for a fitting
+    thread, not for the caller to ask for the window before); a window is read once the caller has
+    taken the one two before it, so three windows are held at most, the one being reported among them."""
+    import collections
     import concurrent.futures
 
     reader = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="ctfit-read")
     fitter = concurrent.futures.ThreadPoolExecutor(FITTING_WINDOWS, thread_name_prefix="ctfit-fit")
+
+    def read_and_fit(chunk: list[Path]) -> tuple[int, concurrent.futures.Future]:
+        ready, failed, fixed = _read_window(chunk, o, base)
+        return len(ready) + len(failed), fitter.submit(_fit_window, ready, failed, fixed, o, base)
+
     try:
-        reading: concurrent.futures.Future | None = reader.submit(_read_window, files, o, base)
-        fitting: concurrent.futures.Future | None = None
+        reading: concurrent.futures.Future | None = reader.submit(read_and_fit, files)
+        fits: collections.deque = collections.deque()  # the windows read, their fits started, in order
         while reading is not None:
-            ready, failed, fixed = reading.result()
-            files = files[len(ready) + len(failed):]
-            reading = reader.submit(_read_window, files, o, base) if files else None
-            fitted, fitting = fitting, fitter.submit(_fit_window, ready, failed, fixed, o, base)
-            if fitted is not None:
-                yield fitted.result()
-        if fitting is not None:
-            yield fitting.result()
+            taken, fit = reading.result()
+            files = files[taken:]
+            fits.append(fit)
+            reading = reader.submit(read_and_fit, files) if files else None
+            if len(fits) >= FITTING_WINDOWS:
+                yield fits.popleft().result()
+        while fits:
+            yield fits.popleft().result()
     finally:  # closed early (the caller stopped): what has not started is dropped, what runs ends first
         for pool in (reader, fitter):
             pool.shutdown(wait=True, cancel_futures=True)

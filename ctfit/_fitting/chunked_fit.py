@@ -521,27 +521,49 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
         lowest = min(costs)
         phase([max_steps - RACE_STEPS if (not ok[j] and costs[j] <= RACE_MARGIN * lowest) else 0 for j in range(n)], first)
     if sample is not None:  # the sample's winners, over all the data: a new solve each (other data)
-        go = _distinct_winners(jax.device_get(values), costs)
+        go = _distinct_winners(jax.device_get(values), costs, kern.u0)
         ok, steps, costs, last, paused = [False] * n, [0] * n, [math.inf] * n, [None] * n, [None] * n
         phase([max_steps if j in go else 0 for j in range(n)], kern)
     return values, np.array(sound), np.array(steps, np.int32), np.array(costs, flat.dtype), last
 
 
 SAME_POINT = 1e-3
-"""Seeds whose flat coordinates (log m, logits of w, …) all agree within this (absolute and
-relative) after the race on a sample converged to one point: only the lowest of them goes on."""
+"""Seeds whose coordinates (F0, s, log m, the lobes' weights, …; the lobes in order of m) all agree
+within this (absolute and relative) after the race on a sample converged to one point: only the
+lowest of them goes on."""
 
 
-def _distinct_winners(values: list, costs: list[float]) -> list[int]:
+def _lobes_in_order(flat: np.ndarray, u0: dict | None) -> np.ndarray:
+    """``flat`` (a seed's coordinates, as ``ravel_pytree(u0)`` orders them, padded or not) with its
+    lobes in order of m, each lobe's weight in place of the stick fractions
+    (:func:`~ctfit._fitting.coordinates.lobe_weights`): two seeds whose lobes are the same but
+    listed in another order — one model, one cost — compare equal. Without free m and w, ``flat``."""
+    flat = np.asarray(flat)
+    if u0 is None or "m" not in u0 or "w" not in u0:
+        return flat
+    at, where = 0, {}
+    for k in sorted(u0):
+        size = int(np.size(u0[k]))
+        where[k], at = slice(at, at + size), at + size
+    log_m, v = flat[where["m"]], flat[where["w"]]
+    w = np.cumprod(np.concatenate([[1.0], v])) * np.concatenate([1.0 - v, [1.0]])
+    order = np.argsort(log_m, kind="stable")
+    rest = np.delete(flat, np.r_[where["m"], where["w"]])
+    return np.concatenate([rest, log_m[order], w[order]])
+
+
+def _distinct_winners(values: list, costs: list[float], u0: dict | None = None) -> list[int]:
     """The seeds that go on over all the data after a race on a sample: those within
-    ``RACE_CLOSE`` of the lowest cost, lowest first, leaving out any at the point of one before."""
+    ``RACE_CLOSE`` of the lowest cost, lowest first, leaving out any at the point of one before
+    (its lobes in any order, given ``u0``: :func:`_lobes_in_order`)."""
     finite = [c for c in costs if math.isfinite(c)]
     if not finite:
         return []
     lowest = min(finite)
+    points = [_lobes_in_order(v, u0) for v in values]
     out: list[int] = []
     for j in sorted(range(len(costs)), key=lambda j: costs[j]):
-        if costs[j] <= (1 + RACE_CLOSE) * lowest and not any(np.allclose(values[j], values[i], rtol=SAME_POINT, atol=SAME_POINT) for i in out):
+        if costs[j] <= (1 + RACE_CLOSE) * lowest and not any(np.allclose(points[j], points[i], rtol=SAME_POINT, atol=SAME_POINT) for i in out):
             out.append(j)
     return out
 
