@@ -7,7 +7,7 @@ import pytest
 
 import ctfit
 from ctfit import load_material, simulate
-from ctfit._fitting.coordinates import lobe_weights, stick_fractions
+from ctfit._fitting.coordinates import fraction_weights, lobe_weights, stick_fractions
 from ctfit._fitting.solvers import active_set, predicted_decrease
 
 from conftest import ROOT
@@ -46,6 +46,7 @@ def test_stick_breaking_weights_round_trip(w):
     v = stick_fractions(w)
     assert np.all((v >= 0) & (v <= 1))
     np.testing.assert_allclose(lobe_weights(jnp.asarray(v), "box"), w, atol=1e-15)
+    np.testing.assert_allclose(fraction_weights(v), np.asarray(lobe_weights(jnp.asarray(v), "box")), rtol=0, atol=1e-16)  # the host's twin
 
 
 def test_active_set_holds_only_what_pushes_outward():

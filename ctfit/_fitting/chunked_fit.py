@@ -45,6 +45,7 @@ from jax.flatten_util import ravel_pytree
 
 from .._model import Params, Structure, array_leaves, is_array, split_arrays
 from .._runtime import stored_program
+from .coordinates import fraction_weights
 from .fit_report import combined_rms, light_report_core, report_core, summary_of_part, zero_model_cost
 from .jacobian import normal_equations
 from .problem import Problem, Spec
@@ -545,8 +546,7 @@ def _lobes_in_order(flat: np.ndarray, u0: dict | None) -> np.ndarray:
     for k in sorted(u0):
         size = int(np.size(u0[k]))
         where[k], at = slice(at, at + size), at + size
-    log_m, v = flat[where["m"]], flat[where["w"]]
-    w = np.cumprod(np.concatenate([[1.0], v])) * np.concatenate([1.0 - v, [1.0]])
+    log_m, w = flat[where["m"]], fraction_weights(flat[where["w"]])
     order = np.argsort(log_m, kind="stable")
     rest = np.delete(flat, np.r_[where["m"], where["w"]])
     return np.concatenate([rest, log_m[order], w[order]])

@@ -27,7 +27,7 @@ from .._model import Params, Structure, box_bounds, clip_box, n_lower, parameter
 if TYPE_CHECKING:
     from .problem import Spec
 
-__all__ = ["lobe_weights", "stick_fractions", "to_params", "from_params", "bounds", "free_names"]
+__all__ = ["lobe_weights", "fraction_weights", "stick_fractions", "to_params", "from_params", "bounds", "free_names"]
 
 
 def lobe_weights(u_w, space: str):
@@ -47,6 +47,13 @@ def stick_fractions(w) -> np.ndarray:
     w = w / np.sum(w)
     rest = np.cumsum(w[::-1])[::-1]  # r_j = Σ_(i≥j) w_i
     return np.clip(rest[1:] / np.maximum(rest[:-1], 1e-300), 0.0, 1.0)
+
+
+def fraction_weights(v) -> np.ndarray:
+    """:func:`lobe_weights` of box coordinates on the host (NumPy, no program): the lobes' weights
+    of the stick-breaking fractions ``v`` (J − 1 of them); :func:`stick_fractions` inverts it."""
+    v = np.asarray(v, dtype=float)
+    return np.cumprod(np.concatenate([[1.0], v])) * np.concatenate([1.0 - v, [1.0]])
 
 
 def to_params(spec: Spec, u: dict, fixed: Params) -> Params:
