@@ -9,6 +9,8 @@ own: they may change between versions. Everything meant for users is in :mod:`ct
   ``ctfit fit`` reads its file while it imports JAX (the floor of ``scripts/bench_fit.py``).
 - ``LOSSES``: the names ``ctfit.fit(..., loss=...)`` accepts besides "auto" (a search over
   every fit, ``scripts/bench_real.py``).
+- ``COMPILE_EFFORT``: XLA's options of each compile effort of the fit's programs (a dict,
+  changed in place by ``scripts/_cheapest_compile.py`` to compile every program the cheapest way).
 """
 
 from __future__ import annotations
@@ -19,10 +21,11 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from ._fitting import LOSSES, normal_equations, prepare_fit
     from ._io import start_read_ahead
+    from ._runtime import COMPILE_EFFORT
 
-__all__ = ["LOSSES", "normal_equations", "prepare_fit", "start_read_ahead"]
+__all__ = ["COMPILE_EFFORT", "LOSSES", "normal_equations", "prepare_fit", "start_read_ahead"]
 
-_HOME = {"LOSSES": "_fitting", "normal_equations": "_fitting", "prepare_fit": "_fitting", "start_read_ahead": "_io"}
+_HOME = {"COMPILE_EFFORT": "_runtime", "LOSSES": "_fitting", "normal_equations": "_fitting", "prepare_fit": "_fitting", "start_read_ahead": "_io"}
 
 
 def __getattr__(name: str) -> Any:

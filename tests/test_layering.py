@@ -6,6 +6,8 @@ import importlib
 import re
 from pathlib import Path
 
+import pytest
+
 import ctfit
 
 PACKAGE = Path(__file__).resolve().parents[1] / "ctfit"
@@ -124,6 +126,14 @@ def test_scripts_and_notebooks_use_the_public_api():
     found = [f"{p.relative_to(root)}" for p in sorted([*root.glob("scripts/*.py"), *root.glob("notebooks/*.ipynb")])
              if re.search(r"\bctfit\._[a-z]", p.read_text(encoding="utf-8"))]
     assert not found, found
+
+
+def test_every_name_of_ctfit_internal_resolves():
+    import ctfit.internal
+
+    assert all(getattr(ctfit.internal, name) is not None for name in ctfit.internal.__all__)
+    with pytest.raises(AttributeError):
+        ctfit.internal.not_a_name  # noqa: B018
 
 
 LAYERS = ["_model", "_io", "_runtime", "_colour", "_fitting", "_render", "_export", "_sampling", "_cli"]

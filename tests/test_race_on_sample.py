@@ -30,8 +30,12 @@ def _prepared(data: ctfit.Measurement, **kw):
 
 
 def test_the_rows_of_the_race_are_a_sample_of_the_data_and_only_of_a_large_file():
+    fewest = chunked_fit.ROWS * chunked_fit.FEWEST_RACE_CHUNKS
+    assert chunked_fit.race_rows(_prepared(_pairs(2 * fewest - 1, 1)).problem) is None  # below twice the fewest: raced on all of it
+    half = chunked_fit.race_rows(_prepared(_pairs(3 * fewest, 1)).problem)
+    assert half.size == chunked_fit.ROWS * (3 * fewest // (2 * chunked_fit.ROWS))  # a medium file: on about half of it, whole chunks
     rows = chunked_fit.ROWS * chunked_fit.RACE_CHUNKS
-    assert chunked_fit.race_rows(_prepared(_pairs(2 * rows - 1, 1)).problem) is None  # below twice the sample: raced on all of it
+    assert chunked_fit.race_rows(_prepared(_pairs(2 * rows - 1, 1)).problem).size < rows  # below twice the sample: on fewer chunks
     problem = _prepared(_pairs(2 * rows + 5, 1)).problem
     sample = chunked_fit.race_rows(problem)
     assert sample is not None and sample.size == rows and np.all(np.diff(sample) > 0)
@@ -58,12 +62,13 @@ def test_the_race_rows_of_a_grid_are_direction_pairs_with_every_band():
     np.testing.assert_array_equal(np.concatenate([np.asarray(p.geom.cos_l) for p in parts]), np.asarray(problem.geom.cos_l)[sample])
 
 
-@pytest.mark.parametrize("make", [lambda: _pairs(40_000, 3), lambda: ctfit.simulate(GOLD, n_pairs=20_000, noise=0.02, seed=4)], ids=["pairs", "grid"])
+@pytest.mark.parametrize("make", [lambda: _pairs(40_000, 3), lambda: ctfit.simulate(GOLD, n_pairs=20_000, noise=0.02, seed=4), lambda: _pairs(20_000, 5)],
+                         ids=["pairs", "grid", "pairs-medium"])
 def test_a_race_on_a_sample_ends_where_the_race_on_all_the_data_does(make, monkeypatch):
     data = make()
     sampled = ctfit.fit(data, GOLD.structure, loss="relative")
-    assert sampled.stats["race_samples"] >= chunked_fit.ROWS * chunked_fit.RACE_CHUNKS // 2 and sampled.converged
-    monkeypatch.setattr(chunked_fit, "RACE_CHUNKS", 10**9)  # every file raced on all its data
+    assert sampled.stats["race_samples"] >= chunked_fit.ROWS * chunked_fit.FEWEST_RACE_CHUNKS // 2 and sampled.converged
+    monkeypatch.setattr(chunked_fit, "FEWEST_RACE_CHUNKS", 10**9)  # every file raced on all its data
     whole = ctfit.fit(data, GOLD.structure, loss="relative")
     assert "race_samples" not in whole.stats and whole.converged
     np.testing.assert_allclose(sampled.stats["cost"], whole.stats["cost"], rtol=1e-8)
@@ -128,7 +133,7 @@ def _full_runs(monkeypatch) -> list[int]:
 
     def spy(self, *args):
         out = run(self, *args)
-        if len(self.parts) > chunked_fit.RACE_CHUNKS:
+        if len(self.parts) > chunked_fit.RACE_CHUNKS:  # (the files here race on RACE_CHUNKS chunks)
             runs.append(out[2])
         return out
 
