@@ -550,14 +550,10 @@ def _lobes_in_order(flat: np.ndarray, u0: dict | None) -> np.ndarray:
     flat = np.asarray(flat)
     if u0 is None or "m" not in u0 or "w" not in u0:
         return flat
-    at, where = 0, {}
-    for k in sorted(u0):
-        size = int(np.size(u0[k]))
-        where[k], at = slice(at, at + size), at + size
-    log_m, w = flat[where["m"]], fraction_weights(flat[where["w"]])
-    order = np.argsort(log_m, kind="stable")
-    rest = np.delete(flat, np.r_[where["m"], where["w"]])
-    return np.concatenate([rest, log_m[order], w[order]])
+    u = _unflat(u0, flat)
+    order = np.argsort(u["m"], kind="stable")
+    rest = [np.ravel(u[k]) for k in sorted(u) if k not in ("m", "w")]
+    return np.concatenate([*rest, u["m"][order], fraction_weights(u["w"])[order]])
 
 
 def _distinct_winners(values: list, costs: list[float], u0: dict | None = None) -> list[int]:
