@@ -32,11 +32,12 @@ def _prepared(data: ctfit.Measurement, **kw):
 def test_the_rows_of_the_race_are_a_sample_of_the_data_and_only_of_a_large_file():
     fewest = chunked_fit.ROWS * chunked_fit.FEWEST_RACE_CHUNKS
     assert chunked_fit.race_rows(_prepared(_pairs(2 * fewest - 1, 1)).problem) is None  # below twice the fewest: raced on all of it
-    half = chunked_fit.race_rows(_prepared(_pairs(3 * fewest, 1)).problem)
-    assert half.size == chunked_fit.ROWS * (3 * fewest // (2 * chunked_fit.ROWS))  # a medium file: on about half of it, whole chunks
+    assert chunked_fit.race_rows(_prepared(_pairs(2 * fewest, 1)).problem).size == fewest  # a small sample of a medium file
+    medium = chunked_fit.race_rows(_prepared(_pairs(41 * chunked_fit.ROWS, 1)).problem)
+    assert medium.size == chunked_fit.ROWS * (41 // chunked_fit.RACE_SHARE)  # an eighth of the file, in whole chunks
     rows = chunked_fit.ROWS * chunked_fit.RACE_CHUNKS
-    assert chunked_fit.race_rows(_prepared(_pairs(2 * rows - 1, 1)).problem).size < rows  # below twice the sample: on fewer chunks
-    problem = _prepared(_pairs(2 * rows + 5, 1)).problem
+    assert chunked_fit.race_rows(_prepared(_pairs(chunked_fit.RACE_SHARE * rows - 1, 1)).problem).size < rows  # not yet the most
+    problem = _prepared(_pairs(chunked_fit.RACE_SHARE * rows + 5, 1)).problem
     sample = chunked_fit.race_rows(problem)
     assert sample is not None and sample.size == rows and np.all(np.diff(sample) > 0)
     assert np.all(np.asarray(problem.mask)[sample]) and sample[-1] > rows  # data rows only, from all over the file
@@ -133,7 +134,7 @@ def _full_runs(monkeypatch) -> list[int]:
 
     def spy(self, *args):
         out = run(self, *args)
-        if len(self.parts) > chunked_fit.RACE_CHUNKS:  # (the files here race on RACE_CHUNKS chunks)
+        if len(self.parts) > chunked_fit.RACE_CHUNKS:  # (the files here race on fewer chunks)
             runs.append(out[2])
         return out
 
@@ -153,7 +154,7 @@ def test_seeds_at_one_point_go_on_once_and_a_near_tie_is_decided_on_all_the_data
     runs = _full_runs(monkeypatch)
     once = _core(data)
     assert len(runs) == 1 and np.sum(np.isfinite(once["costs"])) == 1  # the three seeds met on the sample: one goes on
-    assert once["race_samples"] == chunked_fit.ROWS * chunked_fit.RACE_CHUNKS
+    assert once["race_samples"] == chunked_fit.ROWS * chunked_fit.FEWEST_RACE_CHUNKS  # 40,000 samples (19 chunks): the smallest sample
     runs.clear()
     monkeypatch.setattr(chunked_fit, "SAME_POINT", 0.0)  # every seed its own point, all within RACE_CLOSE: all go on
     every = _core(data)

@@ -46,7 +46,7 @@ class FitStats(TypedDict, total=False):
     """Starts raced (grid seeds and the start given)."""
     race_samples: int
     """Present where the starts were raced on a random sample of the data, of this many samples
-    (data of at least 16,384 samples): the race's winners then went on over all of it (``steps``)."""
+    (data of at least 8,192 samples): the race's winners then went on over all of it (``steps``)."""
     relative_floor: float
     """The relative losses' floor (``loss_floor``)."""
     gauss_newton_decrease: float
