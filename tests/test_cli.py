@@ -68,6 +68,23 @@ def test_fit_json_equals_library_serialisation_and_file(simulated):
     assert lib == printed
 
 
+def test_fit_json_printed_is_the_files_text_and_escapes_what_is_not_ascii(simulated, tmp_path):
+    d, csv = simulated
+    out = tmp_path / "fit.json"
+    r = run("fit", csv, "--lobes", 2, "--no-diffuse", "--json", "-o", out)  # (the model of the data: no warnings, all ASCII)
+    assert r.exit_code == 0, r.output
+    assert r.stdout == out.read_text(encoding="utf-8")  # one document, encoded once: the same text
+    accented = tmp_path / "café" / "copper.csv"  # the data's path is in the document (meta.data)
+    accented.parent.mkdir()
+    accented.write_bytes(csv.read_bytes())
+    out2 = tmp_path / "fit-café.json"
+    r = run("fit", accented, "--lobes", 2, "--no-diffuse", "--json", "-o", out2)
+    assert r.exit_code == 0, r.output
+    text = out2.read_text(encoding="utf-8")
+    assert "café" in text and "caf\\u00e9" in r.stdout and r.stdout.isascii()  # the file in UTF-8; stdout escaped, as json.dumps does
+    assert json.loads(r.stdout) == json.loads(text)
+
+
 def test_fit_result_is_a_material_for_eval(simulated):
     d, csv = simulated
     out = d / "fit2.json"

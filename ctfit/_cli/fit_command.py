@@ -507,14 +507,24 @@ def fit_kwargs(o) -> dict:
 
 
 def _report_fit(res, path: Path, o, target) -> None:
-    """The table (or JSON) on stdout; the fit-result JSON written to ``target``."""
+    """The table (or JSON) on stdout; the fit-result JSON written to ``target``. The two JSON
+    documents are one (:func:`~ctfit._fitting.fit_result_to_dict`), made and encoded once: the
+    file's text is what ``--json`` prints where it holds only ASCII characters (``json.dumps``
+    escapes the others on stdout), which is most of a database's per-file cost outside its fit."""
     from .._fitting import fit_result_to_dict, format_fit_table
-    from .._io import save_material_json
+    from .._io import atomic_write, material_json
     from .._runtime import echo
 
-    echo(json.dumps(fit_result_to_dict(res), indent=2) if o.as_json else cli_message(format_fit_table(res, str(path))))
+    if not o.as_json:
+        echo(cli_message(format_fit_table(res, str(path))))
+    if not o.as_json and target is None:
+        return
+    doc = fit_result_to_dict(res)
+    text = material_json(doc)
+    if o.as_json:
+        echo(text[:-1] if text.isascii() and "\x7f" not in text else json.dumps(doc, indent=2))  # (ensure_ascii escapes DEL too)
     if target is not None:
-        save_material_json(res.material, target, extra=fit_result_to_dict(res, material_keys=False))
+        atomic_write(target, [text])
 
 
 def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target) -> bool:

@@ -57,7 +57,7 @@ from .files import atomic_write
 from .optical_constants import TABLE_FOLDERS, is_table_name, read_material_text, read_optical_constants, table_folders, table_names
 from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits
 
-__all__ = ["load_material", "material_from_dict", "material_to_dict", "save_material_json", "float_list", "jsonable"]
+__all__ = ["load_material", "material_from_dict", "material_to_dict", "material_json", "save_material_json", "float_list", "jsonable"]
 
 _TOL = 1e-9
 _MODEL_KEYS = (
@@ -558,6 +558,11 @@ def save_material_json(material: Material, path: str | os.PathLike[str], extra: 
     array([1.5, 1.5, 1.5])
     """
     path = pathlib.Path(path)
-    text = json.dumps(material_to_dict(material, extra), indent=2, ensure_ascii=False, allow_nan=False) + "\n"
-    atomic_write(path, [text])
+    atomic_write(path, [material_json(material_to_dict(material, extra))])
     return path
+
+
+def material_json(doc: dict) -> str:
+    """The text :func:`save_material_json` writes for ``doc`` (a :func:`material_to_dict`): JSON
+    indented by 2, UTF-8 characters as they are, no NaN (``material_to_dict`` makes them null)."""
+    return json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
