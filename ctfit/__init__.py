@@ -10,13 +10,22 @@ importing JAX until a model function is used.
 
 from __future__ import annotations
 
-import importlib.metadata
-
 import lazy_loader
 
-__getattr__, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)  # the names: __init__.pyi
+_public, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)  # the names: __init__.pyi
 
-try:
-    __version__ = importlib.metadata.version("ctfit")
-except importlib.metadata.PackageNotFoundError:  # running from a source tree
-    __version__ = "0.0.0"
+
+def __getattr__(name: str):
+    """A public name, loaded on first use; ``__version__`` looked up on first use too: importing
+    ``importlib.metadata`` costs 0.03–0.04 s, which a process that never asks (the read-ahead
+    helper, :mod:`ctfit._io.read_ahead`, whose start a large file's fit waits for) need not pay."""
+    if name == "__version__":
+        import importlib.metadata
+
+        try:
+            version = importlib.metadata.version("ctfit")
+        except importlib.metadata.PackageNotFoundError:  # running from a source tree
+            version = "0.0.0"
+        globals()["__version__"] = version
+        return version
+    return _public(name)

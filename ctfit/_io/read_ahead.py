@@ -26,10 +26,9 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from .csv_table import CsvTable, read_table
-
 if TYPE_CHECKING:
     from .._model import Measurement
+    from .csv_table import CsvTable
 
 __all__ = ["READ_AHEAD_BYTES", "ReadAhead", "start_read_ahead", "usable_cores"]
 
@@ -85,6 +84,8 @@ class ReadAhead:
         except BaseException:  # Ctrl-C while waiting: the helper stopped too
             _stop(process)
             raise
+        from .csv_table import CsvTable  # (NumPy: imported here, not before the helper starts)
+
         return table if isinstance(table, CsvTable) else None
 
     def measurement(self) -> Measurement:
@@ -126,6 +127,8 @@ def start_read_ahead(path: str | os.PathLike[str]) -> ReadAhead | None:
 
 def _main(argv: list[str]) -> int:
     """The helper: parse ``argv[1]`` and write its pickled :class:`CsvTable` to standard output."""
+    from .csv_table import read_table
+
     table = read_table(argv[1], prepared=True)
     out = sys.stdout.buffer
     pickle.dump(table, out, protocol=pickle.HIGHEST_PROTOCOL)
