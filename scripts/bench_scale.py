@@ -21,7 +21,7 @@ The machine's load is printed with the figures (``os.getloadavg``): on a shared 
 figure is a lower bound of what the hardware gives.
 
 Run: ``.venv/bin/python scripts/bench_scale.py [--small] [--repeat N] [--files N] [--samples N]
-[--texels N] [--loop-texels N] [--scipy-texels N] [--json FILE] [--no-warm-up]``.
+[--texels N] [--loop-texels N] [--scipy-texels N] [--json FILE] [--no-warm-up] [--no-fixed]``.
 """
 
 from __future__ import annotations
@@ -87,8 +87,8 @@ def _remove(path: Path) -> None:
 
 
 class Bench:
-    def __init__(self, tmp: Path, repeat: int, warm: bool = True):
-        self.tmp, self.repeat, self.warm = tmp, repeat, warm
+    def __init__(self, tmp: Path, repeat: int, warm: bool = True, fixed: bool = True):
+        self.tmp, self.repeat, self.warm, self.fixed = tmp, repeat, warm, fixed
         self.cache = tmp / "cache"
         self.env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(self.cache), CTFIT_PROGRESS="0", JAX_PLATFORMS="cpu")
 
@@ -100,6 +100,13 @@ class Bench:
     def time(self, cmd: list[str], what: str, fresh: Path | None = None) -> float:
         """Median wall time of ``cmd`` over the repeats (``fresh``: a folder removed before each run)."""
         return median([self.prime(cmd, what, fresh).wall_s for _ in range(self.repeat)])
+
+    def fixed_cost(self, cmd: list[str], what: str, fresh: Path | None = None) -> float | None:
+        """The median time of the one-item run (primed first), or None with ``--no-fixed``."""
+        if not self.fixed:
+            return None
+        self.warm_up(cmd, what, fresh)
+        return self.time(cmd, what, fresh)
 
     def prime(self, cmd: list[str], what: str, fresh: Path | None = None):
         """One run of ``cmd``; it must succeed (``ctfit``: exit 1, a fit that did not converge, is a
@@ -137,19 +144,23 @@ def database(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     res = {}
     for name, cmd in modes.items():
         b.warm_up(cmd(files), name, fresh=out)
-        b.warm_up(cmd([one / files[0].name]), name, fresh=out)
         whole = b.time(cmd(files), name, fresh=out)
-        fixed = b.time(cmd([one / files[0].name]), name, fresh=out)
+        fixed = b.fixed_cost(cmd([one / files[0].name]), name, fresh=out)
         per = _beyond(n_files - 1, whole, fixed)
         res[name] = dict(whole_s=whole, fixed_s=fixed, files_per_s=n_files / whole, marginal_files_per_s=per)
         print(f"database {n_files} files × {n_samples:,} samples, {name:>12}: {whole:7.2f} s, {n_files / whole:7.2f} files/s "
-              f"(one file: {fixed:.2f} s; beyond it {_rate(per)} files/s)", flush=True)
+              f"(one file: {_seconds(fixed)}; beyond it {_rate(per)} files/s)", flush=True)
     return res
 
 
-def _beyond(count: int, whole: float, fixed: float) -> float | None:
-    """Items per second beyond the one-item run (None where the run is within the fixed cost's noise)."""
-    return count / (whole - fixed) if whole > 1.05 * fixed else None
+def _beyond(count: int, whole: float, fixed: float | None) -> float | None:
+    """Items per second beyond the one-item run (None where the run is within the fixed cost's
+    noise, or was not run)."""
+    return count / (whole - fixed) if fixed is not None and whole > 1.05 * fixed else None
+
+
+def _seconds(value: float | None) -> str:
+    return "not run" if value is None else f"{value:.2f} s"
 
 
 def _rate(value: float | None) -> str:
@@ -189,13 +200,12 @@ def texels(b: Bench, n_texels: int, n_loop: int, n_scipy: int, seed: int) -> dic
     res = {}
     for name, (cmd, count) in modes.items():
         b.warm_up(cmd(full, count), name, fresh=maps)
-        b.warm_up(cmd(small, 1), name, fresh=maps)
         whole = b.time(cmd(full, count), name, fresh=maps)
-        fixed = b.time(cmd(small, 1), name, fresh=maps)
+        fixed = b.fixed_cost(cmd(small, 1), name, fresh=maps)
         per = _beyond(count - (1 if name in ("scipy", "fit loop") else 64), whole, fixed)
         res[name] = dict(texels=count, whole_s=whole, fixed_s=fixed, texels_per_s=count / whole, marginal_texels_per_s=per)
         print(f"texels {count:,} × {values.shape[1]} samples, {name:>12}: {whole:7.2f} s, {count / whole:9.1f} texels/s "
-              f"(fixed {fixed:.2f} s; beyond it {_rate(per)} texels/s)", flush=True)
+              f"(fixed {_seconds(fixed)}; beyond it {_rate(per)} texels/s)", flush=True)
     return res
 
 
@@ -211,12 +221,13 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", type=Path, help="write the figures here too")
     ap.add_argument("--no-warm-up", dest="warm", action="store_false", help="no untimed first runs (figures then include compiling; for tests)")
+    ap.add_argument("--no-fixed", dest="fixed", action="store_false", help="no one-item runs (no fixed cost, no rate beyond it; for tests)")
     args = ap.parse_args()
     if args.small:
         args.files, args.samples, args.texels, args.loop_texels, args.scipy_texels = 4, 300, 256, 4, 16
     started = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench-scale-") as tmp:
-        b = Bench(Path(tmp), args.repeat, args.warm)
+        b = Bench(Path(tmp), args.repeat, args.warm, args.fixed)
         load = os.getloadavg()
         print(f"machine: {os.cpu_count()} cores, load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} at the start", flush=True)
         res = dict(database=database(b, args.files, args.samples, args.seed), texels=texels(b, args.texels, args.loop_texels, args.scipy_texels, args.seed))

@@ -127,8 +127,9 @@ def test_single_band_data_of_unknown_wavelength_is_labelled_so(tmp_path):
 
 def test_fit_with_sample_exits_1_when_the_posterior_is_not_usable(tmp_path):
     """``ctfit fit --sample`` says what ``ctfit sample`` says: a converged fit whose posterior
-    is not usable (the yellow sheet: it left the fit) exits with status 1 and one error line."""
-    out = runner.invoke(app, ["fit", str(MEASURED / JAUNE[0]), "-o", str(tmp_path / "y.json"), "--sample", "--steps", "300", "-q"])
+    is not usable (the yellow sheet: it left the fit) exits with status 1 and one error line.
+    The fit is of the paper's metal structure, so no data-chosen structure is compiled."""
+    out = runner.invoke(app, ["fit", str(MEASURED / JAUNE[0]), "-o", str(tmp_path / "y.json"), "--sample", "--steps", "300", "-q", *PAPERS_METAL])
     doc = json.loads((tmp_path / "y.json").read_text())
     assert doc["fit"]["converged"] and doc["uncertainty"]["usable"] is False
     assert out.exit_code == 1 and "error: the posterior is not usable" in out.output, out.output
