@@ -549,18 +549,7 @@ def test_ctrl_c_while_sampling_says_how_to_resume_and_resuming_works(tmp_path):
     env = _env(tmp_path, JAX_COMPILATION_CACHE_DIR=str(tmp_path / "cache"))
     proc = subprocess.Popen(_ctfit(*args), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
 
-    def stepping():  # steps written to the chain file (read without HDF5's lock; a read mid-write is retried)
-        import h5py
-
-        if not chain.exists():
-            return False
-        try:
-            with h5py.File(chain, "r", locking=False) as f:
-                return int(f["ctfit"].attrs.get("iteration", 0)) >= 20
-        except (OSError, KeyError, ValueError, RuntimeError):
-            return False
-
-    code, err = _interrupt_when(proc, stepping, settle=0.5)
+    code, err = _interrupt_when(proc, lambda: _stored_iteration(chain, at_least=20), settle=0.5)
     hint = "interrupted; resume with: ctfit " + " ".join(map(str, args)) + " --resume"
     assert (code, err) == (130, hint + "\n")
     assert not post.exists()
@@ -571,6 +560,30 @@ def test_ctrl_c_while_sampling_says_how_to_resume_and_resuming_works(tmp_path):
     diag = json.loads(again.stdout)["uncertainty"]["diagnostics"]
     assert 0 < diag["resumed_from"] < 1000 and diag["resumed_from"] + diag["steps_run_now"] == diag["steps"] == 1000
     assert json.loads(post.read_text())["uncertainty"]["diagnostics"]["steps"] == 1000
+
+    # Started again (--overwrite) and stopped after some steps: the new chain, in the hidden file
+    # until then, now stands in the file, and the line says so (the 1,000 steps before are gone).
+    hidden = tmp_path / ".run.h5.ctfit-new"
+    proc = subprocess.Popen(_ctfit(*args, "--overwrite"), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    code, err = _interrupt_when(proc, lambda: _stored_iteration(hidden, at_least=10), settle=0.2)
+    steps = _stored_iteration(chain)
+    assert code == 130 and err == f"{hint}; {chain} now holds the new chain ({steps} steps)\n" and 10 <= steps < 1000
+    assert not hidden.exists()
+
+
+def _stored_iteration(path, at_least=None):
+    """The steps stored in a chain file (read without HDF5's lock; a read mid-write is retried);
+    with ``at_least``, whether there are that many (False while the file is not there yet)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r", locking=False) as f:
+            n = int(f["ctfit"].attrs.get("iteration", 0))
+    except (OSError, KeyError, ValueError, RuntimeError):
+        if at_least is None:
+            raise
+        return False
+    return n if at_least is None else n >= at_least
 
 
 def test_a_cache_entry_cut_by_ctrl_c_is_removed_without_a_word(tmp_path, monkeypatch):

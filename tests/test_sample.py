@@ -201,6 +201,91 @@ def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path
         sample(truth, data.replace(brdf=data.brdf * 1.01), steps=80, backend=path, resume=True, colour=False)
 
 
+def _stored_steps(path) -> int:
+    import emcee
+
+    return int(emcee.backends.HDFBackend(str(path), name="ctfit", read_only=True).iteration)
+
+
+@short
+def test_overwrite_replaces_the_stored_chain_only_when_the_new_one_has_run(metal, tmp_path, monkeypatch):
+    """``overwrite=True`` writes the new chain beside the file and moves it over it at the end: a
+    run that fails (here its start) or a Ctrl-C before the first step leaves the stored chain as
+    it was; a Ctrl-C after some steps leaves the new chain there (resumable); a link is kept."""
+    import ctfit._sampling.emcee_run as emcee_run
+
+    truth, data, _ = metal
+    real = tmp_path / "chains" / "run.h5"
+    real.parent.mkdir()
+    sample(truth, data, steps=12, seed=4, backend=real, colour=False)
+    link = tmp_path / "run.h5"
+    link.symlink_to(real)
+    real.chmod(0o600)
+    before = real.read_bytes()
+    hidden = real.parent / ".run.h5.ctfit-new"
+
+    def fails(*args, **kwargs):
+        raise ValueError("could not start every walker")
+
+    for error, raiser in ((ValueError, fails), (KeyboardInterrupt, lambda *a, **k: (_ for _ in ()).throw(KeyboardInterrupt))):
+        monkeypatch.setattr(emcee_run, "start_walkers", raiser)
+        with pytest.raises(error):
+            sample(truth, data, steps=30, seed=5, backend=link, overwrite=True, colour=False)
+        monkeypatch.undo()
+        assert real.read_bytes() == before and link.is_symlink() and not hidden.exists()
+
+    # A Ctrl-C after 10 of the new run's steps: the new chain is in the file, and resumes.
+    calls, original = {"n": 0}, Engine.__call__
+
+    def interrupted(self, coords):
+        calls["n"] += 1
+        if calls["n"] > 1 + 2 * 10:
+            raise KeyboardInterrupt
+        return original(self, coords)
+
+    monkeypatch.setattr(Engine, "__call__", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        sample(truth, data, steps=30, seed=5, backend=link, overwrite=True, colour=False)
+    monkeypatch.setattr(Engine, "__call__", original)
+    assert link.is_symlink() and not hidden.exists() and 5 < _stored_steps(real) < 30
+    res = sample(truth, data, steps=30, seed=5, backend=link, resume=True, colour=False)
+    ref = sample(truth, data, steps=30, seed=5, backend=tmp_path / "ref.h5", colour=False)
+    np.testing.assert_array_equal(res.chain_u, ref.chain_u)
+
+    # A whole run replaces it; a run killed before left its hidden file: the next one replaces that too.
+    hidden.write_bytes(b"left by a killed run")
+    res = sample(truth, data, steps=12, seed=6, backend=link, overwrite=True, colour=False)
+    assert _stored_steps(real) == 12 and res.chain_u.shape[0] == 12 and link.is_symlink() and not hidden.exists()
+    assert real.stat().st_mode & 0o777 == 0o600  # the file's permissions kept
+    assert res.diagnostics["backend"] == str(link)
+
+
+def test_a_new_chain_interrupted_in_the_command_says_what_the_file_holds(tmp_path, monkeypatch):
+    """The command's Ctrl-C (its cleanups, ``ctfit._io.interrupt``): a new chain with steps
+    replaces the file and the line says so; one without keeps the file and says that."""
+    import emcee
+
+    from ctfit._io import interrupt
+    from ctfit._sampling.backend import open_run
+
+    for steps_first in (0, 3):
+        path = tmp_path / f"run{steps_first}.h5"
+        path.write_bytes(b"the chain of before")
+        be, done, new = open_run(path, resume=False, overwrite=True, steps=10, shape=(4, 2), fingerprint="f", labels=["a", "b"], seed=0)
+        assert done == 0 and new is not None and path.read_bytes() == b"the chain of before"
+        assert interrupt.resumable() is None  # nothing to resume yet: the file holds what it held
+        if steps_first:
+            sampler = emcee.EnsembleSampler(4, 2, lambda x: -0.5 * np.sum(x * x), backend=be)
+            sampler.run_mcmc(np.random.default_rng(0).standard_normal((4, 2)), steps_first)
+            assert interrupt.resumable() == str(path)
+        said = interrupt.run_cleanups()
+        if steps_first:
+            assert said == [f"{path} now holds the new chain (3 steps)"] and _stored_steps(path) == 3
+        else:
+            assert said == [f"{path} keeps what it held (the new chain had no step)"] and path.read_bytes() == b"the chain of before"
+        assert not (tmp_path / f".{path.name}.ctfit-new").exists() and interrupt.run_cleanups() == []
+
+
 def test_relative_noise_likelihood_is_that_of_noise_proportional_to_the_model(metal):
     """loss 'relative': y_i ~ N(R_i, (σ_noise R_i)²) — scaled by the model R_i(θ), not by the
     data with the fit's floor — checked against a direct evaluation (flat priors: the log-prior

@@ -185,7 +185,8 @@ def sample_cmd(
     seed: int = typer.Option(0, "--seed", min=0),
     backend: Optional[str] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
-    overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file (its chain is lost)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file "
+                                   "(it replaces the stored one when it ends, or on Ctrl-C after a step)."),
     plot: Optional[Path] = typer.Option(None, "--plot", help="Folder for the corner and spectral-band PNGs."),
     idata: Optional[str] = typer.Option(None, "--idata", help="Also write the chain as ArviZ netCDF (az.from_netcdf) to this file."),
     param_out: Optional[str] = typer.Option(None, "--param-out", help=PARAM_OUT_HELP),

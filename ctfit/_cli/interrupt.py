@@ -40,7 +40,7 @@ def exit_interrupted(message: str, notes=()) -> None:
     (:func:`ctfit._io.interrupt.on_interrupt`) run first."""
     _exiting.acquire()  # a second caller waits here until the first has ended the process
     notes = [*notes, *remove_temporaries(last=True)]
-    run_cleanups()
+    notes += run_cleanups()
     message = "; ".join([message, *notes])
     for stream in (sys.stdout, sys.stderr):
         try:

@@ -23,7 +23,7 @@ from typing import TypedDict
 __all__ = ["deferred", "note_resumable", "on_interrupt", "resumable", "run_cleanups", "set_exit", "sigint", "wait_for_writes"]
 
 _guard = threading.RLock()  # held by deferred writes; the command's watcher takes it before exiting
-_cleanups: list[Callable[[], None]] = []  # run before an interrupted exit (on_interrupt)
+_cleanups: list[Callable[[], str | None]] = []  # run before an interrupted exit (on_interrupt)
 
 
 def _interrupt(notes: list[str]) -> None:
@@ -35,7 +35,7 @@ class _State(TypedDict):
 
     depth: int  # deferred blocks under way
     pending: bool  # a SIGINT held back until they end
-    resumable: str | None  # the chain file being written (note_resumable)
+    resumable: str | Callable[[], object] | None  # the chain file being written (note_resumable)
     exit: Callable[[list[str]], None]  # the command's exit (set_exit)
 
 
@@ -43,13 +43,18 @@ _state: _State = {"depth": 0, "pending": False, "resumable": None, "exit": _inte
 
 
 def note_resumable(path) -> None:
-    """Record that a chain is being written to ``path``: an interruption can be resumed."""
-    _state["resumable"] = os.fspath(path)
+    """Record that a chain is being written to ``path``: an interruption can be resumed.
+    ``path`` may be a function giving the path, or None while there is nothing to resume yet."""
+    _state["resumable"] = path if callable(path) else os.fspath(path)
 
 
 def resumable():
     """The chain file recorded by :func:`note_resumable`, or None."""
-    return _state["resumable"]
+    got = _state["resumable"]
+    if callable(got):
+        path = got()
+        return None if path is None else os.fspath(path)  # type: ignore[call-overload]  # a path, by note_resumable's contract
+    return got
 
 
 def set_exit(exit_now: Callable[[list[str]], None]) -> None:
@@ -88,17 +93,23 @@ def deferred(done: str | None = None):
                 _state["exit"]([done] if ended and done else [])
 
 
-def on_interrupt(cleanup: Callable[[], None]) -> Callable[[], None]:
-    """Run ``cleanup()`` before an interrupted exit (a Dask cluster shut down cleanly); returns
-    the function that withdraws it (call it once the resource is closed)."""
+def on_interrupt(cleanup: Callable[[], str | None]) -> Callable[[], None]:
+    """Run ``cleanup()`` before an interrupted exit (a Dask cluster shut down cleanly; what it
+    returns, if a string, is added to the line); returns the function that withdraws it (call
+    it once the resource is closed)."""
     _cleanups.append(cleanup)
     return lambda: _cleanups.remove(cleanup) if cleanup in _cleanups else None
 
 
-def run_cleanups() -> None:
-    """Run the cleanups of :func:`on_interrupt`, the last registered first; one that fails is skipped."""
+def run_cleanups() -> list[str]:
+    """Run the cleanups of :func:`on_interrupt`, the last registered first; one that fails is
+    skipped. Returns what they said (their strings)."""
+    said: list[str] = []
     for cleanup in reversed(list(_cleanups)):
         try:
-            cleanup()
+            note = cleanup()
         except BaseException:  # leaving anyway: a cleanup that fails is skipped
-            pass
+            continue
+        if isinstance(note, str):
+            said.append(note)
+    return said

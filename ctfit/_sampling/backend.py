@@ -3,6 +3,12 @@
 A stored run carries a fingerprint of the data, loss and sampled coordinates; resuming it with
 other ones is refused. Steps are written whole: a Ctrl-C in the ``ctfit`` command waits for the
 one under way (:mod:`ctfit._io.interrupt`), so a resumed run equals an uninterrupted one.
+
+A chain started again (``--overwrite``) in a file that holds something is written beside it, in
+a hidden file of the same folder (:class:`NewChain`), and moved over it when the run ends: the
+chain of before is lost only once the new one has its steps. A run that fails keeps the old file;
+one interrupted with steps stored replaces it (then it can be resumed), one interrupted before
+its first step keeps it; a killed process leaves the old file and the hidden one.
 """
 
 from __future__ import annotations
@@ -10,13 +16,14 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import os
 import pathlib
 
 import numpy as np
 
-from .._io import deferred, note_resumable
+from .._io import deferred, note_resumable, on_interrupt
 
-__all__ = ["fingerprint", "open_run"]
+__all__ = ["NewChain", "fingerprint", "open_run"]
 
 
 def fingerprint(y, loss: str, labels: list[str]) -> str:
@@ -28,12 +35,26 @@ def fingerprint(y, loss: str, labels: list[str]) -> str:
 
 
 def open_run(backend, *, resume: bool, overwrite: bool, steps: int, shape: tuple[int, int], fingerprint: str, labels: list[str], seed: int):
-    """(emcee backend or None, steps already done): a fresh chain in ``backend``, or the stored
-    one continued (``resume``), checked against this run's shape and fingerprint."""
+    """(emcee backend or None, steps already done, :class:`NewChain` or None): a fresh chain in
+    ``backend``, or the stored one continued (``resume``), checked against this run's shape and
+    fingerprint. With ``overwrite`` and a file there that holds something, the chain is written
+    beside it (the :class:`NewChain` returned: ``commit()`` it when the run ends, ``abandon()``
+    it when the run fails)."""
     if backend is None:
-        return None, 0
+        return None, 0, None
     path = pathlib.Path(backend)
-    be = _open_backend(path, overwrite=overwrite)
+    new = NewChain(path) if overwrite and path.is_file() and path.stat().st_size else None
+    try:
+        return _opened(path, new, resume=resume, overwrite=overwrite, steps=steps, shape=shape, fingerprint=fingerprint, labels=labels, seed=seed)
+    except BaseException:
+        if new is not None:
+            new.abandon()
+        raise
+
+
+def _opened(path: pathlib.Path, new, *, resume: bool, overwrite: bool, steps: int, shape: tuple[int, int], fingerprint: str, labels: list[str], seed: int):
+    write_to = path if new is None else new.temp
+    be = _open_backend(write_to, overwrite=overwrite and new is None)
     done = 0
     if resume and path.is_file() and path.stat().st_size and not be.initialized:  # another program's HDF5 file: never written into unasked
         raise ValueError(
@@ -55,9 +76,66 @@ def open_run(backend, *, resume: bool, overwrite: bool, steps: int, shape: tuple
     else:
         with deferred():  # a Ctrl-C in the ctfit command waits: no half-made file
             be.reset(*shape)
-            _write_attrs(path, {"ctfit_fingerprint": fingerprint, "ctfit_labels": json.dumps(labels), "ctfit_seed": int(seed)})
-    note_resumable(path)
-    return be, done
+            _write_attrs(write_to, {"ctfit_fingerprint": fingerprint, "ctfit_labels": json.dumps(labels), "ctfit_seed": int(seed)})
+    if new is None:
+        note_resumable(path)
+    else:
+        new.started(be)
+        note_resumable(lambda: path if new.committed or new.steps() else None)  # resumable once the new chain has a step (it then replaces the old)
+    return be, done, new
+
+
+class NewChain:
+    """A chain started again in a file that holds one (or anything): written to a hidden file
+    beside it (``.NAME.ctfit-new``, left by a killed run and replaced by the next), moved over it
+    by :meth:`commit`. Through a link, the file the link names is replaced (the link is kept).
+    A Ctrl-C in the ``ctfit`` command commits it when it has steps, else abandons it, and says
+    which (:func:`~ctfit._io.interrupt.on_interrupt`)."""
+
+    def __init__(self, path: pathlib.Path):
+        self.path = path
+        self.target = path.resolve()
+        self.temp = self.target.with_name(f".{self.target.name}.ctfit-new")
+        self.temp.unlink(missing_ok=True)
+        self._be = None
+        self.committed = False
+        self._withdraw = on_interrupt(self._interrupted)
+
+    def started(self, be) -> None:
+        self._be = be
+
+    def steps(self) -> int:
+        """The steps the new chain has stored."""
+        if self._be is None or not self.temp.is_file():
+            return 0
+        return int(self._be.iteration)
+
+    def commit(self) -> None:
+        """Move the new chain over the old file (one rename), the backend pointed at it."""
+        try:
+            os.chmod(self.temp, self.target.stat().st_mode & 0o7777)  # the file's permissions, as it had them
+        except OSError:
+            pass
+        os.replace(self.temp, self.target)  # not deferred: the interrupted exit calls this holding the writes' lock
+        self.committed = True
+        self._withdraw()
+        if self._be is not None:
+            self._be.filename = str(self.target)
+
+    def abandon(self) -> None:
+        """Remove the new chain; the old file stays as it was."""
+        self._withdraw()
+        self.temp.unlink(missing_ok=True)
+
+    def _interrupted(self) -> str | None:
+        if not self.temp.exists():  # committed or abandoned already
+            return None
+        n = self.steps()
+        if n:
+            self.commit()
+            return f"{self.path} now holds the new chain ({n} steps)"
+        self.abandon()
+        return f"{self.path} keeps what it held (the new chain had no step)"
 
 
 def _h5py():

@@ -59,23 +59,34 @@ def _run(
 
     labels = s.layout.labels()
     shape = (s.walkers, s.layout.ndim)
-    be, done = open_run(backend, resume=resume, overwrite=overwrite, steps=steps, shape=shape,
-                        fingerprint=fingerprint(s.engine.problem.y, s.loss, labels), labels=labels, seed=seed)
-    sampler = emcee.EnsembleSampler(s.walkers, s.layout.ndim, s.engine, vectorize=True, backend=be)
-    state, todo = None, steps - done  # resumed: the backend's last sample and random state
-    if done == 0:
-        coords, lp = start_walkers(s.engine, x0, cov, s.walkers, np.random.default_rng(seed))
-        sampler.random_state = np.random.RandomState(seed).get_state()
-        state = emcee.State(coords, log_prob=lp)
-    t = time.perf_counter()
-    if todo > 0 and progress == "lines":
-        from .._runtime import ProgressLines
+    be, done, new = open_run(backend, resume=resume, overwrite=overwrite, steps=steps, shape=shape,
+                             fingerprint=fingerprint(s.engine.problem.y, s.loss, labels), labels=labels, seed=seed)
+    try:
+        sampler = emcee.EnsembleSampler(s.walkers, s.layout.ndim, s.engine, vectorize=True, backend=be)
+        state, todo = None, steps - done  # resumed: the backend's last sample and random state
+        if done == 0:
+            coords, lp = start_walkers(s.engine, x0, cov, s.walkers, np.random.default_rng(seed))
+            sampler.random_state = np.random.RandomState(seed).get_state()
+            state = emcee.State(coords, log_prob=lp)
+        t = time.perf_counter()
+        if todo > 0 and progress == "lines":
+            from .._runtime import ProgressLines
 
-        lines = ProgressLines(steps, desc="sampling", done=done)
-        for _ in sampler.sample(state if state is not None else sampler.get_last_sample(), iterations=todo):
-            lines.update()
-    elif todo > 0:
-        sampler.run_mcmc(state, todo, progress=bool(progress))
+            lines = ProgressLines(steps, desc="sampling", done=done)
+            for _ in sampler.sample(state if state is not None else sampler.get_last_sample(), iterations=todo):
+                lines.update()
+        elif todo > 0:
+            sampler.run_mcmc(state, todo, progress=bool(progress))
+    except KeyboardInterrupt:  # a library user's Ctrl-C: as the command's (backend.NewChain)
+        if new is not None:
+            new.commit() if new.steps() else new.abandon()
+        raise
+    except BaseException:
+        if new is not None:  # the run failed: the file keeps what it held
+            new.abandon()
+        raise
+    if new is not None:  # the new chain is whole: it replaces what the file held
+        new.commit()
     return sampler, todo, done, time.perf_counter() - t
 
 
@@ -127,7 +138,8 @@ def sample(
     :func:`~ctfit._sampling.posterior_density.default_walkers`), ``steps`` per walker (the total, also when resuming), ``burn``
     (default max(2 τ_max, steps/10), at most steps/2), ``thin``; ``seed`` fixes the start and
     emcee's generator. ``backend``: HDF5 file of the chain; ``resume`` continues a stored run to
-    ``steps`` (bit-identical to an uninterrupted run), ``overwrite`` starts it again.
+    ``steps`` (bit-identical to an uninterrupted run), ``overwrite`` starts it again (written beside
+    the file, which it replaces when it ends: :mod:`ctfit._sampling.backend`).
     ``colour``: also summarise the colour (sRGB, CIELAB) of the draws. ``progress``: True (or
     "bar"), a tqdm bar on stderr; "lines", a line on stderr every few seconds
     (:class:`~ctfit._runtime.progress.ProgressLines`: for a log file).
@@ -159,7 +171,7 @@ def sample(
         raise ValueError(f"steps and thin must be ≥ 1, got steps={steps}, thin={thin}")
     if thin > steps:
         raise ValueError(f"thin must be at most steps ({steps}) to keep a draw, got thin={thin}")
-    if burn is not None and not 0 <= burn < steps:  # before the backend is touched (--overwrite empties it) or a step is run
+    if burn is not None and not 0 <= burn < steps:  # before the backend is touched or a step is run
         raise ValueError(f"burn must be in [0, steps), got {burn} with steps={steps}")
     if burn is not None and steps - burn < thin:
         raise ValueError(f"thin must be at most steps − burn = {steps - burn} to keep a draw, got thin={thin} (burn={burn})")
