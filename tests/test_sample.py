@@ -212,17 +212,25 @@ def test_overwrite_replaces_the_stored_chain_only_when_the_new_one_has_run(metal
     """``overwrite=True`` writes the new chain beside the file and moves it over it at the end: a
     run that fails (here its start) or a Ctrl-C before the first step leaves the stored chain as
     it was; a Ctrl-C after some steps leaves the new chain there (resumable); a link is kept."""
+    import subprocess
+    import sys
+
     import ctfit._sampling.emcee_run as emcee_run
 
     truth, data, _ = metal
     real = tmp_path / "chains" / "run.h5"
     real.parent.mkdir()
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True).stdout.strip()
+    stale = real.parent / f".ctfit-{dead}-0123abcd.tmp"  # a temporary that a killed run left
     sample(truth, data, steps=12, seed=4, backend=real, colour=False)
     link = tmp_path / "run.h5"
     link.symlink_to(real)
     real.chmod(0o600)
     before = real.read_bytes()
-    hidden = real.parent / ".run.h5.ctfit-new"
+    stale.write_bytes(b"left by a killed run")
+
+    def hidden():  # the new chain's temporary file (atomic_write's names), if any
+        return sorted(real.parent.glob(".ctfit-*.tmp"))
 
     def fails(*args, **kwargs):
         raise ValueError("could not start every walker")
@@ -232,7 +240,7 @@ def test_overwrite_replaces_the_stored_chain_only_when_the_new_one_has_run(metal
         with pytest.raises(error):
             sample(truth, data, steps=30, seed=5, backend=link, overwrite=True, colour=False)
         monkeypatch.undo()
-        assert real.read_bytes() == before and link.is_symlink() and not hidden.exists()
+        assert real.read_bytes() == before and link.is_symlink() and not hidden()  # the stale one swept too
 
     # A Ctrl-C after 10 of the new run's steps: the new chain is in the file, and resumes.
     calls, original = {"n": 0}, Engine.__call__
@@ -247,15 +255,14 @@ def test_overwrite_replaces_the_stored_chain_only_when_the_new_one_has_run(metal
     with pytest.raises(KeyboardInterrupt):
         sample(truth, data, steps=30, seed=5, backend=link, overwrite=True, colour=False)
     monkeypatch.setattr(Engine, "__call__", original)
-    assert link.is_symlink() and not hidden.exists() and 5 < _stored_steps(real) < 30
+    assert link.is_symlink() and not hidden() and 5 < _stored_steps(real) < 30
     res = sample(truth, data, steps=30, seed=5, backend=link, resume=True, colour=False)
     ref = sample(truth, data, steps=30, seed=5, backend=tmp_path / "ref.h5", colour=False)
     np.testing.assert_array_equal(res.chain_u, ref.chain_u)
 
-    # A whole run replaces it; a run killed before left its hidden file: the next one replaces that too.
-    hidden.write_bytes(b"left by a killed run")
+    # A whole run replaces it.
     res = sample(truth, data, steps=12, seed=6, backend=link, overwrite=True, colour=False)
-    assert _stored_steps(real) == 12 and res.chain_u.shape[0] == 12 and link.is_symlink() and not hidden.exists()
+    assert _stored_steps(real) == 12 and res.chain_u.shape[0] == 12 and link.is_symlink() and not hidden()
     assert real.stat().st_mode & 0o777 == 0o600  # the file's permissions kept
     assert res.diagnostics["backend"] == str(link)
 
@@ -283,7 +290,7 @@ def test_a_new_chain_interrupted_in_the_command_says_what_the_file_holds(tmp_pat
             assert said == [f"{path} now holds the new chain (3 steps)"] and _stored_steps(path) == 3
         else:
             assert said == [f"{path} keeps what it held (the new chain had no step)"] and path.read_bytes() == b"the chain of before"
-        assert not (tmp_path / f".{path.name}.ctfit-new").exists() and interrupt.run_cleanups() == []
+        assert not list(tmp_path.glob(".ctfit-*.tmp")) and interrupt.run_cleanups() == []
 
 
 def test_relative_noise_likelihood_is_that_of_noise_proportional_to_the_model(metal):

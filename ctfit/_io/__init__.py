@@ -12,7 +12,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "csv_files": ['read_csv', 'write_csv'],
         "csv_table": ['CsvTable', 'read_table'],
         "errors": ['DataError', 'DataWarning', 'MaterialError'],
-        "files": ['TEMPORARY', 'atomic_save', 'atomic_write', 'remove_stale_temporaries', 'remove_temporaries', 'replace_links_in'],
+        "files": ['TEMPORARY', 'atomic_save', 'atomic_write', 'remove_stale_temporaries', 'remove_temporaries', 'replace_links_in', 'temporary_for'],
         "interrupt": ['deferred', 'note_resumable', 'on_interrupt', 'resumable', 'run_cleanups', 'set_exit', 'sigint', 'wait_for_writes'],
         "material_files": ['float_list', 'jsonable', 'load_material', 'material_from_dict', 'material_json', 'material_to_dict',
                            'save_material_json'],

@@ -22,6 +22,7 @@ __all__ = [
     "remove_stale_temporaries",
     "remove_temporaries",
     "replace_links_in",
+    "temporary_for",
     "writes_in_place",
 ]
 
@@ -190,6 +191,29 @@ def _write_in_place(path: str, chunks) -> None:
         raise _named(e, path, None) from None
 
 
+def temporary_for(path) -> tuple[str, str, int | None]:
+    """(temporary, target, mode): where a new file for ``path`` is made before it is renamed over
+    ``target`` (:func:`atomic_write`'s rules: a link's target, or the link in a folder of
+    :func:`replace_links_in`), and the permissions to give it (the old file's; None: the umask's).
+    A read-only file is refused (``PermissionError``); the first call for a folder removes its
+    stale temporaries (:func:`remove_stale_temporaries`). The temporary is not made here."""
+    path = os.fspath(path)
+    target = _destination(path)
+    try:
+        mode: int | None = stat.S_IMODE(os.stat(target, follow_symlinks=False).st_mode)
+    except FileNotFoundError:
+        mode = None
+    if mode is not None and os.path.islink(target):
+        mode = None  # a link replaced by a new file: the umask's mode
+    if mode is not None and not mode & 0o222:
+        raise PermissionError(errno.EACCES, "the file is read-only (no write permission); not replaced", path)
+    folder = os.path.dirname(target)
+    if folder not in _swept:
+        _swept.add(folder)
+        remove_stale_temporaries(folder)
+    return os.path.join(folder, f".ctfit-{os.getpid()}-{os.urandom(4).hex()}.tmp"), target, mode
+
+
 def atomic_write(path, chunks, *, quiet: bool = False) -> None:
     """Write ``chunks`` (all ``str`` or all ``bytes``) to a new file beside ``path``, then rename it
     over ``path``: readers see the old file or the whole new one, never a part.
@@ -210,20 +234,7 @@ def atomic_write(path, chunks, *, quiet: bool = False) -> None:
     if writes_in_place(path):
         _write_in_place(path, chunks)
         return
-    target = _destination(path)
-    try:
-        mode = stat.S_IMODE(os.stat(target, follow_symlinks=False).st_mode)
-    except FileNotFoundError:
-        mode = None
-    if mode is not None and os.path.islink(target):
-        mode = None  # a link replaced by a new file: the umask's mode
-    if mode is not None and not mode & 0o222:
-        raise PermissionError(errno.EACCES, "the file is read-only (no write permission); not replaced", path)
-    folder = os.path.dirname(target)
-    if folder not in _swept:
-        _swept.add(folder)
-        remove_stale_temporaries(folder)
-    tmp = os.path.join(folder, f".ctfit-{os.getpid()}-{os.urandom(4).hex()}.tmp")
+    tmp, target, mode = temporary_for(path)
     try:
         with _creating:  # made and listed together: a sweep sees both or neither
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the umask applies, as for open()

@@ -5,10 +5,10 @@ other ones is refused. Steps are written whole: a Ctrl-C in the ``ctfit`` comman
 one under way (:mod:`ctfit._io.interrupt`), so a resumed run equals an uninterrupted one.
 
 A chain started again (``--overwrite``) in a file that holds something is written beside it, in
-a hidden file of the same folder (:class:`NewChain`), and moved over it when the run ends: the
+a temporary file of the same folder (:class:`NewChain`), and moved over it when the run ends: the
 chain of before is lost only once the new one has its steps. A run that fails keeps the old file;
 one interrupted with steps stored replaces it (then it can be resumed), one interrupted before
-its first step keeps it; a killed process leaves the old file and the hidden one.
+its first step keeps it; a killed process leaves the old file (and the temporary one, until a later write sweeps it).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import pathlib
 
 import numpy as np
 
-from .._io import deferred, note_resumable, on_interrupt
+from .._io import deferred, note_resumable, on_interrupt, temporary_for
 
 __all__ = ["NewChain", "fingerprint", "open_run"]
 
@@ -86,20 +86,21 @@ def _opened(path: pathlib.Path, new, *, resume: bool, overwrite: bool, steps: in
 
 
 class NewChain:
-    """A chain started again in a file that holds one (or anything): written to a hidden file
-    beside it (``.NAME.ctfit-new``, left by a killed run and replaced by the next), moved over it
-    by :meth:`commit`. Through a link, the file the link names is replaced (the link is kept).
-    A Ctrl-C in the ``ctfit`` command commits it when it has steps, else abandons it, and says
-    which (:func:`~ctfit._io.interrupt.on_interrupt`)."""
+    """A chain started again in a file that holds one (or anything): written to a temporary file
+    beside it, named and placed as :func:`~ctfit._io.atomic_write` places its own
+    (:func:`~ctfit._io.temporary_for`: through a link, the file it names is replaced; the old
+    file's permissions kept; a read-only file refused; one a killed run left is removed by a
+    later write into the folder), and renamed over it by :meth:`commit`. A Ctrl-C in the
+    ``ctfit`` command ends it by :meth:`stop`, and the line says how
+    (:func:`~ctfit._io.interrupt.on_interrupt`)."""
 
     def __init__(self, path: pathlib.Path):
         self.path = path
-        self.target = path.resolve()
-        self.temp = self.target.with_name(f".{self.target.name}.ctfit-new")
-        self.temp.unlink(missing_ok=True)
+        temp, self.target, self._mode = temporary_for(path)
+        self.temp = pathlib.Path(temp)
         self._be = None
         self.committed = False
-        self._withdraw = on_interrupt(self._interrupted)
+        self._withdraw = on_interrupt(lambda: self.stop() if self.temp.exists() else None)  # not once committed or abandoned
 
     def started(self, be) -> None:
         self._be = be
@@ -112,24 +113,22 @@ class NewChain:
 
     def commit(self) -> None:
         """Move the new chain over the old file (one rename), the backend pointed at it."""
-        try:
-            os.chmod(self.temp, self.target.stat().st_mode & 0o7777)  # the file's permissions, as it had them
-        except OSError:
-            pass
+        if self._mode is not None:
+            os.chmod(self.temp, self._mode)
         os.replace(self.temp, self.target)  # not deferred: the interrupted exit calls this holding the writes' lock
         self.committed = True
         self._withdraw()
         if self._be is not None:
-            self._be.filename = str(self.target)
+            self._be.filename = self.target
 
     def abandon(self) -> None:
         """Remove the new chain; the old file stays as it was."""
         self._withdraw()
         self.temp.unlink(missing_ok=True)
 
-    def _interrupted(self) -> str | None:
-        if not self.temp.exists():  # committed or abandoned already
-            return None
+    def stop(self) -> str:
+        """End an interrupted run: with steps stored, the new chain replaces the file (it can be
+        resumed); without, it is removed. Says which."""
         n = self.steps()
         if n:
             self.commit()

@@ -79,7 +79,7 @@ def _run(
             sampler.run_mcmc(state, todo, progress=bool(progress))
     except KeyboardInterrupt:  # a library user's Ctrl-C: as the command's (backend.NewChain)
         if new is not None:
-            new.commit() if new.steps() else new.abandon()
+            new.stop()
         raise
     except BaseException:
         if new is not None:  # the run failed: the file keeps what it held
