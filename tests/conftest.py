@@ -1,12 +1,25 @@
-"""Test configuration: float64 enabled for the suite (ctfit itself never switches it on)."""
+"""Test configuration: float64 enabled for the suite (ctfit itself never switches it on), and
+XLA's cheapest compile for every program of the suite and of the processes it starts."""
 
 import importlib.util
 import os
 import pathlib
 
-import jax
-import jax.monitoring
-import pytest
+CHEAP_XLA_FLAGS = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
+"""The suite's programs are compiled without XLA's backend optimisation and fusion emitters:
+compiling is most of the suite's time (a fresh clone compiles every program), and these flags
+halve it (tests/test_fit_chunks.py and tests/test_fit_programs.py: 47 s against 97 s, two
+workers). They change how fast a program runs, not what it computes; the programs as ctfit
+compiles them for users are checked against these in tests/test_shipped_compile.py, which
+runs without them. ``CTFIT_TEST_COMPILE=shipped`` runs the whole suite as ctfit ships. Set in
+the environment before JAX starts, so the processes the tests start inherit it; the program
+store keys every program by ``XLA_FLAGS``, so none is shared with a run of other flags."""
+if os.environ.get("CTFIT_TEST_COMPILE", "cheap") != "shipped" and CHEAP_XLA_FLAGS not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {CHEAP_XLA_FLAGS}".strip()
+
+import jax  # noqa: E402  (after XLA_FLAGS: JAX reads them when its backend starts)
+import jax.monitoring  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_platforms", "cpu")

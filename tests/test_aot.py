@@ -353,6 +353,20 @@ def test_the_source_digest_covers_subpackages(tmp_path, monkeypatch):
     assert digest() != before
 
 
+def test_the_xla_flags_are_part_of_every_key(monkeypatch):
+    """A program compiled under other ``XLA_FLAGS`` (another optimisation level: the suite's own,
+    tests/conftest.py) is another program: it is never served under this process's flags."""
+    from ctfit._runtime import stored_programs as _aot
+
+    digest = _aot._environment_digest.__wrapped__
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
+    cheap = digest()
+    monkeypatch.delenv("XLA_FLAGS")
+    assert digest() != cheap
+    monkeypatch.setenv("XLA_FLAGS", "--xla_backend_optimization_level=0")
+    assert digest() == cheap
+
+
 def test_kept_programs_are_built_once_per_key_and_the_least_recently_used_dropped(store):
     """kept_program: one program per name, static values and constants' values; with a limit, the
     programs of that name used last (the other names' untouched)."""

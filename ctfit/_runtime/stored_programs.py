@@ -12,7 +12,8 @@ determines it:
 - the function's name and the source of the ctfit package (any edit invalidates every entry);
 - the versions of jax, jaxlib, equinox, optimistix, lineax and numpy, the backend, its
   platform version, the device kind and the CPU's feature flags (executables are compiled for
-  the host's instruction set);
+  the host's instruction set), and the ``XLA_FLAGS`` the process started with (they change what
+  XLA makes of a program: an optimisation level, a dump folder);
 - the static part of the arguments (structure, spec, solver options: their ``repr``) and the
   shape and dtype of every array argument.
 
@@ -141,7 +142,8 @@ def _environment_digest() -> str:
             versions.append(f"{dist}=?")
     device = jax.devices()[0]
     backend = device.client  # (jax.extend.backend.get_backend(): importing jax.extend costs 40 ms)
-    parts = [f"format={_FORMAT}", *versions, backend.platform, backend.platform_version, device.device_kind, _cpu_flags(), _source_digest()]
+    xla_flags = f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')}"  # read by XLA when the backend starts: they change what it compiles
+    parts = [f"format={_FORMAT}", *versions, backend.platform, backend.platform_version, device.device_kind, _cpu_flags(), xla_flags, _source_digest()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
