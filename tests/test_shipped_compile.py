@@ -25,8 +25,8 @@ def _figures() -> dict:
     rng = np.random.default_rng(7)
     plastic = ctfit.Material(ctfit.Structure(lobes=2), ctfit.Params(m=np.array([0.15, 0.4]), w=np.array([0.6, 0.4]), s=np.array(0.8),
                              f0=np.array([0.5, 0.6, 0.7])), wavelength_nm=WAVELENGTHS)
-    scattered = ctfit.simulate(plastic, n_pairs=4000, seed=1)  # 12,000 samples, every one its own band
-    keep = np.arange(len(scattered)) % 3 == np.repeat(np.arange(4000) % 3, 3)
+    scattered = ctfit.simulate(plastic, n_pairs=12_000, seed=1)  # × 3 bands; one band of each pair kept: 12,000 samples
+    keep = np.arange(len(scattered)) % 3 == np.repeat(np.arange(12_000) % 3, 3)
     scattered = scattered.replace(**{k: getattr(scattered, k)[keep] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf")})
     scattered = scattered.replace(brdf=scattered.brdf * (1 + 0.02 * rng.standard_normal(len(scattered))))
     metal = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1),
@@ -61,12 +61,12 @@ print(json.dumps(test_shipped_compile._figures()))
 @pytest.mark.slow
 def test_programs_compiled_as_shipped_compute_what_the_suite_s_programs_compute(tmp_path):
     flags = os.environ.get("XLA_FLAGS", "").replace(CHEAP_XLA_FLAGS, "").strip()
+    assert "xla_backend_optimization_level" not in flags and CHEAP_XLA_FLAGS in os.environ["XLA_FLAGS"]  # the two compiles differ
     env = {**os.environ, "CTFIT_TEST_COMPILE": "shipped", "XLA_FLAGS": flags, "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
     done = subprocess.run([sys.executable, "-c", SHIPPED.format(tests=str(ROOT / "tests"))], capture_output=True, text=True,
                           env=env, timeout=600, cwd=tmp_path)
     assert done.returncode == 0, done.stderr[-3000:]
     shipped = json.loads(done.stdout.splitlines()[-1])
-    assert "xla_backend_optimization_level" not in flags and CHEAP_XLA_FLAGS in os.environ["XLA_FLAGS"]  # the two compiles differ
     here = _figures()
     for fit in ("two", "one", "texels"):
         for k, v in here[fit]["params"].items():
