@@ -181,9 +181,24 @@ def make_problem(
         pair=pair,
         band=band,
         floor=jax.device_put(np.asarray(floor, dtype=jnp.dtype(dtype))),
-        fixed=jax.tree.map(to, fixed_params),
+        fixed=jax.tree.map(to, used_params(structure, fixed_params)),
         fixed_bands=n_bands,
     )
+
+
+def used_params(structure: Structure, params: Params) -> Params:
+    """``params`` with the fields ``structure`` does not use set to None (the convention of
+    :class:`~ctfit.Params`): what a fit holds fixed. A fit's result reports the effective index
+    n beside F0; a fit started from it must compile and load the programs of a fit started from
+    anywhere else (the data-chosen default's final fit and its candidate's: one ``fit_ne``).
+
+    >>> import numpy as np, ctfit
+    >>> p = ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.9]), n=np.array([37.0]))
+    >>> used_params(ctfit.Structure(lobes=1, diffuse=None), p).n is None
+    True
+    """
+    used = set(free_names(structure)) | ({"w"} if structure.has_specular else set())
+    return dataclasses.replace(params, **{f.name: None for f in dataclasses.fields(params) if f.name not in used})
 
 
 
