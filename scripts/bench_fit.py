@@ -24,7 +24,7 @@ scratch folder (``_bench_fit_data.py`` describes them).
 - **MERL-sized**: a MERL ``.binary`` file (every cell above the horizon: 1,096,216 pairs × RGB;
   ``--small``: 100,000 pairs), ``ctfit fit FILE --no-diffuse`` warm: time and peak memory.
 - **Per texel**: ``ctfit.fit_batch(geometry, values=...)`` on 100,000 texels × 201 samples (67
-  direction pairs × RGB, one lobe; ``--small``: 256), float32 and float64, in this
+  direction pairs × RGB, one lobe; ``--small``: 64), float32 and float64, in this
   process: texels per second of a call after the compiling one.
 - **Mitsuba**: Mitsuba 3's ``roughconductor`` (Dr.Jit ``llvm_ad_rgb``, Adam, log loss, lr 0.05,
   1,000 iterations; ``_mitsuba_fit.py``) on 20,000 RGB direction pairs Mitsuba rendered (Cu,
@@ -698,7 +698,7 @@ def _source_digest() -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", "--small", dest="small", action="store_true", help="small version (2,000 samples, 8 files, MERL 100,000 pairs, 256 texels, "
+    ap.add_argument("--quick", "--small", dest="small", action="store_true", help="small version (2,000 samples, 8 files, MERL 100,000 pairs, 64 texels, "
                                                                                   "no Mitsuba)")
     ap.add_argument("--repeat", type=int, default=None, help="runs per figure (median); default 3, 1 with --small")
     ap.add_argument("--no-merl", action="store_true", help="skip the MERL-sized case")
@@ -724,7 +724,7 @@ def main(argv=None) -> int:
         n_files = 8 if args.small else 256
         bat = None if args.no_batch else {"files": n_files} | attempt("many files", batch, b, n_files, 2_000, seed=7)
         mer = None if args.no_merl else attempt("MERL-sized", merl, b, 100_000 if args.small else None, seed=2)
-        tex = None if args.no_texels else attempt("per texel", texels, 256 if args.small else 100_000, seed=3)
+        tex = None if args.no_texels else attempt("per texel", texels, 64 if args.small else 100_000, seed=3)
         if args.no_mitsuba:
             mit = None
         elif args.small:

@@ -119,14 +119,13 @@ def test_a_copied_program_store_still_serves_its_programs(tmp_path, monkeypatch,
         compilation_cache.reset_cache()
 
 
-
 @pytest.mark.parametrize("structure", [ctfit.Structure(lobes=2, diffuse="F0/pi"), ctfit.Structure(lobes=1, diffuse="spectrum", family="plastic")])
 def test_a_fit_started_from_a_fit_takes_the_programs_of_a_fit_started_anywhere(structure):
-    """A fitted F0 metal reports n beside F0; a fit started from those parameters (the data-chosen
-    default's final fit and every nested candidate) holds fixed only the fields its structure
-    uses, so its problem has the shapes, and its programs the keys, of a fit from the default
-    start: one ``fit_ne`` per structure (with that n held, the default compiled and loaded a
-    second one for the structure it chose)."""
+    """A fitted F0 metal reports n beside F0 (and a plastic's start may carry an F0). A fit started
+    from those parameters (the data-chosen default's final fit and every nested candidate) holds
+    fixed only the fields its structure uses, so its problem has the shapes, and its programs the
+    keys, of a fit from the default start: one ``fit_ne`` per structure (with that n held, the
+    default compiled and loaded a second one for the structure it chose)."""
     copper = ctfit.Material(ctfit.Structure(lobes=2, diffuse="F0/pi"),
                             ctfit.Params(s=np.array(0.9), m=np.array([0.15, 0.4]), w=np.array([0.7, 0.3]), f0=np.array([0.95, 0.64, 0.55])),
                             wavelength_nm=np.array([650.0, 550.0, 450.0]))
