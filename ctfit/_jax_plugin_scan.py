@@ -3,11 +3,11 @@
 Importing ``jax.numpy`` (JAX 0.10) looks for a ROCm plugin by reading the metadata of *every*
 installed distribution (``jax/_src/numpy/array_constructors.py``: ``importlib.metadata.distributions()``,
 then ``dist.metadata.get("Name")`` of each, parsed by the ``email`` package). With ctfit's extras
-installed that is some 155 files and about 0.1 s of every process that imports JAX (0.10–0.13 s
+installed that is 157 files here and about 0.1 s of every process that imports JAX (0.10–0.13 s
 here), more than a warm fit of 20,000 samples spends solving. Only a distribution named
 ``jax-rocm…-plugin`` can match, so :func:`install` narrows that one call to the distributions
 whose name, read from their folder's name without opening their metadata, starts with "jax":
-JAX finds the same plugins (or none), and reads three files instead of 155.
+JAX finds the same plugins (or none), and reads three files instead of 157.
 
 :func:`install` (``import ctfit`` calls it) adds a finder to ``sys.meta_path`` that finds no
 module: when JAX is about to import that module, it wraps ``importlib.metadata.distributions``

@@ -201,7 +201,6 @@ def used_params(structure: Structure, params: Params) -> Params:
     return dataclasses.replace(params, **{f.name: None for f in dataclasses.fields(params) if f.name not in used})
 
 
-
 def _check_fittable_by(data: Measurement, loss: str) -> None:
     """A ``ValueError`` naming the file where ``data`` cannot be fitted with ``loss`` at all."""
     if loss not in LOSSES:
