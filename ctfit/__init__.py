@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import lazy_loader
 
-from ._jax_plugin_scan import install as _install_narrow_scan
+from ._runtime import narrow_jax_plugin_scan
 
-_install_narrow_scan()  # JAX's import reads three packages' metadata, not every one's (_jax_plugin_scan.py)
+narrow_jax_plugin_scan()  # JAX's import reads three packages' metadata, not every one's (_runtime/jax_plugin_scan.py)
 _public, __dir__, __all__ = lazy_loader.attach_stub(__name__, __file__)  # the names: __init__.pyi
 
 

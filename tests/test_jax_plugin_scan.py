@@ -1,4 +1,4 @@
-"""JAX's import reads the metadata of the jax-named distributions only (ctfit/_jax_plugin_scan.py),
+"""JAX's import reads the metadata of the jax-named distributions only (ctfit/_runtime/jax_plugin_scan.py),
 finds the plugins it finds without ctfit, and leaves ``importlib.metadata`` as it was."""
 
 import importlib.metadata
@@ -6,7 +6,7 @@ import json
 import subprocess
 import sys
 
-from ctfit._jax_plugin_scan import jax_named
+from ctfit._runtime.jax_plugin_scan import jax_named
 
 PROBE = r"""
 import importlib.metadata as md, json, sys

@@ -12,6 +12,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "compile_cache": ['enable_compilation_cache', 'matplotlib_config_fallback'],
         "extras": ['EXTRAS', 'MissingExtraError', 'need'],
         "garbage": ['collect_seldom'],
+        "jax_plugin_scan": ['narrow_jax_plugin_scan'],
         "memory": ['return_large_blocks'],
         "program_preload": ['Preload', 'programs_asked', 'record_programs', 'start_preload'],
         "progress": ['ProgressLines', 'bar', 'closed_pipe', 'echo', 'progress_enabled', 'progress_mode'],
