@@ -5,12 +5,12 @@ installed distribution (``jax/_src/numpy/array_constructors.py``: ``importlib.me
 then ``dist.metadata.get("Name")`` of each, parsed by the ``email`` package). With ctfit's extras
 installed that is 157 files here and about 0.1 s of every process that imports JAX (0.10–0.13 s
 here), more than a warm fit of 20,000 samples spends solving. Only a distribution named
-``jax-rocm…-plugin`` can match, so :func:`narrow_jax_plugin_scan` narrows that one call to the distributions
-whose name, read from their folder's name without opening their metadata, starts with "jax":
-JAX finds the same plugins (or none), and reads three files instead of 157.
+``jax-rocm…-plugin`` can match, so :func:`narrow_jax_plugin_scan` narrows that one call to the
+distributions whose name, read from their folder's name without opening their metadata, starts
+with "jax": JAX finds the same plugins (or none), and reads three files instead of 157.
 
-:func:`narrow_jax_plugin_scan` (``import ctfit`` calls it) adds a finder to ``sys.meta_path`` that finds no
-module: when JAX is about to import that module, it wraps ``importlib.metadata.distributions``
+:func:`narrow_jax_plugin_scan` (``import ctfit`` calls it) adds a finder to ``sys.meta_path``
+that finds no module: when JAX is about to import that module, it wraps ``importlib.metadata.distributions``
 for the module's one call and takes itself out. Every other caller gets the function unchanged,
 and nothing happens in a process that never imports JAX (``importlib.metadata`` is not even imported).
 """
