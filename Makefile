@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 USER_JAX_CACHE := $(JAX_COMPILATION_CACHE_DIR)
 export JAX_COMPILATION_CACHE_DIR ?= $(CURDIR)/.jax_cache
 
-.PHONY: fit test docs install install-test install-docs report bench clean
+.PHONY: fit test docs install install-test install-docs install-bench report bench clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -29,9 +29,16 @@ $(VENV)/.installed-docs: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install -q -e '.[docs]'
 	touch $@
 
+# Dr.Jit's LLVM backend for the benchmarks' Mitsuba peers (pyproject.toml, the bench extra).
+$(VENV)/.installed-bench: pyproject.toml $(VENV)/.installed-test
+	$(BIN)/python -m pip install -q -e '.[bench]'
+	$(BIN)/python -c pass  # the wheel's library links are made at the first start after its install
+	touch $@
+
 install: $(VENV)/.installed
 install-test: $(VENV)/.installed-test
 install-docs: $(VENV)/.installed-docs
+install-bench: $(VENV)/.installed-bench
 
 # The main job on a bundled measurement. Its compiled programs go where the user's own `ctfit`
 # commands look (~/.cache/ctfit/jax, or $JAX_COMPILATION_CACHE_DIR as set outside make), not
@@ -55,7 +62,7 @@ docs: install-docs
 
 # Every measured report in docs/ (benchmarks, error against run time, stability) and the
 # notebooks, regenerated from one run each; takes about an hour on a 2-core machine.
-report: install-test
+report: install-bench
 	$(BIN)/python scripts/report.py
 
 clean:

@@ -359,11 +359,23 @@ def texels(n_texels: int, seed: int) -> dict:
 
 
 def llvm_path() -> str | None:
-    """Dr.Jit's libLLVM (≥ 17): DRJIT_LIBLLVM_PATH, else the first of LLVM_CANDIDATES present, else None."""
+    """Dr.Jit's libLLVM (≥ 17): DRJIT_LIBLLVM_PATH, else the first of LLVM_CANDIDATES present, else
+    the one the ``bench`` extra installs into this environment's ``lib/`` (``make install-bench``;
+    it finds its C++ runtime by its own run path), else None."""
     given = os.environ.get("DRJIT_LIBLLVM_PATH")
     if given:
         return given
-    return next((p for p in LLVM_CANDIDATES if os.path.exists(p)), None)
+    return next((p for p in (*LLVM_CANDIDATES, *_environment_llvm()) if os.path.exists(p)), None)
+
+
+def _environment_llvm() -> list[str]:
+    """``libLLVM.so.MAJOR.MINOR`` files of major ≥ 17 in ``sys.prefix/lib``, newest first."""
+    found = []
+    for path in Path(sys.prefix, "lib").glob("libLLVM.so.*"):
+        major = path.name.removeprefix("libLLVM.so.").split(".")[0]
+        if major.isdigit() and int(major) >= 17:
+            found.append((int(major), str(path)))
+    return [p for _, p in sorted(found, reverse=True)]
 
 
 def mitsuba(b: Bench, n_pairs: int, seed: int) -> dict:
@@ -374,8 +386,9 @@ def mitsuba(b: Bench, n_pairs: int, seed: int) -> dict:
         return _skip(f"mitsuba is not installed ({e})")
     llvm = llvm_path()
     if llvm is None:
-        return _skip("Dr.Jit's LLVM backend needs libLLVM ≥ 17 (e.g. `apt-get install libllvm19`, then DRJIT_LIBLLVM_PATH="
-                     "/usr/lib/x86_64-linux-gnu/libLLVM-19.so); LLVM 14/15 abort with \"Cannot select fmaximum\"")
+        return _skip("Dr.Jit's LLVM backend needs libLLVM ≥ 17 (`make install-bench` installs one into the environment; or "
+                     "`apt-get install libllvm19`, then DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so); LLVM 14/15 abort "
+                     "with \"Cannot select fmaximum\"")
     env = dict(b.env, DRJIT_LIBLLVM_PATH=llvm)
     folder = b.folder("mitsuba")
     try:

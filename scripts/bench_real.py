@@ -160,7 +160,7 @@ def mitsuba_peer(data: ctfit.Measurement, folder: Path, env: dict, steps: int) -
     """Mitsuba's roughplastic + Adam as a whole process on the data's direction pairs; its error."""
     llvm = llvm_path()
     if llvm is None:
-        return dict(skipped="Dr.Jit's LLVM backend needs libLLVM ≥ 17 (apt-get install libllvm19)")
+        return dict(skipped="Dr.Jit's LLVM backend needs libLLVM ≥ 17 (make install-bench, or apt-get install libllvm19)")
     pairs, index = data.directions()
     value = np.full((len(data.channels or data.wavelength_nm), len(pairs)), np.nan)
     value[data.band, index] = data.brdf

@@ -190,3 +190,23 @@ def test_issue_21_floor_counts_reading_the_file_compiling_and_the_fits():
     assert many[3] == ("bare JAX process reading the 256 files one after another (its `fit_batch` calls, two windows of files at once, take 3.00 s "
                        "in all: the solves and each file's report): 1.60 s; ctfit 3.40 s above it")
     assert many[2] == "no: needs ≤ 1.00 s; the floor (1.60 s) allows at most 12.50×"
+
+
+def test_the_mitsuba_peer_finds_the_bench_extras_libllvm(tmp_path, monkeypatch):
+    """A libLLVM of major ≥ 17 in the environment's lib/ (what `make install-bench` installs), the
+    newest first; an older one is not Dr.Jit's; DRJIT_LIBLLVM_PATH outranks it."""
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    for name in ("libLLVM.so.15.0", "libLLVM.so.18.1", "libLLVM.so.23.1", "libLLVM.so"):
+        (lib / name).write_bytes(b"")
+    monkeypatch.setattr(sys, "prefix", str(tmp_path))
+    monkeypatch.setattr(bench, "LLVM_CANDIDATES", ())
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    assert bench._environment_llvm() == [str(lib / "libLLVM.so.23.1"), str(lib / "libLLVM.so.18.1")]
+    assert bench.llvm_path() == str(lib / "libLLVM.so.23.1")
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/given/libLLVM.so")
+    assert bench.llvm_path() == "/given/libLLVM.so"
+    (lib / "libLLVM.so.18.1").unlink()
+    (lib / "libLLVM.so.23.1").unlink()
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH")
+    assert bench.llvm_path() is None
