@@ -20,13 +20,9 @@ import jax.numpy as jnp
 
 from .chunks import sum_over_chunks
 from .losses import loss_residuals
-from .problem import SHAPE_PARAMETERS, Problem, at_samples, band_sum, model_values, per_direction, values_from_s
+from .problem import Problem, at_samples, band_sum, model_values, per_direction, shape_and_rest, values_from_s
 
 __all__ = ["DENSE_BAND_COLUMNS", "normal_equations", "half_squared_norm", "residual"]
-
-
-def _split(u: dict):
-    return {k: v for k, v in u.items() if k in SHAPE_PARAMETERS}, {k: v for k, v in u.items() if k not in SHAPE_PARAMETERS}
 
 
 def _columns(problem: Problem, u: dict, y):
@@ -40,7 +36,7 @@ def _columns(problem: Problem, u: dict, y):
     per-direction Jacobian of S — never an N × P matrix.
     """
     spec = problem.spec
-    u_shape, u_rest = _split(u)
+    u_shape, u_rest = shape_and_rest(u)
     has_spec = spec.structure.has_specular
     s_dir: Any = per_direction(problem, u_shape, u_rest) if has_spec else None
 

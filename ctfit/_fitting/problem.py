@@ -23,7 +23,8 @@ from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
 from .losses import LOSSES, loss_floor
 
-__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "at_samples", "band_sum", "make_problem", "model_parts", "model_values", "per_direction", "values_from_s"]
+__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "at_samples", "band_sum", "make_problem", "model_parts", "model_values", "per_direction", "shape_and_rest",
+           "values_from_s"]
 
 SHAPE_PARAMETERS = ("m", "w")
 """The parameters of S, the per-direction factor of the specular term (everything in R_s but F)."""
@@ -260,10 +261,14 @@ def band_sum(problem: Problem, x):
     return jax.ops.segment_sum(x, problem.band, num_segments=problem.fixed_bands)  # type: ignore[arg-type]  # set when not grid
 
 
+def shape_and_rest(u: dict) -> tuple[dict, dict]:
+    """``u`` split into the free values of S (:data:`SHAPE_PARAMETERS`) and the others."""
+    return {k: v for k, v in u.items() if k in SHAPE_PARAMETERS}, {k: v for k, v in u.items() if k not in SHAPE_PARAMETERS}
+
+
 def _split(problem: Problem, u: dict):
     """(S per direction or None, the free values of S, the others)."""
-    u_shape = {k: v for k, v in u.items() if k in SHAPE_PARAMETERS}
-    u_rest = {k: v for k, v in u.items() if k not in SHAPE_PARAMETERS}
+    u_shape, u_rest = shape_and_rest(u)
     s_dir = per_direction(problem, u_shape, u_rest) if problem.spec.structure.has_specular else None
     return s_dir, u_shape, u_rest
 

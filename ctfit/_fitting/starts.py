@@ -21,7 +21,7 @@ from .._io import MaterialError
 from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0, safe_div
 from .chunks import chunk_count, sum_over_chunks
 from .coordinates import free_names
-from .problem import SHAPE_PARAMETERS, Problem, at_samples, band_sum, per_direction, values_from_s
+from .problem import Problem, at_samples, band_sum, per_direction, shape_and_rest, values_from_s
 
 __all__ = ["default_start", "m_grid", "seed_points", "seeds_from_scores", "grid_sums", "linear_parts", "grid_scales", "grid_amplitudes", "grid_costs",
            "start_from_material"]
@@ -61,49 +61,41 @@ def linear_parts(part: Problem, u0: dict):
     part d R_d is the model at S = 0; both from one JVP of the model at S = 0 (the Fresnel
     term and R_d evaluated once, not once per grid point). Returns (d R_d, ∂R/∂S, the loss's
     weights), each in the problem's layout."""
-    u_shape, u_rest = _shape_and_rest(u0)
+    u_shape, u_rest = shape_and_rest(u0)
     zero = jnp.zeros(jnp.shape(part.geom.cos_vh), part.y.dtype)  # S per direction (every sample its own in a chunk)
     diffuse, per_s = jax.jvp(lambda s: values_from_s(part, s, u_rest, u_shape), (zero,), (jnp.ones_like(zero),))
     return diffuse, per_s, part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
 
 
-def _shape_and_rest(u0: dict) -> tuple[dict, dict]:
-    """``u0`` split into the parameters of S (:data:`~ctfit._fitting.problem.SHAPE_PARAMETERS`) and the others."""
-    return {k: v for k, v in u0.items() if k in SHAPE_PARAMETERS}, {k: v for k, v in u0.items() if k not in SHAPE_PARAMETERS}
-
-
-def _amplitude_sums(part: Problem, u0: dict, log_m, linear: tuple):
-    """:func:`grid_sums` at one grid point ``log_m`` (memory of the cells alone); ``linear``:
-    :func:`linear_parts` of ``part`` and ``u0``, computed once for every grid point."""
+def _specular_sums(part: Problem, u0: dict, linear: tuple, grid):
+    """(Σ w A y, Σ w A², Σ w A B) per band at the grid points ``grid`` (G, lobes), A = S ∂R/∂S:
+    shape (G, bands, 3)."""
     b, per_s, wgt = linear
-    u_shape, u_rest = _shape_and_rest(u0)
-    s_dir = per_direction(part, dict(u_shape, m=log_m), u_rest)
-    a = (s_dir[:, None] if part.spec.grid else at_samples(part, s_dir)) * per_s
-    wa, wb, wy = wgt * a, wgt * b, wgt * part.y
-    sums = band_sum(part, jnp.stack([wa * part.y, wb * part.y, wy * part.y, wa * a, wa * b, wb * b], axis=-1))  # one pass: (bands, 6)
-    return sums[..., :3], sums[..., 3:]
+    u_shape, u_rest = shape_and_rest(u0)
+    s_all = jax.vmap(lambda log_m: per_direction(part, dict(u_shape, m=log_m), u_rest))(grid).T  # (directions, G)
+    wp = wgt * per_s
+    if part.spec.grid:  # cells (pairs, bands), S per pair: products over the pairs
+        return jnp.stack([s_all.T @ (wp * part.y), (s_all * s_all).T @ (wp * per_s), s_all.T @ (wp * b)], axis=-1)
+    s = at_samples(part, s_all)  # cells are samples, each of one band: (samples, G)
+    cols = jnp.stack([s * (wp * part.y)[:, None], s * s * (wp * per_s)[:, None], s * (wp * b)[:, None]], axis=-1)
+    return jnp.swapaxes(band_sum(part, cols), 0, 1)
 
 
-def grid_sums(part: Problem, u0: dict, grid):
+def grid_sums(part: Problem, u0: dict, grid, at_once: bool = True):
     """Per grid point of log m, the per-band sums of ``part`` over the model's two parts A = s R_s
     and B = d R_d and the data y, w the loss's weights: (Σ w A y, Σ w B y, Σ w y²) and
     (Σ w A², Σ w A B, Σ w B²), shapes (G, bands, 3) and (G, bands, 3). All the seeds' scores
     need (:func:`grid_amplitudes`, :func:`grid_costs`), in one pass, summable over chunks. The
     model's Fresnel term and diffuse part are evaluated once (:func:`linear_parts`: A = S ∂R/∂S),
-    S at every grid point, and the three sums that depend on the grid point are formed for
-    every grid point at once."""
-    b, per_s, wgt = linear_parts(part, u0)
-    u_shape, u_rest = _shape_and_rest(u0)
-    s_all = jax.vmap(lambda log_m: per_direction(part, dict(u_shape, m=log_m), u_rest))(grid).T  # (directions, G)
-    y = part.y
-    fixed = band_sum(part, jnp.stack([wgt * b * y, wgt * y * y, wgt * b * b], axis=-1))  # (bands, 3): Σ w B y, Σ w y², Σ w B²
-    if part.spec.grid:  # cells (pairs, bands), S per pair: products over the pairs
-        s2 = s_all * s_all
-        varying = jnp.stack([s_all.T @ (wgt * per_s * y), s2.T @ (wgt * per_s * per_s), s_all.T @ (wgt * per_s * b)], axis=-1)  # (G, bands, 3)
-    else:  # cells are samples, each of one band: sums over each band's samples
-        s = at_samples(part, s_all)  # (samples, G)
-        cols = jnp.stack([s * (wgt * per_s * y)[:, None], s * s * (wgt * per_s * per_s)[:, None], s * (wgt * per_s * b)[:, None]], axis=-1)
-        varying = jnp.swapaxes(band_sum(part, cols), 0, 1)  # (G, bands, 3)
+    the sums of B and y alone once, and those of A for every grid point at once, or with
+    ``at_once`` False one grid point at a time (temporaries of the cells' size alone)."""
+    linear = linear_parts(part, u0)
+    b, _, wgt = linear
+    fixed = band_sum(part, jnp.stack([wgt * b * part.y, wgt * part.y * part.y, wgt * b * b], axis=-1))  # (bands, 3)
+    if at_once:
+        varying = _specular_sums(part, u0, linear, grid)
+    else:
+        varying = jax.lax.map(lambda log_m: _specular_sums(part, u0, linear, log_m[None])[0], grid)
     fixed = jnp.broadcast_to(fixed, varying.shape)
     num = jnp.stack([varying[..., 0], fixed[..., 0], fixed[..., 1]], axis=-1)
     den = jnp.stack([varying[..., 1], varying[..., 2], fixed[..., 2]], axis=-1)
@@ -164,7 +156,7 @@ def _score_grid():
 VECTOR_CELLS = 1 << 22
 """Cells × grid points up to which the seeds' sums are formed for every grid point at once
 (:func:`grid_sums`: temporaries of that many values); above, one grid point at a time
-(:func:`_amplitude_sums`: memory of the cells alone)."""
+(``at_once`` False: memory of the cells alone)."""
 
 
 def _grid_scores(problem: Problem, u0: dict, grid):
@@ -174,10 +166,7 @@ def _grid_scores(problem: Problem, u0: dict, grid):
     (:func:`~ctfit._fitting.chunks.sum_over_chunks`)."""
 
     def sums(part: Problem):
-        if part.y.size * grid.shape[0] <= VECTOR_CELLS:
-            return grid_sums(part, u0, grid)
-        linear = linear_parts(part, u0)
-        return jax.lax.map(lambda log_m: _amplitude_sums(part, u0, log_m, linear), grid)
+        return grid_sums(part, u0, grid, at_once=part.y.size * grid.shape[0] <= VECTOR_CELLS)
 
     num, den = sums(problem) if chunk_count(problem) == 1 else sum_over_chunks(problem, sums)
     amplitudes = grid_amplitudes(num, den)
