@@ -199,6 +199,59 @@ def test_radians_hint_needs_more_than_a_few_rows_and_can_be_overridden(tmp_path)
     assert len(m) == 10 and m.meta["angle_unit"] == "degrees"
 
 
+# The vectorised path decodes a block's numbers as one JSON array (msgspec) and hands a block
+# with a field JSON does not take to numpy.fromstring: both must read every field as Python's
+# float() does, the sign of zero included.
+TOKENS = ["0", "-0", "-0.0", "-0e0", "+0", "1", "-1", "+1", ".5", "-.5", "5.", "1.e5", "1E5", "1e+5", "1e-5", "007", "0.1",
+          "4.9e-324", "2.2250738585072011e-308", "2.2250738585072014e-308", "1.7976931348623157e308", "1e-400", "9007199254740993",
+          "123456789012345678901234567890", "0.30000000000000004", "1.0000000000000000000000000000001", "1e400", "-1e400", "inf", "nan"]
+
+
+def _table_values(tmp_path, tokens: list[str], name: str) -> np.ndarray:
+    text = f"{HEADER}\n" + "".join(f"10,0,20,180,550,{t}\n" for t in tokens)
+    return _table.read_table(write(tmp_path, text, name)).values["brdf"]
+
+
+def _same_floats(got: np.ndarray, tokens: list[str]) -> None:
+    want = np.array([float(t) for t in tokens])
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(np.signbit(got), np.signbit(want))
+
+
+@pytest.mark.parametrize("token", TOKENS)
+def test_fast_path_reads_each_number_as_float_does(tmp_path, path_kind, token):
+    """Alone (its block goes by JSON or by fromstring) and among plain numbers (the same)."""
+    _same_floats(_table_values(tmp_path, [token], "one.csv"), [token])
+    _same_floats(_table_values(tmp_path, ["0.25", "-0", token, "3"], "four.csv"), ["0.25", "-0", token, "3"])
+
+
+def test_fast_path_takes_json_numbers_without_fromstring(tmp_path, monkeypatch):
+    """Numbers JSON takes never reach numpy.fromstring; one it does not take sends its block there."""
+    calls = []
+    real = np.fromstring
+    monkeypatch.setattr(_table.np, "fromstring", lambda *a, **k: calls.append(1) or real(*a, **k))
+    plain = ["0", "-0", "-0.0", "1e-5", "4.9e-324", "123456789012345678901234567890", "2.2250738585072011e-308"]
+    _same_floats(_table_values(tmp_path, plain, "plain.csv"), plain)
+    assert calls == []
+    _same_floats(_table_values(tmp_path, [*plain, "+1"], "plus.csv"), [*plain, "+1"])
+    assert calls == [1]
+
+
+def test_fast_path_signed_zero_after_blanks_and_ignored_text(tmp_path, path_kind):
+    text = "note,theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\nn/a, 10, -0,20,180,550, -0\nsome text,10,0,20,180,550,\t-0.0\n"
+    table = _table.read_table(write(tmp_path, text))
+    assert np.signbit(table.values["phi_i"]).tolist() == [True, False]
+    assert np.signbit(table.values["brdf"]).tolist() == [True, True]
+    np.testing.assert_array_equal(table.values["theta_i"], [10, 10])
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False), min_size=1, max_size=40), st.sampled_from(["repr", ".17g", ".3e", "int"]))
+def test_fast_path_reads_any_printed_float(tmp_path, numbers, style):
+    tokens = [repr(x) if style == "repr" else format(x, style[1:]) if style != "int" else str(int(x)) for x in numbers]
+    _same_floats(_table_values(tmp_path, tokens, "any.csv"), tokens)
+
+
 # --- writing ------------------------------------------------------------------------------------
 
 

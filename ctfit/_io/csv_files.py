@@ -3,7 +3,7 @@
 
 Reading is all-or-nothing: any problem raises :class:`~ctfit.DataError` naming the file, the
 line (1-based, counting comment lines) and the column, before anything is returned. The text is
-parsed by :mod:`~ctfit._io.csv_table` (NumPy only); its values are checked here.
+parsed by :mod:`~ctfit._io.csv_table` (NumPy and msgspec); its values are checked here.
 """
 
 from __future__ import annotations

@@ -1,10 +1,11 @@
 """A large measurement CSV parsed in a helper process while the command that needs it starts JAX.
 
 A ``ctfit fit FILE`` process spends its first 0.6 s or so importing JAX, and parsing a large CSV
-(NumPy's ``fromstring``, 0.4–0.5 s for 200,000 rows on two cores here) holds Python's lock as
-the import does: in one process, threads or not, the two run one after the other. So the command
+(0.24 s for 200,000 rows here; 0.65 s before its numbers were decoded as JSON, 2026-12-06) holds
+Python's lock as the import does: in one process, threads or not, the two run one after the
+other. So the command
 starts a helper process (``python -m ctfit._io.read_ahead FILE``) that parses the file with
-:func:`~ctfit._io.csv_table.read_table` (NumPy only, no JAX) on another core while it imports
+:func:`~ctfit._io.csv_table.read_table` (NumPy and msgspec, no JAX) on another core while it imports
 JAX — and makes the Measurement's columns and its direction pairs, which the fit needs next —
 and takes the parsed table from the helper's output when it needs the data; the values are then
 checked and made a :class:`~ctfit.Measurement` as ever (:func:`~ctfit._io.csv_files.measurement_from_table`).
@@ -35,8 +36,9 @@ __all__ = ["READ_AHEAD_BYTES", "ReadAhead", "start_read_ahead", "usable_cores"]
 READ_AHEAD_BYTES = 8 << 20
 """CSV files of at least this many bytes (about 100,000 rows) are parsed by a helper process. Below
 it the helper gains nothing measurable (whole processes, paired, on two cores: 50,000 rows the
-same within noise, 100,000 rows 3 % faster, 200,000 rows 12 %): the helper's own start (a Python
-process importing NumPy) and the unpickling take about what the parse would."""
+same within noise, 100,000 rows 3 % faster, 200,000 rows 12 %; with the faster parse of 2026-12-06,
+200,000 rows still 13 %): the helper's own start (a Python process importing NumPy) and the
+unpickling take about what the parse would."""
 
 ENVIRONMENT = "CTFIT_READ_AHEAD"
 """``CTFIT_READ_AHEAD=0`` in the environment: no helper process, every file read in-process."""
