@@ -238,7 +238,7 @@ def test_fast_path_takes_json_numbers_without_fromstring(tmp_path, monkeypatch):
 
 
 def test_fast_path_signed_zero_after_blanks_and_ignored_text(tmp_path, path_kind):
-    text = "note,theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\nn/a, 10, -0,20,180,550, -0\nsome text,10,0,20,180,550,\t-0.0\n"
+    text = "note,theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\nn/a, 10, -0,20,180,550, \t -0\nsome text,10,0,20,180,550,\t-0.0\n"
     table = _table.read_table(write(tmp_path, text))
     assert np.signbit(table.values["phi_i"]).tolist() == [True, False]
     assert np.signbit(table.values["brdf"]).tolist() == [True, True]

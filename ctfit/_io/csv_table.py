@@ -304,10 +304,12 @@ def _numbers(work: bytearray, buf: np.ndarray, starts: np.ndarray) -> np.ndarray
             return None
     if flat.size == starts.size:
         zero = np.flatnonzero(flat == 0.0)
-        first = buf[starts[zero]]
-        flat[zero[first == ord("-")]] = -0.0
-        for k in zero[(first == ord(" ")) | (first == ord("\t"))]:  # " -0"
-            flat[k] = -0.0 if bytes(buf[starts[k] : starts[k + 1] if k + 1 < starts.size else None]).strip().startswith(b"-") else 0.0
+        at = starts[zero]  # each zero's first character past its leading blanks (" -0"); a field ends in "," or "]"
+        blank = (buf[at] == 32) | (buf[at] == 9)
+        while blank.any():
+            at = at + blank
+            blank = (buf[at] == 32) | (buf[at] == 9)
+        flat[zero[buf[at] == ord("-")]] = -0.0
     return flat
 
 
