@@ -278,24 +278,22 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     files = data.write_batch(folder / "files", n_files, n_samples, seed)
     start = scipy_start(folder / "start.json", 2, len(data.WL31), True)
     cache = b.folder("batch-cache")
-    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o",
-             str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
-    b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "--starts", "1",
-             "-o", str(b.folder("batch-out-one"))], cache, "ctfit fit DIR --starts 1 (priming)")
+    args = ["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q"]
+    one = lambda: [*args, "--starts", "1", "-o", str(b.folder("batch-out-one"))]  # one start, as the SciPy loop; a new output folder each run
+    b.ctfit([*args, "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
+    b.ctfit(one(), cache, "ctfit fit DIR --starts 1 (priming)")
     t_scipy, t_ctfit, t_floor, t_one = [], [], [], []
     for _ in range(b.repeat):
         r, sp = scipy_run(b, start, files)
         t_scipy.append(r.wall_s)
         t_floor.append(run([PY, "-c", READ_DIR_FLOOR, str(folder / "files")], env=b.env).check("a bare JAX process reading the files").wall_s)
         out = b.folder("batch-out")
-        r, _ = b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q", "-o", str(out)],
-                       cache, "ctfit fit DIR")
+        r, _ = b.ctfit([*args, "-o", str(out)], cache, "ctfit fit DIR")
         t_ctfit.append(r.wall_s)
         peak = r.peak_mb
-        # One start, as the SciPy loop: what the default's two further seeds cost (they guard
-        # against a wrong basin on data the model cannot represent; here they end where the first does).
-        t_one.append(b.ctfit(["fit", str(folder / "files"), "--lobes", "2", "--family", "metal", "--diffuse", "F0/pi", "--loss", "relative", "-q",
-                              "--starts", "1", "-o", str(b.folder("batch-out-one"))], cache, "ctfit fit DIR --starts 1")[0].wall_s)
+        # What the default's two further seeds cost (they guard against a wrong basin on data the
+        # model cannot represent; here they end where the first does).
+        t_one.append(b.ctfit(one(), cache, "ctfit fit DIR --starts 1")[0].wall_s)
     docs = {p.stem: json.loads(p.read_text()) for p in sorted(out.glob("*.fit.json"))}
     sp_cost = {Path(x["file"]).stem: x["cost"] for x in sp}
     ct_cost = {k.split(".")[0]: d["fit"]["cost"] for k, d in docs.items()}

@@ -269,36 +269,27 @@ def _parse_fast(raw: Any, pos: int, end: int, cols: Header) -> tuple[dict, np.nd
             return None
         buf[first] = ord("0")
     buf[line_ends] = ord(",")
-    flat = _numbers(work, buf, starts)
+    flat = _numbers(work, starts)
     if flat is None or flat.size != nrows * ncols:
         return None
     table = flat.reshape(nrows, ncols)
     return {n: table[:, cols.index[n]].copy() for n in cols.numeric}, channel
 
 
-def _numbers(work: bytearray, buf: np.ndarray, starts: np.ndarray) -> np.ndarray | None:
-    """The comma-separated fields of ``work`` ("[" + fields, each ending in "," + one byte) as
-    float64, or None where one is not a number. ``buf``: ``work[1:]``; ``starts``: where each field
-    begins in it. Decoded as one JSON array (:func:`~ctfit._io.json_numbers.json_numbers`); a
-    block with a field JSON does not take goes to ``numpy.fromstring``, which reads those as it
-    always has. A zero read from ``-0`` gets its sign back."""
+def _numbers(work: bytearray, starts: np.ndarray) -> np.ndarray | None:
+    """The comma-separated fields of ``work`` ("[" + fields, each ending in "," + one byte; field
+    k at ``starts[k] + 1``) as float64, or None where one is not a number: decoded as one JSON
+    array (:func:`~ctfit._io.json_numbers.json_numbers`), or, where JSON does not take a field,
+    by ``numpy.fromstring``, which reads those as it always has."""
     work[-1] = ord("]")
-    flat = json_numbers(work)
-    if flat is None:
-        work[-1] = ord(",")
-        try:
-            return np.fromstring(bytes(work[1:]), sep=",")
-        except ValueError:  # a field that is not a number
-            return None
-    if flat.size == starts.size:
-        zero = np.flatnonzero(flat == 0.0)
-        at = starts[zero]  # each zero's first character past its leading blanks (" -0"); a field ends in "," or "]"
-        blank = (buf[at] == 32) | (buf[at] == 9)
-        while blank.any():
-            at = at + blank
-            blank = (buf[at] == 32) | (buf[at] == 9)
-        flat[zero[buf[at] == ord("-")]] = -0.0
-    return flat
+    flat = json_numbers(work, starts + 1)
+    if flat is not None:
+        return flat
+    work[-1] = ord(",")
+    try:
+        return np.fromstring(bytes(work[1:]), sep=",")
+    except ValueError:  # a field that is not a number
+        return None
 
 
 def _lines(raw: Any, pos: int, end: int) -> Iterator[str]:

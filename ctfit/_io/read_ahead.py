@@ -3,10 +3,9 @@
 A ``ctfit fit FILE`` process spends its first 0.6 s or so importing JAX, and parsing a large CSV
 (0.24 s for 200,000 rows here; 0.65 s before its numbers were decoded as JSON, 2026-12-06) holds
 Python's lock as the import does: in one process, threads or not, the two run one after the
-other. So the command
-starts a helper process (``python -m ctfit._io.read_ahead FILE``) that parses the file with
-:func:`~ctfit._io.csv_table.read_table` (NumPy and msgspec, no JAX) on another core while it imports
-JAX — and makes the Measurement's columns and its direction pairs, which the fit needs next —
+other. So the command starts a helper process (``python -m ctfit._io.read_ahead FILE``) that
+parses the file with :func:`~ctfit._io.csv_table.read_table` (NumPy and msgspec, no JAX) on
+another core while it imports JAX — and makes the Measurement's columns and its direction pairs, which the fit needs next —
 and takes the parsed table from the helper's output when it needs the data; the values are then
 checked and made a :class:`~ctfit.Measurement` as ever (:func:`~ctfit._io.csv_files.measurement_from_table`).
 
