@@ -136,6 +136,6 @@ def test_a_fit_started_from_a_fit_takes_the_programs_of_a_fit_started_anywhere(s
 
     def key(start):
         prep = prepare_fit(data, structure, start=start, fixed=(), loss="relative", dtype=np.float64, starts=3, chunk=chunked_fit.ROWS)
-        return stored_programs._key("fit_ne", ("run", prep.problem, prep.u0))
+        return stored_programs._key("fit_ne", (chunked_fit._EFFORT["fit_ne"], prep.problem, prep.u0))
 
     assert key(start) == key(None)

@@ -245,14 +245,20 @@ def _signature(args) -> tuple:
     return jax.tree.structure(args), tuple((a.shape, a.dtype.name) if is_array(a) else a for a in jax.tree.leaves(args))
 
 
-_EFFORT = {"fit_ne": "run", "fit_grid_sums": "run", "fit_summary": "step"}
-"""The compile effort of each program (:data:`~ctfit._runtime.COMPILE_EFFORT`): "run" for the
-kernels that read the data at every Levenberg–Marquardt step or once per chunk (a MERL table has
-1,600 chunks), "step" for the per-chunk summary (called as often, but small), "once" for the
-others (the seeds' choice, ``lm_init``, the report: once per fit) and the solver's step: at
-"step" ``lm_step`` took 0.87 s of compiling (40 parameters) and 0.33 ms a step, at "once" 0.25 s
-and 0.39 ms; it is the last program a first fit waits for, and a fit takes 20–45 steps. One
-effort per program whatever the data's size: a file of another size compiles nothing."""
+_EFFORT = {"fit_ne": "step", "fit_grid_sums": "step", "fit_summary": "step"}
+"""The compile effort of each program (:data:`~ctfit._runtime.COMPILE_EFFORT`): "step" for the
+kernels over a chunk (the normal equations at every Levenberg–Marquardt step, the seeds' sums,
+the residual summary), "once" for the others (the seeds' choice, ``lm_init``, the report: once
+per fit) and the solver's step. A first fit's compiling is mostly these kernels' (a data-chosen
+default makes them for each of its nine structures): at "step" ``fit_ne`` and ``fit_grid_sums``
+compile in about half the CPU time of "run" (XLA's fusion emitters), and run as fast a chunk
+where the fit calls them, as whole processes show (a MERL table 0.94×, 200,000 samples 1.0×,
+docs/benchmarks.md); a first fit of 20,000 samples then takes 0.89× the time, a first data-chosen
+default 0.81×. The seeds' sums run at most :data:`RACE_CHUNKS` chunks with several seeds (on the
+race's sample), where their slower chunk (about 3 ms against 1 ms on 31 bands) costs less than
+the compile saves. ``lm_step`` at "step" took 0.87 s of compiling (40 parameters) and 0.33 ms a
+step, at "once" 0.25 s and 0.39 ms; a fit takes 20–45 steps. One effort per program whatever
+the data's size: a file of another size compiles nothing."""
 
 
 def _program(name: str, fn, *args):

@@ -73,16 +73,15 @@ COMPILE_EFFORT: dict[str, dict[str, bool | int]] = {
 }
 """XLA's options per compile effort (``Lowered.compile(compiler_options=...)``). LLVM's expensive
 passes are left out of all three, which cuts their compile by 20–50 % here and leaves their run
-time as it was. "run" (the default): the programs that read the data at every
-Levenberg–Marquardt step (the normal equations over a chunk, the seeds' sums, the one-program
-solves of the other solvers, texels and batches), compiled with XLA's fusion emitters, which run
-the chunk kernels 1.7–2.4× faster. "step": programs called many times that are small or read little (the
-solver's step, the residual summary per chunk, the geometry): XLA's older fusion code, which
-compiles them in 50–70 % of the time and runs them as fast. "once": programs called once per fit
-(the seeds' choice, the report, the screen's held-out values): the older fusion code and LLVM not
-optimising at all, a quarter to a half of what "run" would compile; they run a few milliseconds
-per fit
-(docs/fitting.md, "Compiled programs are kept"; ``scripts/compile_times.py``)."""
+time as it was. "run" (the default): the one-program solves (the other solvers, texels,
+batches), compiled with XLA's fusion emitters. "step": programs called many times (the kernels
+over a chunk: the normal equations, the seeds' sums, the residual summary; the geometry): XLA's
+older fusion code, which compiles them in 50–70 % of the time and runs the fit's chunk kernels
+as fast where the fit calls them (a whole process on a MERL table 0.94×, on 200,000 samples 0.99×;
+``ctfit._fitting.chunked_fit._EFFORT``). "once": programs called once per fit (the seeds' choice,
+the report, the screen's held-out values) and the solver's step: the older fusion code and LLVM
+not optimising at all, a quarter to a half of what "run" would compile; they run a few
+milliseconds per fit (docs/fitting.md, "Compiled programs are kept"; ``scripts/compile_times.py``)."""
 _memory: dict[str, Callable] = {}  # "name-key" → program, the least recently used first
 _memory_guard = threading.Lock()  # held while _memory changes (threads make programs at once)
 
