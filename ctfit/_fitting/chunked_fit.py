@@ -255,8 +255,8 @@ compile in about half the CPU time of "run" (XLA's fusion emitters), and run as 
 where the fit calls them, as whole processes show (a MERL table 0.94×, 200,000 samples 1.0×,
 docs/benchmarks.md); a first fit of 20,000 samples then takes 0.89× the time, a first data-chosen
 default 0.81×. The seeds' sums run at most :data:`RACE_CHUNKS` chunks with several seeds (on the
-race's sample), where their slower chunk (about 3 ms against 1 ms on 31 bands) costs less than
-the compile saves. ``lm_step`` at "step" took 0.87 s of compiling (40 parameters) and 0.33 ms a
+race's sample; every chunk with one), where their slower chunk (about 3 ms against 1 ms on 31
+bands) costs less than the compile saves. ``lm_step`` at "step" took 0.87 s of compiling (40 parameters) and 0.33 ms a
 step, at "once" 0.25 s and 0.39 ms; a fit takes 20–45 steps. One effort per program whatever
 the data's size: a file of another size compiles nothing."""
 
