@@ -80,6 +80,25 @@ def test_a_race_on_a_sample_ends_where_the_race_on_all_the_data_does(make, monke
     assert sampled.stats["steps"] <= 5 and sampled.stats["steps"] < whole.stats["steps"]
 
 
+def test_one_start_is_chosen_on_the_sample_and_solved_on_all_the_data(monkeypatch):
+    """With one start (no race) the seed's grid scores are summed over the sample's chunks only (a
+    fit of 200,000 samples ran every chunk through them: 1.15× the time), and the fit ends where
+    the start chosen on all the data ends."""
+    data = _pairs(40_000, 6)
+    seeded = []
+    choose = chunked_fit._seeds
+    monkeypatch.setattr(chunked_fit, "_seeds", lambda parts, *a, **k: seeded.append(len(parts)) or choose(parts, *a, **k))
+    sampled = ctfit.fit(data, GOLD.structure, loss="relative", starts=1)
+    whole_chunks = len(chunked_fit.chunk_problems(_prepared(data).problem))
+    assert seeded == [len(chunked_fit.race_rows(_prepared(data).problem)) // chunked_fit.ROWS] and seeded[0] < whole_chunks
+    assert "race_samples" not in sampled.stats and sampled.converged  # one seed is not raced: solved on all the data
+    monkeypatch.setattr(chunked_fit, "FEWEST_RACE_CHUNKS", 10**9)  # the start chosen on all the data
+    whole = ctfit.fit(data, GOLD.structure, loss="relative", starts=1)
+    assert seeded[1:] == [whole_chunks]
+    np.testing.assert_allclose(sampled.stats["cost"], whole.stats["cost"], rtol=1e-8)
+    np.testing.assert_allclose(sampled.material.params.m, whole.material.params.m, rtol=2e-5)
+
+
 def test_only_the_distinct_winners_of_the_sample_go_on():
     a, b, c = np.zeros(4), np.full(4, 0.5), np.full(4, 1.0)
     near_a = a + 1e-5

@@ -174,7 +174,8 @@ the lowest cost on all the data wins."""
 
 
 def race_rows(problem: Problem) -> np.ndarray | None:
-    """The rows (sorted; random, seed 0) of ``problem`` its seeds are raced on: an eighth of its
+    """The rows (sorted; random, seed 0) of ``problem`` its seeds are chosen on (from the m grid's
+    scores, also for one start) and raced on (several): an eighth of its
     chunks' worth of rows holding data (:data:`RACE_SHARE`), from :data:`FEWEST_RACE_CHUNKS` to
     :data:`RACE_CHUNKS` chunks' worth, or None where the data is less than twice the fewest (then
     the seeds are raced on all of it). Rows are samples (pairs layout) or direction pairs with
