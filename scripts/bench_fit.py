@@ -300,8 +300,7 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     rel = np.array([(ct_cost[k] - sp_cost[k]) / sp_cost[k] for k in sp_cost if k in ct_cost])
     conv = sum(bool(d["fit"]["converged"]) for d in docs.values())
     res = dict(files=n_files, samples=n_samples, scipy=median(t_scipy), ctfit=median(t_ctfit), one_start=median(t_one), read_floor=median(t_floor),
-               peak_mb=peak,
-               results=len(docs), converged=conv,
+               peak_mb=peak, results=len(docs), converged=conv,
                fit_s=sum(d["fit"]["time_s"] for d in docs.values()),
                same=int(np.sum(np.abs(rel) <= 1e-6)), ctfit_lower=int(np.sum(rel < -1e-6)), scipy_lower=int(np.sum(rel > 1e-6)),
                worst=float(np.max(np.abs(rel))) if rel.size else float("nan"))
@@ -646,9 +645,8 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
               "| SciPy loop | ctfit fit DIR | files per second (SciPy / ctfit) | speed-up | ctfit `--starts 1` (speed-up) | ctfit peak memory | results | "
               "same cost (10⁻⁶) | lower cost: ctfit / SciPy |", "|---|---|---|---|---|---|---|---|---|",
               f"| {_s(bat['scipy'])} | {_s(bat['ctfit'])} | {bat['files'] / bat['scipy']:.1f} / {bat['files'] / bat['ctfit']:.1f} | "
-              f"{_ratio(bat['scipy'] / bat['ctfit'])} | "
-              + (f"{_s(bat['one_start'])} ({_ratio(bat['scipy'] / bat['one_start'])})" if "one_start" in bat else "—")
-              + f" | {bat['peak_mb']:.0f} MB | {bat['results']} "
+              f"{_ratio(bat['scipy'] / bat['ctfit'])} | {_s(bat['one_start'])} ({_ratio(bat['scipy'] / bat['one_start'])}) | "
+              f"{bat['peak_mb']:.0f} MB | {bat['results']} "
               f"({bat['converged']} converged) | {bat['same']} | {bat['ctfit_lower']} / {bat['scipy_lower']} |"]
     if mer and "failed" in mer:
         L += ["", "### MERL-sized", "", f"Failed: {mer['failed']}."]

@@ -174,8 +174,8 @@ the lowest cost on all the data wins."""
 
 
 def race_rows(problem: Problem) -> np.ndarray | None:
-    """The rows (sorted; random, seed 0) of ``problem`` its seeds are chosen on (from the m grid's
-    scores, also for one start) and raced on (several): an eighth of its
+    """The rows (sorted; random, seed 0) of ``problem`` where its seeds are chosen (the m grid's
+    scores, also for one start) and several seeds raced: an eighth of its
     chunks' worth of rows holding data (:data:`RACE_SHARE`), from :data:`FEWEST_RACE_CHUNKS` to
     :data:`RACE_CHUNKS` chunks' worth, or None where the data is less than twice the fewest (then
     the seeds are raced on all of it). Rows are samples (pairs layout) or direction pairs with
@@ -252,14 +252,14 @@ kernels over a chunk (the normal equations at every Levenberg–Marquardt step, 
 the residual summary), "once" for the others (the seeds' choice, ``lm_init``, the report: once
 per fit) and the solver's step. A first fit's compiling is mostly these kernels' (a data-chosen
 default makes them for each of its nine structures): at "step" ``fit_ne`` and ``fit_grid_sums``
-compile in about half the CPU time of "run" (XLA's fusion emitters), and run as fast a chunk
-where the fit calls them, as whole processes show (a MERL table 0.94×, 200,000 samples 1.0×,
-docs/benchmarks.md); a first fit of 20,000 samples then takes 0.89× the time, a first data-chosen
-default 0.81×. The seeds' sums run at most :data:`RACE_CHUNKS` chunks with several seeds (on the
-race's sample; every chunk with one), where their slower chunk (about 3 ms against 1 ms on 31
-bands) costs less than the compile saves. ``lm_step`` at "step" took 0.87 s of compiling (40 parameters) and 0.33 ms a
-step, at "once" 0.25 s and 0.39 ms; a fit takes 20–45 steps. One effort per program whatever
-the data's size: a file of another size compiles nothing."""
+compile in about half the CPU time of "run" (XLA's fusion emitters) and run a chunk as fast
+where the fit calls them (whole processes: a MERL table 0.94×, 200,000 samples 0.99×; a first
+fit of 20,000 samples 0.89×, a first data-chosen default 0.81×; docs/benchmarks.md). The seeds'
+sums run on at most :data:`RACE_CHUNKS` chunks (the race's sample, :func:`race_rows`), where their
+slower chunk (about 3 ms against 1 ms on 31 bands) costs less than the compile saves. ``lm_step``
+at "step" took 0.87 s of compiling (40 parameters) and 0.33 ms a step, at "once" 0.25 s and
+0.39 ms; a fit takes 20–45 steps. One effort per program whatever the data's size: a file of
+another size compiles nothing."""
 
 
 def _program(name: str, fn, *args):

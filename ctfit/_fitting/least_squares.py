@@ -309,7 +309,8 @@ def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: fl
     program of its size bucket."""
     if solver == "lm" and prep.chunked:
         parts = chunk_problems(prep.problem)
-        sample = race_rows(prep.problem) if prep.k >= 1 else None  # a large file chooses its seeds on a sample, and races several there
+        # A large file scores the m grid (``prep.grid``: one start or more) and races several seeds on a sample of its rows.
+        sample = race_rows(prep.problem) if prep.grid is not None or prep.k + prep.given_start > 1 else None
         race_parts = None if sample is None else chunk_problems(prep.problem, rows_of=sample)
         prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
         return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance, report=report,

@@ -77,8 +77,7 @@ time as it was. "run" (the default): the one-program solves (the other solvers, 
 batches), compiled with XLA's fusion emitters. "step": programs called many times (the kernels
 over a chunk: the normal equations, the seeds' sums, the residual summary; the geometry): XLA's
 older fusion code, which compiles them in 50–70 % of the time and runs the fit's chunk kernels
-as fast where the fit calls them (a whole process on a MERL table 0.94×, on 200,000 samples 0.99×;
-``ctfit._fitting.chunked_fit._EFFORT``). "once": programs called once per fit (the seeds' choice,
+as fast where the fit calls them (``ctfit._fitting.chunked_fit._EFFORT``). "once": programs called once per fit (the seeds' choice,
 the report, the screen's held-out values) and the solver's step: the older fusion code and LLVM
 not optimising at all, a quarter to a half of what "run" would compile; they run a few
 milliseconds per fit (docs/fitting.md, "Compiled programs are kept"; ``scripts/compile_times.py``)."""
