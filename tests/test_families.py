@@ -290,6 +290,26 @@ def test_the_quality_section_is_the_median_relative_error_per_region():
     assert "median" in ctfit.format_fit_table(res) and not any("does not represent" in w for w in res.warnings)
 
 
+def test_the_regions_found_per_direction_pair_are_the_samples_own():
+    """``sample_regions`` judges each direction pair once and spreads it to the samples (a MERL
+    table holds no per-sample angle for it): the same masks as α and max(θ_i, θ_o) per sample,
+    whether the pairs were found in the data or given by a reader, in the reader's order."""
+    from ctfit._fitting.diagnostics import half_angle_deg
+    from ctfit._fitting.quality import GRAZING_DEG, sample_regions
+
+    data = ctfit.simulate(plastic("spectrum"), n_pairs=500, seed=3)
+    pairs, index = data.directions()
+    order = np.random.default_rng(0).permutation(len(pairs))  # a reader's own order of the pairs
+    given = data.with_directions(pairs[order], np.argsort(order)[index].astype(np.int32))
+    for d in (data, given):
+        top = np.maximum(d.theta_i, d.theta_o)
+        for peak_deg in (12.0, None):
+            grazing, peak = sample_regions(d, peak_deg)
+            assert np.array_equal(grazing, top >= GRAZING_DEG)
+            expected = ~grazing & (half_angle_deg(d) <= peak_deg) if peak_deg is not None else np.zeros(len(d), bool)
+            assert np.array_equal(peak, expected) and grazing.any() and (peak.any() or peak_deg is None)
+
+
 @pytest.mark.filterwarnings("ignore::ctfit.DataWarning")  # samples at θ_o = 90° dropped by the reader
 def test_a_material_the_model_cannot_represent_says_so(tmp_path):
     """A retro-reflector (data far above the model where L = V) is not a Cook–Torrance material:

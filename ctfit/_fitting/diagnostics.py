@@ -27,7 +27,7 @@ from .._model import Measurement
 from .fit_warnings import FitWarning
 from .losses import loss_floor
 
-__all__ = ["angle_lv_deg", "half_angle_deg", "relative_residual_structure", "residual_structure"]
+__all__ = ["angle_lv_deg", "half_angle_deg", "pair_half_angle_deg", "relative_residual_structure", "residual_structure"]
 
 
 def _angle_lv(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
@@ -68,11 +68,11 @@ def half_angle_deg(data: Measurement) -> np.ndarray:
     computed per direction pair (``data.directions()``) and kept for the next measurement of the
     same pairs (files of one geometry fitted together share them)."""
     pairs, index = data.directions()
-    return _pair_half_angles(pairs)[index]
+    return pair_half_angle_deg(pairs)[index]
 
 
-def _pair_half_angles(pairs: np.ndarray) -> np.ndarray:
-    """α of every direction pair (D, 4), computed once per array (:func:`_recent`) and block by
+def pair_half_angle_deg(pairs: np.ndarray) -> np.ndarray:
+    """α (degrees) of every direction pair (D, 4), computed once per array (:func:`_recent`) and block by
     block (small temporaries): the residual groups and :func:`half_angle_deg` share it."""
     return _recent(pairs, "half-angle", lambda: np.concatenate([_half_angle(*pairs[i: i + _BLOCK].T) for i in range(0, len(pairs), _BLOCK)]
                                                                or [np.zeros(0)]))
@@ -139,7 +139,7 @@ def relative_residual_structure(
     rel = np.asarray(rel)
     per_sample = mask is None
     blocks = [slice(i, i + _BLOCK) for i in range(0, len(rel), _BLOCK)]  # rows at a time: small temporaries
-    alpha = _pair_half_angles(pairs)  # what two of the groups are made of
+    alpha = pair_half_angle_deg(pairs)  # what two of the groups are made of
     out = []
     for name, variable, edges, place in _GROUPS:
         bins = len(edges) - 1
