@@ -354,8 +354,10 @@ def _quality(data: Measurement, rel: np.ndarray, floor: float, structure: Struct
     y = np.asarray(data.brdf, dtype=float)
     positive = y > 0
     err = np.abs(rel, dtype=float)  # |f − y|/y computed in place: a MERL table has 3.3 million samples
-    err *= np.maximum(np.abs(y), floor)
-    err /= np.where(positive, y, 1.0)
+    scale = np.abs(y)
+    err *= np.maximum(scale, floor, out=scale)
+    del scale
+    np.divide(err, y, out=err, where=positive)
     err[~positive] = np.nan
     peak_deg = peak_width_deg(structure, params)
     return quality_in_regions(err, *sample_regions(data, peak_deg), peak_deg)
