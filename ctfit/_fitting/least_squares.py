@@ -38,7 +38,7 @@ import numpy as np
 from jax.typing import DTypeLike
 
 from .._model import Material, Measurement, Params, Structure, x64_enabled
-from .._runtime import cached_call
+from .._runtime import cached_call, release_free_pages
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch, race_rows
 from .chunks import sum_over_chunks
 from .coordinates import from_params, to_params
@@ -260,7 +260,15 @@ def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: floa
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS if solver == "lm" else None)
     light = not report and solver == "lm"
     out = solve_prepared(prep, solver, max_steps, tolerance, report=not light)
+    if prep.chunked and len(data) >= RELEASE_SAMPLES:
+        release_free_pages()  # the chunks' many small blocks, freed by the threads that made them
     return (finish_light if light else finish_fit)(prep, out, solver, t0, tolerance if solver == "lm" else None, max_steps)
+
+
+RELEASE_SAMPLES = 1 << 20
+"""A fit on chunks of at least this many samples hands the memory its chunks held back to the
+system before its report is made (:func:`~ctfit._runtime.memory.release_free_pages`, in the
+``ctfit`` command): a MERL table's warm fit then peaks at the report's own needs."""
 
 
 def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool = False, fixed: tuple[str, ...] = (), loss: str = "auto",
