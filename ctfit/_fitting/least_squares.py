@@ -60,7 +60,7 @@ from .fit_warnings import FitWarning
 from .jacobian import normal_equations
 from .losses import LOSSES, default_loss
 from .problem import Problem, make_problem
-from .quality import peak_width_deg, quality_in_regions, quality_warning, sample_regions
+from .quality import quality_from_residuals, quality_warning
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds
 from .starts import default_start, m_grid, seed_points
 from .status import FitStatus, fit_status
@@ -260,15 +260,13 @@ def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: floa
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS if solver == "lm" else None)
     light = not report and solver == "lm"
     out = solve_prepared(prep, solver, max_steps, tolerance, report=not light)
-    if prep.chunked and len(data) >= RELEASE_SAMPLES:
-        release_free_pages()  # the chunks' many small blocks, freed by the threads that made them
     return (finish_light if light else finish_fit)(prep, out, solver, t0, tolerance if solver == "lm" else None, max_steps)
 
 
 RELEASE_SAMPLES = 1 << 20
 """A fit on chunks of at least this many samples hands the memory its chunks held back to the
-system before its report is made (:func:`~ctfit._runtime.memory.release_free_pages`, in the
-``ctfit`` command): a MERL table's warm fit then peaks at the report's own needs."""
+system once they are freed, before its report is made (:func:`~ctfit._runtime.memory.release_free_pages`,
+in the ``ctfit`` command): a MERL table's warm fit then peaks at the report's own needs."""
 
 
 def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool = False, fixed: tuple[str, ...] = (), loss: str = "auto",
@@ -321,8 +319,12 @@ def solve_prepared(prep: PreparedFit, solver: str, max_steps: int, tolerance: fl
         sample = race_rows(prep.problem) if prep.grid is not None or prep.k + prep.given_start > 1 else None
         race_parts = None if sample is None else chunk_problems(prep.problem, rows_of=sample)
         prep.problem = dataclasses.replace(prep.problem, geom=None)  # the chunks hold the geometry now: one copy in memory
-        return chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance, report=report,
-                            race_parts=race_parts)
+        out = chunked_core(prep.problem, prep.u0, prep.grid, prep.k, max_steps, prep.given_start, parts=parts, tolerance=tolerance, report=report,
+                           race_parts=race_parts)
+        del parts, race_parts
+        if len(prep.data) >= RELEASE_SAMPLES:
+            release_free_pages()  # the chunks' many small blocks, freed in the arenas of the threads that made them
+        return out
     return jax.device_get(cached_call("fit", fit_core, prep.problem, prep.u0, prep.grid, *prep.options(solver, max_steps)))
 
 
@@ -354,21 +356,6 @@ def seed_params(
         p = to_params(prep.problem.spec, jax.tree.map(lambda a: a[i], seeds), prep.problem.fixed)
         out.append(Params(**{k: None if getattr(p, k) is None else np.asarray(getattr(p, k)) for k in PARAM_FIELDS}))
     return out
-
-
-def _quality(data: Measurement, rel: np.ndarray, floor: float, structure: Structure, params: Params) -> dict:
-    """The ``quality`` section (:mod:`~ctfit._fitting.quality`) from the fit's relative residuals
-    (f − y)/max(|y|, floor) per sample."""
-    y = np.asarray(data.brdf, dtype=float)
-    positive = y > 0
-    err = np.abs(rel, dtype=float)  # |f − y|/y computed in place: a MERL table has 3.3 million samples
-    scale = np.abs(y)
-    err *= np.maximum(scale, floor, out=scale)
-    del scale
-    np.divide(err, y, out=err, where=positive)
-    err[~positive] = np.nan
-    peak_deg = peak_width_deg(structure, params)
-    return quality_in_regions(err, *sample_regions(data, peak_deg), peak_deg)
 
 
 def _bic(cost: float, zero_cost: float, n: int, p: int, loss: str, dtype: DTypeLike) -> float:
@@ -433,7 +420,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     else:
         structure_notes = relative_residual_structure(pairs, rel[: len(data)], index=index)
     per_sample = rel[index, data.band] if problem.spec.grid else rel[: len(data)]
-    quality = _quality(data, per_sample, floor, structure, params)
+    quality = quality_from_residuals(data, per_sample, floor, structure, params)
     gn_decrease = float(out["gn_decrease"])
     tolerance = STATIONARY_TOLERANCE[jnp.dtype(dtype).name] if tolerance is None else tolerance
     stationary = gn_decrease <= tolerance

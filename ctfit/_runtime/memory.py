@@ -59,7 +59,7 @@ def release_free_pages() -> bool:
     """Hand the free pages of every heap back to the system (glibc's ``malloc_trim``), other
     threads' arenas included, in a process that :func:`return_large_blocks` set up (the ``ctfit``
     command); elsewhere nothing. For the end of a large phase whose many small blocks were freed
-    by threads other than the next phase's: a MERL table's fit leaves about 160 MiB in the
+    by threads other than the next phase's: a MERL table's fit leaves about 190 MiB in the
     arenas of the threads that made its 20,000 chunk arrays, which the report, made in another
     thread, cannot reuse (about 20 ms). True where it ran."""
     if _libc is None:
