@@ -14,6 +14,7 @@ import pytest
 import ctfit
 from ctfit._fitting import starts
 from ctfit._fitting.chunked_fit import ROWS, chunk_problems
+from ctfit._fitting.coordinates import weight_coordinates
 from ctfit._fitting.least_squares import prepare_fit
 from ctfit._fitting.problem import band_sum, model_parts
 
@@ -27,17 +28,23 @@ STRUCTURES = [
 ]
 
 
-def _whole_model_sums(part, u0: dict, grid):
+def _whole_model_sums(part, u0: dict, values):
     """The sums of :func:`~ctfit._fitting.starts.grid_sums` from the model's two parts evaluated
-    whole at every grid point (:func:`~ctfit._fitting.problem.model_parts`)."""
+    whole at every grid point (:func:`~ctfit._fitting.starts.m_combinations` of ``values``) and
+    split of the lobes' weights (:func:`~ctfit._fitting.starts.splits_scored`; the start's alone
+    where the weights are not free) (:func:`~ctfit._fitting.problem.model_parts`)."""
+    grid = values[jnp.asarray(starts.m_combinations(values.shape[0], u0["m"].shape[0]))]
+    splits = starts.splits_scored(u0)
+    ws = [None] if splits is None else [weight_coordinates(jnp.asarray(w), part.spec.space) for w in splits]
 
-    def one(log_m):
-        a, b = model_parts(part, dict(u0, m=log_m))
-        w, y = part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2, part.y
-        sums = band_sum(part, jnp.stack([w * a * y, w * b * y, w * y * y, w * a * a, w * a * b, w * b * b], axis=-1))
+    def one(log_m, w):
+        a, b = model_parts(part, dict(u0, m=log_m) if w is None else dict(u0, m=log_m, w=w))
+        wgt, y = part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2, part.y
+        sums = band_sum(part, jnp.stack([wgt * a * y, wgt * b * y, wgt * y * y, wgt * a * a, wgt * a * b, wgt * b * b], axis=-1))
         return sums[..., :3], sums[..., 3:]
 
-    return jax.lax.map(one, grid)
+    per_split = [jax.lax.map(lambda log_m: one(log_m, w), grid) for w in ws]  # each (G, bands, 3)
+    return tuple(jnp.stack([s[i] for s in per_split], axis=1) for i in range(2))
 
 
 def _data(layout: str) -> ctfit.Measurement:
@@ -62,8 +69,11 @@ def test_the_seeds_sums_are_those_of_the_model_s_two_parts(structure, layout):
     u0 = dict(prep.u0, s=jnp.asarray(0.6)) if "s" in prep.u0 else prep.u0  # s away from ½: the parts' weights differ
     got = eqx.filter_jit(starts.grid_sums)(part, u0, prep.grid)
     want = eqx.filter_jit(_whole_model_sums)(part, u0, prep.grid)
+    splits = starts.splits_scored(u0)
+    points = starts.m_combinations(prep.grid.shape[0], u0["m"].shape[0]).shape[0]
+    assert (splits is not None) == (structure.lobes > 1)  # weights free in a fit of several lobes
     for g, w in zip(got, want):
-        assert g.shape == w.shape == (prep.grid.shape[0], part.fixed_bands, 3)
+        assert g.shape == w.shape == (points, 1 if splits is None else splits.shape[0], part.fixed_bands, 3)
         np.testing.assert_allclose(g, w, rtol=1e-11, atol=1e-13 * float(np.max(np.abs(w))))
     assert float(np.max(np.asarray(got[1])[..., 0])) > 0  # a specular part that reaches the samples
 
@@ -79,3 +89,64 @@ def test_scores_for_all_grid_points_at_once_are_those_of_one_at_a_time(layout, m
     for a, b in zip(at_once, one_by_one):
         np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-13 * float(np.max(np.abs(b))))
     assert np.all(np.isfinite(np.asarray(at_once[0])))
+
+
+# --- the lobes' weights in the scores ------------------------------------------------------------
+
+
+@pytest.mark.parametrize("space", ["box", "unconstrained"])
+def test_weight_coordinates_invert_the_lobe_weights(space):
+    from ctfit._fitting.coordinates import lobe_weights, stick_fractions
+
+    rng = np.random.default_rng(0)
+    for lobes in (2, 3, 5):
+        w = rng.dirichlet(np.ones(lobes), size=4)
+        u = weight_coordinates(jnp.asarray(w), space)
+        back = np.stack([np.asarray(lobe_weights(row, space)) for row in u])
+        np.testing.assert_allclose(back, w, rtol=1e-12, atol=1e-15)
+        if space == "box":
+            np.testing.assert_allclose(u, np.stack([stick_fractions(row) for row in w]), rtol=1e-12)
+
+
+def test_the_splits_of_the_lobes_weights():
+    from ctfit._model import MAX_LOBES
+
+    for lobes in range(1, MAX_LOBES + 1):
+        splits = starts.lobe_weight_grid(lobes)
+        assert splits.shape[1] == lobes and np.all(splits > 0)
+        np.testing.assert_allclose(splits.sum(axis=1), 1.0, rtol=1e-15)
+        assert any(np.allclose(row, 1.0 / lobes) for row in splits)  # the start's equal split among them
+        assert len({tuple(row) for row in splits}) == len(splits)
+    assert starts.lobe_weight_grid(2).shape == (7, 2) and starts.lobe_weight_grid(3).shape == (10, 3)
+
+
+def test_with_the_weights_held_the_grid_is_scored_at_those_weights_alone():
+    data = _data("pairs")
+    structure = ctfit.Structure(lobes=2, diffuse="F0/pi")
+    start = ctfit.Params(s=np.asarray(0.5), m=np.array([0.1, 0.3]), w=np.array([0.8, 0.2]), f0=np.full(3, 0.5))
+    prep = prepare_fit(data, structure, start=start, fixed=("w",), loss="relative", dtype=jnp.float64, starts=3, chunk=ROWS)
+    assert "w" not in prep.u0 and starts.splits_scored(prep.u0) is None
+    (part,) = chunk_problems(prep.problem, limit=1)
+    got = eqx.filter_jit(starts.grid_sums)(part, prep.u0, prep.grid)
+    want = eqx.filter_jit(_whole_model_sums)(part, prep.u0, prep.grid)  # the model's own weights: the held ones
+    for g, w in zip(got, want):
+        assert g.shape[1] == 1
+        np.testing.assert_allclose(g, w, rtol=1e-11, atol=1e-13 * float(np.max(np.abs(w))))
+
+
+def test_no_seed_of_two_lobes_is_a_lobe_too_narrow_to_reach_the_samples():
+    """Scored at the start's equal weights alone, a pair with a lobe too narrow to reach any
+    sample scored as its other lobe alone and took most seeds here (m = 0.01 or 0.017 beside
+    0.27); their solves then spent 15–31 steps dragging that lobe out. Scored at every split,
+    the seeds are pairs that fit both lobes, each with its best split."""
+    truth = ctfit.Material(ctfit.Structure(lobes=2, diffuse="F0/pi"),
+                           ctfit.Params(s=np.asarray(0.9), m=np.array([0.2, 0.4]), w=np.array([0.6, 0.4]), f0=np.linspace(0.5, 0.95, 31)),
+                           wavelength_nm=np.linspace(400.0, 700.0, 31))
+    grid = ctfit.simulate(truth, n_pairs=400, noise=0.02, seed=0)
+    keep = np.random.default_rng(1).choice(len(grid), 2000, replace=False)  # each sample its own pair and band
+    data = grid.replace(sigma=None, **{c: np.asarray(getattr(grid, c))[keep] for c in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf")})
+    seeds = ctfit.seed_params(data, truth.structure, starts=3, loss="relative")
+    for p in seeds:
+        assert np.min(p.m) > 0.05, p.m
+        assert np.isclose(np.sum(p.w), 1.0)
+    assert len({tuple(np.round(p.w, 6)) for p in seeds} | {(0.5, 0.5)}) > 1  # weights from the scores, not only the start's

@@ -50,7 +50,7 @@ from .fit_report import combined_rms, light_report_core, report_core, summary_of
 from .jacobian import normal_equations
 from .problem import Problem, Spec
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver, stop_tolerances
-from .starts import grid_amplitudes, grid_costs, grid_scales, grid_sums, seeds_from_scores
+from .starts import best_splits, grid_sums, m_combinations, seeds_from_scores, splits_scored
 
 __all__ = ["ROWS", "RACE_CHUNKS", "chunk_problems", "chunked_core", "prefetch", "race_rows"]
 
@@ -335,8 +335,8 @@ def _seeds_program(part: Problem, u0: dict, k: int, grid, num, den, keep_start: 
     if grid is None:
         seeds = jax.tree.map(lambda a: a[None], u0)
     else:
-        amplitudes = grid_amplitudes(num, den)
-        seeds = seeds_from_scores(part, u0, k, grid, grid_costs(num, den, amplitudes), grid_scales(num, den), keep_start, amplitudes)
+        costs, scales, amplitudes, split = best_splits(num, den)
+        seeds = seeds_from_scores(part, u0, k, grid, costs, scales, keep_start, amplitudes, split)
     flat = jax.vmap(lambda s: ravel_pytree(s)[0])(seeds)
     lower, upper = flat_bounds(part, u0)
     return dict(flat=flat, lower=lower, upper=upper)
@@ -473,9 +473,17 @@ def _seed_programs(template: Problem, u0: dict, k: int, grid, keep_start: bool):
     """The programs of the seeds: (the scores' sums, the choice), or (None, choice) without a grid."""
     if "m" not in u0 or k < 1 or grid is None:
         return None, _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, keep_start)
-    acc = [np.zeros((grid.shape[0], template.fixed_bands, 3), grid.dtype) for _ in range(2)]
+    acc = [np.zeros(_sums_shape(template, u0, grid), grid.dtype) for _ in range(2)]
     return (_program("fit_grid_sums", _sums_kernel, acc, template, u0, grid),
             _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], keep_start))
+
+
+def _sums_shape(template: Problem, u0: dict, grid) -> tuple[int, ...]:
+    """The shape of the seeds' sums (:func:`~ctfit._fitting.starts.grid_sums`): grid points,
+    splits of the lobes' weights, bands, 3."""
+    splits = splits_scored(u0)
+    points = m_combinations(grid.shape[0], np.shape(u0["m"])[0]).shape[0]
+    return points, 1 if splits is None else splits.shape[0], template.fixed_bands, 3
 
 
 def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> dict:
@@ -486,7 +494,7 @@ def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> di
     if sums is None:
         return jax.device_get(pick(*array_leaves((template, u0))))
     u0l = array_leaves(u0)
-    acc = [jax.device_put(np.zeros((grid.shape[0], template.fixed_bands, 3), grid.dtype)) for _ in range(2)]
+    acc = [jax.device_put(np.zeros(_sums_shape(template, u0, grid), grid.dtype)) for _ in range(2)]
     acc = chunk_sums(sums, acc, chunks, [*u0l, grid])
     return jax.device_get(pick(*array_leaves((template, u0, grid, acc[0], acc[1]))))
 

@@ -27,7 +27,7 @@ from .._model import Params, Structure, box_bounds, clip_box, n_lower, parameter
 if TYPE_CHECKING:
     from .problem import Spec
 
-__all__ = ["lobe_weights", "fraction_weights", "stick_fractions", "to_params", "from_params", "bounds", "free_names"]
+__all__ = ["lobe_weights", "weight_coordinates", "fraction_weights", "stick_fractions", "to_params", "from_params", "bounds", "free_names"]
 
 
 def lobe_weights(u_w, space: str):
@@ -47,6 +47,16 @@ def stick_fractions(w) -> np.ndarray:
     w = w / np.sum(w)
     rest = np.cumsum(w[::-1])[::-1]  # r_j = Σ_(i≥j) w_i
     return np.clip(rest[1:] / np.maximum(rest[:-1], 1e-300), 0.0, 1.0)
+
+
+def weight_coordinates(w, space: str):
+    """Inverse of :func:`lobe_weights`, traceable: the J − 1 free values of lobe weights ``w``
+    (positive, Σ w = 1; a leading batch axis allowed), stick-breaking fractions in the box
+    (:func:`stick_fractions`), log ratios to the first lobe's weight otherwise."""
+    if space == "box":
+        rest = jnp.flip(jnp.cumsum(jnp.flip(w, axis=-1), axis=-1), axis=-1)  # Σ_(i≥j) w_i
+        return jnp.clip(rest[..., 1:] / jnp.maximum(rest[..., :-1], jnp.finfo(w.dtype).tiny), 0.0, 1.0)
+    return jnp.log(w[..., 1:]) - jnp.log(w[..., :1])
 
 
 def fraction_weights(v) -> np.ndarray:

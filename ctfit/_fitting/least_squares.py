@@ -62,7 +62,7 @@ from .losses import LOSSES, default_loss
 from .problem import Problem, make_problem
 from .quality import quality_from_residuals, quality_warning
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds
-from .starts import default_start, m_grid, seed_points
+from .starts import default_start, m_points, seed_points
 from .status import FitStatus, fit_status
 from .validate import check_fittable, nonfinite_reason
 
@@ -202,7 +202,7 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
     problem = make_problem(structure, data, fixed_params=start, fixed=fixed, loss=loss, dtype=dtype, pad=True, pad_to=pad_to, chunk=chunk)
     u0 = {k: jax.device_put(np.asarray(v, dtype=dtype)) for k, v in from_params(problem.spec, start).items()}  # (jnp.asarray compiles a conversion)
     k = starts if "m" in u0 else 1
-    grid = jax.device_put(np.log(m_grid(structure.lobes, structure.diffuse is not None)).astype(dtype)) if ("m" in u0 and k >= 1) else None
+    grid = jax.device_put(np.log(m_points(structure.lobes, structure.diffuse is not None)).astype(dtype)) if ("m" in u0 and k >= 1) else None
     return PreparedFit(data, structure, loss, dtype, start, tuple(fixed), problem, u0, grid, k, given_start, chunk is not None)
 
 

@@ -1,10 +1,12 @@
 """Where a fit starts: the default start, a start from a material file, and the grid seeds.
 
 The seeds (``seed_points``): a grid over the rms slopes (one value per lobe, ascending), each
-scored by the loss after the best non-negative per-band amplitudes of the model's specular and
-diffuse parts (a linear least-squares problem, :func:`grid_amplitudes`); one pass over the data
-gives the sums that both the amplitudes and the loss after them are made of
-(:func:`grid_sums`, :func:`grid_costs`). The best ``starts`` distinct grid points seed the solver.
+point scored at every split of the light among its lobes (:func:`lobe_weight_grid`, where the
+weights are free) by the loss after the best non-negative per-band amplitudes of the model's
+specular and diffuse parts (a linear least-squares problem, :func:`grid_amplitudes`); one pass
+over the data gives the sums that both the amplitudes and the loss after them are made of, at
+every split (:func:`grid_sums`, :func:`grid_costs`). Each grid point keeps its best split
+(:func:`best_splits`); the best ``starts`` distinct grid points seed the solver, with those weights.
 :func:`~ctfit.seed_params` gives them to analysis code as :class:`~ctfit.Params`.
 """
 
@@ -20,11 +22,11 @@ import numpy as np
 from .._io import MaterialError
 from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0, safe_div
 from .chunks import chunk_count, sum_over_chunks
-from .coordinates import free_names
+from .coordinates import free_names, weight_coordinates
 from .problem import Problem, at_samples, band_sum, per_direction, shape_and_rest, values_from_s
 
-__all__ = ["default_start", "m_grid", "seed_points", "seeds_from_scores", "grid_sums", "linear_parts", "grid_scales", "grid_amplitudes", "grid_costs",
-           "start_from_material"]
+__all__ = ["default_start", "m_grid", "m_points", "m_combinations", "lobe_weight_grid", "seed_points", "seeds_from_scores", "grid_sums",
+           "best_splits", "splits_scored", "linear_parts", "grid_scales", "grid_amplitudes", "grid_costs", "start_from_material"]
 
 
 def default_start(structure: Structure, data: Measurement) -> Params:
@@ -41,17 +43,73 @@ def default_start(structure: Structure, data: Measurement) -> Params:
     )
 
 
-def m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
-    """The grid of m the seeds are scored on. One lobe: 16 points 0.005–1, and without a diffuse
-    part 5 more down to 10⁻⁴ for mirror-like lobes (seen in their tails or sampled closely). With
-    a diffuse part those would be traps: a lobe that reaches no sample fits like s = 0. Several
-    lobes: every ascending choice of ``lobes`` values from a fixed list of points 0.01–0.8 (at
-    least ``lobes + 1`` of them, so every count up to :data:`~ctfit.MAX_LOBES` has a grid)."""
+def m_points(lobes: int, diffuse: bool = True) -> np.ndarray:
+    """The values of m the seeds' grid is made of (:func:`m_grid`). One lobe: 16 points 0.005–1,
+    and without a diffuse part 5 more down to 10⁻⁴ for mirror-like lobes (seen in their tails or
+    sampled closely). With a diffuse part those would be traps: a lobe that reaches no sample fits
+    like s = 0. Several lobes: a fixed list of points 0.01–0.8 (at least ``lobes + 1`` of them, so
+    every count up to :data:`~ctfit.MAX_LOBES` has a grid)."""
     if lobes == 1:
         grid = np.geomspace(0.005, 1.0, 16)
-        return (grid if diffuse else np.concatenate([np.geomspace(1e-4, 0.005, 6)[:-1], grid]))[:, None]
+        return grid if diffuse else np.concatenate([np.geomspace(1e-4, 0.005, 6)[:-1], grid])
     points = {2: 9, 3: 7}.get(lobes, max(5, lobes + 1))  # five and more lobes: lobes + 1 choose lobes
-    return np.array(list(itertools.combinations(np.geomspace(0.01, 0.8, points), lobes)))
+    return np.geomspace(0.01, 0.8, points)
+
+
+@functools.cache
+def m_combinations(values: int, lobes: int) -> np.ndarray:
+    """The grid's points as indices into its ``values`` (:func:`m_points`): every ascending choice
+    of ``lobes`` of them, (points, lobes)."""
+    out = np.array(list(itertools.combinations(range(values), lobes)), dtype=np.int32).reshape(-1, lobes)
+    out.flags.writeable = False
+    return out
+
+
+def m_grid(lobes: int, diffuse: bool = True) -> np.ndarray:
+    """The grid of m the seeds are scored on, (points, lobes): every ascending choice of ``lobes``
+    values of :func:`m_points` (one lobe: each value)."""
+    values = m_points(lobes, diffuse)
+    return values[m_combinations(values.shape[0], lobes)]
+
+
+WEIGHT_PARTS = {2: 8}
+"""A grid point of several lobes is scored at every split of the light among its lobes into
+positive multiples of 1/N (:func:`lobe_weight_grid`): N = 8 for two lobes, 6 (this default) for more."""
+
+
+@functools.cache
+def lobe_weight_grid(lobes: int) -> np.ndarray:
+    """The lobes' weights every grid point of ``lobes`` lobes is scored with, (splits, lobes): each
+    split of 1 into ``lobes`` positive multiples of 1/N (:data:`WEIGHT_PARTS`), and the equal
+    split (the start's); [[1]] for one lobe.
+
+    Scored at the start's weights alone (equal), a pair of slopes with a lobe too narrow to reach
+    any sample scored as its other lobe alone, freely scaled, and outranked the pairs that fit
+    both widths at half weight each: on files of two lobes (m = 0.2, 0.4, w = 0.6, 0.4) most seeds
+    were (0.01 or 0.017, 0.27), and their solves took 15–31 steps to drag the narrow lobe out.
+
+    >>> lobe_weight_grid(2)[:, 0].tolist()
+    [0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875]
+    >>> lobe_weight_grid(3).shape, lobe_weight_grid(4).shape, lobe_weight_grid(8).tolist() == [[0.125] * 8]
+    ((10, 3), (11, 4), True)
+    """
+    if lobes == 1:
+        return np.ones((1, 1))
+    n = WEIGHT_PARTS.get(lobes, 6)
+    cuts = itertools.combinations(range(1, n), lobes - 1)
+    grid = np.array([np.diff([0, *c, n]) for c in cuts], dtype=float).reshape(-1, lobes) / n
+    if n % lobes:  # the equal split is not among them
+        grid = np.concatenate([grid, np.full((1, lobes), 1.0 / lobes)])
+    grid.flags.writeable = False
+    return grid
+
+
+def splits_scored(u0: dict) -> np.ndarray | None:
+    """The lobe weights :func:`grid_sums` scores each grid point with (:func:`lobe_weight_grid`),
+    or None where the weights are not free (one lobe, or weights held): those of ``u0`` alone."""
+    if "w" not in u0 or "m" not in u0 or jnp.shape(u0["m"])[0] < 2:
+        return None
+    return lobe_weight_grid(jnp.shape(u0["m"])[0])
 
 
 def linear_parts(part: Problem, u0: dict):
@@ -67,39 +125,109 @@ def linear_parts(part: Problem, u0: dict):
     return diffuse, per_s, part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
 
 
-def _specular_sums(part: Problem, u0: dict, linear: tuple, grid):
-    """(Σ w A y, Σ w A², Σ w A B) per band at the grid points ``grid`` (G, lobes), A = S ∂R/∂S:
-    shape (G, bands, 3)."""
+def _specular_sums(part: Problem, u0: dict, linear: tuple, values, one_at_a_time: bool = False):
+    """(Σ w A y, Σ w A², Σ w A B) per band at the grid's points (:func:`m_combinations` of the
+    log m ``values``), A = S ∂R/∂S with the lobes weighted as in ``u0``: shape (G, 1, bands, 3);
+    where the weights are free (:func:`splits_scored`), at each of the splits instead:
+    (G, splits, bands, 3), from the sums of the lobes of every value alone and of their products
+    (S = Σ_j w_j S_j is linear in the weights, Eq. 5). ``one_at_a_time``: those sums formed for
+    one grid point (or value) at a time, temporaries of the cells' size alone."""
+    b, per_s, wgt = linear
+    u_shape, u_rest = shape_and_rest(u0)
+    lobes = jnp.shape(u0["m"])[0]
+    combos = m_combinations(values.shape[0], lobes)
+    splits = splits_scored(u0)
+    wp = wgt * per_s
+    if splits is None:
+        grid = values[jnp.asarray(combos)]
+        if one_at_a_time:
+            return jax.lax.map(lambda log_m: _weighted_sums(part, u0, linear, log_m[None])[0], grid)
+        return _weighted_sums(part, u0, linear, grid)
+    s_dir = jax.vmap(lambda log_m: per_direction(part, dict(u_shape, m=jnp.full((lobes,), log_m)), u_rest))(values)  # each value's lobe alone
+    if part.spec.grid:  # cells (pairs, bands), S per pair: sums over the pairs
+        s_all = s_dir[..., None]  # (V, pairs, 1)
+        sums_of = lambda cols: jnp.sum(cols, axis=-2)
+    else:  # cells are samples, each of one band: sums over each band's samples, as one product
+        s_all = at_samples(part, s_dir.T).T  # (V, samples)
+        one_hot = (part.band[:, None] == jnp.arange(part.fixed_bands)).astype(per_s.dtype)  # type: ignore[index]  # set when not grid
+        sums_of = lambda cols: cols @ one_hot  # (a scatter of these columns took 3× the time)
+
+    v = values.shape[0]
+    if one_at_a_time:
+        def products(s):  # one value's lobe against the data, the diffuse part and every value's lobe
+            return sums_of(jnp.concatenate([(s * (wp * part.y))[None], (s * (wp * b))[None], s * s_all * (wp * per_s)], axis=0))
+
+        sums = jax.lax.map(products, s_all)  # (V, 2 + V, bands)
+        ay, ab, aa = sums[:, 0], sums[:, 1], sums[:, 2:]
+    else:
+        pairs = (s_all[:, None] * s_all[None]).reshape(v * v, *s_all.shape[1:])
+        sums = sums_of(jnp.concatenate([s_all * (wp * part.y), s_all * (wp * b), pairs * (wp * per_s)], axis=0))  # (2 V + V², bands)
+        ay, ab, aa = sums[:v], sums[v: 2 * v], sums[2 * v:].reshape(v, v, -1)
+    # Each grid point's sums at a split w: linear (A y, A B) and quadratic (A²) forms in w of its
+    # lobes' sums (static indices: the grid's points into the values).
+    w = jnp.asarray(splits, per_s.dtype)
+    idx = jnp.asarray(combos)
+    a_y, a_b, a_a = ay[idx], ab[idx], aa[idx[:, :, None], idx[:, None, :]]  # (G, lobes, bands), (G, lobes, lobes, bands)
+    return jnp.stack([jnp.einsum("sj,gjb->gsb", w, a_y), jnp.einsum("sj,sk,gjkb->gsb", w, w, a_a), jnp.einsum("sj,gjb->gsb", w, a_b)], axis=-1)
+
+
+def _weighted_sums(part: Problem, u0: dict, linear: tuple, grid):
+    """:func:`_specular_sums` at the grid points ``grid`` (G, lobes) of log m, the lobes weighted
+    as in ``u0``: (G, 1, bands, 3)."""
     b, per_s, wgt = linear
     u_shape, u_rest = shape_and_rest(u0)
     s_all = jax.vmap(lambda log_m: per_direction(part, dict(u_shape, m=log_m), u_rest))(grid).T  # (directions, G)
     wp = wgt * per_s
     if part.spec.grid:  # cells (pairs, bands), S per pair: products over the pairs
-        return jnp.stack([s_all.T @ (wp * part.y), (s_all * s_all).T @ (wp * per_s), s_all.T @ (wp * b)], axis=-1)
-    s = at_samples(part, s_all)  # cells are samples, each of one band: (samples, G)
-    cols = jnp.stack([s * (wp * part.y)[:, None], s * s * (wp * per_s)[:, None], s * (wp * b)[:, None]], axis=-1)
-    return jnp.swapaxes(band_sum(part, cols), 0, 1)
+        sums = jnp.stack([s_all.T @ (wp * part.y), (s_all * s_all).T @ (wp * per_s), s_all.T @ (wp * b)], axis=-1)
+    else:
+        s = at_samples(part, s_all)  # cells are samples, each of one band: (samples, G)
+        cols = jnp.stack([s * (wp * part.y)[:, None], s * s * (wp * per_s)[:, None], s * (wp * b)[:, None]], axis=-1)
+        sums = jnp.swapaxes(band_sum(part, cols), 0, 1)
+    return sums[:, None]
 
 
-def grid_sums(part: Problem, u0: dict, grid, at_once: bool = True):
-    """Per grid point of log m, the per-band sums of ``part`` over the model's two parts A = s R_s
-    and B = d R_d and the data y, w the loss's weights: (Σ w A y, Σ w B y, Σ w y²) and
-    (Σ w A², Σ w A B, Σ w B²), shapes (G, bands, 3) and (G, bands, 3). All the seeds' scores
-    need (:func:`grid_amplitudes`, :func:`grid_costs`), in one pass, summable over chunks. The
-    model's Fresnel term and diffuse part are evaluated once (:func:`linear_parts`: A = S ∂R/∂S),
-    the sums of B and y alone once, and those of A for every grid point at once, or with
-    ``at_once`` False one grid point at a time (temporaries of the cells' size alone)."""
+def grid_sums(part: Problem, u0: dict, values, at_once: bool = True):
+    """Per grid point of log m (:func:`m_combinations` of the log m ``values``) and split of the
+    lobes' weights (:func:`splits_scored`; the start's weights alone where they are not free),
+    the per-band sums of ``part`` over the model's two parts A = s R_s and B = d R_d and the data
+    y, w the loss's weights: (Σ w A y, Σ w B y, Σ w y²) and (Σ w A², Σ w A B, Σ w B²), shapes
+    (G, splits, bands, 3) and (G, splits, bands, 3). All the seeds' scores need
+    (:func:`grid_amplitudes`, :func:`grid_costs`), in one pass, summable over chunks. The model's
+    Fresnel term and diffuse part are evaluated once (:func:`linear_parts`: A = S ∂R/∂S), the sums
+    of B and y alone once, and those of A for every grid point at once, or with ``at_once`` False
+    one grid point (or value) at a time (temporaries of the cells' size alone)."""
     linear = linear_parts(part, u0)
     b, _, wgt = linear
     fixed = band_sum(part, jnp.stack([wgt * b * part.y, wgt * part.y * part.y, wgt * b * b], axis=-1))  # (bands, 3)
-    if at_once:
-        varying = _specular_sums(part, u0, linear, grid)
-    else:
-        varying = jax.lax.map(lambda log_m: _specular_sums(part, u0, linear, log_m[None])[0], grid)
+    varying = _specular_sums(part, u0, linear, values, one_at_a_time=not at_once)
     fixed = jnp.broadcast_to(fixed, varying.shape)
     num = jnp.stack([varying[..., 0], fixed[..., 0], fixed[..., 1]], axis=-1)
     den = jnp.stack([varying[..., 1], varying[..., 2], fixed[..., 2]], axis=-1)
     return num, den
+
+
+def score_columns(u0: dict, values: int) -> int:
+    """Products per cell that :func:`grid_sums` forms for ``values`` values of m (the memory of
+    forming them all at once): 3 per grid point, or with free weights (:func:`splits_scored`)
+    2 + V per value."""
+    if splits_scored(u0) is None:
+        return 3 * m_combinations(values, jnp.shape(u0["m"])[0]).shape[0]
+    return values * (2 + values)
+
+
+def best_splits(num, den):
+    """Each grid point's scores at its best split of the lobes' weights, from :func:`grid_sums`'
+    totals: (costs (G,), the whole model's scales (G, bands), the parts' amplitudes
+    (G, bands, 2), the index of the split (G,))."""
+    amplitudes = grid_amplitudes(num, den)
+    costs = grid_costs(num, den, amplitudes)  # (G, splits)
+    pick = jnp.argmin(costs, axis=1)
+
+    def take(a):
+        return jnp.take_along_axis(a, pick.reshape((-1, 1) + (1,) * (a.ndim - 2)), axis=1)[:, 0]
+
+    return jnp.min(costs, axis=1), grid_scales(take(num), take(den)), take(amplitudes), pick
 
 
 def grid_scales(num, den):
@@ -153,24 +281,24 @@ def _score_grid():
     return eqx.filter_jit(_grid_scores)
 
 
-VECTOR_CELLS = 1 << 22
-"""Cells × grid points up to which the seeds' sums are formed for every grid point at once
-(:func:`grid_sums`: temporaries of that many values); above, one grid point at a time
-(``at_once`` False: memory of the cells alone)."""
+VECTOR_CELLS = 3 << 22
+"""Products of cells (cells × :func:`score_columns`) up to which the seeds' sums are formed for
+every grid point at once (:func:`grid_sums`: temporaries of that many values); above, one grid
+point (or value of m) at a time (``at_once`` False: memory of the cells alone)."""
 
 
 def _grid_scores(problem: Problem, u0: dict, grid):
     """Loss of each grid point of log m after the best amplitudes of its two parts (weighted
-    linear least squares, :func:`grid_amplitudes`, :func:`grid_costs`), and the whole model's
-    best per-band scale — one pass, chunk by chunk on a large grid
+    linear least squares, :func:`grid_amplitudes`, :func:`grid_costs`) at its best split of the
+    lobes' weights, the whole model's best per-band scale there, and that split
+    (:func:`best_splits`) — one pass, chunk by chunk on a large grid
     (:func:`~ctfit._fitting.chunks.sum_over_chunks`)."""
 
     def sums(part: Problem):
-        return grid_sums(part, u0, grid, at_once=part.y.size * grid.shape[0] <= VECTOR_CELLS)
+        return grid_sums(part, u0, grid, at_once=part.y.size * score_columns(u0, grid.shape[0]) <= VECTOR_CELLS)
 
     num, den = sums(problem) if chunk_count(problem) == 1 else sum_over_chunks(problem, sums)
-    amplitudes = grid_amplitudes(num, den)
-    return grid_costs(num, den, amplitudes), grid_scales(num, den), amplitudes
+    return best_splits(num, den)
 
 
 def seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool = False) -> dict:
@@ -178,19 +306,23 @@ def seed_points(problem: Problem, u0: dict, k: int, grid=None, keep_start: bool 
     (F0 scaled; for n, k: the index of the scaled normal reflectance, :func:`_index_seed`), and
     with ``keep_start`` the start ``u0`` itself as one more seed.
 
-    Traceable (used inside the jitted fit); ``grid`` is the (G, lobes) grid of log m.
+    Traceable (used inside the jitted fit); ``grid`` holds the (V,) values of log m the grid's
+    points are made of (:func:`m_points`, :func:`m_combinations`).
     """
     if "m" not in u0 or k < 1 or grid is None:
         return jax.tree.map(lambda a: jnp.asarray(a)[None], u0)
-    costs, scales, amplitudes = _score_grid()(problem, u0, grid)
-    return seeds_from_scores(problem, u0, k, grid, costs, scales, keep_start, amplitudes)
+    costs, scales, amplitudes, split = _score_grid()(problem, u0, grid)
+    return seeds_from_scores(problem, u0, k, grid, costs, scales, keep_start, amplitudes, split)
 
 
-def seeds_from_scores(problem: Problem, u0: dict, k: int, grid, costs, scales, keep_start: bool = False, amplitudes=None) -> dict:
-    """:func:`seed_points` from the grid's scores: ``costs`` (G,), ``scales`` (G, bands) and the
-    parts' ``amplitudes`` (G, bands, 2) (:func:`grid_amplitudes`; only ``problem.spec`` is used).
-    Where given, with s and F0 free and R_d = F0/π, a seed's s is the specular share of the light
-    at the amplitudes its grid point was scored with (:func:`_mixed_s`), not the start's."""
+def seeds_from_scores(problem: Problem, u0: dict, k: int, grid, costs, scales, keep_start: bool = False, amplitudes=None, split=None) -> dict:
+    """:func:`seed_points` from the grid's scores at each point's best split of the lobes' weights
+    (:func:`best_splits`): ``costs`` (G,), ``scales`` (G, bands), the parts' ``amplitudes``
+    (G, bands, 2) (:func:`grid_amplitudes`) and the index of the ``split`` (G,) of
+    :func:`splits_scored` (only ``problem.spec`` is used). Where given, with s and F0 free and
+    R_d = F0/π, a seed's s is the specular share of the light at the amplitudes its grid point was
+    scored with (:func:`_mixed_s`), not the start's; with free weights, a seed's weights are its
+    grid point's best split."""
     costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
     order = jnp.argsort(costs)
     # Grid points that score the same give the same model (lobes too narrow to reach any
@@ -199,7 +331,11 @@ def seeds_from_scores(problem: Problem, u0: dict, k: int, grid, costs, scales, k
     same = jnp.concatenate([jnp.zeros((1,), bool), jnp.abs(c[1:] - c[:-1]) <= 1e-3 * jnp.abs(c[1:])])
     order = order[jnp.argsort(same, stable=True)][: min(k, grid.shape[0])]
     seeds = dict(jax.tree.map(lambda a: jnp.broadcast_to(a, (order.shape[0],) + jnp.shape(a)), u0))
-    seeds["m"] = grid[order]
+    seeds["m"] = grid[jnp.asarray(m_combinations(grid.shape[0], jnp.shape(u0["m"])[0]))[order]]
+    splits = splits_scored(u0)
+    if splits is not None and split is not None:
+        weights = jnp.asarray(splits, u0["w"].dtype)[split[order]]
+        seeds["w"] = weight_coordinates(weights, problem.spec.space).astype(u0["w"].dtype)
     if "f0" in u0:
         seeds["f0"] = jnp.clip(u0["f0"] * scales[order], 0.005, 0.995)
         if amplitudes is not None and "s" in u0 and "rd" not in u0:  # R_d = F0/π: s sets the parts' mix
