@@ -83,9 +83,10 @@ def test_scores_for_all_grid_points_at_once_are_those_of_one_at_a_time(layout, m
     """Above :data:`~ctfit._fitting.starts.VECTOR_CELLS` the scores are formed one grid point at a
     time (memory of the data alone); both ways give the same scores, scales and amplitudes."""
     prep = prepare_fit(_data(layout), ctfit.Structure(lobes=2, diffuse="F0/pi"), start=None, fixed=(), loss="relative", dtype=jnp.float64, starts=3)
-    at_once = eqx.filter_jit(starts._grid_scores)(prep.problem, prep.u0, prep.grid)
+    at_once = eqx.filter_jit(lambda p, u, g: starts._grid_scores(p, u, g))(prep.problem, prep.u0, prep.grid)
     monkeypatch.setattr(starts, "VECTOR_CELLS", 0)
-    one_by_one = eqx.filter_jit(starts._grid_scores)(prep.problem, prep.u0, prep.grid)
+    # A new function, traced again (the same one would be taken from the first call's cache).
+    one_by_one = eqx.filter_jit(lambda p, u, g: starts._grid_scores(p, u, g))(prep.problem, prep.u0, prep.grid)
     for a, b in zip(at_once, one_by_one):
         np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-13 * float(np.max(np.abs(b))))
     assert np.all(np.isfinite(np.asarray(at_once[0])))
@@ -150,3 +151,14 @@ def test_no_seed_of_two_lobes_is_a_lobe_too_narrow_to_reach_the_samples():
         assert np.min(p.m) > 0.05, p.m
         assert np.isclose(np.sum(p.w), 1.0)
     assert len({tuple(np.round(p.w, 6)) for p in seeds} | {(0.5, 0.5)}) > 1  # weights from the scores, not only the start's
+
+
+def test_the_sums_over_many_bands_are_those_of_few(monkeypatch):
+    """Above :data:`~ctfit._fitting.starts.PRODUCT_BANDS` bands the seeds' sums over each band's
+    samples are a scatter instead of a product with the bands' indicators: the same sums."""
+    prep = prepare_fit(_data("pairs"), ctfit.Structure(lobes=2, diffuse="F0/pi"), start=None, fixed=(), loss="relative", dtype=jnp.float64, starts=3)
+    product = eqx.filter_jit(lambda p, u, g: starts.grid_sums(p, u, g))(prep.problem, prep.u0, prep.grid)
+    monkeypatch.setattr(starts, "PRODUCT_BANDS", 0)
+    scatter = eqx.filter_jit(lambda p, u, g: starts.grid_sums(p, u, g))(prep.problem, prep.u0, prep.grid)  # traced again
+    for a, b in zip(product, scatter):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14 * float(np.max(np.abs(b))))

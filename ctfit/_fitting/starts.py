@@ -125,13 +125,21 @@ def linear_parts(part: Problem, u0: dict):
     return diffuse, per_s, part.mask / jnp.maximum(jnp.abs(part.y), part.floor) ** 2
 
 
+PRODUCT_BANDS = 128
+"""Up to this many bands, the seeds' sums over each band's samples (pairs layout, free lobe
+weights) are one product with the samples' band indicators, above it a scatter
+(``segment_sum``): on a chunk of 2,048 samples of 31 bands, the 99 columns of two lobes took
+0.45 ms as the product and 3.5 ms as the scatter, and the product's cost grows with the bands."""
+
+
 def _specular_sums(part: Problem, u0: dict, linear: tuple, values, one_at_a_time: bool = False):
     """(Σ w A y, Σ w A², Σ w A B) per band at the grid's points (:func:`m_combinations` of the
     log m ``values``), A = S ∂R/∂S with the lobes weighted as in ``u0``: shape (G, 1, bands, 3);
     where the weights are free (:func:`splits_scored`), at each of the splits instead:
     (G, splits, bands, 3), from the sums of the lobes of every value alone and of their products
     (S = Σ_j w_j S_j is linear in the weights, Eq. 5). ``one_at_a_time``: those sums formed for
-    one grid point (or value) at a time, temporaries of the cells' size alone."""
+    one grid point (or value) at a time, temporaries of the cells' size (with free weights, the
+    lobe of every value at every cell too: V times the cells)."""
     b, per_s, wgt = linear
     u_shape, u_rest = shape_and_rest(u0)
     lobes = jnp.shape(u0["m"])[0]
@@ -147,10 +155,13 @@ def _specular_sums(part: Problem, u0: dict, linear: tuple, values, one_at_a_time
     if part.spec.grid:  # cells (pairs, bands), S per pair: sums over the pairs
         s_all = s_dir[..., None]  # (V, pairs, 1)
         sums_of = lambda cols: jnp.sum(cols, axis=-2)
-    else:  # cells are samples, each of one band: sums over each band's samples, as one product
+    else:  # cells are samples, each of one band: sums over each band's samples
         s_all = at_samples(part, s_dir.T).T  # (V, samples)
-        one_hot = (part.band[:, None] == jnp.arange(part.fixed_bands)).astype(per_s.dtype)  # type: ignore[index]  # set when not grid
-        sums_of = lambda cols: cols @ one_hot  # (a scatter of these columns took 3× the time)
+        if part.fixed_bands <= PRODUCT_BANDS:  # as one product with the bands' indicators
+            one_hot = (part.band[:, None] == jnp.arange(part.fixed_bands)).astype(per_s.dtype)  # type: ignore[index]  # set when not grid
+            sums_of = lambda cols: cols @ one_hot
+        else:
+            sums_of = lambda cols: band_sum(part, cols.T).T
 
     v = values.shape[0]
     if one_at_a_time:
@@ -196,7 +207,7 @@ def grid_sums(part: Problem, u0: dict, values, at_once: bool = True):
     (:func:`grid_amplitudes`, :func:`grid_costs`), in one pass, summable over chunks. The model's
     Fresnel term and diffuse part are evaluated once (:func:`linear_parts`: A = S ∂R/∂S), the sums
     of B and y alone once, and those of A for every grid point at once, or with ``at_once`` False
-    one grid point (or value) at a time (temporaries of the cells' size alone)."""
+    one grid point (or value) at a time (temporaries of the cells' size; with free weights, V times it)."""
     linear = linear_parts(part, u0)
     b, _, wgt = linear
     fixed = band_sum(part, jnp.stack([wgt * b * part.y, wgt * part.y * part.y, wgt * b * b], axis=-1))  # (bands, 3)
@@ -284,7 +295,8 @@ def _score_grid():
 VECTOR_CELLS = 3 << 22
 """Products of cells (cells × :func:`score_columns`) up to which the seeds' sums are formed for
 every grid point at once (:func:`grid_sums`: temporaries of that many values); above, one grid
-point (or value of m) at a time (``at_once`` False: memory of the cells alone)."""
+point (or value of m) at a time (``at_once`` False: memory of the cells' size, or with free
+weights V times it)."""
 
 
 def _grid_scores(problem: Problem, u0: dict, grid):
