@@ -50,7 +50,7 @@ from .fit_report import combined_rms, light_report_core, report_core, summary_of
 from .jacobian import normal_equations
 from .problem import Problem, Spec
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, flat_bounds, lm_solver, stop_tolerances
-from .starts import best_splits, grid_sums, m_combinations, seeds_from_scores, splits_scored
+from .starts import best_splits, grid_sums, grid_sums_shape, seeds_from_scores
 
 __all__ = ["ROWS", "RACE_CHUNKS", "chunk_problems", "chunked_core", "prefetch", "race_rows"]
 
@@ -477,17 +477,9 @@ def _seed_programs(template: Problem, u0: dict, k: int, grid, keep_start: bool):
     """The programs of the seeds: (the scores' sums, the choice), or (None, choice) without a grid."""
     if "m" not in u0 or k < 1 or grid is None:
         return None, _program("fit_seeds", _seeds_program, template, u0, 0, None, None, None, keep_start)
-    acc = [np.zeros(_sums_shape(template, u0, grid), grid.dtype) for _ in range(2)]
+    acc = [np.zeros(grid_sums_shape(u0, grid, template.fixed_bands), grid.dtype) for _ in range(2)]
     return (_program("fit_grid_sums", _sums_kernel, acc, template, u0, grid),
             _program("fit_seeds", _seeds_program, template, u0, k, grid, acc[0], acc[1], keep_start))
-
-
-def _sums_shape(template: Problem, u0: dict, grid) -> tuple[int, ...]:
-    """The shape of the seeds' sums (:func:`~ctfit._fitting.starts.grid_sums`): grid points,
-    splits of the lobes' weights, bands, 3."""
-    splits = splits_scored(u0)
-    points = m_combinations(grid.shape[0], np.shape(u0["m"])[0]).shape[0]
-    return points, 1 if splits is None else splits.shape[0], template.fixed_bands, 3
 
 
 def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> dict:
@@ -498,7 +490,7 @@ def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> di
     if sums is None:
         return jax.device_get(pick(*array_leaves((template, u0))))
     u0l = array_leaves(u0)
-    acc = [jax.device_put(np.zeros(_sums_shape(template, u0, grid), grid.dtype)) for _ in range(2)]
+    acc = [jax.device_put(np.zeros(grid_sums_shape(u0, grid, template.fixed_bands), grid.dtype)) for _ in range(2)]
     acc = chunk_sums(sums, acc, chunks, [*u0l, grid])
     return jax.device_get(pick(*array_leaves((template, u0, grid, acc[0], acc[1]))))
 

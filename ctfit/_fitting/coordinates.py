@@ -42,21 +42,21 @@ def lobe_weights(u_w, space: str):
 
 
 def stick_fractions(w) -> np.ndarray:
-    """Inverse of the box map of :func:`lobe_weights`: v_j = (Σ_(i≥j) w_i) / (Σ_(i≥j−1) w_i)."""
+    """Inverse of the box map of :func:`lobe_weights` on the host (NumPy, no program), for any
+    non-negative ``w`` (normalised here): v_j = (Σ_(i≥j) w_i) / (Σ_(i≥j−1) w_i)."""
     w = np.clip(np.asarray(w, dtype=float), 0, None)
-    w = w / np.sum(w)
-    rest = np.cumsum(w[::-1])[::-1]  # r_j = Σ_(i≥j) w_i
-    return np.clip(rest[1:] / np.maximum(rest[:-1], 1e-300), 0.0, 1.0)
+    return weight_coordinates(w / np.sum(w), "box", np)
 
 
-def weight_coordinates(w, space: str):
-    """Inverse of :func:`lobe_weights`, traceable: the J − 1 free values of lobe weights ``w``
-    (positive, Σ w = 1; a leading batch axis allowed), stick-breaking fractions in the box
-    (:func:`stick_fractions`), log ratios to the first lobe's weight otherwise."""
+def weight_coordinates(w, space: str, xp=jnp):
+    """Inverse of :func:`lobe_weights`: the J − 1 free values of lobe weights ``w`` (Σ w = 1; a
+    leading batch axis allowed), stick-breaking fractions v_j = (Σ_(i≥j) w_i) / (Σ_(i≥j−1) w_i)
+    in the box, log ratios to the first lobe's weight otherwise; ``xp``: ``jax.numpy`` (traceable)
+    or ``numpy`` (on the host)."""
     if space == "box":
-        rest = jnp.flip(jnp.cumsum(jnp.flip(w, axis=-1), axis=-1), axis=-1)  # Σ_(i≥j) w_i
-        return jnp.clip(rest[..., 1:] / jnp.maximum(rest[..., :-1], jnp.finfo(w.dtype).tiny), 0.0, 1.0)
-    return jnp.log(w[..., 1:]) - jnp.log(w[..., :1])
+        rest = xp.flip(xp.cumsum(xp.flip(w, axis=-1), axis=-1), axis=-1)  # Σ_(i≥j) w_i
+        return xp.clip(rest[..., 1:] / xp.maximum(rest[..., :-1], xp.finfo(w.dtype).tiny), 0.0, 1.0)
+    return xp.log(w[..., 1:]) - xp.log(w[..., :1])
 
 
 def fraction_weights(v) -> np.ndarray:
@@ -115,7 +115,7 @@ def from_params(spec: Spec, params: Params) -> dict:
         row = parameter(name)
         if name == "w":
             v = np.clip(v, 1e-12, None)
-            u[name] = stick_fractions(v) if spec.space == "box" else np.log(v[1:]) - np.log(v[0])
+            u[name] = stick_fractions(v) if spec.space == "box" else weight_coordinates(v, spec.space, np)
             continue
         if name == "n" and spec.structure.shared_index:
             v = np.asarray(np.mean(v))  # a plastic's one index
