@@ -177,24 +177,29 @@ def test_the_rms_of_chunks_does_not_overflow(dtype):
 def test_chunk_sums_add_in_one_order_with_threads_or_without(chunks, monkeypatch):
     """A pass over many chunks runs as two chains side by side (the normal equations, the seeds'
     scores), over fewer as one; the additions are the same with or without the threads, and on
-    a one-core machine."""
+    a one-core machine. What a program returns beyond its sums (``fit_ne``: the chunk's model
+    values) comes back per chunk, in the chunks' order."""
     from ctfit._fitting import chunked_fit
 
     rng = np.random.default_rng(chunks)
     parts = [[jnp.asarray(rng.standard_normal(5) * 10.0 ** rng.integers(-8, 8))] for _ in range(chunks)]
-    add = jax.jit(lambda total, count, x: [total + x, count + 1.0])
+    add = jax.jit(lambda total, count, x: [total + x, count + 1.0, 2 * x])
     zeros = [jnp.zeros(5), jnp.zeros(())]
     threads = chunked_fit.chunk_sums(add, zeros, parts, [])
     alone = chunked_fit.chunk_sums(add, zeros, parts, [], side_by_side=False)
     monkeypatch.setattr(chunked_fit, "_sum_pool", [None])  # one core: no threads
     one_core = chunked_fit.chunk_sums(add, zeros, parts, [])
     for got in (alone, one_core):
-        np.testing.assert_array_equal(np.asarray(got[0]), np.asarray(threads[0]))
-    assert float(threads[1]) == chunks
+        np.testing.assert_array_equal(np.asarray(got[0][0]), np.asarray(threads[0][0]))
+    assert float(threads[0][1]) == chunks
     half = -(-chunks // 2)
     halves = [parts[:half], parts[half:]] if chunks >= chunked_fit.SPLIT_CHUNKS else [parts]
     want = sum(sum((np.asarray(p[0]) for p in h), np.zeros(5)) for h in halves)
-    np.testing.assert_array_equal(np.asarray(threads[0]), want)  # first half, then the second, added
+    np.testing.assert_array_equal(np.asarray(threads[0][0]), want)  # first half, then the second, added
+    for got in (threads, alone, one_core):
+        assert len(got[1]) == chunks
+        for (kept,), (x,) in zip(got[1], parts):
+            np.testing.assert_array_equal(np.asarray(kept), 2 * np.asarray(x))
 
 
 @pytest.mark.parametrize("layout", ["grid", "pairs"])

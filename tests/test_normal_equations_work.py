@@ -54,3 +54,23 @@ def test_the_normal_equations_do_no_more_work_than_their_parts(dense):
     want = jax.jit(products)(res, arrays, problem)
     for g, w in zip(got, want):
         np.testing.assert_allclose(g, w, rtol=1e-12, atol=1e-12 * float(np.max(np.abs(w))))
+
+
+def test_the_model_s_values_come_with_the_normal_equations_at_no_more_work():
+    """``fit_ne`` returns the chunk's model values beside (½‖r‖², Jᵀr, JᵀJ), for the report's
+    residual summary (made from them on the host): they are the model's values, and returning
+    them adds no floating-point work (the pass computes them anyway; fenced, they are not
+    computed twice)."""
+    from ctfit._fitting.problem import model_values
+
+    prep = prepare_fit(_data(), ctfit.Structure(lobes=2, diffuse="F0/pi"), start=None, fixed=(), loss="relative", dtype=jnp.float64, starts=3)
+    problem, u = prep.problem, prep.u0
+    with_values = lambda uu, pr: jacobian.normal_equations_and_values(pr, uu, dense=True)
+    alone = lambda uu, pr: jacobian.normal_equations(pr, uu, dense=True)
+    assert _flops(with_values, u, problem) <= 1.02 * _flops(alone, u, problem)
+    *sums, values = jax.jit(with_values)(u, problem)
+    for g, w in zip(sums, jax.jit(alone)(u, problem)):
+        np.testing.assert_array_equal(g, w)
+    want = jax.jit(model_values)(problem, u)
+    assert values.shape == problem.y.shape
+    np.testing.assert_allclose(values, want, rtol=1e-13, atol=0)

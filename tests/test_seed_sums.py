@@ -162,3 +162,33 @@ def test_the_sums_over_many_bands_are_those_of_few(monkeypatch):
     scatter = eqx.filter_jit(lambda p, u, g: starts.grid_sums(p, u, g))(prep.problem, prep.u0, prep.grid)  # traced again
     for a, b in zip(product, scatter):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14 * float(np.max(np.abs(b))))
+
+
+@pytest.mark.parametrize("structure", STRUCTURES, ids=ctfit.structure_label)
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_the_seeds_chosen_on_the_host_are_those_chosen_in_a_program(structure, dtype):
+    """The chunked fit chooses its seeds from the sums in NumPy (``chunked_fit._seed_choice``: no
+    program to compile); the one-program fit in its program. Both give the same seeds, of the
+    same dtype: points, weights, F0 or n and k, s."""
+    from ctfit._fitting import chunked_fit
+    from ctfit._fitting.seeded_solve import flat_bounds
+
+    prep = prepare_fit(_data("grid"), structure, start=None, fixed=(), loss="relative", dtype=dtype, starts=3, chunk=ROWS)
+    parts = chunk_problems(prep.problem)
+    u0 = dict(prep.u0, s=jnp.asarray(0.6, dtype)) if "s" in prep.u0 else prep.u0
+    sums = [eqx.filter_jit(starts.grid_sums)(part, u0, prep.grid) for part in parts]
+    num, den = (sum(s[i] for s in sums) for i in (0, 1))
+
+    def in_program(part, u, grid, num, den):
+        costs, scales, amplitudes, split = starts.best_splits(num, den)
+        return starts.seeds_from_scores(part, u, 3, grid, costs, scales, True, amplitudes, split)
+
+    want = jax.device_get(eqx.filter_jit(in_program)(parts[0], u0, prep.grid, num, den))
+    host_u0, host_grid = jax.device_get((u0, prep.grid))
+    got = chunked_fit._seed_choice(parts[0], host_u0, 3, host_grid, *jax.device_get((num, den)), keep_start=True)
+    flat = np.concatenate([np.reshape(want[k], (want[k].shape[0], -1)) for k in sorted(want)], axis=1)
+    assert got["flat"].dtype == flat.dtype == np.dtype(dtype) and got["flat"].shape == flat.shape == (4, flat.shape[1])
+    np.testing.assert_allclose(got["flat"], flat, rtol=1e-12 if dtype == jnp.float64 else 1e-5, atol=1e-6 if dtype == jnp.float32 else 0)
+    lower, upper = jax.device_get(flat_bounds(parts[0], u0))
+    np.testing.assert_array_equal(got["lower"], lower)
+    np.testing.assert_array_equal(got["upper"], upper)

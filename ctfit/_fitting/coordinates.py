@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._model import Params, Structure, box_bounds, clip_box, n_lower, parameter
+from .._model import Params, Structure, array_module, box_bounds, clip_box, n_lower, parameter
 
 if TYPE_CHECKING:
     from .problem import Spec
@@ -129,12 +129,14 @@ def from_params(spec: Spec, params: Params) -> dict:
 
 
 def bounds(spec: Spec, u: dict) -> tuple[dict, dict]:
-    """Lower and upper bounds of the box coordinates ``u`` (same pytree, arrays of u's shapes)."""
+    """Lower and upper bounds of the box coordinates ``u`` (same pytree, arrays of u's shapes;
+    NumPy for NumPy ``u``)."""
+    xp = array_module(*u.values())
     lo, hi = {}, {}
     for name, v in u.items():
         a, b = box_bounds(name, spec.structure.fresnel, spec.structure.family)
-        lo[name] = jnp.full(jnp.shape(v), a, jnp.result_type(v))
-        hi[name] = jnp.full(jnp.shape(v), b, jnp.result_type(v))
+        lo[name] = xp.full(xp.shape(v), a, xp.result_type(v))
+        hi[name] = xp.full(xp.shape(v), b, xp.result_type(v))
     return lo, hi
 
 

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from .._model import PUBLIC_NAMES, Params, n_from_f0, normal_reflectance, parameter
+from .._model import PUBLIC_NAMES, Params, array_module, n_from_f0, normal_reflectance, parameter
 from .chunks import map_over_chunks
 from .coordinates import to_params
 from .fit_warnings import FitWarning
@@ -24,8 +24,8 @@ from .seeded_solve import flat_bounds, gauss_newton_decrease
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
-    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "zero_model_cost", "summary_of_part", "combined_rms",
-    "PARAM_FIELDS",
+    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "zero_model_cost", "summary_of_part",
+    "summary_of_values", "combined_rms", "PARAM_FIELDS",
 ]
 
 PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
@@ -68,21 +68,32 @@ def residual_summary(problem: Problem, u: dict) -> dict:
 
 
 def summary_of_part(part: Problem, u: dict):
-    """One chunk's share of :func:`residual_summary`: its relative residuals (float32), (max|e|,
-    Σ (e / max|e|)²) of the absolute and of the relative residuals, and its count of measured
-    cells whose model value is not finite."""
-    pred = model_values(part, u)
-    err = jnp.where(part.mask, pred - part.y, 0)
-    rel = err / jnp.maximum(jnp.abs(part.y), part.floor)
-    stats = [_scaled_squares(e) for e in (err, rel)]
-    big = jnp.asarray(jnp.finfo(jnp.float32).max, rel.dtype)
-    return jnp.clip(rel, -big, big).astype(jnp.float32), stats, jnp.sum(part.mask & ~jnp.isfinite(pred))
+    """One chunk's share of :func:`residual_summary` (:func:`summary_of_values` of the model's
+    values at ``u``)."""
+    return summary_of_values(model_values(part, u), part.y, part.mask, part.floor)
 
 
-def _scaled_squares(e):
+def summary_of_values(pred, y, mask, floor):
+    """One chunk's share of the residual summary from the model's values ``pred`` on its cells
+    (measured values ``y``, ``mask`` of the measured cells, relative residuals' ``floor``): its
+    relative residuals (float32), (max|e|, Σ (e / max|e|)²) of the absolute and of the relative
+    residuals, and its count of measured cells whose model value is not finite. NumPy in, NumPy
+    out (the chunked fit's report, from ``fit_ne``'s values); traceable otherwise."""
+    xp = array_module(pred, y)
+    err = xp.where(mask, pred - y, 0)
+    rel = err / xp.maximum(xp.abs(y), floor)
+    stats = [_scaled_squares(e, xp) for e in (err, rel)]
+    big = xp.asarray(np.finfo(np.float32).max, rel.dtype)
+    rel = xp.clip(rel, -big, big).astype(np.float32)
+    if xp is np:  # subnormal float32 values to 0, as XLA's conversion makes them: the same ranks (medians) as in a program
+        rel[np.abs(rel) < np.finfo(np.float32).smallest_normal] = 0
+    return rel, stats, xp.sum(mask & ~xp.isfinite(pred))
+
+
+def _scaled_squares(e, xp=jnp):
     """(max|e|, Σ (e / max|e|)²) of one chunk."""
-    big = jnp.max(jnp.abs(e))
-    return big, jnp.sum((e / jnp.where(big > 0, big, 1)) ** 2)
+    big = xp.max(xp.abs(e))
+    return big, xp.sum((e / xp.where(big > 0, big, 1)) ** 2)
 
 
 def combined_rms(big, sq, n, xp=jnp):

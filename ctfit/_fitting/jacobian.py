@@ -22,7 +22,7 @@ from .chunks import sum_over_chunks
 from .losses import loss_residuals
 from .problem import Problem, at_samples, band_sum, model_values, per_direction, shape_and_rest, values_from_s
 
-__all__ = ["DENSE_BAND_COLUMNS", "normal_equations", "half_squared_norm", "residual"]
+__all__ = ["DENSE_BAND_COLUMNS", "normal_equations", "normal_equations_and_values", "half_squared_norm", "residual"]
 
 
 def _columns(problem: Problem, u: dict, y):
@@ -71,6 +71,16 @@ def normal_equations(problem: Problem, u: dict, *, dense: bool = False):
     chunk for a large grid (:func:`sum_over_chunks`); see :func:`_normal_equations` (``dense``:
     one product of the stacked columns where the band columns are few)."""
     return sum_over_chunks(problem, lambda part: _normal_equations(part, u, dense))
+
+
+def normal_equations_and_values(problem: Problem, u: dict, *, dense: bool = False):
+    """(½‖r‖², Jᵀr, JᵀJ, the model's values) of one chunk ``problem`` (no sum over chunks): what
+    :func:`_normal_equations` gives, and the model's values in the problem's layout, which its
+    pass computes anyway (the fit's residual summary is made from them, on the host: no program
+    of its own)."""
+    res, values, cols = _columns(problem, u, problem.y)
+    res, cols, values = _fenced(res, cols, values)
+    return (*_normal_equations_from(problem, res, cols, sorted(u), dense), values)
 
 
 def half_squared_norm(problem: Problem, u: dict):
@@ -125,9 +135,9 @@ def _normal_equations_from(problem: Problem, res, cols: dict, names: list[str], 
     return 0.5 * jnp.sum(res * res), grad, hess
 
 
-def _fenced(res, cols: dict):
-    """``res`` and the columns ``cols`` of :func:`_columns` as computed, fenced off from the
-    products that read them. XLA fuses the elementwise work that makes each column into every
+def _fenced(res, cols: dict, *more):
+    """``res`` and the columns ``cols`` of :func:`_columns` (and any arrays ``more``) as computed,
+    fenced off from the products that read them. XLA fuses the elementwise work that makes each column into every
     product that reads it, and removes an ``optimization_barrier`` before it fuses: the normal
     equations of a chunk of 2,048 samples (31 bands, two lobes) did 4.0 MFLOP where the columns
     and the products take 1.2, and took 0.39 ms instead of 0.21 ms. The result of a conditional is
@@ -136,8 +146,8 @@ def _fenced(res, cols: dict):
     arrays = {k: col for k, (_, col) in cols.items()}
     flat = jnp.reshape(res, (-1,))
     nan = jnp.isnan(flat[0]) if flat.shape[0] else jnp.asarray(False)
-    res, arrays = jax.lax.cond(nan, lambda x: jax.tree.map(lambda a: a * 1, x), lambda x: x, (res, arrays))
-    return res, {k: (kind, arrays[k]) for k, (kind, _) in cols.items()}
+    res, arrays, more = jax.lax.cond(nan, lambda x: jax.tree.map(lambda a: a * 1, x), lambda x: x, (res, arrays, more))
+    return res, {k: (kind, arrays[k]) for k, (kind, _) in cols.items()}, *more
 
 
 def _packed(problem: Problem, r, cols: dict, names: list[str]):

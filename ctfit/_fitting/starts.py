@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._io import MaterialError
-from .._model import Material, Measurement, Params, Structure, f0_from_n, f0_from_nk, n_from_f0, safe_div
+from .._model import Material, Measurement, Params, Structure, array_module, f0_from_n, f0_from_nk, n_from_f0, safe_div
 from .chunks import chunk_count, sum_over_chunks
 from .coordinates import free_names, weight_coordinates
 from .problem import Problem, at_samples, band_sum, per_direction, shape_and_rest, values_from_s
@@ -241,15 +241,17 @@ def score_columns(u0: dict, values: int) -> int:
 def best_splits(num, den):
     """Each grid point's scores at its best split of the lobes' weights, from :func:`grid_sums`'
     totals: (costs (G,), the whole model's scales (G, bands), the parts' amplitudes
-    (G, bands, 2), the index of the split (G,))."""
+    (G, bands, 2), the index of the split (G,)). NumPy in, NumPy out (the chunked fit chooses its
+    seeds on the host); traceable otherwise."""
+    xp = array_module(num, den)
     amplitudes = grid_amplitudes(num, den)
     costs = grid_costs(num, den, amplitudes)  # (G, splits)
-    pick = jnp.argmin(costs, axis=1)
+    pick = xp.argmin(costs, axis=1)
 
     def take(a):
-        return jnp.take_along_axis(a, pick.reshape((-1, 1) + (1,) * (a.ndim - 2)), axis=1)[:, 0]
+        return xp.take_along_axis(a, pick.reshape((-1, 1) + (1,) * (a.ndim - 2)), axis=1)[:, 0]
 
-    return jnp.min(costs, axis=1), grid_scales(take(num), take(den)), take(amplitudes), pick
+    return xp.min(costs, axis=1), grid_scales(take(num), take(den)), take(amplitudes), pick
 
 
 def grid_scales(num, den):
@@ -266,19 +268,20 @@ def grid_amplitudes(num, den):
     a lobe too narrow to reach any sample (the diffuse part alone, freely scaled) above every lobe
     that is held to the start's mix of specular and diffuse light, a seed that then slid on a
     plateau for over a hundred steps."""
+    xp = array_module(num, den)
     ay, by = num[..., 0], num[..., 1]
     aa, ab, bb = den[..., 0], den[..., 1], den[..., 2]
     det = aa * bb - ab * ab
-    both_ok = det > jnp.sqrt(jnp.finfo(det.dtype).eps) * aa * bb  # the parts not (nearly) proportional
-    det = jnp.where(both_ok, det, 0)
+    both_ok = det > np.sqrt(np.finfo(det.dtype).eps) * aa * bb  # the parts not (nearly) proportional
+    det = xp.where(both_ok, det, 0)
     alpha, beta = safe_div(ay * bb - by * ab, det)[0], safe_div(by * aa - ay * ab, det)[0]
     both_ok = both_ok & (alpha >= 0) & (beta >= 0)
-    a_only = safe_div(jnp.maximum(ay, 0), aa)[0]  # 0 for a part that is 0 at every sample
-    b_only = safe_div(jnp.maximum(by, 0), bb)[0]
-    a_better = a_only * jnp.maximum(ay, 0) >= b_only * jnp.maximum(by, 0)  # the decrease of the loss, Σ w y² − cost
-    alpha = jnp.where(both_ok, alpha, jnp.where(a_better, a_only, 0.0))
-    beta = jnp.where(both_ok, beta, jnp.where(a_better, 0.0, b_only))
-    return jnp.stack([alpha, beta], axis=-1)
+    a_only = safe_div(xp.maximum(ay, 0), aa)[0]  # 0 for a part that is 0 at every sample
+    b_only = safe_div(xp.maximum(by, 0), bb)[0]
+    a_better = a_only * xp.maximum(ay, 0) >= b_only * xp.maximum(by, 0)  # the decrease of the loss, Σ w y² − cost
+    alpha = xp.where(both_ok, alpha, xp.where(a_better, a_only, 0.0))
+    beta = xp.where(both_ok, beta, xp.where(a_better, 0.0, b_only))
+    return xp.stack([alpha, beta], axis=-1)
 
 
 def grid_costs(num, den, amplitudes):
@@ -288,10 +291,11 @@ def grid_costs(num, den, amplitudes):
     + α² Σ w A² + 2αβ Σ w A B + β² Σ w B², per band, summed over the bands; at least 0). The
     difference of sums loses digits where a grid point fits almost exactly (float32: about
     10⁻⁷ Σ w y²), which only reorders grid points that fit alike."""
+    xp = array_module(num, den, amplitudes)
     alpha, beta = amplitudes[..., 0], amplitudes[..., 1]
     cost = (num[..., 2] - 2 * alpha * num[..., 0] - 2 * beta * num[..., 1]
             + alpha * alpha * den[..., 0] + 2 * alpha * beta * den[..., 1] + beta * beta * den[..., 2])
-    return jnp.maximum(jnp.sum(cost, axis=-1), 0)
+    return xp.maximum(xp.sum(cost, axis=-1), 0)
 
 
 @functools.cache
@@ -345,33 +349,35 @@ def seeds_from_scores(problem: Problem, u0: dict, k: int, grid, costs, scales, k
     :func:`splits_scored` (only ``problem.spec`` is used). Where given, with s and F0 free and
     R_d = F0/π, a seed's s is the specular share of the light at the amplitudes its grid point was
     scored with (:func:`_mixed_s`), not the start's; with free weights, a seed's weights are its
-    grid point's best split."""
-    costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
-    order = jnp.argsort(costs)
+    grid point's best split. NumPy in (``costs``, ``scales``, ``u0`` and the rest), NumPy out: the
+    chunked fit chooses its seeds on the host; traceable otherwise."""
+    xp = array_module(costs, scales)
+    costs = xp.where(xp.isfinite(costs), costs, xp.inf)
+    order = xp.argsort(costs, stable=True)
     # Grid points that score the same give the same model (lobes too narrow to reach any
     # sample all look like no lobe): one of each goes first, so the k seeds differ.
     c = costs[order]
-    same = jnp.concatenate([jnp.zeros((1,), bool), jnp.abs(c[1:] - c[:-1]) <= 1e-3 * jnp.abs(c[1:])])
-    order = order[jnp.argsort(same, stable=True)][: min(k, grid.shape[0])]
-    seeds = dict(jax.tree.map(lambda a: jnp.broadcast_to(a, (order.shape[0],) + jnp.shape(a)), u0))
-    seeds["m"] = grid[jnp.asarray(m_combinations(grid.shape[0], jnp.shape(u0["m"])[0]))[order]]
+    same = xp.concatenate([xp.zeros((1,), bool), xp.abs(c[1:] - c[:-1]) <= 1e-3 * xp.abs(c[1:])])
+    order = order[xp.argsort(same, stable=True)][: min(k, grid.shape[0])]
+    seeds = dict(jax.tree.map(lambda a: xp.broadcast_to(a, (order.shape[0],) + xp.shape(a)), u0))
+    seeds["m"] = grid[xp.asarray(m_combinations(grid.shape[0], xp.shape(u0["m"])[0]))[order]]
     splits = splits_scored(u0)
     if splits is not None and split is not None:
-        weights = jnp.asarray(splits, u0["w"].dtype)[split[order]]
-        seeds["w"] = weight_coordinates(weights, problem.spec.space).astype(u0["w"].dtype)
+        weights = xp.asarray(splits, u0["w"].dtype)[split[order]]
+        seeds["w"] = weight_coordinates(weights, problem.spec.space, xp).astype(u0["w"].dtype)
     if "f0" in u0:
-        seeds["f0"] = jnp.clip(u0["f0"] * scales[order], 0.005, 0.995)
+        seeds["f0"] = xp.clip(u0["f0"] * scales[order], 0.005, 0.995)
         if amplitudes is not None and "s" in u0 and "rd" not in u0:  # R_d = F0/π: s sets the parts' mix
             seeds["s"] = _mixed_s(u0, amplitudes[order])
     elif "n" in u0 and not problem.spec.structure.shared_index:  # a plastic's one n starts where u0 has it
-        k0 = u0.get("k", jnp.zeros_like(u0["n"]))
-        f0 = jnp.clip(f0_from_nk(u0["n"], k0) * scales[order], 1e-4, 0.995)
-        n, kk = _index_seed(f0, jnp.broadcast_to(u0["n"], f0.shape), problem.spec.structure.fresnel == "conductor")
+        k0 = u0.get("k", xp.zeros_like(u0["n"]))
+        f0 = xp.clip(f0_from_nk(u0["n"], k0) * scales[order], 1e-4, 0.995)
+        n, kk = _index_seed(f0, xp.broadcast_to(u0["n"], f0.shape), problem.spec.structure.fresnel == "conductor")
         seeds["n"] = n
         if "k" in u0:
             seeds["k"] = kk
     if keep_start:
-        seeds = jax.tree.map(lambda a, b: jnp.concatenate([a, jnp.asarray(b)[None]]), seeds, u0)
+        seeds = jax.tree.map(lambda a, b: xp.concatenate([a, xp.asarray(b)[None]]), seeds, u0)
     return seeds
 
 
@@ -390,22 +396,24 @@ def _mixed_s(u0: dict, amplitudes):
     whole model's scale (:func:`grid_scales`): taking F0 from α and β as well (F0 (α s + β d))
     started seeds lower still, but seeds with a lobe too narrow to reach any sample then kept it
     and ended in a one-lobe minimum (cost 34.5 against 0.399) or slid for 40–96 steps."""
+    xp = array_module(amplitudes)
     alpha, beta = amplitudes[..., 0], amplitudes[..., 1]  # (seeds, bands)
     s = u0["s"]
-    share = safe_div(jnp.sum(alpha, axis=-1) * s, jnp.sum(alpha * s + beta * (1 - s), axis=-1))[0]
-    return jnp.clip(share, *MIX_LIMITS).astype(jnp.result_type(s))
+    share = safe_div(xp.sum(alpha, axis=-1) * s, xp.sum(alpha * s + beta * (1 - s), axis=-1))[0]
+    return xp.clip(share, *MIX_LIMITS).astype(xp.result_type(s))
 
 
 def _index_seed(f0, n, conductor: bool):
     """n, k whose normal reflectance is ``f0``: for a conductor, n kept and k from
     F0 = ((n−1)² + k²)/((n+1)² + k²) where that has a root, else k = 0 and the dielectric n of
     F0 (paper §4); for a real index, that n alone."""
+    xp = array_module(f0, n)
     n_diel = n_from_f0(f0)
     if not conductor:
         return n_diel, None
     k2 = (f0 * (n + 1) ** 2 - (n - 1) ** 2) / (1 - f0)
     has_k = k2 > 0
-    return jnp.where(has_k, n, n_diel), jnp.sqrt(jnp.where(has_k, k2, 0.0))
+    return xp.where(has_k, n, n_diel), xp.sqrt(xp.where(has_k, k2, 0.0))
 
 
 def start_from_material(base: Material, structure: Structure, data: Measurement) -> tuple[Params, tuple[str, ...]]:

@@ -37,12 +37,12 @@ References
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
+
+from .numerics import array_module
 
 __all__ = [
     "f0_from_n",
@@ -59,16 +59,6 @@ __all__ = [
 _TINY_F0 = 1e-30
 
 
-def _array_module(*values: ArrayLike) -> Any:
-    """NumPy for NumPy input (float64 stays float64 whatever JAX's x64 setting), else jax.numpy.
-
-    NumPy when at least one value is a NumPy array or scalar and none is a JAX array (or a
-    tracer); Python numbers alone go to JAX, as before.
-    """
-    numpy_in = any(isinstance(v, (np.ndarray, np.generic)) for v in values)
-    return np if numpy_in and not any(isinstance(v, jax.Array) for v in values) else jnp
-
-
 def f0_from_n(n: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*batch"]:
     """Normal reflectance of a dielectric, F0 = ((n − 1)/(n + 1))² (paper, eq. in §4).
 
@@ -78,7 +68,7 @@ def f0_from_n(n: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*batc
     >>> f0_from_n(np.array([1.5, 2.0]))  # glass: 4 %
     array([0.04      , 0.11111111])
     """
-    xp = _array_module(n)
+    xp = array_module(n)
     index = xp.asarray(n)
     r = (index - 1) / (index + 1)
     return r * r
@@ -96,7 +86,7 @@ def f0_from_nk(n: Float[ArrayLike, "*#batch"], k: Float[ArrayLike, "*#batch"]) -
     >>> f0.dtype, round(float(f0[0]), 4)
     (dtype('float64'), 0.8206)
     """
-    xp = _array_module(n, k)
+    xp = array_module(n, k)
     n, k = xp.asarray(n), xp.asarray(k)
     with np.errstate(over="ignore", invalid="ignore"):  # NumPy's warnings; JAX has none
         f0 = ((n - 1) ** 2 + k * k) / ((n + 1) ** 2 + k * k)
@@ -114,7 +104,7 @@ def n_from_f0(f0: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*bat
     >>> n_from_f0(np.array([0.04, 1.0]))
     array([1.5, inf])
     """
-    xp = _array_module(f0)
+    xp = array_module(f0)
     r = xp.sqrt(xp.asarray(f0))
     with np.errstate(divide="ignore"):
         return (1 + r) / (1 - r)
@@ -288,7 +278,7 @@ def fresnel_diffuse_reflectance(eta: Float[ArrayLike, "*batch"]) -> Float[Array 
     >>> np.round(fresnel_diffuse_reflectance(np.array([1.5, 1 / 1.5])), 4)  # outside 9 %, inside 60 %
     array([0.0918, 0.5968])
     """
-    xp = _array_module(eta)
+    xp = array_module(eta)
     e = xp.asarray(eta)
     inv = 1 / e
     inside = 0.0636 * inv + e * (e * -1.4399 + 0.7099) + 0.6681

@@ -2,10 +2,22 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-__all__ = ["safe_sqrt", "safe_div", "float_dtype", "x64_enabled"]
+__all__ = ["array_module", "safe_sqrt", "safe_div", "float_dtype", "x64_enabled"]
+
+
+def array_module(*values) -> Any:
+    """NumPy for NumPy input (float64 stays float64 whatever JAX's x64 setting), else jax.numpy.
+
+    NumPy when at least one value is a NumPy array or scalar and none is a JAX array (or a
+    tracer); Python numbers alone go to JAX."""
+    numpy_in = any(isinstance(v, (np.ndarray, np.generic)) for v in values)
+    return np if numpy_in and not any(isinstance(v, jax.Array) for v in values) else jnp
 
 
 def safe_sqrt(x):
@@ -15,9 +27,11 @@ def safe_sqrt(x):
 
 
 def safe_div(a, b):
-    """(a / b where b ≠ 0, else 0; where b ≠ 0), with a finite derivative everywhere (double-``where``)."""
+    """(a / b where b ≠ 0, else 0; where b ≠ 0), with a finite derivative everywhere (double-``where``);
+    NumPy in, NumPy out (:func:`array_module`)."""
+    xp = array_module(a, b)
     ok = b != 0
-    return jnp.where(ok, a / jnp.where(ok, b, 1), 0), ok
+    return xp.where(ok, a / xp.where(ok, b, 1), 0), ok
 
 
 def float_dtype(x):
