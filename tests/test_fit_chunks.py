@@ -235,3 +235,33 @@ def _rows_from(problem, start: int, rows: int) -> dict:
     if not problem.spec.grid:
         fields["band"] = cut(problem.band)
     return fields
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_the_fit_s_geometry_on_the_host_is_the_model_s(dtype):
+    """A fit lays out its pairs' geometry on the host, in NumPy (``problem._geometry_deg``, a
+    block at a time: no program to make), with the model's own functions
+    (:func:`~ctfit.geometry_from_angles_deg` with ``xp=numpy``): the values and dtypes of the
+    traced geometry, below the horizon and at grazing angles too."""
+    from ctfit._fitting import problem as problem_module
+
+    rng = np.random.default_rng(3)
+    pairs = rng.uniform([0, -30, 0, -30], [95, 400, 95, 400], (5000, 4))
+    pairs[:50, 2] = 90.0  # on the horizon
+    pairs[50:100, 0] = 89.999
+    pairs = pairs.astype(dtype)
+    want = jax.jit(lambda p: ctfit.geometry_from_angles_deg(p[:, 0], p[:, 1], p[:, 2], p[:, 3]))(pairs)
+    for block in (5000, 1024):  # one block, and several
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(problem_module, "GEOMETRY_BLOCK", block)
+            mp.setattr(problem_module, "_recent_geometry", {})
+            got = problem_module._geometry_deg(pairs, on_host=True)
+        for f in ("cos_l", "cos_v", "sin_l", "sin_v", "cos_h", "tan2_h", "cos_vh", "valid"):
+            g, w = getattr(got, f), np.asarray(getattr(want, f))
+            assert isinstance(g, np.ndarray) and g.dtype == w.dtype and g.shape == (5000,), f
+            if f == "valid":
+                np.testing.assert_array_equal(g, w)
+                assert not g[:50].any() and g[50:].sum() > 3000
+            else:
+                np.testing.assert_allclose(g, w, rtol=1e-13 if dtype == np.float64 else 2e-5, atol=1e-15 if dtype == np.float64 else 1e-6, err_msg=f)
+                assert np.all(np.isfinite(g)), f

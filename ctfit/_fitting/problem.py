@@ -18,7 +18,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._model import STATIC, Geometry, Measurement, Params, Structure, combine_parts, geometry_from_angles_deg, pytree, specular_geometric
-from .._runtime import cached_call, stored_program
 from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
 from .losses import LOSSES, loss_floor
@@ -68,13 +67,13 @@ class Problem:
 
 
 def _geometry_fields(pairs) -> dict:
-    g = geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3])
+    g = geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3], xp=np)
     return {f.name: getattr(g, f.name) for f in dataclasses.fields(g)}
 
 
-GEOMETRY_BLOCK = 4096
-"""Direction pairs per call of the geometry program: any number of pairs is laid out by one
-program of this shape (no program per data size)."""
+GEOMETRY_BLOCK = 1 << 16
+"""Direction pairs whose geometry is computed at once on the host (:func:`_geometry_deg`): a few
+MB of NumPy temporaries, however many pairs a file has."""
 
 
 _recent_geometry: dict = {}  # content digest of a small set of pairs → its geometry (host arrays)
@@ -84,24 +83,22 @@ data-chosen default fits several structures to one screening sample); the last 4
 
 
 def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
-    """The :class:`Geometry` of direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, shape (D, 4),
-    through the program store (a stored program loads in a fraction of what compiling the
-    trigonometry costs), ``GEOMETRY_BLOCK`` pairs at a time, joined on the host (and left there
-    with ``on_host``). The geometry of a few small sets of pairs is kept for their next fit."""
+    """The :class:`Geometry` of direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, shape (D, 4), in
+    the pairs' dtype: computed on the host in NumPy (:func:`~ctfit.geometry_from_angles_deg`),
+    :data:`GEOMETRY_BLOCK` pairs at a time, and left there with ``on_host`` (else on the device).
+    As a program (per dtype, made in every first run), it took 0.25 s of a first fit's time,
+    before any other program could start. The geometry of a few small sets of pairs is kept for
+    their next fit."""
     pairs = np.asarray(pairs)
     n = len(pairs)
-    if n == 0:
-        return Geometry(**cached_call("geometry", _geometry_fields, jnp.asarray(pairs), effort="step"))
     put = (lambda a: a) if on_host else jax.device_put
     key = (pairs.dtype.str, pairs.shape, hashlib.blake2b(np.ascontiguousarray(pairs).tobytes(),
-                                                         digest_size=16).digest()) if n <= RECENT_GEOMETRY_PAIRS else None
+                                                         digest_size=16).digest()) if 0 < n <= RECENT_GEOMETRY_PAIRS else None
     fields = _recent_geometry.pop(key, None)
     if fields is None:
-        blocks = -(-n // GEOMETRY_BLOCK)
-        padded = np.concatenate([pairs, np.broadcast_to(pairs[:1], (blocks * GEOMETRY_BLOCK - n, 4))])
-        run = stored_program("geometry", _geometry_fields, padded[:GEOMETRY_BLOCK], effort="step")
-        parts = jax.device_get([run(padded[b * GEOMETRY_BLOCK: (b + 1) * GEOMETRY_BLOCK]) for b in range(blocks)])  # every block started, then fetched
-        fields = {k: np.concatenate([p[k] for p in parts])[:n] for k in parts[0]}
+        with np.errstate(divide="ignore", invalid="ignore"):  # (stand-ins make every value finite; NumPy's checks are not needed)
+            parts = [_geometry_fields(pairs[b: b + GEOMETRY_BLOCK]) for b in range(0, max(n, 1), GEOMETRY_BLOCK)]
+        fields = {k: np.concatenate([p[k] for p in parts])[:n] if len(parts) > 1 else parts[0][k] for k in parts[0]}
         for v in fields.values():
             v.setflags(write=False)  # shared by the fits of these pairs
     if key is not None:
@@ -109,7 +106,6 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
         for old in list(_recent_geometry)[:-4]:
             _recent_geometry.pop(old, None)  # (a background fit may prune too)
     return Geometry(**{k: put(v) for k, v in fields.items()})
-
 
 
 def make_problem(

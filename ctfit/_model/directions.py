@@ -18,6 +18,7 @@ Everything that depends on direction only (cosines, tan²α, sines for Smith's G
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float
@@ -75,12 +76,14 @@ def _cross_norm2(a: tuple[Array, ...], b: tuple[Array, ...]) -> Array:
     return cx * cx + cy * cy + cz * cz
 
 
-def geometry(l: Float[ArrayLike, "*#batch 3"], v: Float[ArrayLike, "*#batch 3"], n: Float[ArrayLike, "*#batch 3"] | None = None) -> Geometry:
+def geometry(l: Float[ArrayLike, "*#batch 3"], v: Float[ArrayLike, "*#batch 3"], n: Float[ArrayLike, "*#batch 3"] | None = None, *,
+             xp: Any = jnp) -> Geometry:
     """Geometry of unit vectors ``l`` (to the light) and ``v`` (to the viewer), shape (..., 3).
 
     ``n`` is the unit surface normal (default +z). Sines and tan²α come from cross products,
     not from 1 − cos², so they keep full relative precision near normal incidence and at the
-    specular peak.
+    specular peak. ``xp``: the array module, ``jax.numpy`` (traceable), or ``numpy`` for host
+    arrays of the inputs' dtype (a fit lays out its data's geometry so: no program to make).
 
     Examples
     --------
@@ -91,26 +94,26 @@ def geometry(l: Float[ArrayLike, "*#batch 3"], v: Float[ArrayLike, "*#batch 3"],
     >>> print(f"{float(g.tan2_h):.6f} {float(g.cos_vh):.6f}")
     0.333333 0.866025
     """
-    l = jnp.asarray(l)
-    v = jnp.asarray(v)
+    l = xp.asarray(l)
+    v = xp.asarray(v)
     lc, vc = _components(l), _components(v)
     if n is None:
         # N = +z: N·x is the z component and |N × x|² = x_x² + x_y².
         cos_l, cos_v = lc[2], vc[2]
     else:
-        nc = _components(jnp.asarray(n, dtype=l.dtype))
+        nc = _components(xp.asarray(n, dtype=l.dtype))
         cos_l, cos_v = _dot(nc, lc), _dot(nc, vc)
     valid = (cos_l > 0) & (cos_v > 0)
     # Stand-ins for invalid pairs: L = V = N.
     if n is None:
-        zero, one = jnp.zeros((), l.dtype), jnp.ones((), l.dtype)
+        zero, one = xp.zeros((), l.dtype), xp.ones((), l.dtype)
         nc = (zero, zero, one)
-    lc = tuple(jnp.where(valid, a, b) for a, b in zip(lc, nc))
-    vc = tuple(jnp.where(valid, a, b) for a, b in zip(vc, nc))
-    cos_l = jnp.where(valid, cos_l, 1)
-    cos_v = jnp.where(valid, cos_v, 1)
+    lc = tuple(xp.where(valid, a, b) for a, b in zip(lc, nc))
+    vc = tuple(xp.where(valid, a, b) for a, b in zip(vc, nc))
+    cos_l = xp.where(valid, cos_l, 1)
+    cos_v = xp.where(valid, cos_v, 1)
     hc = tuple(a + b for a, b in zip(lc, vc))
-    h_len = jnp.sqrt(_dot(hc, hc))  # > 0: both directions are above the horizon
+    h_len = xp.sqrt(_dot(hc, hc))  # > 0: both directions are above the horizon
     if n is None:
         h_n = hc[2]
         sin2_l = lc[0] * lc[0] + lc[1] * lc[1]
@@ -131,11 +134,11 @@ def geometry(l: Float[ArrayLike, "*#batch 3"], v: Float[ArrayLike, "*#batch 3"],
     )
 
 
-def direction_from_angles_deg(theta: Float[ArrayLike, "*#batch"], phi: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 3"]:
+def direction_from_angles_deg(theta: Float[ArrayLike, "*#batch"], phi: Float[ArrayLike, "*#batch"], *, xp: Any = jnp) -> Float[Array, "*batch 3"]:
     """Unit vector(s) for polar angle θ and azimuth φ in degrees, shape (..., 3).
 
     cos θ is computed as sin(90° − θ), so θ = 90° gives exactly 0 (on the horizon) in every
-    dtype, and θ = 0 gives exactly (0, 0, 1).
+    dtype, and θ = 0 gives exactly (0, 0, 1). ``xp``: as for :func:`geometry`.
 
     Examples
     --------
@@ -147,17 +150,19 @@ def direction_from_angles_deg(theta: Float[ArrayLike, "*#batch"], phi: Float[Arr
     >>> ctfit.direction_from_angles_deg(30.0, np.array([0.0, 90.0, 180.0, 270.0])).shape
     (4, 3)
     """
-    theta, phi = jnp.broadcast_arrays(jnp.asarray(theta), jnp.mod(jnp.asarray(phi), 360))
-    st = jnp.sin(jnp.deg2rad(theta))
-    ct = jnp.sin(jnp.deg2rad(90 - theta))
-    phi_r = jnp.deg2rad(phi)
-    return jnp.stack([st * jnp.cos(phi_r), st * jnp.sin(phi_r), ct], axis=-1)
+    theta, phi = xp.broadcast_arrays(xp.asarray(theta), xp.mod(xp.asarray(phi), 360))
+    st = xp.sin(xp.deg2rad(theta))
+    ct = xp.sin(xp.deg2rad(90 - theta))
+    phi_r = xp.deg2rad(phi)
+    return xp.stack([st * xp.cos(phi_r), st * xp.sin(phi_r), ct], axis=-1)
 
 
 def geometry_from_angles_deg(
-    theta_i: Float[ArrayLike, "*#batch"], phi_i: Float[ArrayLike, "*#batch"], theta_o: Float[ArrayLike, "*#batch"], phi_o: Float[ArrayLike, "*#batch"]
+    theta_i: Float[ArrayLike, "*#batch"], phi_i: Float[ArrayLike, "*#batch"], theta_o: Float[ArrayLike, "*#batch"], phi_o: Float[ArrayLike, "*#batch"], *,
+    xp: Any = jnp,
 ) -> Geometry:
-    """:func:`geometry` for angles in degrees (the measurement-CSV convention).
+    """:func:`geometry` for angles in degrees (the measurement-CSV convention); ``xp``: as for
+    :func:`geometry`.
 
     Examples
     --------
@@ -169,4 +174,4 @@ def geometry_from_angles_deg(
     >>> np.asarray(g.tan2_h, float).round(6).tolist()  # tan²α
     [0.0, 1.0]
     """
-    return geometry(direction_from_angles_deg(theta_i, phi_i), direction_from_angles_deg(theta_o, phi_o))
+    return geometry(direction_from_angles_deg(theta_i, phi_i, xp=xp), direction_from_angles_deg(theta_o, phi_o, xp=xp), xp=xp)

@@ -21,9 +21,11 @@ def array_module(*values) -> Any:
 
 
 def safe_sqrt(x):
-    """√x for x > 0 and 0 elsewhere, with a finite derivative everywhere (double-``where``)."""
+    """√x for x > 0 and 0 elsewhere, with a finite derivative everywhere (double-``where``);
+    NumPy in, NumPy out (:func:`array_module`)."""
+    xp = array_module(x)
     pos = x > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1)), 0)
+    return xp.where(pos, xp.sqrt(xp.where(pos, x, 1)), 0)
 
 
 def safe_div(a, b):

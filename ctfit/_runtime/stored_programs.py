@@ -75,7 +75,7 @@ COMPILE_EFFORT: dict[str, dict[str, bool | int]] = {
 passes are left out of all three, which cuts their compile by 20–50 % here and leaves their run
 time as it was. "run" (the default): the one-program solves (the other solvers, texels,
 batches), compiled with XLA's fusion emitters. "step": programs called many times (the kernels
-over a chunk: the normal equations, the seeds' sums; the geometry): XLA's
+over a chunk: the normal equations, the seeds' sums): XLA's
 older fusion code, which compiles them in 50–70 % of the time and runs the fit's chunk kernels
 as fast where the fit calls them (``ctfit._fitting.chunked_fit._EFFORT``). "once": programs called once per fit (the cost of a zero model,
 the report, the screen's held-out values) and the solver's step: the older fusion code and LLVM
