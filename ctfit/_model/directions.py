@@ -94,19 +94,20 @@ def geometry(l: Float[ArrayLike, "*#batch 3"], v: Float[ArrayLike, "*#batch 3"],
     >>> print(f"{float(g.tan2_h):.6f} {float(g.cos_vh):.6f}")
     0.333333 0.866025
     """
-    l = xp.asarray(l)
-    v = xp.asarray(v)
-    lc, vc = _components(l), _components(v)
+    lv: Array = xp.asarray(l)  # (numpy arrays alike, for ``xp=numpy``)
+    vv: Array = xp.asarray(v)
+    dtype = lv.dtype
+    lc, vc = _components(lv), _components(vv)
     if n is None:
         # N = +z: N·x is the z component and |N × x|² = x_x² + x_y².
         cos_l, cos_v = lc[2], vc[2]
     else:
-        nc = _components(xp.asarray(n, dtype=l.dtype))
+        nc = _components(xp.asarray(n, dtype=dtype))
         cos_l, cos_v = _dot(nc, lc), _dot(nc, vc)
     valid = (cos_l > 0) & (cos_v > 0)
     # Stand-ins for invalid pairs: L = V = N.
     if n is None:
-        zero, one = xp.zeros((), l.dtype), xp.ones((), l.dtype)
+        zero, one = xp.zeros((), dtype), xp.ones((), dtype)
         nc = (zero, zero, one)
     lc = tuple(xp.where(valid, a, b) for a, b in zip(lc, nc))
     vc = tuple(xp.where(valid, a, b) for a, b in zip(vc, nc))
