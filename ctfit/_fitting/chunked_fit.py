@@ -9,7 +9,7 @@ any file, each adding its share to a running sum on the device (calls are queued
 
 - ``fit_ne``: ½‖r‖², Jᵀr and JᵀJ at a flat parameter vector, and the chunk's model values there
   (:func:`~ctfit._fitting.jacobian.normal_equations_and_values`): the residual summary of the
-  report is made from those at the solution, on the host (:func:`_report`);
+  report is made from those at the solution, on the host (:func:`_summary`);
 - ``fit_grid_sums``: the sums the seeds' scores are made of (:func:`~ctfit._fitting.starts.grid_sums`;
   the scores from them, :func:`~ctfit._fitting.starts.grid_costs`, and the seeds are chosen on the
   host, in NumPy: :func:`_seed_choice`);
@@ -682,9 +682,9 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     return dict(out, **_summary(problem, at_best), **solved)
 
 
-SUMMARY_ROWS = 1 << 17
-"""Rows of the layout the host summarises at once (:func:`_summary`): a few MB of temporaries, a
-few NumPy calls per 64 chunks."""
+SUMMARY_CELLS = 1 << 17
+"""Cells of the layout the host summarises at once (:func:`_summary`; 64 chunks of 2,048): a few
+MB of temporaries, a few NumPy calls per 64 chunks."""
 
 
 def _summary(problem: Problem, values: list) -> dict:
@@ -692,11 +692,11 @@ def _summary(problem: Problem, values: list) -> dict:
     value is not finite) from the chunks' model ``values`` at the solution, on the host: the
     values come with the normal equations there (``fit_ne``), so the summary needs no program
     (as one, ``fit_summary``, it took 0.4–0.7 s of compiling per structure). The chunks are the
-    layout's rows in order (:func:`chunk_problems`), summarised :data:`SUMMARY_ROWS` rows at a time."""
+    layout's rows in order (:func:`chunk_problems`), summarised about :data:`SUMMARY_CELLS` cells at a time."""
     values = jax.device_get(values)
     rows = values[0].shape[0]
     y, mask, floor = np.asarray(problem.y), np.asarray(problem.mask), np.asarray(problem.floor)
-    step = max(1, SUMMARY_ROWS // rows)
+    step = max(1, SUMMARY_CELLS // values[0].size)
     rel, stats, bad = [], [], 0
     for c in range(0, len(values), step):
         cut = slice(c * rows, (c + step) * rows)
