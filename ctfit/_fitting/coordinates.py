@@ -115,7 +115,7 @@ def from_params(spec: Spec, params: Params) -> dict:
         row = parameter(name)
         if name == "w":
             v = np.clip(v, 1e-12, None)
-            u[name] = stick_fractions(v) if spec.space == "box" else weight_coordinates(v, spec.space, np)
+            u[name] = weight_coordinates(v / np.sum(v), spec.space, np)
             continue
         if name == "n" and spec.structure.shared_index:
             v = np.asarray(np.mean(v))  # a plastic's one index

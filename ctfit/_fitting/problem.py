@@ -96,9 +96,10 @@ def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
                                                          digest_size=16).digest()) if 0 < n <= RECENT_GEOMETRY_PAIRS else None
     fields = _recent_geometry.pop(key, None)
     if fields is None:
+        blocks = [pairs[b: b + GEOMETRY_BLOCK] for b in range(0, n, GEOMETRY_BLOCK)] or [pairs]
         with np.errstate(divide="ignore", invalid="ignore"):  # (stand-ins make every value finite; NumPy's checks are not needed)
-            parts = [_geometry_fields(pairs[b: b + GEOMETRY_BLOCK]) for b in range(0, max(n, 1), GEOMETRY_BLOCK)]
-        fields = {k: np.concatenate([p[k] for p in parts])[:n] if len(parts) > 1 else parts[0][k] for k in parts[0]}
+            parts = [_geometry_fields(block) for block in blocks]
+        fields = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         for v in fields.values():
             v.setflags(write=False)  # shared by the fits of these pairs
     if key is not None:
