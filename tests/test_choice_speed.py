@@ -122,8 +122,9 @@ def test_each_compile_effort_is_its_own_program(store):
 def test_candidates_are_fitted_without_the_report_and_only_the_choice_with_it(monkeypatch):
     """The data-chosen default fits its candidates without the report (its program and the
     residual summary's took a third of a first run's compiling; the summary is now made on the
-    host); the structure chosen is fitted again with it, from its candidate's fit, and that is
-    the result."""
+    host), and what comparing them needs is made on the host too (``fit_light`` was a program per
+    structure); the structure chosen is fitted again with the report, from its candidate's fit,
+    and that is the result."""
     from ctfit._fitting import chunked_fit
 
     made = []
@@ -139,7 +140,7 @@ def test_candidates_are_fitted_without_the_report_and_only_the_choice_with_it(mo
     best, tried = ctfit.choose_structure(data, lobes=(1, 2))
     chosen = ctfit.structure_label(best.material.structure)
     assert {label for name, label in made if name == "fit_report"} == {chosen}
-    assert {label for name, label in made if name == "fit_light"} == {ctfit.structure_label(st) for st, _ in tried}
+    assert not [label for name, label in made if name == "fit_light"] and len(tried) >= 3
     assert all(res.stderr is None and res.stats["report"] is False and res.stats["quality"]["median_relative_error"] > 0 for _, res in tried)
     candidate = next(res for st, res in tried if ctfit.structure_label(st) == chosen)
     assert best.stderr is not None and "rmse" in best.stats and best.stats["starts"] == 1

@@ -17,8 +17,8 @@ any file, each adding its share to a running sum on the device (calls are queued
   and bands, shared by every structure).
 
 Programs whose shapes depend only on the parameters: ``fit_report`` (:func:`~ctfit._fitting.fit_report.report_core`; without the
-report, ``fit_light``: :func:`~ctfit._fitting.fit_report.light_report_core`), and
-optimistix's solver itself (:func:`~ctfit._fitting.seeded_solve.lm_solver`): ``lm_init`` and
+report, what comparing fits needs is made on the host: :func:`~ctfit._fitting.fit_report.light_report_core`
+with ``xp=numpy``, no program per structure), and optimistix's solver itself (:func:`~ctfit._fitting.seeded_solve.lm_solver`): ``lm_init`` and
 ``lm_step``, one step of ``StructuredLevenbergMarquardt`` given the cost, Jᵀr and JᵀJ at the
 point it evaluates, compiled per number of parameters and shared by every structure. The host
 runs optimistix's iteration (init, step until it terminates) and the race of the seeds as the
@@ -45,7 +45,7 @@ from jax.flatten_util import ravel_pytree
 
 from .._model import Params, Structure, array_leaves, is_array, split_arrays
 from .._runtime import stored_program
-from .coordinates import bounds, fraction_weights
+from .coordinates import bounds, flat_host, fraction_weights
 from .fit_report import combined_rms, light_report_core, report_core, summary_of_values, zero_model_cost
 from .jacobian import normal_equations_and_values
 from .problem import Problem, Spec
@@ -346,14 +346,7 @@ def _seed_choice(part: Problem, u0: dict, k: int, grid, num, den, keep_start: bo
         costs, scales, amplitudes, split = best_splits(num, den)
         seeds = seeds_from_scores(part, u0, k, grid, costs, scales, keep_start, amplitudes, split)
     lower, upper = bounds(part.spec, u0)
-    return dict(flat=_ravel(seeds, batch=True), lower=_ravel(lower), upper=_ravel(upper))
-
-
-def _ravel(tree: dict, batch: bool = False) -> np.ndarray:
-    """``ravel_pytree``'s flat order (sorted names, each entry flattened) of host arrays; ``batch``:
-    of each row along a leading axis."""
-    lead = (next(iter(tree.values())).shape[0],) if batch else ()
-    return np.concatenate([np.reshape(tree[name], lead + (-1,)) for name in sorted(tree)], axis=-1)
+    return dict(flat=flat_host(seeds, batch=True), lower=flat_host(lower), upper=flat_host(upper))
 
 
 def _given(flat, data):
@@ -478,12 +471,15 @@ def _solver_programs(u0: dict) -> tuple:
 
 def _report_programs(template: Problem, u0: dict, report: bool = True):
     """Make (compile or load) the programs of the report, for the shapes of ``u0``: (cost of a
-    zero model, report), or without the report (cost of a zero model, light report)."""
+    zero model, report), or without the report (cost of a zero model, None: the light report is
+    made on the host, :func:`~ctfit._fitting.fit_report.light_report_core` with ``xp=numpy``)."""
     p, dtype = _flat_shape(u0)
     zero = np.zeros((), dtype)
-    rest = (zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
     zero_program = _program("fit_zero", _zero_kernel, zero, _data_only(template))
-    return zero_program, _program("fit_report" if report else "fit_light", report_core if report else light_report_core, template, u0, *rest)
+    if not report:
+        return zero_program, None
+    rest = (zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
+    return zero_program, _program("fit_report", report_core, template, u0, *rest)
 
 
 def _sums_program(template: Problem, u0: dict, k: int, grid):
@@ -676,9 +672,10 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     for leaves in kern.parts:  # each chunk with no structure in it (``fit_zero`` is shared)
         zero = zero_program(zero, *array_leaves(_data_only(rebuild(leaves))))
     zero = np.asarray(jax.device_get(zero))
+    if not report:  # on the host: no program per structure
+        light = light_report_core(dataclasses.replace(kern.template, fixed=jax.device_get(kern.template.fixed)), solved["u"], cost, jtr, jtj, zero, np)
+        return dict(light, **solved, zero_cost=zero)
     out = jax.device_get(report_program(*array_leaves((kern.template, u, cost, jtr, jtj, zero))))
-    if not report:
-        return dict(out, **solved, zero_cost=zero)
     return dict(out, **_summary(problem, at_best), **solved)
 
 

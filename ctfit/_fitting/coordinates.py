@@ -27,18 +27,23 @@ from .._model import Params, Structure, array_module, box_bounds, clip_box, n_lo
 if TYPE_CHECKING:
     from .problem import Spec
 
-__all__ = ["lobe_weights", "weight_coordinates", "fraction_weights", "stick_fractions", "to_params", "from_params", "bounds", "free_names"]
+__all__ = ["lobe_weights", "weight_coordinates", "fraction_weights", "stick_fractions", "to_params", "from_params", "bounds", "free_names", "flat_host"]
 
 
-def lobe_weights(u_w, space: str):
-    """Lobe weights from J − 1 free values (see the module docstring).
+def lobe_weights(u_w, space: str, xp=jnp):
+    """Lobe weights from J − 1 free values (see the module docstring); ``xp``: ``jax.numpy``
+    (traceable) or ``numpy`` (on the host).
 
     Box: stick-breaking fractions v ∈ [0, 1]^(J−1), w_0 = 1 − v_1, w_j = v_1⋯v_j (1 − v_(j+1)),
     w_(J−1) = v_1⋯v_(J−1): every lobe's weight reaches 0 on a bound of the box."""
     if space == "box":
-        ones = jnp.ones((1,), u_w.dtype)
-        return jnp.cumprod(jnp.concatenate([ones, u_w])) * jnp.concatenate([1 - u_w, ones])
-    return jax.nn.softmax(jnp.concatenate([jnp.zeros((1,), u_w.dtype), u_w]))
+        ones = xp.ones((1,), u_w.dtype)
+        return xp.cumprod(xp.concatenate([ones, u_w])) * xp.concatenate([1 - u_w, ones])
+    logits = xp.concatenate([xp.zeros((1,), u_w.dtype), u_w])
+    if xp is jnp:
+        return jax.nn.softmax(logits)
+    e = np.exp(logits - np.max(logits))
+    return e / np.sum(e)
 
 
 def stick_fractions(w) -> np.ndarray:
@@ -66,13 +71,16 @@ def fraction_weights(v) -> np.ndarray:
     return np.cumprod(np.concatenate([[1.0], v])) * np.concatenate([1.0 - v, [1.0]])
 
 
-def to_params(spec: Spec, u: dict, fixed: Params) -> Params:
+def to_params(spec: Spec, u: dict, fixed: Params, xp=jnp) -> Params:
     """Model parameters from the free coordinates ``u`` (``spec.space``: "box" or "unconstrained").
+    ``xp``: ``jax.numpy`` (traceable), or ``numpy`` for box coordinates on the host (no program).
 
     Box coordinates are held inside their bounds (:func:`~ctfit._model.parameters.clip_box`), so any
     solver's trial point gives a valid model; the projected solver never leaves them anyway.
     """
     st = spec.structure
+    if xp is not jnp and spec.space != "box":
+        raise ValueError("to_params on the host (xp=numpy) takes box coordinates only")
 
     def pick(name):
         if name not in u:
@@ -84,15 +92,15 @@ def to_params(spec: Spec, u: dict, fixed: Params) -> Params:
         else:
             value = (n_lower(st.fresnel, st.family) if name == "n" else 0.0) + row.free(u[name])
         if name == "n" and st.shared_index:  # a plastic: one free index, the same in every band
-            value = jnp.broadcast_to(value, jnp.shape(fixed.n))
+            value = xp.broadcast_to(value, np.shape(fixed.n))
         return value
 
     w = None
     if st.has_specular:
         if "w" in u:
-            w = lobe_weights(clip_box(u["w"], *box_bounds("w")) if spec.space == "box" else u["w"], spec.space)
+            w = lobe_weights(clip_box(u["w"], *box_bounds("w")) if spec.space == "box" else u["w"], spec.space, xp)
         elif st.lobes == 1 and fixed.w is None:
-            w = jnp.ones((1,), u["m"].dtype if "m" in u else jnp.result_type(float))
+            w = xp.ones((1,), u["m"].dtype if "m" in u else jnp.result_type(float))
         else:
             w = fixed.w
     return Params(
@@ -155,3 +163,9 @@ def free_names(structure: Structure, fixed: tuple[str, ...] = ()) -> tuple[str, 
         names.append("rd")
     return tuple(n for n in names if n not in fixed)
 
+
+def flat_host(tree: dict, batch: bool = False) -> np.ndarray:
+    """``ravel_pytree``'s flat order (sorted names, each entry flattened) of host arrays, on the host
+    (``ravel_pytree`` of NumPy arrays would make a program); ``batch``: of each row along a leading axis."""
+    lead = (next(iter(tree.values())).shape[0],) if batch else ()
+    return np.concatenate([np.reshape(tree[name], lead + (-1,)) for name in sorted(tree)], axis=-1)

@@ -8,6 +8,7 @@ reported only where JᵀJ is well conditioned; near-degenerate solutions get pla
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -16,11 +17,12 @@ from jax.flatten_util import ravel_pytree
 
 from .._model import PUBLIC_NAMES, Params, array_module, n_from_f0, normal_reflectance, parameter
 from .chunks import map_over_chunks
-from .coordinates import to_params
+from .coordinates import bounds, flat_host, to_params
 from .fit_warnings import FitWarning
 from .losses import loss_residuals
 from .problem import Problem, model_values
 from .seeded_solve import flat_bounds, gauss_newton_decrease
+from .stationarity import active_set
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
@@ -32,11 +34,12 @@ PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
 """The fields of :class:`~ctfit.Params`, in order."""
 
 
-def effective_index(f0):
+def effective_index(f0, xp=jnp):
     """The paper's effective index of a fitted F0, finite where F0 rounds to 1 (about 10¹⁶ in
-    float64, 10⁸ in float32, instead of :func:`~ctfit._model.fresnel_equations.n_from_f0`'s infinity)."""
-    f0 = jnp.asarray(f0)
-    return n_from_f0(jnp.minimum(f0, 1 - jnp.finfo(f0.dtype).eps))
+    float64, 10⁸ in float32, instead of :func:`~ctfit._model.fresnel_equations.n_from_f0`'s infinity);
+    ``xp``: ``jax.numpy`` (traceable) or ``numpy`` (on the host)."""
+    f0 = xp.asarray(f0)
+    return n_from_f0(xp.minimum(f0, 1 - np.finfo(f0.dtype).eps))
 
 
 def constrained_quantities(problem: Problem, unravel, f):
@@ -228,20 +231,24 @@ def report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost) -> dict:
     return dict(out, jtj=jtj, jt=jt, zero_cost=zero_cost)
 
 
-def light_report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost) -> dict:
+def light_report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost, xp=jnp) -> dict:
     """What comparing a fit needs at its solution ``u``: the active set, the Gauss–Newton
     decrease on the free coordinates and the parameters (no standard errors: the data-chosen
-    default's candidates, :func:`~ctfit._fitting.least_squares.fit_to_tolerance` with ``report=False``)."""
-    from .solvers import active_set
-
-    flat, _ = ravel_pytree(u)
-    lower, upper = flat_bounds(problem, u)
+    default's candidates, :func:`~ctfit._fitting.least_squares.fit_to_tolerance` with ``report=False``).
+    ``xp``: ``jax.numpy`` (traced, inside :func:`report_core`) or ``numpy`` (on the host, host
+    arrays in: the candidates' light report, no program per structure)."""
+    flat: Any
+    if xp is jnp:
+        flat, _ = ravel_pytree(u)
+        lower, upper = flat_bounds(problem, u)
+    else:
+        flat, (lower, upper) = flat_host(u), (flat_host(b) for b in bounds(problem.spec, u))
     on_bound = active_set(flat, jtr, lower, upper)  # held on a bound: a result, not a failure
     keep = ~on_bound
-    jtr = jnp.where(keep, jtr, 0)
-    jtj = jnp.where(keep[:, None] & keep[None, :], jtj, 0)
-    params = to_params(problem.spec, u, problem.fixed)
+    jtr = xp.where(keep, jtr, 0)
+    jtj = xp.where(keep[:, None] & keep[None, :], jtj, 0)
+    params = to_params(problem.spec, u, problem.fixed, xp)
     params = {k: getattr(params, k) for k in PARAM_FIELDS}  # plain containers: the executable's output is stored (_runtime/stored_programs.py)
     if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
-        params["n"] = effective_index(params["f0"])  # reported beside F0
-    return dict(on_bound=on_bound, gn_decrease=gauss_newton_decrease(jtj, jtr, cost, zero_cost), params=params)
+        params["n"] = effective_index(params["f0"], xp)  # reported beside F0
+    return dict(on_bound=on_bound, gn_decrease=gauss_newton_decrease(jtj, jtr, cost, zero_cost, xp), params=params)

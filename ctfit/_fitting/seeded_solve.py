@@ -18,6 +18,7 @@ from jax.flatten_util import ravel_pytree
 from .coordinates import bounds
 from .jacobian import half_squared_norm, normal_equations, residual
 from .problem import Problem
+from .stationarity import predicted_decrease
 
 if TYPE_CHECKING:
     from .solvers import StructuredLevenbergMarquardt
@@ -230,17 +231,16 @@ def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int)
     return jax.vmap(one)(seeds)
 
 
-def gauss_newton_decrease(jtj, jtr, cost, scale):
+def gauss_newton_decrease(jtj, jtr, cost, scale, xp=jnp):
     """Relative decrease of ½‖r‖² that one Gauss–Newton step from here predicts,
     ½ gᵀ(JᵀJ)⁺g / max(cost, ε·scale), with ``scale`` the cost of a zero model (so that an exact
     fit, cost → 0, does not divide rounding by rounding).
 
     Zero at a minimum (g = Jᵀr = 0). Directions the data does not determine (tiny eigenvalues
     of JᵀJ, relative to the largest, below the dtype's rounding) are left out, so a degenerate
-    but stationary point still reads as stationary.
+    but stationary point still reads as stationary. ``xp``: ``jax.numpy`` (traceable) or ``numpy``
+    (on the host).
     """
-    from .solvers import predicted_decrease
-
-    dec = predicted_decrease(jtj, jtr)
-    eps = jnp.finfo(cost.dtype).eps
-    return dec / jnp.maximum(cost, jnp.maximum(eps * scale, jnp.finfo(cost.dtype).tiny))
+    dec = predicted_decrease(jtj, jtr, xp=xp)
+    eps = np.finfo(cost.dtype).eps
+    return dec / xp.maximum(cost, xp.maximum(eps * scale, np.finfo(cost.dtype).tiny))

@@ -11,10 +11,8 @@ from typing import Any
 
 import jax
 import numpy as np
-from jaxtyping import Array
 
 from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg, x64_enabled
-from .._runtime import cached_call
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
 from .validate import n_free_parameters
 
@@ -457,9 +455,12 @@ def heldout_sample(data: Measurement, samples: int = SCREEN_SAMPLES, pairs: int 
     return _samples_of_pairs(data, index, rest)
 
 
-def _values_at_pairs(structure: Structure, params: Params, pairs: Array) -> Array:
-    """The model at direction pairs (θ_i, φ_i, θ_o, φ_o in degrees, one row each): (pairs, bands)."""
-    return brdf(structure, params, geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3]))
+def _values_at_pairs(structure: Structure, params: Params, pairs: np.ndarray) -> np.ndarray:
+    """The model at direction pairs (θ_i, φ_i, θ_o, φ_o in degrees, one row each), on the host
+    (NumPy: no program to make per structure): (pairs, bands), in the dtype of ``pairs``."""
+    geom = geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3], xp=np)
+    with np.errstate(all="ignore"):  # the guards' unselected branches (double-where), as in JAX
+        return brdf(structure, params, geom, xp=np)
 
 
 def heldout_error(res: FitResult, held: Measurement) -> float:
@@ -468,16 +469,14 @@ def heldout_error(res: FitResult, held: Measurement) -> float:
 
 
 def model_median_error(res: FitResult, data: Measurement) -> float:
-    """The median over the samples of ``data`` with y > 0 of |f − y| / y, f the model of ``res``: its
-    direction pairs evaluated :data:`HELDOUT_PAIRS` at a time (the last block padded), so one
-    stored program per structure serves every file."""
+    """The median over the samples of ``data`` with y > 0 of |f − y| / y, f the model of ``res``,
+    evaluated on the host in the dtype of the fit's programs (float64 with ``jax_enable_x64``,
+    else float32), :data:`HELDOUT_PAIRS` direction pairs at a time."""
     pairs, index = data.directions()
-    size = -(-len(pairs) // HELDOUT_PAIRS) * HELDOUT_PAIRS
     dt = np.float64 if x64_enabled() else np.float32
-    padded = np.concatenate([pairs, np.repeat(pairs[:1], size - len(pairs), axis=0)]).astype(dt)
     params = jax.tree.map(lambda a: np.asarray(a, dtype=dt), res.material.params)
-    values = np.concatenate([np.asarray(cached_call("heldout_values", _values_at_pairs, res.material.structure, params, padded[i: i + HELDOUT_PAIRS],
-                                                    effort="once")) for i in range(0, size, HELDOUT_PAIRS)])
+    values = np.concatenate([_values_at_pairs(res.material.structure, params, np.asarray(pairs[i: i + HELDOUT_PAIRS], dtype=dt))
+                             for i in range(0, len(pairs), HELDOUT_PAIRS)])
     f, y = values[index, np.asarray(data.band)], np.asarray(data.brdf, dtype=float)
     ok = y > 0
     if not ok.any():

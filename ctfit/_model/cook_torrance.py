@@ -10,7 +10,9 @@ and 0 for directions on or below the horizon.
 
 Work is split by what it depends on: everything that depends on the direction only — D̂, G and
 the lobe sum — is computed once per direction (:func:`specular_geometric`), and the spectral part
-(F and R_d) per band. Only the terms the :class:`~ctfit.Structure` uses are traced.
+(F and R_d) per band. Only the terms the :class:`~ctfit.Structure` uses are traced. Each function takes ``xp``, the array
+module: ``jax.numpy`` (the default: traceable, differentiable) or ``numpy`` (on the host, no
+program; the geometry then from :func:`~ctfit.geometry` with ``xp=numpy`` too).
 """
 
 from __future__ import annotations
@@ -63,13 +65,13 @@ def specular_constant(structure: Structure) -> float:
     return 0.25 * _INV_PI if structure.normalization == "normalized" else _INV_PI
 
 
-def _distribution(structure: Structure, tan2: ArrayLike, m: ArrayLike) -> Array:
+def _distribution(structure: Structure, tan2: ArrayLike, m: ArrayLike, xp: Any) -> Array:
     if structure.distribution == "beckmann":
-        return beckmann(tan2, m)
-    return gaussian(tan2, m, normalized=structure.normalization == "normalized")
+        return beckmann(tan2, m, xp=xp)
+    return gaussian(tan2, m, normalized=structure.normalization == "normalized", xp=xp)
 
 
-def specular_geometric(structure: Structure, params: Params, geom: Geometry) -> Float[Array | np.ndarray, "*batch"]:
+def specular_geometric(structure: Structure, params: Params, geom: Geometry, *, xp: Any = jnp) -> Float[Array | np.ndarray, "*batch"]:
     """K Σ_j w_j D̂(α; m_j) G_j/((N·L)(N·V)) per direction: everything in R_s but F.
 
     Examples
@@ -88,17 +90,17 @@ def specular_geometric(structure: Structure, params: Params, geom: Geometry) -> 
     # whose result is broadcast over the bands, see tests/test_brdf.py).
     total: Array | None = None
     for j in range(structure.lobes):
-        term = w[j] * _distribution(structure, geom.tan2_h, m[j])
+        term = w[j] * _distribution(structure, geom.tan2_h, m[j], xp)
         if structure.geometry != "v-cavity":  # Smith: G1(L) G1(V) per lobe, exact or rational
             g1 = smith_g1_reduced if structure.geometry == "smith" else smith_rational_g1_reduced
-            term = term * g1(geom.cos_l, geom.sin_l, m[j]) * g1(geom.cos_v, geom.sin_v, m[j])
+            term = term * g1(geom.cos_l, geom.sin_l, m[j], xp=xp) * g1(geom.cos_v, geom.sin_v, m[j], xp=xp)
         total = term if total is None else total + term
     if structure.geometry == "v-cavity":
-        total = v_cavity_reduced(geom.cos_l, geom.cos_v, geom.cos_h, geom.cos_vh) * used(total)
+        total = v_cavity_reduced(geom.cos_l, geom.cos_v, geom.cos_h, geom.cos_vh, xp=xp) * used(total)
     return specular_constant(structure) * used(total)
 
 
-def fresnel(structure: Structure, params: Params, cos_vh: Float[ArrayLike, "*batch #bands"]) -> Float[Array, "*batch bands"]:
+def fresnel(structure: Structure, params: Params, cos_vh: Float[ArrayLike, "*batch #bands"], *, xp: Any = jnp) -> Float[Array, "*batch bands"]:
     """F(V·H) with the material's Fresnel form; ``cos_vh`` broadcasts against the band axis.
 
     Examples
@@ -111,10 +113,10 @@ def fresnel(structure: Structure, params: Params, cos_vh: Float[ArrayLike, "*bat
     [[0.04, 0.9], [1.0, 1.0]]
     """
     if structure.fresnel == "f0":
-        return fresnel_dielectric_f0(cos_vh, used(params.f0))
+        return fresnel_dielectric_f0(cos_vh, used(params.f0), xp=xp)
     if structure.fresnel == "n":
-        return fresnel_dielectric(cos_vh, used(params.n))
-    return fresnel_conductor(cos_vh, used(params.n), used(params.k))
+        return fresnel_dielectric(cos_vh, used(params.n), xp=xp)
+    return fresnel_conductor(cos_vh, used(params.n), used(params.k), xp=xp)
 
 
 def normal_reflectance(structure: Structure, params: Params) -> Float[Array | np.ndarray, "*bands"]:
@@ -154,7 +156,7 @@ def diffuse_reflectance(structure: Structure, params: Params) -> Float[Array | n
 
 
 def transmitted_diffuse_factor(
-    n: Float[ArrayLike, "*#batch"], cos_l: Float[ArrayLike, "*#batch"], cos_v: Float[ArrayLike, "*#batch"]
+    n: Float[ArrayLike, "*#batch"], cos_l: Float[ArrayLike, "*#batch"], cos_v: Float[ArrayLike, "*#batch"], *, xp: Any = jnp
 ) -> Float[Array, "*batch"]:
     """T(θ_i) T(θ_o) / (n² (1 − F_dr(1/n))): what multiplies a plastic's R_d when its diffuse light
     crosses the dielectric interface twice (``diffuse="transmitted"``).
@@ -172,8 +174,8 @@ def transmitted_diffuse_factor(
     >>> print(f"{float(transmitted_diffuse_factor(1.5, 1.0, 1.0)):.4f}")  # (1 − 0.04)² / (2.25 (1 − 0.597))
     1.0159
     """
-    f_int = fresnel_diffuse_reflectance(1 / jnp.asarray(n))
-    return (1 - fresnel_dielectric(cos_l, n)) * (1 - fresnel_dielectric(cos_v, n)) / (n * n * (1 - f_int))
+    f_int = fresnel_diffuse_reflectance(1 / xp.asarray(n))
+    return (1 - fresnel_dielectric(cos_l, n, xp=xp)) * (1 - fresnel_dielectric(cos_v, n, xp=xp)) / (n * n * (1 - f_int))
 
 
 def ambient_reflectance(structure: Structure, params: Params) -> Float[Array | np.ndarray, "*bands"]:
@@ -204,13 +206,14 @@ def ambient_reflectance(structure: Structure, params: Params) -> Float[Array | n
 
 
 def combine_parts(
-    structure: Structure, params: Params, geom_valid: ArrayLike, spec: Any, cos_vh: Any, cos_lv: tuple[ArrayLike, ArrayLike] | None = None
+    structure: Structure, params: Params, geom_valid: ArrayLike, spec: Any, cos_vh: Any, cos_lv: tuple[ArrayLike, ArrayLike] | None = None,
+    *, xp: Any = jnp,
 ) -> Array:
     """s R_s + d R_d from the per-direction factor ``spec`` (already broadcast to the bands; it and
     ``cos_vh`` are None without a specular part);
     ``cos_lv`` = (N·L, N·V), broadcast like ``spec``, for a transmitted diffuse part."""
     if structure.has_specular:
-        rs = fresnel(structure, params, cos_vh) * spec
+        rs = fresnel(structure, params, cos_vh, xp=xp) * spec
     if not structure.has_diffuse:
         out = rs
     else:
@@ -218,16 +221,16 @@ def combine_parts(
         if structure.diffuse == "transmitted":
             if cos_lv is None:
                 raise ValueError("a transmitted diffuse part needs cos_lv = (N·L, N·V)")
-            rd = rd * transmitted_diffuse_factor(used(params.n), *cos_lv)
+            rd = rd * transmitted_diffuse_factor(used(params.n), *cos_lv, xp=xp)
         if structure.has_s:
             s = used(params.s)
             out = s * rs + (1 - s) * rd
         else:
-            out = jnp.broadcast_to(rd, jnp.broadcast_shapes(jnp.shape(geom_valid), jnp.shape(rd)))
-    return jnp.where(geom_valid, out, 0)
+            out = xp.broadcast_to(rd, np.broadcast_shapes(np.shape(geom_valid), np.shape(rd)))
+    return xp.where(geom_valid, out, 0)
 
 
-def brdf(structure: Structure, params: Params, geom: Geometry) -> Float[Array, "*batch bands"]:
+def brdf(structure: Structure, params: Params, geom: Geometry, *, xp: Any = jnp) -> Float[Array, "*batch bands"]:
     """R for every direction pair × every band: shape ``geom.shape + (bands,)``.
 
     Per-band fields of ``params`` (f0, n, k, rd) have shape (bands,). D and G are evaluated once
@@ -247,12 +250,12 @@ def brdf(structure: Structure, params: Params, geom: Geometry) -> Float[Array, "
     valid = geom.valid[..., None]
     cos_lv = (geom.cos_l[..., None], geom.cos_v[..., None]) if structure.diffuse == "transmitted" else None
     if not structure.has_specular:
-        return combine_parts(structure, params, valid, None, None, cos_lv)
-    spec = specular_geometric(structure, params, geom)[..., None]
-    return combine_parts(structure, params, valid, spec, geom.cos_vh[..., None], cos_lv)
+        return combine_parts(structure, params, valid, None, None, cos_lv, xp=xp)
+    spec = specular_geometric(structure, params, geom, xp=xp)[..., None]
+    return combine_parts(structure, params, valid, spec, geom.cos_vh[..., None], cos_lv, xp=xp)
 
 
-def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band: Int[Array | np.ndarray, "*batch"]) -> Float[Array, "*batch"]:
+def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band: Int[Array | np.ndarray, "*batch"], *, xp: Any = jnp) -> Float[Array, "*batch"]:
     """R for samples that each have their own direction pair and band index ``band`` (int array).
 
     The scattered layout of a measurement file: per-band parameters are gathered per sample.
@@ -274,10 +277,10 @@ def brdf_pairs(structure: Structure, params: Params, geom: Geometry, band: Int[A
         f0=None if params.f0 is None else params.f0[band],
         n=None if params.n is None else params.n[band],
         k=None if params.k is None else params.k[band],
-        rd=None if params.rd is None or jnp.ndim(params.rd) == 0 else params.rd[band],
+        rd=None if params.rd is None or np.ndim(params.rd) == 0 else params.rd[band],
     )
     cos_lv = (geom.cos_l, geom.cos_v) if structure.diffuse == "transmitted" else None  # only a transmitted diffuse part needs them
     if not structure.has_specular:
-        return combine_parts(structure, gathered, geom.valid, None, None, cos_lv)
-    spec = specular_geometric(structure, params, geom)
-    return combine_parts(structure, gathered, geom.valid, spec, geom.cos_vh, cos_lv)
+        return combine_parts(structure, gathered, geom.valid, None, None, cos_lv, xp=xp)
+    spec = specular_geometric(structure, params, geom, xp=xp)
+    return combine_parts(structure, gathered, geom.valid, spec, geom.cos_vh, cos_lv, xp=xp)

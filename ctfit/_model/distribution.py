@@ -18,6 +18,8 @@ m ≤ 10³ and the Gaussian's equals its value at α = 90° (exp(−(π/2m)²) t
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
@@ -31,8 +33,9 @@ _GL_X = 0.5 * (_GL_X + 1.0)
 _GL_W = 0.5 * _GL_W
 
 
-def beckmann(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
-    """Beckmann D̂(α; m) = exp(−tan²α/m²)(1 + tan²α)²/m² (paper eq. 4, without 1/π).
+def beckmann(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"], *, xp: Any = jnp) -> Float[Array, "*batch"]:
+    """Beckmann D̂(α; m) = exp(−tan²α/m²)(1 + tan²α)²/m² (paper eq. 4, without 1/π). ``xp``: the
+    array module, ``jax.numpy`` (traceable) or ``numpy`` (on the host, no program).
 
     Examples
     --------
@@ -46,37 +49,39 @@ def beckmann(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"]) 
     >>> print(f"{np.trapezoid(2 * d * np.cos(alpha) * np.sin(alpha), alpha):.6f}")
     1.000000
     """
-    t = jnp.minimum(jnp.asarray(tan2), _TAN2_MAX)
-    inv_m2 = 1 / jnp.asarray(m) ** 2  # once per lobe, not per direction
-    return jnp.exp(-t * inv_m2) * ((1 + t) * (1 + t)) * inv_m2
+    t = xp.minimum(xp.asarray(tan2), _TAN2_MAX)
+    inv_m2 = 1 / xp.asarray(m) ** 2  # once per lobe, not per direction
+    return xp.exp(-t * inv_m2) * ((1 + t) * (1 + t)) * inv_m2
 
 
-def gaussian_norm_integral(m: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
+def gaussian_norm_integral(m: Float[ArrayLike, "*batch"], *, xp: Any = jnp) -> Float[Array, "*batch"]:
     """J(m) = I(m)/m² with I(m) = ∫₀^{π/2} exp(−α²/m²) cos α sin α dα; J → ½ as m → 0.
 
     Substituting α = m τ: J(m) = ∫₀^{T} exp(−τ²) sin(2 m τ)/(2 m) dτ with T = min(π/(2m), 9),
-    by 64-point Gauss–Legendre quadrature (exact to float64 rounding for all m > 0).
+    by 64-point Gauss–Legendre quadrature (exact to float64 rounding for all m > 0). ``xp``: as for
+    :func:`beckmann`.
     """
-    m = jnp.asarray(m)
-    upper = jnp.minimum(0.5 * jnp.pi / m, 9.0)
-    x = jnp.asarray(_GL_X, dtype=upper.dtype)
-    w = jnp.asarray(_GL_W, dtype=upper.dtype)
+    m_a: Any = xp.asarray(m)
+    upper = xp.minimum(0.5 * np.pi / m_a, 9.0)
+    x = xp.asarray(_GL_X, dtype=upper.dtype)
+    w = xp.asarray(_GL_W, dtype=upper.dtype)
     tau = upper[..., None] * x
-    integrand = jnp.exp(-tau * tau) * jnp.sin(2 * m[..., None] * tau) / (2 * m[..., None])
-    return upper * jnp.sum(w * integrand, axis=-1)
+    integrand = xp.exp(-tau * tau) * xp.sin(2 * m_a[..., None] * tau) / (2 * m_a[..., None])
+    return upper * xp.sum(w * integrand, axis=-1)
 
 
-def _alpha2(t: Array) -> Array:
+def _alpha2(t: Array, xp: Any = jnp) -> Array:
     """α² = (arctan √t)², written as t·(arctan(x)/x)² with x = √t so it is smooth at t = 0."""
     small = t < 1e-8
-    ts = jnp.where(small, 1, t)
-    x = jnp.sqrt(ts)
-    ratio = jnp.where(small, 1 - t / 3, jnp.arctan(x) / x)
+    ts = xp.where(small, 1, t)
+    x = xp.sqrt(ts)
+    ratio = xp.where(small, 1 - t / 3, xp.arctan(x) / x)
     return t * ratio * ratio
 
 
-def gaussian(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"], *, normalized: bool = True) -> Float[Array, "*batch"]:
+def gaussian(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"], *, normalized: bool = True, xp: Any = jnp) -> Float[Array, "*batch"]:
     """Gaussian D̂(α; m) = exp(−(α/m)²)/(2 m² J(m)) (normalised) or exp(−(α/m)²)/m² (1982).
+    ``xp``: as for :func:`beckmann`.
 
     Examples
     --------
@@ -91,8 +96,8 @@ def gaussian(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"], 
     >>> print(f"{float(ctfit.gaussian(0.0, 0.5, normalized=False)):.6f}")
     4.000000
     """
-    t = jnp.minimum(jnp.asarray(tan2), _TAN2_MAX)
-    m = jnp.asarray(m)
+    t = xp.minimum(xp.asarray(tan2), _TAN2_MAX)
+    m = xp.asarray(m)
     inv_m2 = 1 / (m * m)  # the constants once per lobe, not per direction
-    scale = inv_m2 / (2 * gaussian_norm_integral(m)) if normalized else inv_m2
-    return jnp.exp(-_alpha2(t) * inv_m2) * scale
+    scale = inv_m2 / (2 * gaussian_norm_integral(m, xp=xp)) if normalized else inv_m2
+    return xp.exp(-_alpha2(t, xp) * inv_m2) * scale

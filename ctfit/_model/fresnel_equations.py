@@ -2,7 +2,9 @@
 
 Conventions: ``c`` is the cosine of the angle between the viewer (or light) direction and the
 microfacet normal H, ``c = V·H`` (Cook & Torrance 1982, eq. 10 and appendix); ``c`` lies in
-[0, 1]. Every function broadcasts over any batch shape and keeps the input dtype.
+[0, 1]. Every function broadcasts over any batch shape and keeps the input dtype. The Fresnel
+functions take ``xp``, the array module: ``jax.numpy`` (the default: traceable, differentiable)
+or ``numpy`` (on the host, no program; the value alone, rounding clipped as in JAX).
 
 The paper's formula (eq. in the appendix, "unpolarised, k = 0"):
 
@@ -36,6 +38,8 @@ References
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -110,21 +114,23 @@ def n_from_f0(f0: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*bat
         return (1 + r) / (1 - r)
 
 
-def _clip_cos(c: ArrayLike) -> tuple[Array, Array]:
+def _clip_cos(c: ArrayLike, xp: Any = jnp) -> tuple[Array, Array]:
     """c clipped to [0, 1] (V·H from rounded vectors can exceed 1 by an ulp) and 1 − c²."""
-    c = jnp.clip(jnp.asarray(c), 0, 1)
-    return c, (1 - c) * (1 + c)
+    clipped = xp.clip(xp.asarray(c), 0, 1)
+    return clipped, (1 - clipped) * (1 + clipped)
 
 
-def _unit_interval(f: Array) -> Array:
+def _unit_interval(f: Array, xp: Any = jnp) -> Array:
     """A reflectance held in [0, 1], which the formulas leave by an ulp at most (F0 = 1: F = 1
     for every c). The rounding is clipped from the value only, so the derivative stays the
     formula's: a clip's derivative is ½ or 0 on its bound, and F0 = 1 and F0 = 0, bounds of the
     fit, would look flat there."""
+    if xp is not jnp:
+        return xp.clip(f, 0, 1)
     return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)
 
 
-def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: bool = True) -> Array:
+def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: bool = True, xp: Any = jnp) -> Array:
     """Unpolarised dielectric F from c = V·H, a = 1 − u², u = 1/n and ``scale`` = a².
 
     ``scale`` is passed separately so the F0 path can write it as 16 F0/(1 + r)⁴, exactly linear
@@ -138,30 +144,30 @@ def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: boo
     square (which the derivative of a division needs) would underflow in float32 near grazing;
     written x · (1/y), so the small numerator multiplies the cotangent before 1/y² does.
     """
-    c, s2 = _clip_cos(c)
+    c, s2 = _clip_cos(c, xp)
     # At grazing (c = 0) F = 1 for any interface (F0 > 0). It is set exactly; the formula is
     # evaluated at a stand-in c = 1 there (the double-where pattern: no 0/0 in the derivative).
     grazing = c == 0
-    c = jnp.where(grazing, 1, c)
-    s2 = jnp.where(grazing, 0, s2)
+    c = xp.where(grazing, 1, c)
+    s2 = xp.where(grazing, 0, s2)
     c2 = c * c
     g2 = c2 + s2 * a
     if tir_possible:
         tir = g2 <= 0
-        g = jnp.sqrt(jnp.where(tir, 1, g2))
+        g = xp.sqrt(xp.where(tir, 1, g2))
     else:  # a ≥ 0 (n ≥ 1), c > 0 here: g² ≥ c² > 0
-        g = jnp.sqrt(g2)
+        g = xp.sqrt(g2)
     gcu = g + c * u
     p = c * g + s2 * u
     inv = 1 / (gcu * gcu * p)
     f = scale * (inv * inv) * (c2 * g2 + s2 * s2 * u * u)
-    f = jnp.where(grazing, jnp.where(scale > 0, 1, 0).astype(f.dtype), f)
+    f = xp.where(grazing, xp.where(scale > 0, 1, 0).astype(f.dtype), f)
     if tir_possible:
-        f = jnp.where(tir, 1, f)
-    return _unit_interval(f)
+        f = xp.where(tir, 1, f)
+    return _unit_interval(f, xp)
 
 
-def fresnel_dielectric_f0(c: Float[ArrayLike, "*#batch"], f0: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
+def fresnel_dielectric_f0(c: Float[ArrayLike, "*#batch"], f0: Float[ArrayLike, "*#batch"], *, xp: Any = jnp) -> Float[Array, "*batch"]:
     """Unpolarised Fresnel reflectance with the paper's effective index from F0 (k = 0).
 
     Equivalent to ``fresnel_dielectric(c, n_from_f0(f0))`` but finite and differentiable for
@@ -171,22 +177,24 @@ def fresnel_dielectric_f0(c: Float[ArrayLike, "*#batch"], f0: Float[ArrayLike, "
 
     Examples
     --------
-    >>> import jax.numpy as jnp
+    >>> import jax.numpy as jnp, numpy as np
     >>> round(float(fresnel_dielectric_f0(jnp.asarray(1.0), jnp.asarray(0.04))), 6)  # F(c = 1) = F0
     0.04
+    >>> fresnel_dielectric_f0(np.array([1.0, 0.0]), np.array(0.04), xp=np)  # on the host: NumPy, float64
+    array([0.04, 1.  ])
     """
-    f0 = jnp.asarray(f0)
+    f0_a: Any = xp.asarray(f0)
     # A select, not jnp.maximum: maximum's derivative multiplies by a 0/1 mask, which turns an
     # infinite cotangent into NaN.
-    r = jnp.sqrt(jnp.where(f0 > _TINY_F0, f0, _TINY_F0))
+    r = xp.sqrt(xp.where(f0_a > _TINY_F0, f0_a, _TINY_F0))
     one_plus_r2 = (1 + r) * (1 + r)
-    u = (1 - f0) / one_plus_r2
+    u = (1 - f0_a) / one_plus_r2
     a = 4 * r / one_plus_r2
-    scale = 16 * f0 / (one_plus_r2 * one_plus_r2)
-    return _dielectric(jnp.asarray(c), a, u, scale, tir_possible=False)
+    scale = 16 * f0_a / (one_plus_r2 * one_plus_r2)
+    return _dielectric(xp.asarray(c), a, u, scale, tir_possible=False, xp=xp)
 
 
-def fresnel_dielectric(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
+def fresnel_dielectric(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"], *, xp: Any = jnp) -> Float[Array, "*batch"]:
     """The paper's unpolarised Fresnel reflectance for a real index n (k = 0).
 
     ``n`` is the ratio of refractive indices (material over the surrounding medium); n < 1
@@ -197,13 +205,14 @@ def fresnel_dielectric(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#ba
     >>> [round(float(v), 4) for v in fresnel_dielectric(c, 1.5)]  # glass: 4 %, 5 % at 45°, 1 at grazing
     [0.04, 0.0502, 1.0]
     """
-    n = jnp.asarray(n)
-    u = 1 / n
-    a = (n - 1) * (n + 1) * (u * u)
-    return _dielectric(jnp.asarray(c), a, u, a * a)
+    index: Any = xp.asarray(n)
+    u = 1 / index
+    a = (index - 1) * (index + 1) * (u * u)
+    return _dielectric(xp.asarray(c), a, u, a * a, xp=xp)
 
 
-def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"], k: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
+def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"], k: Float[ArrayLike, "*#batch"], *, xp: Any = jnp
+                      ) -> Float[Array, "*batch"]:
     """Exact unpolarised Fresnel reflectance of a conductor with complex index n + i k.
 
     Born & Wolf's formulation (as in Mitsuba 3's ``fresnel_conductor``): with
@@ -225,47 +234,48 @@ def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#bat
     >>> [round(float(v), 4) for v in fresnel_conductor(c, 0.49366, 2.962441)]  # copper at 600 nm: F0 = 0.8206
     [0.8206, 0.8128, 1.0]
     """
-    c, s2 = _clip_cos(c)
-    n, k = jnp.asarray(n), jnp.asarray(k)
+    c, s2 = _clip_cos(c, xp)
+    n_a: Any = xp.asarray(n)
+    k_a: Any = xp.asarray(k)
     # Stand-in c = 1 at grazing (double-where pattern); F is set there at the end.
     grazing = c == 0
-    c = jnp.where(grazing, 1, c)
-    s2 = jnp.where(grazing, 0, s2)
+    c = xp.where(grazing, 1, c)
+    s2 = xp.where(grazing, 0, s2)
     c2 = c * c
-    nk = jnp.abs(n * k)
+    nk = xp.abs(n_a * k_a)
     # t1 = n² − k² − sin²θ. Near n = 1 as (n − 1)(n + 1) + cos²θ ((n − 1) is exact there); for
     # n < cos θ ≤ 1 as n² − sin²θ, whose rounding error (∝ n² + sin²θ) is then the smaller one.
-    n2m1 = (n - 1) * (n + 1)
-    k2 = k * k
-    t1 = jnp.where(c < n, n2m1 + c2, n * n - s2) - k2
+    n2m1 = (n_a - 1) * (n_a + 1)
+    k2 = k_a * k_a
+    t1 = xp.where(c < n_a, n2m1 + c2, n_a * n_a - s2) - k2
     q = t1 * t1 + 4 * (nk * nk)
     q_ok = q > 0
-    a2b2 = jnp.where(q_ok, jnp.sqrt(jnp.where(q_ok, q, 1)), 0)
+    a2b2 = xp.where(q_ok, xp.sqrt(xp.where(q_ok, q, 1)), 0)
     # The larger of a², b² from (a² + b² ± t1)/2 without cancellation, the other from a b = n k.
-    big2 = 0.5 * (a2b2 + jnp.abs(t1))
+    big2 = 0.5 * (a2b2 + xp.abs(t1))
     big_ok = big2 > 0
-    big = jnp.where(big_ok, jnp.sqrt(jnp.where(big_ok, big2, 1)), 0)
-    small = jnp.where(big_ok, nk * (1 / jnp.where(big_ok, big, 1)), 0)
+    big = xp.where(big_ok, xp.sqrt(xp.where(big_ok, big2, 1)), 0)
+    small = xp.where(big_ok, nk * (1 / xp.where(big_ok, big, 1)), 0)
     pos = t1 >= 0
-    a = jnp.where(pos, big, small)
-    b = jnp.where(pos, small, big)
+    a = xp.where(pos, big, small)
+    b = xp.where(pos, small, big)
     b2 = b * b
     apc = a + c  # > 0 (c > 0)
     inv_apc = 1 / apc
     near = (a < 2 * c) & (c < 2 * a)
-    amc = jnp.where(near, (n2m1 - k2 + b2) * inv_apc, a - c)
+    amc = xp.where(near, (n2m1 - k2 + b2) * inv_apc, a - c)
     num_s = amc * amc + b2
     den_s = apc * apc + b2  # > 0
     ac = a * c
     b2c2 = b2 * c2
     num_p = (ac - s2) ** 2 + b2c2
     den_p = (ac + s2) ** 2 + b2c2  # 0 only for n = k = 0 at normal incidence
-    den_p = jnp.where(den_p > 0, den_p, 1)
+    den_p = xp.where(den_p > 0, den_p, 1)
     # ½ R_s (1 + R_p/R_s) = ½ num_s (den_p + num_p)/(den_s den_p), with one division.
     f = 0.5 * num_s * (den_p + num_p) * (1 / (den_s * den_p))
-    interface = (n != 1) | (k != 0)
-    f = jnp.where(grazing, interface.astype(f.dtype), f)
-    return _unit_interval(f)
+    interface = (n_a != 1) | (k_a != 0)
+    f = xp.where(grazing, interface.astype(f.dtype), f)
+    return _unit_interval(f, xp)
 
 
 def fresnel_diffuse_reflectance(eta: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*batch"]:

@@ -29,6 +29,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .numerics import array_module
+
 __all__ = ["Parameter", "PARAMETERS", "PUBLIC_NAMES", "PARAMETER_AXES", "M_MIN", "M_MAX", "PLASTIC_INDEX_RANGE", "parameter", "box_bounds", "clip_box",
            "value_range"]
 
@@ -47,6 +49,11 @@ RD_MAX = 1e3
 
 def _ident(x):
     return x
+
+
+def _exp(x):
+    """exp in the array module of ``x``: NumPy for host values, JAX otherwise (:func:`array_module`)."""
+    return array_module(x).exp(x)
 
 
 def _log_sigmoid(x):
@@ -118,7 +125,7 @@ PARAMETERS: dict[str, Parameter] = {
                   free=jax.nn.sigmoid, free_inverse=_np_logit, log_jacobian=_logit_jacobian,
                   transform="s = sigmoid(u): log|ds/du| = log σ(u) + log σ(−u)"),
         Parameter("m", "m", "rms facet slope of each lobe (paper eqs. 3–4)", float(np.log(M_MIN)), float(np.log(M_MAX)),
-                  box=jnp.exp, box_inverse=np.log, free=jnp.exp, free_inverse=np.log, log_jacobian=_exp_jacobian,
+                  box=_exp, box_inverse=np.log, free=jnp.exp, free_inverse=np.log, log_jacobian=_exp_jacobian,
                   transform="m = exp(u): log|dm/du| = u", log_scale=True, axis="lobe"),
         Parameter("w", "weight", "lobe weights, Σ w = 1 (paper eq. 5)", 0.0, 1.0, log_jacobian=_softmax_jacobian,
                   transform="w = softmax(0, u): log|det ∂(w_2..w_J)/∂u| = Σ_j log w_j", axis="lobe"),
@@ -173,5 +180,7 @@ def value_range(name: str, fresnel: str = "f0", family: str = "metal") -> tuple[
 
 def clip_box(x, lower, upper):
     """``x`` held inside [lower, upper], with derivative 1 *on* a bound (``jnp.clip`` splits the
-    derivative of a tie in two, which would halve the gradient of a parameter sitting there)."""
-    return jnp.where(x < lower, lower, jnp.where(x > upper, upper, x))
+    derivative of a tie in two, which would halve the gradient of a parameter sitting there);
+    NumPy in, NumPy out (:func:`array_module`)."""
+    xp = array_module(x)
+    return xp.where(x < lower, lower, xp.where(x > upper, upper, x))

@@ -26,6 +26,8 @@ References
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax.numpy as jnp
 from jax.scipy.special import erf
 from jaxtyping import Array, ArrayLike, Float
@@ -38,11 +40,14 @@ _A_MAX = 30.0
 
 
 def v_cavity_reduced(
-    cos_l: Float[ArrayLike, "*#batch"], cos_v: Float[ArrayLike, "*#batch"], cos_h: Float[ArrayLike, "*#batch"], cos_vh: Float[ArrayLike, "*#batch"]
+    cos_l: Float[ArrayLike, "*#batch"], cos_v: Float[ArrayLike, "*#batch"], cos_h: Float[ArrayLike, "*#batch"], cos_vh: Float[ArrayLike, "*#batch"],
+    *, xp: Any = jnp,
 ) -> Float[Array, "*batch"]:
     """G/((N·L)(N·V)) = min{1/((N·L)(N·V)), 2(N·H)/((V·H)(N·L)), 2(N·H)/((V·H)(N·V))}.
 
-    Requires N·L > 0, N·V > 0 and V·H > 0 (callers mask other directions).
+    Requires N·L > 0, N·V > 0 and V·H > 0 (callers mask other directions). ``xp``: the array
+    module, ``jax.numpy`` (traceable) or ``numpy`` (on the host, no program); so for the other
+    functions here.
 
     Examples
     --------
@@ -57,10 +62,11 @@ def v_cavity_reduced(
     """
     # = min{1, 2(N·H)(N·V)/(V·H), 2(N·H)(N·L)/(V·H)} / ((N·L)(N·V)), with two divisions.
     two_h = 2 * cos_h / cos_vh
-    return jnp.minimum(1, two_h * jnp.minimum(cos_l, cos_v)) / (cos_l * cos_v)
+    return xp.minimum(1, two_h * xp.minimum(cos_l, cos_v)) / (cos_l * cos_v)
 
 
-def smith_g1_reduced(cos_t: Float[ArrayLike, "*#batch"], sin_t: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
+def smith_g1_reduced(cos_t: Float[ArrayLike, "*#batch"], sin_t: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"], *, xp: Any = jnp
+                     ) -> Float[Array, "*batch"]:
     """Smith's Beckmann G1(θ; m)/cos θ for a direction with cos θ > 0 and sin θ ≥ 0.
 
     With a = cos θ/(m sin θ), multiplying the exact form through by m sin θ gives
@@ -77,16 +83,22 @@ def smith_g1_reduced(cos_t: Float[ArrayLike, "*#batch"], sin_t: Float[ArrayLike,
     >>> np.asarray(ctfit.smith_g1_reduced(np.array([1.0, 0.0]), np.array([0.0, 1.0]), 0.5), float).round(4).tolist()
     [1.0, 7.0898]
     """
-    cos_t, sin_t, m = jnp.asarray(cos_t), jnp.asarray(sin_t), jnp.asarray(m)
-    a = cos_t / jnp.maximum(m * sin_t, cos_t / _A_MAX)
-    return 2 * _SQRT_PI / (_SQRT_PI * cos_t * (1 + erf(a)) + m * sin_t * jnp.exp(-a * a))
+    cos_t, sin_t, m = xp.asarray(cos_t), xp.asarray(sin_t), xp.asarray(m)
+    a = cos_t / xp.maximum(m * sin_t, cos_t / _A_MAX)
+    if xp is jnp:
+        erf_a = erf(a)
+    else:
+        from scipy.special import erf as host_erf
+
+        erf_a = host_erf(a)
+    return 2 * _SQRT_PI / (_SQRT_PI * cos_t * (1 + erf_a) + m * sin_t * xp.exp(-a * a))
 
 
 _RATIONAL_A_MAX = 1.6  # Walter et al. 2007, eq. 27: G1 = 1 from here on (the rational form is 1.000057 there)
 
 
 def smith_rational_g1_reduced(
-    cos_t: Float[ArrayLike, "*#batch"], sin_t: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"]
+    cos_t: Float[ArrayLike, "*#batch"], sin_t: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"], *, xp: Any = jnp
 ) -> Float[Array, "*batch"]:
     """Walter et al.'s rational approximation of Smith's Beckmann G1(θ; m), divided by cos θ, for
     a direction with cos θ > 0 and sin θ ≥ 0.
@@ -99,7 +111,6 @@ def smith_rational_g1_reduced(
     both finite for c > 0 (= 3.535/s at θ = 90°), so the unselected branch of the ``where`` has
     finite values and derivatives.
     """
-    cos_t, sin_t, m = jnp.asarray(cos_t), jnp.asarray(sin_t), jnp.asarray(m)
-    s = m * sin_t
-    rational = (3.535 * s + 2.181 * cos_t) / (s * s + 2.276 * cos_t * s + 2.577 * cos_t * cos_t)
-    return jnp.where(cos_t >= _RATIONAL_A_MAX * s, 1 / cos_t, rational)
+    c, s = xp.asarray(cos_t), xp.asarray(m) * xp.asarray(sin_t)
+    rational = (3.535 * s + 2.181 * c) / (s * s + 2.276 * c * s + 2.577 * c * c)
+    return xp.where(c >= _RATIONAL_A_MAX * s, 1 / c, rational)

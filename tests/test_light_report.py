@@ -1,0 +1,83 @@
+"""The light report of the data-chosen default's candidates (active set, Gauss–Newton decrease,
+parameters) is made on the host: it equals the traced one, including a parameter held on its
+bound, in float64 and float32, and a candidate's fit compiles no program of its own for it."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import ctfit
+from ctfit._fitting.coordinates import from_params
+from ctfit._fitting.fit_report import light_report_core
+from ctfit._fitting.jacobian import normal_equations
+from ctfit._fitting.least_squares import fit_to_tolerance, prepare_fit
+from ctfit._fitting.stationarity import predicted_decrease
+
+CASES = [
+    (ctfit.Structure(lobes=2, diffuse="F0/pi"), ctfit.Params(s=np.asarray(0.8), m=np.array([0.15, 0.4]), w=np.array([0.6, 0.4]), f0=np.array([0.3, 0.6, 0.9]))),
+    (ctfit.Structure(family="plastic", lobes=1, diffuse="spectrum"),  # s = 1: on its bound (the gradient is made to point out of the box below)
+     ctfit.Params(s=np.asarray(1.0), m=np.array([0.2]), w=np.ones(1), n=np.full(3, 1.5), rd=np.array([0.1, 0.2, 0.05]))),
+    (ctfit.Structure(lobes=1, fresnel="conductor", diffuse=None),
+     ctfit.Params(m=np.array([0.25]), w=np.ones(1), n=np.array([0.3, 0.5, 1.1]), k=np.array([3.0, 2.5, 2.2]))),
+]
+TRUTH = ctfit.Params(s=np.asarray(0.3), m=np.array([0.2]), w=np.ones(1), n=np.full(3, 1.5), rd=np.array([0.1, 0.2, 0.05]))
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("case", range(len(CASES)))
+def test_the_host_light_report_equals_the_traced_one(case, dtype):
+    st, at = CASES[case]
+    truth = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"), TRUTH, channels=("R", "G", "B"))
+    data = ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=2)
+    prep = prepare_fit(data, st, start=None, fixed=(), loss="relative", dtype=dtype, starts=1)
+    problem = prep.problem
+    u = {k: np.asarray(v, dtype) for k, v in from_params(problem.spec, at).items()}
+    cost, jtr, jtj = (np.array(a) for a in jax.jit(normal_equations)(problem, u))
+    if case == 1:  # the cost falling only above s = 1: held there
+        at_s = sum(np.size(u[k]) for k in sorted(u) if k < "s")
+        jtr[at_s] = -abs(jtr[at_s])
+    zero = np.asarray(10 * cost, dtype)
+    traced = jax.device_get(jax.jit(light_report_core)(problem, u, cost, jtr, jtj, zero))
+    host_problem = jax.tree.map(np.asarray, problem)
+    host = light_report_core(host_problem, u, cost, jtr, jtj, zero, np)
+    np.testing.assert_array_equal(host["on_bound"], traced["on_bound"])
+    if case == 1:
+        assert host["on_bound"].any()  # s held at 1
+    assert host["gn_decrease"] == pytest.approx(float(traced["gn_decrease"]), rel=1e-9 if dtype == np.float64 else 2e-3)
+    assert np.isfinite(host["gn_decrease"]) and host["gn_decrease"] > 0
+    for name, value in traced["params"].items():
+        if value is None:
+            assert host["params"][name] is None
+        else:
+            assert np.asarray(host["params"][name]).dtype == dtype
+            np.testing.assert_allclose(host["params"][name], value, rtol=1e-13 if dtype == np.float64 else 2e-6)
+
+
+def test_the_decrease_on_the_host_falls_back_to_the_eigenvalues_where_cholesky_fails():
+    """JᵀJ made indefinite by more than μ (rounding can do it): NumPy's Cholesky raises where JAX's
+    gives NaN; both then take the truncated pseudo-inverse of the eigendecomposition."""
+    h = np.array([[4.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1e-3]])
+    g = np.array([2.0, 1.0, 0.0])
+    host = predicted_decrease(h, g, xp=np)
+    assert host == pytest.approx(float(predicted_decrease(jnp.asarray(h), jnp.asarray(g))), rel=1e-12)
+    assert host == pytest.approx(0.5 * (4 / 4 + 1 / 1))
+    assert predicted_decrease(np.zeros((3, 3)), np.zeros(3), xp=np) == 0.0
+
+
+def test_a_candidate_s_fit_makes_no_report_program(monkeypatch):
+    made = []
+    from ctfit._runtime import stored_programs
+
+    real = stored_programs._program
+    monkeypatch.setattr(stored_programs, "_program", lambda name, *a, **k: (made.append(name), real(name, *a, **k))[1])
+    st = ctfit.Structure(family="plastic", lobes=1, diffuse="spectrum")
+    data = ctfit.simulate(ctfit.Material(st, TRUTH, channels=("R", "G", "B")), n_pairs=300, noise=0.01, seed=3)
+    light = fit_to_tolerance(data, st, report=False)
+    full = ctfit.fit(data, st)
+    assert "fit_light" not in made and "fit_report" in made
+    assert light.stats["cost"] == pytest.approx(full.stats["cost"], rel=1e-12)
+    assert light.stats["gauss_newton_decrease"] == pytest.approx(full.stats["gauss_newton_decrease"], rel=1e-6, abs=1e-15)
+    np.testing.assert_allclose(light.material.params.rd, full.material.params.rd, rtol=1e-12)
