@@ -665,7 +665,6 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     if sample is not None:
         solved["race_samples"] = race_samples
     del last  # the other seeds' values
-    u = {k: jax.device_put(v) for k, v in solved["u"].items()}  # (jnp.asarray compiles a copy program per shape)
     zero_program, report_program = _report_programs(kern.template, u0, report)
     zero = jax.device_put(np.zeros((), costs.dtype))
     rebuild = split_arrays(kern.template)[1]
@@ -675,6 +674,7 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     if not report:  # on the host: no program per structure
         light = light_report_core(dataclasses.replace(kern.template, fixed=jax.device_get(kern.template.fixed)), solved["u"], cost, jtr, jtj, zero, np)
         return dict(light, **solved, zero_cost=zero)
+    u = {k: jax.device_put(v) for k, v in solved["u"].items()}  # (jnp.asarray compiles a copy program per shape)
     out = jax.device_get(report_program(*array_leaves((kern.template, u, cost, jtr, jtj, zero))))
     return dict(out, **_summary(problem, at_best), **solved)
 

@@ -32,18 +32,14 @@ __all__ = ["lobe_weights", "weight_coordinates", "fraction_weights", "stick_frac
 
 def lobe_weights(u_w, space: str, xp=jnp):
     """Lobe weights from J − 1 free values (see the module docstring); ``xp``: ``jax.numpy``
-    (traceable) or ``numpy`` (on the host).
+    (traceable) or ``numpy`` (on the host: box coordinates, as :func:`to_params` takes them there).
 
     Box: stick-breaking fractions v ∈ [0, 1]^(J−1), w_0 = 1 − v_1, w_j = v_1⋯v_j (1 − v_(j+1)),
     w_(J−1) = v_1⋯v_(J−1): every lobe's weight reaches 0 on a bound of the box."""
     if space == "box":
         ones = xp.ones((1,), u_w.dtype)
         return xp.cumprod(xp.concatenate([ones, u_w])) * xp.concatenate([1 - u_w, ones])
-    logits = xp.concatenate([xp.zeros((1,), u_w.dtype), u_w])
-    if xp is jnp:
-        return jax.nn.softmax(logits)
-    e = np.exp(logits - np.max(logits))
-    return e / np.sum(e)
+    return jax.nn.softmax(jnp.concatenate([jnp.zeros((1,), u_w.dtype), u_w]))
 
 
 def stick_fractions(w) -> np.ndarray:
@@ -67,8 +63,7 @@ def weight_coordinates(w, space: str, xp=jnp):
 def fraction_weights(v) -> np.ndarray:
     """:func:`lobe_weights` of box coordinates on the host (NumPy, no program): the lobes' weights
     of the stick-breaking fractions ``v`` (J − 1 of them); :func:`stick_fractions` inverts it."""
-    v = np.asarray(v, dtype=float)
-    return np.cumprod(np.concatenate([[1.0], v])) * np.concatenate([1.0 - v, [1.0]])
+    return lobe_weights(np.asarray(v, dtype=float), "box", np)
 
 
 def to_params(spec: Spec, u: dict, fixed: Params, xp=jnp) -> Params:

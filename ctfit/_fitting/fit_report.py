@@ -8,7 +8,6 @@ reported only where JᵀJ is well conditioned; near-degenerate solutions get pla
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -17,7 +16,7 @@ from jax.flatten_util import ravel_pytree
 
 from .._model import PUBLIC_NAMES, Params, array_module, n_from_f0, normal_reflectance, parameter
 from .chunks import map_over_chunks
-from .coordinates import bounds, flat_host, to_params
+from .coordinates import flat_host, to_params
 from .fit_warnings import FitWarning
 from .losses import loss_residuals
 from .problem import Problem, model_values
@@ -237,12 +236,8 @@ def light_report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost, xp=j
     default's candidates, :func:`~ctfit._fitting.least_squares.fit_to_tolerance` with ``report=False``).
     ``xp``: ``jax.numpy`` (traced, inside :func:`report_core`) or ``numpy`` (on the host, host
     arrays in: the candidates' light report, no program per structure)."""
-    flat: Any
-    if xp is jnp:
-        flat, _ = ravel_pytree(u)
-        lower, upper = flat_bounds(problem, u)
-    else:
-        flat, (lower, upper) = flat_host(u), (flat_host(b) for b in bounds(problem.spec, u))
+    flat = ravel_pytree(u)[0] if xp is jnp else flat_host(u)
+    lower, upper = flat_bounds(problem, u, xp)
     on_bound = active_set(flat, jtr, lower, upper)  # held on a bound: a result, not a failure
     keep = ~on_bound
     jtr = xp.where(keep, jtr, 0)

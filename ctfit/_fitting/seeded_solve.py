@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from .coordinates import bounds
+from .coordinates import bounds, flat_host
 from .jacobian import half_squared_norm, normal_equations, residual
 from .problem import Problem
 from .stationarity import predicted_decrease
@@ -88,10 +88,12 @@ whose right seed was 20× behind after 4 steps (docs/fitting-tradeoffs.md), graz
 and n crossing 1 with 8 (docs/stability.md); the best of the converged seeds is kept."""
 
 
-def flat_bounds(problem: Problem, u: dict):
-    """The box bounds of the free coordinates, flattened as ``ravel_pytree(u)`` orders them."""
+def flat_bounds(problem: Problem, u: dict, xp=jnp):
+    """The box bounds of the free coordinates, flattened as ``ravel_pytree(u)`` orders them;
+    ``xp``: ``jax.numpy`` (traceable) or ``numpy`` (on the host, :func:`~ctfit._fitting.coordinates.flat_host`)."""
+    flat = (lambda tree: ravel_pytree(tree)[0]) if xp is jnp else flat_host
     lower, upper = bounds(problem.spec, u)
-    return ravel_pytree(lower)[0], ravel_pytree(upper)[0]
+    return flat(lower), flat(upper)
 
 
 def _with_aux(flat, data):

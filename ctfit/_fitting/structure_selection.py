@@ -12,8 +12,9 @@ from typing import Any
 import jax
 import numpy as np
 
-from .._model import Measurement, Params, Structure, brdf, geometry_from_angles_deg, x64_enabled
+from .._model import Measurement, Params, Structure, brdf, x64_enabled
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
+from .problem import _geometry_deg
 from .validate import n_free_parameters
 
 __all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error",
@@ -455,14 +456,6 @@ def heldout_sample(data: Measurement, samples: int = SCREEN_SAMPLES, pairs: int 
     return _samples_of_pairs(data, index, rest)
 
 
-def _values_at_pairs(structure: Structure, params: Params, pairs: np.ndarray) -> np.ndarray:
-    """The model at direction pairs (θ_i, φ_i, θ_o, φ_o in degrees, one row each), on the host
-    (NumPy: no program to make per structure): (pairs, bands), in the dtype of ``pairs``."""
-    geom = geometry_from_angles_deg(pairs[:, 0], pairs[:, 1], pairs[:, 2], pairs[:, 3], xp=np)
-    with np.errstate(all="ignore"):  # the guards' unselected branches (double-where), as in JAX
-        return brdf(structure, params, geom, xp=np)
-
-
 def heldout_error(res: FitResult, held: Measurement) -> float:
     """The median relative error of ``res`` on the held-out samples ``held`` (:func:`model_median_error`)."""
     return model_median_error(res, held)
@@ -470,13 +463,15 @@ def heldout_error(res: FitResult, held: Measurement) -> float:
 
 def model_median_error(res: FitResult, data: Measurement) -> float:
     """The median over the samples of ``data`` with y > 0 of |f − y| / y, f the model of ``res``,
-    evaluated on the host in the dtype of the fit's programs (float64 with ``jax_enable_x64``,
-    else float32), :data:`HELDOUT_PAIRS` direction pairs at a time."""
+    evaluated on the host (``brdf(..., xp=numpy)``: no program per structure) in the dtype of the
+    fit's programs (float64 with ``jax_enable_x64``, else float32), at the geometry the fits lay
+    out (``problem._geometry_deg``: the screen's pairs are those every candidate was fitted to, and
+    their geometry is kept). ``data`` is a screening or held-out sample: a few thousand pairs."""
     pairs, index = data.directions()
     dt = np.float64 if x64_enabled() else np.float32
     params = jax.tree.map(lambda a: np.asarray(a, dtype=dt), res.material.params)
-    values = np.concatenate([_values_at_pairs(res.material.structure, params, np.asarray(pairs[i: i + HELDOUT_PAIRS], dtype=dt))
-                             for i in range(0, len(pairs), HELDOUT_PAIRS)])
+    with np.errstate(all="ignore"):  # the guards' unselected branches (double-where), as in JAX
+        values = brdf(res.material.structure, params, _geometry_deg(np.asarray(pairs, dtype=dt), on_host=True), xp=np)
     f, y = values[index, np.asarray(data.band)], np.asarray(data.brdf, dtype=float)
     ok = y > 0
     if not ok.any():
