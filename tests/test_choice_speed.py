@@ -93,13 +93,13 @@ def test_programs_made_ahead_for_a_file_like_this_one_are_not_made_again_while_i
 
 def test_the_geometry_of_one_set_of_pairs_is_computed_once(monkeypatch):
     pairs = np.random.default_rng(0).uniform(0, 60, (300, 4))
-    first = problem_module._geometry_deg(pairs, on_host=True)
+    first = problem_module.geometry_deg(pairs, on_host=True)
 
     def computed(*a, **k):
         raise AssertionError("the geometry was computed again")
 
     monkeypatch.setattr(problem_module, "_geometry_fields", computed)
-    again = problem_module._geometry_deg(pairs.copy(), on_host=True)  # equal values, another array
+    again = problem_module.geometry_deg(pairs.copy(), on_host=True)  # equal values, another array
     np.testing.assert_array_equal(again.cos_vh, first.cos_vh)
     with pytest.raises(ValueError):
         again.cos_vh[0] = 0.0  # shared by the fits of these pairs: read-only

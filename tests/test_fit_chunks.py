@@ -239,7 +239,7 @@ def _rows_from(problem, start: int, rows: int) -> dict:
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
 def test_the_fit_s_geometry_on_the_host_is_the_model_s(dtype):
-    """A fit lays out its pairs' geometry on the host, in NumPy (``problem._geometry_deg``, a
+    """A fit lays out its pairs' geometry on the host, in NumPy (``problem.geometry_deg``, a
     block at a time: no program to make), with the model's own functions
     (:func:`~ctfit.geometry_from_angles_deg` with ``xp=numpy``): the values and dtypes of the
     traced geometry, below the horizon and at grazing angles too."""
@@ -255,7 +255,7 @@ def test_the_fit_s_geometry_on_the_host_is_the_model_s(dtype):
         with pytest.MonkeyPatch.context() as mp:
             mp.setattr(problem_module, "GEOMETRY_BLOCK", block)
             mp.setattr(problem_module, "_recent_geometry", {})
-            got = problem_module._geometry_deg(pairs, on_host=True)
+            got = problem_module.geometry_deg(pairs, on_host=True)
         for f in ("cos_l", "cos_v", "sin_l", "sin_v", "cos_h", "tan2_h", "cos_vh", "valid"):
             g, w = getattr(got, f), np.asarray(getattr(want, f))
             assert isinstance(g, np.ndarray) and g.dtype == w.dtype and g.shape == (5000,), f

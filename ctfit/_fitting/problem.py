@@ -22,8 +22,8 @@ from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
 from .losses import LOSSES, loss_floor
 
-__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "at_samples", "band_sum", "make_problem", "model_parts", "model_values", "per_direction", "shape_and_rest",
-           "values_from_s"]
+__all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "at_samples", "band_sum", "geometry_deg", "make_problem", "model_parts", "model_values", "per_direction",
+           "shape_and_rest", "values_from_s"]
 
 SHAPE_PARAMETERS = ("m", "w")
 """The parameters of S, the per-direction factor of the specular term (everything in R_s but F)."""
@@ -72,7 +72,7 @@ def _geometry_fields(pairs) -> dict:
 
 
 GEOMETRY_BLOCK = 1 << 16
-"""Direction pairs whose geometry is computed at once on the host (:func:`_geometry_deg`): a few
+"""Direction pairs whose geometry is computed at once on the host (:func:`geometry_deg`): a few
 MB of NumPy temporaries, however many pairs a file has."""
 
 
@@ -82,7 +82,7 @@ RECENT_GEOMETRY_PAIRS = 16384
 data-chosen default fits several structures to one screening sample); the last 4 kept."""
 
 
-def _geometry_deg(pairs, on_host: bool = False) -> Geometry:
+def geometry_deg(pairs, on_host: bool = False) -> Geometry:
     """The :class:`Geometry` of direction pairs (θ_i, φ_i, θ_o, φ_o) in degrees, shape (D, 4), in
     the pairs' dtype: computed on the host in NumPy (:func:`~ctfit.geometry_from_angles_deg`),
     :data:`GEOMETRY_BLOCK` pairs at a time, and left there with ``on_host`` (else on the device).
@@ -144,7 +144,7 @@ def make_problem(
     if pad and n_pairs:
         pairs = np.concatenate([pairs, np.broadcast_to(pairs[:1], ((pad_to[0] if pad_to else bucket(n_pairs)) - n_pairs, 4))])
     put = (lambda a: a) if chunk else jax.device_put  # chunked, the per-row arrays stay on the host
-    geom = _geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)), on_host=bool(chunk))
+    geom = geometry_deg(np.asarray(pairs, dtype=jnp.dtype(dtype)), on_host=bool(chunk))
     floor = loss_floor(data.brdf, loss)
     cos_pair = np.cos(np.deg2rad(pairs[:, 0]))
     sig: np.ndarray | None = None

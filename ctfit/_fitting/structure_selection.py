@@ -14,7 +14,7 @@ import numpy as np
 
 from .._model import Measurement, Params, Structure, brdf, x64_enabled
 from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
-from .problem import _geometry_deg
+from .problem import geometry_deg
 from .validate import n_free_parameters
 
 __all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error",
@@ -465,13 +465,13 @@ def model_median_error(res: FitResult, data: Measurement) -> float:
     """The median over the samples of ``data`` with y > 0 of |f − y| / y, f the model of ``res``,
     evaluated on the host (``brdf(..., xp=numpy)``: no program per structure) in the dtype of the
     fit's programs (float64 with ``jax_enable_x64``, else float32), at the geometry the fits lay
-    out (``problem._geometry_deg``: the screen's pairs are those every candidate was fitted to, and
+    out (``problem.geometry_deg``: the screen's pairs are those every candidate was fitted to, and
     their geometry is kept). ``data`` is a screening or held-out sample: a few thousand pairs."""
     pairs, index = data.directions()
     dt = np.float64 if x64_enabled() else np.float32
     params = jax.tree.map(lambda a: np.asarray(a, dtype=dt), res.material.params)
     with np.errstate(all="ignore"):  # the guards' unselected branches (double-where), as in JAX
-        values = brdf(res.material.structure, params, _geometry_deg(np.asarray(pairs, dtype=dt), on_host=True), xp=np)
+        values = brdf(res.material.structure, params, geometry_deg(np.asarray(pairs, dtype=dt), on_host=True), xp=np)
     f, y = values[index, np.asarray(data.band)], np.asarray(data.brdf, dtype=float)
     ok = y > 0
     if not ok.any():
