@@ -1,6 +1,7 @@
-"""The light report of the data-chosen default's candidates (active set, Gauss–Newton decrease,
-parameters) is made on the host: it equals the traced one, including a parameter held on its
-bound, in float64 and float32, and a candidate's fit compiles no program of its own for it."""
+"""A fit's report is made on the host: the light report of the data-chosen default's candidates
+(active set, Gauss–Newton decrease, parameters) and the whole one (JᵀJ on the free coordinates,
+the Jacobian of the reported quantities, the standard errors) equal the traced ones, including a
+parameter held on its bound, in float64 and float32, and a fit on chunks compiles no report program."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 
 import ctfit
 from ctfit._fitting.coordinates import from_params
-from ctfit._fitting.fit_report import light_report_core
+from ctfit._fitting.fit_report import light_report_core, report_core, standard_errors
 from ctfit._fitting.jacobian import normal_equations
 from ctfit._fitting.least_squares import fit_to_tolerance, prepare_fit
 from ctfit._fitting.stationarity import predicted_decrease
@@ -22,6 +23,10 @@ CASES = [
      ctfit.Params(s=np.asarray(1.0), m=np.array([0.2]), w=np.ones(1), n=np.full(3, 1.5), rd=np.array([0.1, 0.2, 0.05]))),
     (ctfit.Structure(lobes=1, fresnel="conductor", diffuse=None),
      ctfit.Params(m=np.array([0.25]), w=np.ones(1), n=np.array([0.3, 0.5, 1.1]), k=np.array([3.0, 2.5, 2.2]))),
+    (ctfit.Structure(lobes=3, fresnel="n", diffuse="F0/pi"),  # per-band index; three lobes, one weight on its bound 0
+     ctfit.Params(s=np.asarray(0.7), m=np.array([0.05, 0.2, 0.6]), w=np.array([0.5, 0.5, 0.0]), n=np.array([1.3, 2.0, 4.0]))),
+    (ctfit.Structure(lobes=2, diffuse="F0/pi"),  # F0 at 0 in a band (the effective index's derivative is infinite there) and at 1
+     ctfit.Params(s=np.asarray(0.5), m=np.array([0.1, 0.3]), w=np.array([0.2, 0.8]), f0=np.array([0.0, 0.5, 1.0]))),
 ]
 TRUTH = ctfit.Params(s=np.asarray(0.3), m=np.array([0.2]), w=np.ones(1), n=np.full(3, 1.5), rd=np.array([0.1, 0.2, 0.05]))
 
@@ -56,6 +61,39 @@ def test_the_host_light_report_equals_the_traced_one(case, dtype):
             np.testing.assert_allclose(host["params"][name], value, rtol=1e-13 if dtype == np.float64 else 2e-6)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("case", range(len(CASES)))
+def test_the_host_report_equals_the_traced_one(case, dtype):
+    """The whole report: the Jacobian of the reported quantities (``jax.jacfwd`` traced; the chain
+    rule on the host), JᵀJ on the free coordinates, and the standard errors made from them."""
+    st, at = CASES[case]
+    truth = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"), TRUTH, channels=("R", "G", "B"))
+    data = ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=2)
+    prep = prepare_fit(data, st, start=None, fixed=(), loss="relative", dtype=dtype, starts=1)
+    problem = prep.problem
+    u = {k: np.asarray(v, dtype) for k, v in from_params(problem.spec, at).items()}
+    cost, jtr, jtj = (np.array(a) for a in jax.jit(normal_equations)(problem, u))
+    zero = np.asarray(10 * cost, dtype)
+    traced = jax.device_get(jax.jit(report_core)(problem, u, cost, jtr, jtj, zero))
+    host = report_core(jax.tree.map(np.asarray, problem), u, cost, jtr, jtj, zero, np)
+    np.testing.assert_array_equal(host["on_bound"], traced["on_bound"])
+    np.testing.assert_array_equal(host["jtj"], traced["jtj"])
+    assert set(host["jt"]) == set(traced["jt"])
+    tight = dict(rtol=1e-12, atol=1e-14) if dtype == np.float64 else dict(rtol=2e-5, atol=1e-6)
+    for name, value in traced["jt"].items():
+        assert host["jt"][name].shape == value.shape and host["jt"][name].dtype == dtype, name
+        finite = np.isfinite(value)
+        np.testing.assert_array_equal(np.isfinite(host["jt"][name]), finite, err_msg=name)
+        np.testing.assert_allclose(host["jt"][name][finite], value[finite], **tight, err_msg=name)
+    if case == 4:
+        assert not np.isfinite(host["jt"]["n"]).all()  # dn/dF0 at F0 = 0
+    free = ~host["on_bound"]
+    errors = [standard_errors(r["jtj"], r["jt"], 0.01, None, free) for r in (host, traced)]
+    assert (errors[0] is None) == (errors[1] is None)
+    for name, value in (errors[1] or {}).items():
+        np.testing.assert_allclose(errors[0][name], value, rtol=1e-9 if dtype == np.float64 else 1e-3, err_msg=name)
+
+
 def test_the_decrease_on_the_host_falls_back_to_the_eigenvalues_where_cholesky_fails():
     """JᵀJ made indefinite by more than μ (rounding can do it): NumPy's Cholesky raises where JAX's
     gives NaN; both then take the truncated pseudo-inverse of the eigendecomposition."""
@@ -67,7 +105,7 @@ def test_the_decrease_on_the_host_falls_back_to_the_eigenvalues_where_cholesky_f
     assert predicted_decrease(np.zeros((3, 3)), np.zeros(3), xp=np) == 0.0
 
 
-def test_a_candidate_s_fit_makes_no_report_program(monkeypatch):
+def test_a_fit_on_chunks_makes_no_report_program(monkeypatch):
     made = []
     from ctfit._fitting import chunked_fit
 
@@ -77,7 +115,8 @@ def test_a_candidate_s_fit_makes_no_report_program(monkeypatch):
     data = ctfit.simulate(ctfit.Material(st, TRUTH, channels=("R", "G", "B")), n_pairs=300, noise=0.01, seed=3)
     light = fit_to_tolerance(data, st, report=False)
     full = ctfit.fit(data, st)
-    assert "fit_light" not in made and "fit_report" in made
+    assert made and "fit_light" not in made and "fit_report" not in made
+    assert full.stderr is not None and np.all(np.isfinite(full.stderr["Rd"]))
     assert light.stats["cost"] == pytest.approx(full.stats["cost"], rel=1e-12)
     assert light.stats["gauss_newton_decrease"] == pytest.approx(full.stats["gauss_newton_decrease"], rel=1e-6, abs=1e-15)
     np.testing.assert_allclose(light.material.params.rd, full.material.params.rd, rtol=1e-12)

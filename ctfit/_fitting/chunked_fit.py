@@ -16,9 +16,11 @@ any file, each adding its share to a running sum on the device (calls are queued
 - ``fit_zero``: the cost of a zero model, with no structure in it (one program per loss, layout
   and bands, shared by every structure).
 
-Programs whose shapes depend only on the parameters: ``fit_report`` (:func:`~ctfit._fitting.fit_report.report_core`; without the
-report, what comparing fits needs is made on the host: :func:`~ctfit._fitting.fit_report.light_report_core`
-with ``xp=numpy``, no program per structure), and optimistix's solver itself (:func:`~ctfit._fitting.seeded_solve.lm_solver`): ``lm_init`` and
+The report is made on the host from the sums at the solution (:func:`~ctfit._fitting.fit_report.report_core`
+with ``xp=numpy``; :func:`~ctfit._fitting.fit_report.light_report_core` without the standard
+errors): no program per structure (as one, ``fit_report``, it took about 1.2 s of a first fit's
+CPU: 0.4 s tracing, 0.3 s lowering, 0.6 s compiling). Programs whose shapes depend only on the
+number of parameters: optimistix's solver itself (:func:`~ctfit._fitting.seeded_solve.lm_solver`), ``lm_init`` and
 ``lm_step``, one step of ``StructuredLevenbergMarquardt`` given the cost, Jᵀr and JᵀJ at the
 point it evaluates, compiled per number of parameters and shared by every structure. The host
 runs optimistix's iteration (init, step until it terminates) and the race of the seeds as the
@@ -252,7 +254,7 @@ def _signature(args) -> tuple:
 _EFFORT = {"fit_ne": "step", "fit_grid_sums": "step"}
 """The compile effort of each program (:data:`~ctfit._runtime.COMPILE_EFFORT`): "step" for the
 kernels over a chunk (the normal equations at every Levenberg–Marquardt step, the seeds' sums),
-"once" for the others (``lm_init``, the report, the cost of a zero model: once per fit) and the
+"once" for the others (``lm_init``, the cost of a zero model: once per fit) and the
 solver's step. A first fit's compiling is mostly these kernels' (a data-chosen
 default makes them for each of its nine structures): at "step" ``fit_ne`` and ``fit_grid_sums``
 compile in about half the CPU time of "run" (XLA's fusion emitters) and run a chunk as fast
@@ -469,17 +471,10 @@ def _solver_programs(u0: dict) -> tuple:
     return init, step, zeros
 
 
-def _report_programs(template: Problem, u0: dict, report: bool = True):
-    """Make (compile or load) the programs of the report, for the shapes of ``u0``: (cost of a
-    zero model, report), or without the report (cost of a zero model, None: the light report is
-    made on the host, :func:`~ctfit._fitting.fit_report.light_report_core` with ``xp=numpy``)."""
-    p, dtype = _flat_shape(u0)
-    zero = np.zeros((), dtype)
-    zero_program = _program("fit_zero", _zero_kernel, zero, _data_only(template))
-    if not report:
-        return zero_program, None
-    rest = (zero, np.zeros(p, dtype), np.zeros((p, p), dtype), zero)
-    return zero_program, _program("fit_report", report_core, template, u0, *rest)
+def _zero_program(template: Problem):
+    """Make (compile or load) ``fit_zero``, the cost of a zero model over a chunk like ``template``
+    (no structure in it: one program per loss, layout and bands)."""
+    return _program("fit_zero", _zero_kernel, np.zeros((), template.y.dtype), _data_only(template))
 
 
 def _sums_program(template: Problem, u0: dict, k: int, grid):
@@ -503,17 +498,17 @@ def _seeds(parts: list[Problem], u0: dict, k: int, grid, keep_start: bool) -> di
     return _seed_choice(template, host_u0, k, np.asarray(jax.device_get(grid)), np.asarray(num), np.asarray(den), keep_start)
 
 
-def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False, report: bool = True) -> list[Callable]:
+def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = False) -> list[Callable]:
     """Make (load from the store, or compile) every program :func:`chunked_core` calls for a fit
-    of ``problem``'s layout from ``u0``'s shapes (with the report or without), without fitting;
+    of ``problem``'s layout from ``u0``'s shapes (with the report or without: the same), without fitting;
     returns them. Run in a background thread while another fit runs, it takes the loading or
     compiling off that fit's path."""
     (template,) = chunk_problems(problem, limit=1)
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
     kern = _kernels([template], u0)
-    made = [kern.ne, kern.init, kern.step, *_report_programs(template, u0, report), transfer_program(template),
+    made = [kern.ne, kern.init, kern.step, _zero_program(template), transfer_program(template),
             _sums_program(template, u0, starts, grid)]
-    _made.add(_signature((template, u0, grid, starts, keep_start, report)))
+    _made.add(_signature((template, u0, grid, starts, keep_start)))
     return [run for run in made if run is not None]
 
 
@@ -605,20 +600,20 @@ def _distinct_winners(values: list, costs: list[float], u0: dict | None = None) 
     return out
 
 
-def _made_in_threads(parts: list[Problem], u0: dict, report: bool, seeds: Callable[[], dict]):
+def _made_in_threads(parts: list[Problem], u0: dict, seeds: Callable[[], dict]):
     """(seeds, kernels, rest), the fit's programs made (compiled, or loaded from the store) in
     four threads at once, as XLA compiles and loads without the GIL: ``fit_ne`` (the largest),
-    the solver's, the report's (and ``chunk_put``), and the seeds' (``seeds()``) in this one.
-    The report's are needed only after the race: they may still be being made while it runs (a
-    failure there is met again, and raised, where the report takes them). ``rest``: the
-    future of the report's; the fit waits for it before it returns, so that nothing it started
+    the solver's, ``fit_zero`` (and ``chunk_put``), and the seeds' (``seeds()``) in this one.
+    ``fit_zero`` is needed only after the race: it may still be being made while it runs (a
+    failure there is met again, and raised, where the report takes it). ``rest``: the
+    future of ``fit_zero``'s; the fit waits for it before it returns, so that nothing it started
     outlives it."""
     template = parts[0]
     pool = concurrent.futures.ThreadPoolExecutor(3, thread_name_prefix="ctfit-programs")
     try:
         ne = pool.submit(_ne_program, template, u0)
         solver = pool.submit(_solver_programs, u0)
-        rest = pool.submit(lambda: (_report_programs(template, u0, report), transfer_program(template)))
+        rest = pool.submit(lambda: (_zero_program(template), transfer_program(template)))
         made = seeds()
         return made, _kernels(parts, u0, solver.result(), ne.result()), rest
     finally:
@@ -631,17 +626,17 @@ def chunked_core(problem: Problem, u0: dict, grid, starts: int, max_steps: int, 
     by ``make_problem(chunk=ROWS)``, ``parts`` its :func:`chunk_problems` (made here if None);
     ``tolerance``: :func:`_race`'s. ``report=False``: only what comparing fits needs (the
     parameters, the cost of a zero model, the Gauss–Newton decrease; no residual summary or
-    standard errors), with two small programs in place of the summary's and the report's.
+    standard errors); both are made on the host, with the same programs.
     ``race_parts``: the chunks of a sample of the rows (:func:`race_rows`), where the seeds are
     chosen and raced (:func:`_race`'s ``sample``; the same programs: chunks of one shape)."""
     parts = chunk_problems(problem) if parts is None else parts
     seeding = parts if race_parts is None else race_parts
     u0 = {k: jnp.asarray(v) for k, v in u0.items()}
-    shapes = _signature((parts[0], u0, grid, starts, keep_start, report))
+    shapes = _signature((parts[0], u0, grid, starts, keep_start))
     if shapes in _made:
         seeds, kern = _seeds(seeding, u0, starts, grid, keep_start), _kernels(parts, u0)
         return _race_and_report(problem, u0, seeds, kern, race_parts, max_steps, tolerance, report)
-    seeds, kern, rest = _made_in_threads(parts, u0, report, lambda: _seeds(seeding, u0, starts, grid, keep_start))
+    seeds, kern, rest = _made_in_threads(parts, u0, lambda: _seeds(seeding, u0, starts, grid, keep_start))
     _made.add(shapes)
     try:
         return _race_and_report(problem, u0, seeds, kern, race_parts, max_steps, tolerance, report)
@@ -665,18 +660,16 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     if sample is not None:
         solved["race_samples"] = race_samples
     del last  # the other seeds' values
-    zero_program, report_program = _report_programs(kern.template, u0, report)
+    zero_program = _zero_program(kern.template)
     zero = jax.device_put(np.zeros((), costs.dtype))
     rebuild = split_arrays(kern.template)[1]
     for leaves in kern.parts:  # each chunk with no structure in it (``fit_zero`` is shared)
         zero = zero_program(zero, *array_leaves(_data_only(rebuild(leaves))))
     zero = np.asarray(jax.device_get(zero))
-    if not report:  # on the host: no program per structure
-        light = light_report_core(dataclasses.replace(kern.template, fixed=jax.device_get(kern.template.fixed)), solved["u"], cost, jtr, jtj, zero, np)
-        return dict(light, **solved, zero_cost=zero)
-    u = {k: jax.device_put(v) for k, v in solved["u"].items()}  # (jnp.asarray compiles a copy program per shape)
-    out = jax.device_get(report_program(*array_leaves((kern.template, u, cost, jtr, jtj, zero))))
-    return dict(out, **_summary(problem, at_best), **solved)
+    host = dataclasses.replace(kern.template, fixed=jax.device_get(kern.template.fixed))  # on the host: no program per structure
+    if not report:
+        return dict(light_report_core(host, solved["u"], cost, jtr, jtj, zero, np), **solved, zero_cost=zero)
+    return dict(report_core(host, solved["u"], cost, jtr, jtj, zero, np), **_summary(problem, at_best), **solved)
 
 
 SUMMARY_CELLS = 1 << 17

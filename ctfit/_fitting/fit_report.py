@@ -14,9 +14,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from .._model import PUBLIC_NAMES, Params, array_module, n_from_f0, normal_reflectance, parameter
+from .._model import PUBLIC_NAMES, Params, array_module, box_bounds, clip_box, n_from_f0, normal_reflectance, parameter
 from .chunks import map_over_chunks
-from .coordinates import flat_host, to_params
+from .coordinates import flat_host, lobe_weights, to_params
 from .fit_warnings import FitWarning
 from .losses import loss_residuals
 from .problem import Problem, model_values
@@ -25,8 +25,8 @@ from .stationarity import active_set
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
-    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "zero_model_cost", "summary_of_part",
-    "summary_of_values", "combined_rms", "PARAM_FIELDS",
+    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "quantity_jacobian", "zero_model_cost",
+    "summary_of_part", "summary_of_values", "combined_rms", "PARAM_FIELDS",
 ]
 
 PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
@@ -217,17 +217,82 @@ def zero_model_cost(part: Problem):
     return 0.5 * jnp.sum(loss_residuals(part, jnp.zeros_like(part.y), part.y) ** 2)
 
 
-def report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost) -> dict:
+def report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost, xp=jnp) -> dict:
     """What the report needs at the solution ``u`` (its ½‖r‖² ``cost``, Jᵀr, JᵀJ; the cost of a
     zero model): :func:`light_report_core`'s, with JᵀJ on the free coordinates and the Jacobian
     of the reported quantities (the standard errors'). Uses only ``problem.spec`` and
-    ``problem.fixed``: any chunk of the problem serves."""
-    flat, unravel = ravel_pytree(u)
-    out = light_report_core(problem, u, cost, jtr, jtj, zero_cost)
+    ``problem.fixed``: any chunk of the problem serves. ``xp``: ``jax.numpy`` (traced: the Jacobian
+    by ``jax.jacfwd``) or ``numpy`` (on the host, host arrays in: :func:`quantity_jacobian`, no program)."""
+    out = light_report_core(problem, u, cost, jtr, jtj, zero_cost, xp)
     keep = ~out["on_bound"]
-    jtj = jnp.where(keep[:, None] & keep[None, :], jtj, 0)
-    jt = jax.jacfwd(lambda f: constrained_quantities(problem, unravel, f))(flat) if flat.size else None
+    jtj = xp.where(keep[:, None] & keep[None, :], jtj, 0)
+    if xp is jnp:
+        flat, unravel = ravel_pytree(u)
+        jt = jax.jacfwd(lambda f: constrained_quantities(problem, unravel, f))(flat) if flat.size else None
+    else:
+        jt = quantity_jacobian(problem, u)
     return dict(out, jtj=jtj, jt=jt, zero_cost=zero_cost)
+
+
+def quantity_jacobian(problem: Problem, u: dict) -> dict | None:
+    """``jax.jacfwd`` of :func:`constrained_quantities` at the box coordinates ``u`` (host arrays), on
+    the host: each reported quantity's derivatives, shape (*its shape, coordinates), in
+    ``ravel_pytree``'s order; None without free coordinates. Exact, by the chain rule: the box
+    map is the identity but for m = exp(u) (dm/du = m) and the lobes' weights, which are affine
+    in each stick-breaking fraction (:func:`~ctfit._fitting.coordinates.lobe_weights`: a column
+    is the difference of the weights at that fraction 1 and 0); a bound's clip has derivative 1
+    (:func:`~ctfit._model.parameters.clip_box`). F0 of n (and k) and the effective index of F0
+    by their derivatives: dF0/dn = (2(n − 1) − 2(n + 1)F0)/D, dF0/dk = 2k(1 − F0)/D with
+    D = (n + 1)² + k², and dn/dF0 = 1/(√F0 (1 − √F0)²) below F0 = 1 − ε (0 above it, where
+    :func:`effective_index` holds n; infinite at F0 = 0, as the traced derivative)."""
+    spec, st = problem.spec, problem.spec.structure
+    names = sorted(u)
+    sizes = [int(np.size(u[k])) for k in names]
+    total = sum(sizes)
+    if not total:
+        return None
+    u = {k: np.asarray(v) for k, v in u.items()}
+    params = to_params(spec, u, problem.fixed, np)
+    dtype = np.result_type(*u.values())
+    d: dict = {}
+    at = 0
+    for name, size in zip(names, sizes):
+        value = np.asarray(getattr(params, name))
+        jac = np.zeros(value.shape + (total,), dtype)
+        if name == "w":
+            v = clip_box(u["w"], *box_bounds("w"))
+            for i in range(size):
+                hi, lo = v.copy(), v.copy()
+                hi[i], lo[i] = 1, 0
+                jac[:, at + i] = lobe_weights(hi, "box", np) - lobe_weights(lo, "box", np)
+        elif value.size != size:  # a plastic's one index, the same in every band
+            jac[..., at] = 1
+        else:
+            jac.reshape(size, total)[np.arange(size), at + np.arange(size)] = value.ravel() if name == "m" else 1
+        d[name] = jac
+        at += size
+
+    def of(name):
+        return d[name] if name in d else np.zeros(np.shape(getattr(params, name)) + (total,), dtype)
+
+    out = {PUBLIC_NAMES[k]: of(k) for k in ("s", "m", "w", "n", "k", "rd") if getattr(params, k) is not None}
+    if st.needs_fresnel_params:
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            if st.fresnel == "f0":
+                f0 = np.asarray(params.f0)
+                out["F0"] = of("f0")
+                r = np.sqrt(f0)
+                dn = np.where(f0 < 1 - np.finfo(f0.dtype).eps, 1 / (r * (1 - r) ** 2), 0)
+                out["n"] = dn[..., None] * of("f0")
+            else:
+                n = np.asarray(params.n)
+                k = np.asarray(params.k) if st.fresnel == "conductor" else np.zeros_like(n)
+                f0 = np.asarray(normal_reflectance(st, params))
+                den = (n + 1) ** 2 + k ** 2
+                out["F0"] = ((2 * (n - 1) - 2 * (n + 1) * f0) / den)[..., None] * of("n")
+                if st.fresnel == "conductor":
+                    out["F0"] = out["F0"] + (2 * k * (1 - f0) / den)[..., None] * of("k")
+    return {name: np.asarray(v, dtype) for name, v in out.items()}
 
 
 def light_report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost, xp=jnp) -> dict:

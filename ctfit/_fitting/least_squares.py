@@ -270,22 +270,22 @@ in the ``ctfit`` command): a MERL table's warm fit then peaks at the report's ow
 
 
 def prefetch_fit(data: Measurement, structure: Structure, *, given_start: bool = False, fixed: tuple[str, ...] = (), loss: str = "auto",
-                 solver: str = "lm", dtype: DTypeLike = jnp.float64, starts: int = 3, report: bool = True, **_: Any) -> None:
+                 solver: str = "lm", dtype: DTypeLike = jnp.float64, starts: int = 3, **_: Any) -> None:
     """Make (load or compile) the programs a :func:`fit_to_tolerance` of ``structure`` to ``data``
-    will call (with a start given or not, with the report or not), without fitting: for a
+    will call (with a start given or not; with the report or not, the same programs), without fitting: for a
     background thread, while other fits run. Nothing for solvers other than "lm", for a fit
     that cannot be prepared (its own fit says why), or where this made them for data of the same
     bands, sigma column and size and they are still in memory (:data:`_prefetched`)."""
     if solver != "lm":
         return
-    key = (structure, given_start, tuple(fixed), loss, jnp.dtype(dtype).name, starts, report, data.n_bands, data.sigma is not None, len(data))
+    key = (structure, given_start, tuple(fixed), loss, jnp.dtype(dtype).name, starts, data.n_bands, data.sigma is not None, len(data))
     if all(ref() is not None for ref in _prefetched.get(key, [lambda: None])):
         return  # made for a file like this one, and still in memory: a database's later files skip laying out the data again
     try:
         prep = prepare_fit(data, structure, start=None, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS)
     except (ValueError, TypeError):
         return
-    made = prefetch(prep.problem, prep.u0, prep.grid, prep.k, given_start, report)
+    made = prefetch(prep.problem, prep.u0, prep.grid, prep.k, given_start)
     with _prefetched_guard:  # (background threads of several fits)
         _prefetched[key] = [_held(run) for run in made]
         while len(_prefetched) > PREFETCHED_KEPT:

@@ -180,7 +180,7 @@ def choose_structure(
     # Each stage's later fits have their programs made (loaded or compiled) in the background
     # while its earlier fits run (:func:`~ctfit._fitting.least_squares.prefetch_fit`).
     with concurrent.futures.ThreadPoolExecutor(2) as background:
-        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True, report=False,
+        ahead = lambda st, seeded=True: background.submit(prefetch_fit, screen, st, given_start=True,
                                                           **_seeding(kwargs, given and not seeded))
         tried.extend(_first_stage(combos, fit_screen, background, screen, given, kwargs, progress))
         best_st, best = _preferred(tried, better)
@@ -253,7 +253,7 @@ def _first_stage(
     for i, st in enumerate(combos):
         nested = any(_contains(st, sm) for sm in combos[:i])
         if i > 0:
-            background.submit(prefetch_fit, screen, st, given_start=not given or nested, report=False, **_seeding(kwargs, given and nested))
+            background.submit(prefetch_fit, screen, st, given_start=not given or nested, **_seeding(kwargs, given and nested))
     finished: queue.Queue = queue.Queue()
 
     def chain(indices: list[int]) -> dict[int, FitResult]:
