@@ -9,6 +9,9 @@ own: they may change between versions. Everything meant for users is in :mod:`ct
   ``ctfit fit`` reads its file while it imports JAX (the floor of ``scripts/bench_fit.py``).
 - ``LOSSES``: the names ``ctfit.fit(..., loss=...)`` accepts besides "auto" (a search over
   every fit, ``scripts/bench_real.py``).
+- :func:`shipped_solver_arguments`, ``PARAMETER_STEP``, :func:`ship_programs`: the solver's programs
+  ctfit ships, the step of their parameter counts, and the export that ships them
+  (``scripts/ship_programs.py``).
 - ``COMPILE_EFFORT``: XLA's options of each compile effort of the fit's programs (a dict,
   changed in place by ``scripts/_cheapest_compile.py`` to compile every program the cheapest way).
 """
@@ -19,13 +22,15 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from ._fitting import LOSSES, normal_equations, prepare_fit
+    from ._fitting import LOSSES, PARAMETER_STEP, normal_equations, prepare_fit, shipped_solver_arguments
     from ._io import start_read_ahead
-    from ._runtime import COMPILE_EFFORT
+    from ._runtime import COMPILE_EFFORT, ship_programs
 
-__all__ = ["COMPILE_EFFORT", "LOSSES", "normal_equations", "prepare_fit", "start_read_ahead"]
+__all__ = ["COMPILE_EFFORT", "LOSSES", "PARAMETER_STEP", "normal_equations", "prepare_fit", "ship_programs", "shipped_solver_arguments",
+           "start_read_ahead"]
 
-_HOME = {"COMPILE_EFFORT": "_runtime", "LOSSES": "_fitting", "normal_equations": "_fitting", "prepare_fit": "_fitting", "start_read_ahead": "_io"}
+_HOME = {"COMPILE_EFFORT": "_runtime", "LOSSES": "_fitting", "PARAMETER_STEP": "_fitting", "normal_equations": "_fitting", "prepare_fit": "_fitting",
+         "ship_programs": "_runtime", "shipped_solver_arguments": "_fitting", "start_read_ahead": "_io"}
 
 
 def __getattr__(name: str) -> Any:

@@ -9,6 +9,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
         "batch": ['SAMPLE_BUDGET', 'fit_batch'],
+        "chunked_fit": ['PARAMETER_STEP', 'shipped_solver_arguments'],
         "diagnostics": ['residual_structure'],
         "quality": ['fit_quality'],
         "fit_report": ['constrained_quantities', 'standard_errors', 'undetermined'],

@@ -46,7 +46,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .._model import Params, Structure, array_leaves, is_array, split_arrays
-from .._runtime import stored_program
+from .._runtime import shipped, stored_program
 from .coordinates import bounds, flat_host, fraction_weights
 from .fit_report import combined_rms, light_report_core, report_core, summary_of_values, zero_model_cost
 from .jacobian import normal_equations_and_values
@@ -54,7 +54,7 @@ from .problem import Problem, Spec
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, lm_solver, stop_tolerances
 from .starts import best_splits, grid_sums, grid_sums_shape, seeds_from_scores
 
-__all__ = ["ROWS", "RACE_CHUNKS", "chunk_problems", "chunked_core", "prefetch", "race_rows"]
+__all__ = ["ROWS", "RACE_CHUNKS", "PARAMETER_STEP", "chunk_problems", "chunked_core", "prefetch", "race_rows", "shipped_solver_arguments"]
 
 ROWS = 2048
 """Cells per chunk: samples of the pairs layout; the grid layout takes a power of two of
@@ -457,17 +457,32 @@ def _ne_program(template: Problem, u0: dict):
     return _program("fit_ne", _ne_kernel, zeros, template, zeros[1], u0)
 
 
+def shipped_solver_arguments(p: int, dtype) -> list[tuple[str, Callable, tuple]]:
+    """(name, function, arguments like its own) of ``lm_init`` and ``lm_step`` for ``p`` padded
+    parameters of ``dtype``: what ``scripts/ship_programs.py`` exports (:func:`_solver_programs`
+    asks for them with arguments of these shapes). ``lm_step``'s state is the shape of ``lm_init``'s."""
+    flat, tol = np.zeros(p, dtype), np.zeros(2, dtype)
+    init_args = (flat, flat, flat, tol)
+    state = jax.eval_shape(_lm_init, *init_args)["state"]
+    state = [np.zeros(x.shape, x.dtype) for x in state]
+    step_args = (flat, state, np.zeros((), dtype), flat, np.zeros((p, p), dtype), flat, flat, tol)
+    return [("lm_init", _lm_init, init_args), ("lm_step", _lm_step, step_args)]
+
+
 def _solver_programs(u0: dict) -> tuple:
     """(``lm_init``, ``lm_step``, the sums' zeros on the device): they depend on the number of
-    parameters alone."""
+    parameters alone. Where ctfit ships them for these shapes (:func:`~ctfit._runtime.shipped`),
+    the shipped module is compiled instead of tracing optimistix (a first fit's CPU: about a
+    second less, holding the GIL the other programs' tracing needs)."""
     size, dtype = _flat_shape(u0)
     p = _padded_size(size)
     flat = jax.device_put(np.zeros(p, dtype))
     zeros = [jax.device_put(np.zeros(s, dtype)) for s in ((), (p,), (p, p))]
     tol = jax.device_put(np.zeros(2, dtype))
-    init = _program("lm_init", _lm_init, flat, flat, flat, tol)
-    state = init(flat, flat, flat, tol)["state"]
-    step = _program("lm_step", _lm_step, flat, state, zeros[0], flat, zeros[2], flat, flat, tol)
+    init_args = (flat, flat, flat, tol)
+    init = _program("lm_init", shipped("lm_init", init_args) or _lm_init, *init_args)
+    step_args = (flat, init(*init_args)["state"], zeros[0], flat, zeros[2], flat, flat, tol)
+    step = _program("lm_step", shipped("lm_step", step_args) or _lm_step, *step_args)
     return init, step, zeros
 
 

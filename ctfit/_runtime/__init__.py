@@ -16,6 +16,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "memory": ['release_free_pages', 'return_large_blocks'],
         "program_preload": ['Preload', 'programs_asked', 'record_programs', 'start_preload'],
         "progress": ['ProgressLines', 'bar', 'closed_pipe', 'echo', 'progress_enabled', 'progress_mode'],
-        "stored_programs": ['COMPILE_EFFORT', 'cached_call', 'kept_program', 'prepare_runtime', 'program_made', 'stored_program'],
+        "shipped_programs": ['export_program', 'ship_programs', 'shipped'],
+        "stored_programs": ['COMPILE_EFFORT', 'cached_call', 'kept_program', 'prepare_runtime', 'program_made', 'register_lapack', 'stored_program'],
     },
 )

@@ -147,13 +147,13 @@ def _environment_digest() -> str:
 
 def _store() -> pathlib.Path | None:
     """The store's folder (:func:`~ctfit._runtime.compile_cache.program_store_folder`), made (mode
-    0700) on first use, JAX's LAPACK kernels registered (:func:`_register_lapack`); None without
+    0700) on first use, JAX's LAPACK kernels registered (:func:`register_lapack`); None without
     a cache, or (with one :class:`~ctfit._runtime.compile_cache.CacheWarning`) when the folder
     cannot be trusted."""
     folder = program_store_folder()
     if folder is None:
         return None
-    _register_lapack()
+    register_lapack()
     if folder not in _stores:
         _stores[folder] = _trusted(folder)
     return _stores[folder]
@@ -250,7 +250,7 @@ _lapack_lock = threading.Lock()  # held while JAX's LAPACK kernels are registere
 _lapack_registered = False
 
 
-def _register_lapack() -> None:
+def register_lapack() -> None:
     """Register JAX's LAPACK kernels, which compiled fits call. JAX registers them when it lowers
     a linear-algebra operation, which a loaded executable skips (its call would crash): lowering
     one small ``jnp.linalg.eigh`` (never compiled) does it through JAX's public API (0.09–0.17 s;
@@ -312,12 +312,12 @@ def _scipy_lapack() -> list[str]:
 
 
 def prepare_runtime() -> None:
-    """Start :func:`_register_lapack`'s work (0.1 s, mostly a first lowering) and the environment's
+    """Start :func:`register_lapack`'s work (0.1 s, mostly a first lowering) and the environment's
     part of every key (:func:`_environment_digest`: package versions, the backend, ctfit's source;
     0.02–0.04 s) in a thread of its own, so that a command's first stored program need not wait
     for them (the command calls this when it sets JAX up, before it reads its files)."""
     def prepare() -> None:
-        _register_lapack()
+        register_lapack()
         _environment_digest()
 
     threading.Thread(target=prepare, name="ctfit-runtime").start()

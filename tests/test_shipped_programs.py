@@ -1,0 +1,110 @@
+"""The solver's programs ctfit ships (``ctfit/data/programs/``, ``ctfit/_runtime/shipped_programs.py``):
+they are what exporting the current code gives (else ``scripts/ship_programs.py`` must be run
+again), they compute what the traced programs compute, bit for bit, and a first fit on a
+machine uses them: it imports neither optimistix, lineax nor Equinox, and fits as a fit that
+traces the solver."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from ctfit._fitting.chunked_fit import PARAMETER_STEP, shipped_solver_arguments
+from ctfit._runtime import shipped_programs
+from ctfit._runtime.shipped_programs import SHIPPED, export_program, installed_versions, shipped, shipped_name
+
+ROOT = Path(__file__).resolve().parent.parent
+MANIFEST = json.loads((SHIPPED / "manifest.json").read_text())
+SAME_VERSIONS = MANIFEST["versions"] == installed_versions()
+
+
+def _module_text(blob: bytes) -> str:
+    from jax import export
+
+    return export.deserialize(bytearray(blob)).mlir_module()
+
+
+def test_the_manifest_lists_every_shipped_program_and_the_versions_they_were_made_with():
+    files = sorted(p.name for p in SHIPPED.glob("*.jaxexport"))
+    assert files == MANIFEST["programs"] and len(files) == 2 * 2 * 9
+    assert set(MANIFEST["versions"]) == set(shipped_programs.SHIPPED_VERSIONS)
+    for dtype in (np.float64, np.float32):
+        for p in range(PARAMETER_STEP, 72 + 1, PARAMETER_STEP):
+            for name, _, args in shipped_solver_arguments(p, dtype):
+                assert f"{shipped_name(name, args)}.jaxexport" in files, (name, p, dtype)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_the_shipped_programs_are_what_the_current_code_exports(dtype):
+    """Where the installed versions are the manifest's (else ctfit does not use them: the second
+    branch), every shipped module equals a new export of the solver's code: a change to the
+    solver fails here until the programs are shipped again."""
+    if not SAME_VERSIONS:
+        assert all(shipped(name, args) is None for name, _, args in shipped_solver_arguments(PARAMETER_STEP, dtype))
+        return
+    for p in range(PARAMETER_STEP, 72 + 1, PARAMETER_STEP):
+        for name, fn, args in shipped_solver_arguments(p, dtype):
+            stored = (SHIPPED / f"{shipped_name(name, args)}.jaxexport").read_bytes()
+            assert _module_text(export_program(fn, args)) == _module_text(stored), (name, p, dtype)
+
+
+@pytest.mark.skipif(not SAME_VERSIONS, reason="ctfit uses the shipped programs only with the manifest's versions (tested above)")
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_a_shipped_program_computes_what_the_traced_one_computes_bit_for_bit(dtype):
+    rng = np.random.default_rng(0)
+    p = 16
+    (init_name, init_fn, init_args), (step_name, step_fn, step_args) = shipped_solver_arguments(p, dtype)
+    lower, upper = np.full(p, -1.0, dtype), np.full(p, 2.0, dtype)
+    y = rng.uniform(0, 1, p).astype(dtype)
+    tol = np.array([1e-8, 1e-8], dtype)
+    a = rng.normal(size=(3 * p, p))
+    grad, hess = (a.T @ rng.normal(size=3 * p)).astype(dtype), (a.T @ a).astype(dtype)
+    runs = {}
+    for way in ("shipped", "traced"):
+        init = shipped(init_name, init_args) if way == "shipped" else init_fn
+        step = shipped(step_name, step_args) if way == "shipped" else step_fn
+        assert init is not None and step is not None
+        first = jax.jit(init)(y, lower, upper, tol)
+        runs[way] = jax.device_get((first, jax.jit(step)(y, first["state"], dtype(1.5), grad, hess, lower, upper, tol)))
+    for a, b in zip(jax.tree.leaves(runs["shipped"]), jax.tree.leaves(runs["traced"])):
+        np.testing.assert_array_equal(a, b)
+
+
+_FIRST_FIT = """
+import json, sys
+import jax
+jax.config.update("jax_enable_x64", True)
+import numpy as np
+import ctfit
+from ctfit._runtime import shipped_programs
+if sys.argv[2] == "traced":
+    shipped_programs.SHIPPED = shipped_programs.SHIPPED / "nothing here"
+ctfit.enable_compilation_cache(sys.argv[3])
+data = ctfit.read_measurement(sys.argv[1])
+res = ctfit.fit(data, ctfit.Structure(lobes=2, diffuse="F0/pi"))
+print(json.dumps(dict(cost=float(res.stats["cost"]), m=np.asarray(res.material.params.m).tolist(), steps=int(res.stats["steps"]),
+                      imported=sorted(m for m in ("equinox", "optimistix", "lineax") if m in sys.modules))))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not SAME_VERSIONS, reason="ctfit uses the shipped programs only with the manifest's versions (tested above)")
+def test_a_first_fit_uses_the_shipped_solver_and_fits_as_one_that_traces_it(tmp_path):
+    path = ROOT / "measurements" / "testbed" / "blend-conductors.csv"
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    docs = {}
+    for way in ("shipped", "traced"):
+        done = subprocess.run([sys.executable, "-c", _FIRST_FIT, str(path), way, str(tmp_path / way)], capture_output=True, text=True, env=env,
+                              timeout=600)
+        assert done.returncode == 0, done.stderr[-3000:]
+        docs[way] = json.loads(done.stdout.splitlines()[-1])
+    assert docs["shipped"]["imported"] == [] and docs["traced"]["imported"] == ["equinox", "lineax", "optimistix"]
+    assert docs["shipped"]["cost"] == docs["traced"]["cost"] and docs["shipped"]["m"] == docs["traced"]["m"]
+    assert docs["shipped"]["steps"] == docs["traced"]["steps"] > 0
