@@ -31,16 +31,21 @@ CASES = [
 TRUTH = ctfit.Params(s=np.asarray(0.3), m=np.array([0.2]), w=np.ones(1), n=np.full(3, 1.5), rd=np.array([0.1, 0.2, 0.05]))
 
 
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-@pytest.mark.parametrize("case", range(len(CASES)))
-def test_the_host_light_report_equals_the_traced_one(case, dtype):
+def _at_case(case: int, dtype):
+    """(problem, u, ½‖r‖², Jᵀr, JᵀJ) of case ``case``'s structure at its parameters, on simulated plastic data."""
     st, at = CASES[case]
     truth = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"), TRUTH, channels=("R", "G", "B"))
     data = ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=2)
-    prep = prepare_fit(data, st, start=None, fixed=(), loss="relative", dtype=dtype, starts=1)
-    problem = prep.problem
+    problem = prepare_fit(data, st, start=None, fixed=(), loss="relative", dtype=dtype, starts=1).problem
     u = {k: np.asarray(v, dtype) for k, v in from_params(problem.spec, at).items()}
     cost, jtr, jtj = (np.array(a) for a in jax.jit(normal_equations)(problem, u))
+    return problem, u, cost, jtr, jtj
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("case", range(len(CASES)))
+def test_the_host_light_report_equals_the_traced_one(case, dtype):
+    problem, u, cost, jtr, jtj = _at_case(case, dtype)
     if case == 1:  # the cost falling only above s = 1: held there
         at_s = sum(np.size(u[k]) for k in sorted(u) if k < "s")
         jtr[at_s] = -abs(jtr[at_s])
@@ -66,13 +71,7 @@ def test_the_host_light_report_equals_the_traced_one(case, dtype):
 def test_the_host_report_equals_the_traced_one(case, dtype):
     """The whole report: the Jacobian of the reported quantities (``jax.jacfwd`` traced; the chain
     rule on the host), JᵀJ on the free coordinates, and the standard errors made from them."""
-    st, at = CASES[case]
-    truth = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"), TRUTH, channels=("R", "G", "B"))
-    data = ctfit.simulate(truth, n_pairs=300, noise=0.01, seed=2)
-    prep = prepare_fit(data, st, start=None, fixed=(), loss="relative", dtype=dtype, starts=1)
-    problem = prep.problem
-    u = {k: np.asarray(v, dtype) for k, v in from_params(problem.spec, at).items()}
-    cost, jtr, jtj = (np.array(a) for a in jax.jit(normal_equations)(problem, u))
+    problem, u, cost, jtr, jtj = _at_case(case, dtype)
     zero = np.asarray(10 * cost, dtype)
     traced = jax.device_get(jax.jit(report_core)(problem, u, cost, jtr, jtj, zero))
     host = report_core(jax.tree.map(np.asarray, problem), u, cost, jtr, jtj, zero, np)
