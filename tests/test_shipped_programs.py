@@ -108,3 +108,20 @@ def test_a_first_fit_uses_the_shipped_solver_and_fits_as_one_that_traces_it(tmp_
     assert docs["shipped"]["imported"] == [] and docs["traced"]["imported"] == ["equinox", "lineax", "optimistix"]
     assert docs["shipped"]["cost"] == docs["traced"]["cost"] and docs["shipped"]["m"] == docs["traced"]["m"]
     assert docs["shipped"]["steps"] == docs["traced"]["steps"] > 0
+
+
+def test_shipped_programs_are_not_used_with_other_versions_or_another_backend(monkeypatch):
+    """A module made with other versions of JAX or optimistix may differ from what tracing gives
+    here, and one made for the CPU runs nowhere else: then the solver is traced."""
+    name, _, args = shipped_solver_arguments(PARAMETER_STEP, np.float64)[1]
+    other = dict(MANIFEST, versions=dict(MANIFEST["versions"], optimistix="0.0.1"))
+    monkeypatch.setattr(shipped_programs, "_manifest", lambda: other)
+    shipped_programs._usable.cache_clear()
+    try:
+        assert shipped(name, args) is None
+        monkeypatch.setattr(shipped_programs, "_manifest", lambda: MANIFEST)
+        shipped_programs._usable.cache_clear()
+        monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+        assert shipped(name, args) is None
+    finally:
+        shipped_programs._usable.cache_clear()
