@@ -139,7 +139,7 @@ def relative_residual_structure(
     rel = np.asarray(rel)
     per_sample = mask is None
     blocks = [slice(i, i + _BLOCK) for i in range(0, len(rel), _BLOCK)]  # rows at a time: small temporaries
-    alpha = pair_half_angle_deg(pairs)  # what two of the groups are made of
+    alpha = _recent(pairs, "alpha", lambda: pair_half_angle_deg(pairs))  # what two of the groups are made of
     out = []
     for name, variable, edges, place in _GROUPS:
         bins = len(edges) - 1

@@ -137,9 +137,11 @@ def standard_errors(jtj, jt: dict | None, scale2: float, order, free=None) -> di
     se = {}
     for k, jk in jt.items():
         jk = np.asarray(jk).reshape(-1, jtj.shape[0])
-        var = np.einsum("ij,jk,ik->i", jk, cov_u, jk)
+        with np.errstate(invalid="ignore", over="ignore"):  # a derivative that is infinite (dn/dF0 at F0 = 0) gives NaN, as einsum did
+            var = np.sum((jk @ cov_u) * jk, axis=1)  # diag(J C Jᵀ) (a matrix product: a third of einsum's time here)
         v = np.sqrt(np.maximum(var, 0))
-        v = np.where(np.any(jk[:, ~free] != 0, axis=1) & ~np.any(jk[:, free] != 0, axis=1), np.nan, v)
+        nonzero = jk != 0
+        v = np.where(nonzero[:, ~free].any(axis=1) & ~nonzero[:, free].any(axis=1), np.nan, v)
         if k in ("m", "weight") and order is not None:
             v = v[order]
         se[k] = v

@@ -442,6 +442,10 @@ def float_list(a: ArrayLike) -> list[float]:
 
 def jsonable(x: Any) -> Any:
     """Plain Python values for JSON: arrays to lists, non-finite floats to None (null)."""
+    if type(x) is float:  # the commonest leaf first (a fit's document holds hundreds)
+        return x if math.isfinite(x) else None
+    if isinstance(x, np.ndarray) and x.dtype.kind == "f":
+        return _finite(x.tolist())
     if isinstance(x, dict):
         return {str(k): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
@@ -459,6 +463,13 @@ def jsonable(x: Any) -> Any:
     if hasattr(x, "__array__"):
         return jsonable(np.asarray(x).tolist())
     raise TypeError(f"cannot write a {type(x).__name__} to a material file")
+
+
+def _finite(x: Any) -> Any:
+    """``ndarray.tolist()`` of a float array with its non-finite numbers None."""
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    return x if math.isfinite(x) else None
 
 
 def material_to_dict(material: Material, extra: dict | None = None) -> dict:
