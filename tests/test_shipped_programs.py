@@ -125,3 +125,20 @@ def test_shipped_programs_are_not_used_with_other_versions_or_another_backend(mo
         assert shipped(name, args) is None
     finally:
         shipped_programs._usable.cache_clear()
+
+
+def test_a_damaged_shipped_program_is_traced_instead_with_a_warning(tmp_path, monkeypatch):
+    name, _, args = shipped_solver_arguments(PARAMETER_STEP, np.float64)[1]
+    (tmp_path / "manifest.json").write_text(json.dumps(dict(MANIFEST, versions=installed_versions())))
+    (tmp_path / f"{shipped_name(name, args)}.jaxexport").write_bytes(b"not a module")
+    monkeypatch.setattr(shipped_programs, "SHIPPED", tmp_path)
+    shipped_programs._manifest.cache_clear()
+    shipped_programs._usable.cache_clear()
+    try:
+        with pytest.warns(RuntimeWarning, match="ignoring the shipped program"):
+            assert shipped(name, args) is None
+        assert shipped(*shipped_solver_arguments(2 * PARAMETER_STEP, np.float64)[1][::2]) is None  # none shipped there
+    finally:
+        monkeypatch.undo()
+        shipped_programs._manifest.cache_clear()
+        shipped_programs._usable.cache_clear()

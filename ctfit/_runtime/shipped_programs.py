@@ -23,6 +23,7 @@ import hashlib
 import importlib.metadata
 import json
 import pathlib
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -87,7 +88,11 @@ def shipped(name: str, args: tuple) -> Callable | None:
         return None
     from jax import export
 
-    exported = export.deserialize(bytearray(blob))
+    try:
+        exported = export.deserialize(bytearray(blob))
+    except Exception as err:  # a damaged file of the installation: traced instead, and said once
+        warnings.warn(f"ignoring the shipped program {path}: {err}", RuntimeWarning, stacklevel=2)
+        return None
     if [(a.shape, a.dtype) for a in exported.in_avals] != [(leaf.shape, leaf.dtype) for leaf in array_leaves(args)]:
         return None
     register_lapack()  # the module calls JAX's LAPACK kernels, which lowering it does not register
