@@ -255,7 +255,8 @@ def fit_to_tolerance(data: Measurement, structure: Structure, *, tolerance: floa
     converged there (None: :data:`~ctfit._fitting.seeded_solve.STATIONARY_TOLERANCE`). The
     data-chosen default screens its candidates so (:data:`~ctfit._fitting.structure_selection.SCREEN_TOLERANCE`).
     ``report=False`` ("lm"): only what comparing fits needs (:func:`finish_light`), which spares
-    compiling or loading the residual summary's and the report's programs of ``structure``."""
+    the residual summary, the standard errors and the warnings (made on the host; the programs
+    are the same either way)."""
     t0 = time.perf_counter()
     prep = prepare_fit(data, structure, start=start, fixed=fixed, loss=loss, dtype=dtype, starts=starts, chunk=ROWS if solver == "lm" else None)
     light = not report and solver == "lm"
