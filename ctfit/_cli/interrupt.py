@@ -32,13 +32,22 @@ _exiting = threading.Lock()  # taken once, by whichever thread exits
 _installed = threading.Event()
 
 
-def exit_interrupted(message: str, notes=()) -> None:
-    """Print ``message`` on stderr as one line and end the process with status 130, at once.
+def exit_interrupted(message: str | Callable[[], str], notes=()) -> None:
+    """Print ``message`` (or what ``message()`` gives) on stderr as one line and end the process
+    with status 130, at once.
 
     Writes under way are abandoned (their temporary files removed): the line says which files
     were not written and kept their old content; ``notes`` adds what else to say. Cleanups
-    (:func:`ctfit._io.interrupt.on_interrupt`) run first."""
+    (:func:`ctfit._io.interrupt.on_interrupt`) run first. A callable ``message`` is called only
+    by the thread that exits: the main thread and the watcher may both be on their way here,
+    and the second must not read the state the first is winding up (a traceback of the watcher
+    thread once came before the line)."""
     _exiting.acquire()  # a second caller waits here until the first has ended the process
+    if callable(message):
+        try:
+            message = message()
+        except Exception:  # what it describes changed under it: the plain line
+            message = "interrupted"
     notes = [*notes, *remove_temporaries(last=True)]
     notes += run_cleanups()
     message = "; ".join([message, *notes])
@@ -62,7 +71,7 @@ def _watch(fd: int, message: Callable[[], str]) -> None:
             return
         if signal.SIGINT in got:
             wait_for_writes(_WAIT_WRITES_S)  # let a deferred write finish
-            exit_interrupted(message())
+            exit_interrupted(message)
 
 
 def install(message: Callable[[], str]) -> bool:
@@ -77,7 +86,7 @@ def install(message: Callable[[], str]) -> bool:
         return False
     r, w = os.pipe()
     os.set_blocking(w, False)
-    set_exit(lambda notes: exit_interrupted(message(), notes))
+    set_exit(lambda notes: exit_interrupted(message, notes))
     signal.signal(signal.SIGINT, lambda signum, frame: sigint())
     signal.set_wakeup_fd(w, warn_on_full_buffer=False)
     threading.Thread(target=_watch, args=(r, message), name="ctfit-interrupt", daemon=True).start()
