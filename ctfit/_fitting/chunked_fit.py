@@ -461,12 +461,17 @@ def shipped_solver_arguments(p: int, dtype) -> list[tuple[str, Callable, tuple]]
     """(name, function, arguments like its own) of ``lm_init`` and ``lm_step`` for ``p`` padded
     parameters of ``dtype``: what ``scripts/ship_programs.py`` exports (:func:`_solver_programs`
     asks for them with arguments of these shapes). ``lm_step``'s state is the shape of ``lm_init``'s."""
-    flat, tol = np.zeros(p, dtype), np.zeros(2, dtype)
+    flat, tol, zeros = np.zeros(p, dtype), np.zeros(2, dtype), [np.zeros(s, dtype) for s in ((), (p,), (p, p))]
     init_args = (flat, flat, flat, tol)
-    state = jax.eval_shape(_lm_init, *init_args)["state"]
-    state = [np.zeros(x.shape, x.dtype) for x in state]
-    step_args = (flat, state, np.zeros((), dtype), flat, np.zeros((p, p), dtype), flat, flat, tol)
-    return [("lm_init", _lm_init, init_args), ("lm_step", _lm_step, step_args)]
+    state = [np.zeros(x.shape, x.dtype) for x in jax.eval_shape(_lm_init, *init_args)["state"]]
+    return [("lm_init", _lm_init, init_args), ("lm_step", _lm_step, _step_arguments(flat, state, zeros, tol))]
+
+
+def _step_arguments(flat, state: list, zeros: list, tol) -> tuple:
+    """``lm_step``'s arguments (:func:`_lm_step`): the point, the solver's state, the cost, Jᵀr and
+    JᵀJ (``zeros``' shapes), the bounds, the tolerances; the one layout of :func:`_solver_programs`
+    and of the programs shipped (:func:`shipped_solver_arguments`)."""
+    return (flat, state, zeros[0], flat, zeros[2], flat, flat, tol)
 
 
 def _solver_programs(u0: dict) -> tuple:
@@ -481,7 +486,7 @@ def _solver_programs(u0: dict) -> tuple:
     tol = jax.device_put(np.zeros(2, dtype))
     init_args = (flat, flat, flat, tol)
     init = _program("lm_init", _solver_function("lm_init", _lm_init, init_args), *init_args)
-    step_args = (flat, init(*init_args)["state"], zeros[0], flat, zeros[2], flat, flat, tol)
+    step_args = _step_arguments(flat, init(*init_args)["state"], zeros, tol)
     step = _program("lm_step", _solver_function("lm_step", _lm_step, step_args), *step_args)
     return init, step, zeros
 
