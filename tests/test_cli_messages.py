@@ -4,8 +4,10 @@ option, flags show as flags in --help."""
 import ast
 import re
 
+import hypothesis.strategies as st
 import pytest
 import typer.main
+from hypothesis import given, settings
 from typer.testing import CliRunner
 
 from ctfit._cli.messages import cli_message as _cli_message
@@ -132,3 +134,50 @@ def test_the_library_names_its_own_arguments_and_the_command_its_options():
         "sigma_noise = 0.1, steps: 30, loss: log": "sigma_noise = 0.1, steps: 30, loss: log",  # a table's values stay as they are
     }
     assert {k: cli_message(k) for k in shown} == shown
+
+
+_PIECES = ["param_out", "max_steps", "steps", "loss", "seed", "=", " = ", "=...", " must ", "must", "(structure=)", "(start=)",
+           "resume=False", "overwrite=True", "(dtype=float64)", " ", "\n", ",", ")", "x", "-", "m = 0.2 ± 0.01", "steps: 7"]
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(st.sampled_from(_PIECES), max_size=12))
+def test_a_text_passed_over_quickly_has_nothing_to_turn(pieces):
+    """The quick look (``=`` only after a space, no ``must``) passes over a text only where the
+    phrases and patterns would change nothing; otherwise they run as ever."""
+    from ctfit._cli.messages import _nothing_to_turn, _turned
+
+    text = "".join(pieces)
+    assert _cli_message(text) == _turned(text)
+    if _nothing_to_turn(text):
+        assert _turned(text) == text
+
+
+def test_a_fit_table_is_passed_over_and_a_warning_in_it_is_turned():
+    import numpy as np
+
+    import ctfit
+    from ctfit._cli.messages import _nothing_to_turn
+
+    gold = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
+                          wavelength_nm=np.array([450.0, 650.0]))
+    table = ctfit.format_fit_table(ctfit.fit(ctfit.simulate(gold, n_pairs=300, noise=0.01, seed=1), gold.structure), "gold")
+    assert _nothing_to_turn(table)
+    assert _cli_message(table + "\n  warning: not a minimum (more max_steps=, or another start)").endswith("(more --max-steps, or another start)")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.dictionaries(st.text(max_size=5), st.text(max_size=8) | st.integers(-10**6, 10**6) | st.lists(st.text(max_size=3), max_size=3), max_size=5))
+def test_fit_json_on_stdout_is_ascii_and_the_same_document(doc):
+    """``--json`` prints the file's text with every character past ASCII escaped as ``json.dumps``
+    escapes it: the same document, the same text as ``json.dumps(doc, indent=2)`` where the numbers
+    are written alike (here, integers and strings)."""
+    import json
+
+    from ctfit._cli.fit_command import ascii_json
+    from ctfit._io import material_json
+
+    out = ascii_json(material_json(doc)[:-1])
+    assert out.isascii() and "\x7f" not in out
+    assert out == json.dumps(doc, indent=2)
+    assert json.loads(out) == doc

@@ -119,3 +119,60 @@ def test_a_fit_on_chunks_makes_no_report_program(monkeypatch):
     assert light.stats["cost"] == pytest.approx(full.stats["cost"], rel=1e-12)
     assert light.stats["gauss_newton_decrease"] == pytest.approx(full.stats["gauss_newton_decrease"], rel=1e-6, abs=1e-15)
     np.testing.assert_allclose(light.material.params.rd, full.material.params.rd, rtol=1e-12)
+
+
+def _reference_standard_errors(jtj, jt, scale2, order, free):
+    """The standard errors as they were computed before (each quantity on its own; the SVD's
+    condition number always), to compare the one-product form with."""
+    sub = jtj[np.ix_(free, free)]
+    if sub.size:
+        cond = np.linalg.cond(sub)
+        if not np.isfinite(cond) or cond > 1e12:
+            return None
+    cov_u = np.zeros_like(jtj)
+    if sub.size:
+        cov_u[np.ix_(free, free)] = np.linalg.inv(sub) * scale2
+    se = {}
+    for k, jk in jt.items():
+        jk = np.asarray(jk).reshape(-1, jtj.shape[0])
+        with np.errstate(invalid="ignore", over="ignore"):
+            var = np.sum((jk @ cov_u) * jk, axis=1)
+        v = np.sqrt(np.maximum(var, 0))
+        nonzero = jk != 0
+        v = np.where(nonzero[:, ~free].any(axis=1) & ~nonzero[:, free].any(axis=1), np.nan, v)
+        se[k] = v[order] if k in ("m", "weight") and order is not None else v
+    return se
+
+
+@pytest.mark.parametrize("log_cond", [0, 6, 10, 10.9, 11.5, 11.99, 12.01, 13, 17])
+def test_standard_errors_are_the_per_quantity_ones_at_any_conditioning(log_cond):
+    """One product over every quantity's rows, and the SVD skipped where ‖A‖_F‖A⁻¹‖_F already
+    bounds the condition number ten times below 1e12: the same numbers (a row in a product of
+    many may round in its last bit otherwise than alone: BLAS's kernels for one row differ), NaN
+    in the same places, and None exactly where ``np.linalg.cond`` is above 1e12."""
+    rng = np.random.default_rng(int(log_cond * 100))
+    p = 9
+    q, _ = np.linalg.qr(rng.normal(size=(p, p)))
+    jtj = (q * np.logspace(0, -log_cond, p)) @ q.T
+    jtj = (jtj + jtj.T) / 2
+    jt = {"s": rng.normal(size=p), "m": rng.normal(size=(2, p)), "weight": rng.normal(size=(2, p)), "F0": rng.normal(size=(4, p))}
+    jt["F0"][1, :] = 0.0
+    jt["F0"][2, 3:] = 0.0  # depends only on coordinates held below
+    jt["F0"][3, 0] = np.inf  # dn/dF0 at F0 = 0
+    free = np.ones(p, bool)
+    free[:3] = [False, True, True] if log_cond < 11 else [True, True, True]
+    order = np.array([1, 0])
+    want = _reference_standard_errors(jtj, jt, 0.7, order, free)
+    got = standard_errors(jtj, jt, 0.7, order, free)
+    if want is None:
+        assert got is None
+        return
+    assert got is not None and list(got) == list(want)
+    for k in want:
+        np.testing.assert_array_equal(np.isnan(got[k]), np.isnan(want[k]))
+        np.testing.assert_allclose(got[k], want[k], rtol=1e-13, atol=0)
+
+
+def test_standard_errors_of_a_singular_matrix_are_none():
+    jtj = np.ones((3, 3))
+    assert standard_errors(jtj, {"s": np.ones(3)}, 1.0, None) is None

@@ -633,3 +633,46 @@ def test_a_plastic_with_no_specular_part_is_written_and_read_back():
     assert back.structure.family == "plastic" and back.structure.diffuse == "spectrum"
     geom = ctfit.geometry_from_angles_deg(np.array([10.0, 40.0]), np.zeros(2), np.array([20.0, 60.0]), np.array([180.0, 90.0]))
     np.testing.assert_allclose(ctfit.brdf(back.structure, back.params, geom), ctfit.brdf(mat.structure, mat.params, geom), rtol=1e-12)
+
+
+LIST_ERRORS = [
+    ("F0", [0.5, True], r"key 'F0\[1\]': must be a number, got True"),
+    ("F0", [0.5, float("nan")], r"key 'F0\[1\]': nan is outside \[0, 1\]"),
+    ("F0", [0.5, 1.5], r"key 'F0\[1\]': 1\.5 is outside \[0, 1\]"),
+    ("F0", [0.5, None], r"key 'F0\[1\]': must be a number, got None"),
+    ("F0", [0.5, "0.2"], r"key 'F0\[1\]': must be a number, got '0\.2'"),
+    ("F0", [10**400, 0.5], r"key 'F0\[0\]': inf is outside \[0, 1\]"),
+    ("wavelength_nm", [0, 500], r"key 'wavelength_nm\[0\]': 0\.0 is outside \(0, inf\]"),
+    ("wavelength_nm", [450, float("inf")], r"key 'wavelength_nm\[1\]': inf is outside \(0, inf\]"),
+    ("wavelength_nm", [450, 450.0], r"key 'wavelength_nm': must be strictly increasing"),
+]
+
+
+@pytest.mark.parametrize("key, values, message", LIST_ERRORS)
+def test_a_bad_number_in_a_list_is_named_by_its_index(key, values, message):
+    """A list of plain numbers in range is checked at once; any other list is looked through
+    number by number, and the first bad one is named as ever."""
+    doc = {"name": "x", "s": 1, "lobes": [{"m": 0.2}], "wavelength_nm": [450, 550], "F0": [0.5, 0.6]} | {key: values}
+    with pytest.raises(MaterialError, match=message):
+        material_from_dict(doc)
+
+
+def test_lists_of_ints_floats_and_negative_zero_read_as_numbers():
+    m = material_from_dict({"name": "x", "s": 1, "lobes": [{"m": 0.2}], "wavelength_nm": [450, 550.5], "F0": [0, -0.0]})
+    np.testing.assert_array_equal(m.wavelength_nm, [450.0, 550.5])
+    assert m.wavelength_nm.dtype == float and m.params.f0.tolist() == [0.0, 0.0]
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), max_size=20), st.text(max_size=10))
+def test_material_json_reads_back_to_the_same_document(values, name):
+    """msgspec writes each float with the digits that read back to it; a number that is not
+    finite is null; NumPy scalars are numbers; the text is indented by 2 and ends with a newline."""
+    from ctfit._io import material_json
+
+    doc = {"name": name, "values": values, "np": np.float64(0.25), "count": np.int64(3), "nested": {"empty": [], "none": None}}
+    text = material_json(doc)
+    assert text.endswith("}\n") and text.startswith('{\n  "name": ')
+    back = json.loads(text)
+    assert back["values"] == [v if math.isfinite(v) else None for v in values]
+    assert (back["np"], back["count"], back["nested"], back["name"]) == (0.25, 3, {"empty": [], "none": None}, name)

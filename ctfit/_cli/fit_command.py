@@ -4,6 +4,7 @@ fitted together by ``fit_batch``), reported, written; the exit status from the o
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -523,9 +524,21 @@ def _report_fit(res, path: Path, o, target) -> None:
     doc = fit_result_to_dict(res)
     text = material_json(doc)
     if o.as_json:
-        echo(text[:-1] if text.isascii() and "\x7f" not in text else json.dumps(doc, indent=2))  # (ensure_ascii escapes DEL too)
+        echo(ascii_json(text[:-1]))
     if target is not None:
         atomic_write(target, [text])
+
+
+def ascii_json(text: str) -> str:
+    """JSON text with every character past ASCII (DEL too) escaped as ``json.dumps`` escapes it
+    (``\\u00e9``; a surrogate pair beyond the first plane): what ``--json`` prints, whatever
+    the terminal's encoding. The characters are inside strings, so the document is the same."""
+    if text.isascii() and "\x7f" not in text:
+        return text
+    return _NOT_ASCII.sub(lambda m: json.dumps(m[0]).strip('"'), text)
+
+
+_NOT_ASCII = re.compile(r"[^\x00-\x7e]")
 
 
 def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target) -> bool:

@@ -51,8 +51,19 @@ _CLI_NAME = re.compile(r"(?<![\w-])(" + "|".join(_CLI_NAMES) + r")(?==|\s+must\b
 _CLI_BARE = re.compile(r"(?<![\w-])(" + "|".join(_CLI_NAMES) + r")=(?=[),;]|\s|$)")  # "more max_steps=," → "more --max-steps,"
 
 
+def _nothing_to_turn(text: str) -> bool:
+    """Whether ``text`` holds none of what the phrases and patterns above need: an ``=`` right
+    after a word character, or ``must``. A fit's table (some 40 lines, its ``=`` all after a space)
+    is looked through in 0.01 ms instead of a quarter of a millisecond."""
+    return "must" not in text and "=" not in text.replace(" =", "")
+
+
 def cli_message(text: str) -> str:
     """A library message with its Python argument names (``param_out=``) turned into options."""
+    return text if _nothing_to_turn(text) else _turned(text)
+
+
+def _turned(text: str) -> str:
     for phrase, option in _CLI_PHRASES.items():
         text = text.replace(phrase, option)
     text = _CLI_BARE.sub(lambda m: _CLI_NAMES[m[1]], text)

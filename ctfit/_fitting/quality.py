@@ -51,12 +51,25 @@ def peak_width_deg(st: Structure, p: Params) -> float | None:
 
 
 def _summary(err: np.ndarray) -> dict:
-    """Median and 90th percentile of ``err``, a copy of the caller's that is reordered in place
-    (no further copies: a MERL table has 3.3 million samples)."""
-    if not err.size:
+    """Median and 90th percentile of ``err`` (finite), a copy of the caller's that is reordered in
+    place (no further copies: a MERL table has 3.3 million samples).
+
+    One partition finds the order statistics both need; they are combined as ``np.median`` and
+    ``np.quantile(err, 0.9)`` (linear) combine them, to the last bit. The two NumPy calls took
+    0.1 ms for any size, most of a database file's quality section (a file of 2,000 samples: 0.02 ms)."""
+    n = err.size
+    if not n:
         return {"samples": 0, "median_relative_error": None, "p90_relative_error": None}
-    median = float(np.median(err, overwrite_input=True))
-    return {"samples": int(err.size), "median_relative_error": median, "p90_relative_error": float(np.quantile(err, 0.9, overwrite_input=True))}
+    half = n // 2
+    virtual = (n - 1) * 0.9  # np.quantile's linear method: (n − 1)·q, its floor and the next index
+    below = min(math.floor(virtual), n - 1)
+    above = min(below + 1, n - 1)
+    err.partition(sorted({half - 1 if n % 2 == 0 else half, half, below, above}))
+    median = (err[half - 1] + err[half]) / 2 if n % 2 == 0 else err[half]  # np.median: the mean of the middle two
+    a, b = err[below], err[above]
+    t = virtual - below
+    p90 = b - (b - a) * (1 - t) if t >= 0.5 else a + (b - a) * t  # NumPy's _lerp
+    return {"samples": int(n), "median_relative_error": float(median), "p90_relative_error": float(p90)}
 
 
 def sample_regions(data: Measurement, peak_deg: float | None) -> tuple[np.ndarray, np.ndarray]:

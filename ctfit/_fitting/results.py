@@ -9,6 +9,7 @@ where ``stderr`` mirrors the parameters (``s``, ``lobes[j].m``, ``lobes[j].weigh
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -62,7 +63,7 @@ def fit_result_to_dict(res: FitResult, material_keys: bool = True) -> dict:
 
 
 def _pm(value: float, err: float | None) -> str:
-    if err is None or not np.isfinite(err):
+    if err is None or not math.isfinite(err):
         return f"{value:.6g}"
     return f"{value:.6g} ± {err:.2g}"
 
@@ -138,10 +139,19 @@ def _band_rows(mat: Material, se: dict) -> list[str]:
         values.append((np.broadcast_to(np.asarray(p.rd, dtype=float), (len(mat.band_labels),)), "Rd"))
     if len(cols) > 1:
         lines.append("  " + "  ".join(f"{c:>18}" for c in cols))
-        for i, lab in enumerate(mat.band_labels):
-            err = lambda name: _at(se.get(name), 0 if (name == "Rd" and st.diffuse == "constant") else i)
-            lines.append("  " + "  ".join(f"{c:>18}" for c in [lab] + [_pm(v[i], err(name)) for v, name in values]))
+        bands = len(mat.band_labels)
+        columns = [(np.asarray(v, dtype=float).tolist(), _errors(se.get(name), bands, name == "Rd" and st.diffuse == "constant")) for v, name in values]
+        for i, lab in enumerate(mat.band_labels):  # Python floats: formatting NumPy's scalars took most of a table's time
+            lines.append("  " + "  ".join(f"{c:>18}" for c in [lab] + [_pm(v[i], e[i]) for v, e in columns]))
     return lines
+
+
+def _errors(a: ArrayLike | None, bands: int, one: bool) -> list:
+    """Per band the standard error of a quantity (``one``: its first, for every band; None: none)."""
+    if a is None:
+        return [None] * bands
+    flat = np.asarray(a, dtype=float).reshape(-1).tolist()
+    return [flat[0]] * bands if one else flat
 
 
 def _f0(mat: Material) -> Any:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import datetime
 import difflib
-import json
+import functools
 import math
 import os
 import pathlib
@@ -35,6 +35,7 @@ import tomllib
 from collections.abc import Sequence
 from typing import Any
 
+import msgspec
 import numpy as np
 from jaxtyping import ArrayLike
 
@@ -140,6 +141,13 @@ def _is_number(v: object) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
+@functools.lru_cache(maxsize=256)
+def _close_model_key(key: str) -> str | None:
+    """The model key that ``key`` is likely a misspelling of (a document's other keys, such as a
+    fit's ``fit`` and ``data``, are looked up again in every document read back)."""
+    return next(iter(difflib.get_close_matches(key, _MODEL_KEYS, 1, 0.8)), None)
+
+
 class _Parser:
     """Turns the keys of one material document into a Material; errors name source and key."""
 
@@ -152,11 +160,34 @@ class _Parser:
     def number(self, value: Any, key: str, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False) -> float:
         if not _is_number(value):
             raise self.error(key, f"must be a number, got {quote(value)}")
-        x = float(value)
+        try:
+            x = float(value)
+        except OverflowError:  # an int past float's range (a document made in Python)
+            x = math.inf if value > 0 else -math.inf
         if not math.isfinite(x) or x < lo or x > hi or (lo_open and x == lo):
             lo_txt = f"({lo:g}" if lo_open else f"[{lo:g}"
             raise self.error(key, f"{x!r} is outside {lo_txt}, {hi:g}]")
         return x
+
+    def numbers(self, values: list, key: str, lo: float = -math.inf, hi: float = math.inf, lo_open: bool = False,
+                allow_null: bool = False) -> np.ndarray:
+        """A list of :meth:`number` (``allow_null``: None is NaN) as an array; its errors name
+        ``key[i]``. Plain ints and floats in range are checked at once (a fit's document has
+        some hundred of them); anything else goes through :meth:`number`, which says what is wrong."""
+        if values and all(type(v) is float or type(v) is int for v in values):
+            try:
+                out = np.array(values, dtype=float)
+            except OverflowError:  # an int beyond float: number() says so
+                out = np.full(1, np.nan)
+            inside = (out >= lo) & (out <= hi) & np.isfinite(out)
+            if lo_open:
+                inside &= out != lo
+            if bool(np.all(inside)):
+                return out
+        return np.asarray(
+            [math.nan if v is None and allow_null else self.number(v, f"{key}[{i}]", lo, hi, lo_open) for i, v in enumerate(values)],
+            dtype=float,
+        )
 
     def choice(self, key: str, allowed: Sequence[Any], default: Any) -> Any:
         value = self.data.get(key, default)
@@ -170,7 +201,7 @@ class _Parser:
         for key, value in self.data.items():
             if key in _MODEL_KEYS:
                 continue
-            close = lowered.get(key.lower()) or next(iter(difflib.get_close_matches(key, _MODEL_KEYS, 1, 0.8)), None)
+            close = lowered.get(key.lower()) or _close_model_key(key)
             if close:
                 raise self.error(key, f"unknown key; did you mean '{close}'?")
             meta[key] = value
@@ -269,7 +300,7 @@ class _Parser:
             if len(set(value)) != len(value):
                 raise self.error(key, f"channel names must be unique, got {value}")
             return None, tuple(value), key, None
-        wl = np.asarray([self.number(v, f"{key}[{i}]", 0, math.inf, lo_open=True) for i, v in enumerate(value)])
+        wl = self.numbers(value, key, 0, math.inf, lo_open=True)
         if np.any(np.diff(wl) <= 0):
             raise self.error(key, "must be strictly increasing")
         return wl, None, key, None
@@ -285,11 +316,7 @@ class _Parser:
             raise self.error(key, f"must be a number or a list over {band_key}, got {quote(value)}")
         if len(value) != nbands:
             raise self.error(key, f"has {len(value)} values, {band_key} has {nbands}")
-        return np.asarray(
-            [math.nan if v is None and allow_null else self.number(v, f"{key}[{i}]", lo, hi, lo_open)
-             for i, v in enumerate(value)],
-            dtype=float,
-        )  # fmt: skip
+        return self.numbers(value, key, lo, hi, lo_open, allow_null)
 
 
 def material_from_dict(data: dict, *, source: str = "<material>", base_dir: str | os.PathLike[str] | None = None, default_name: str = "") -> Material:
@@ -448,8 +475,8 @@ def jsonable(x: Any) -> Any:
         return _finite(x.tolist())
     if isinstance(x, dict):
         return {str(k): jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [jsonable(v) for v in x]
+    if isinstance(x, (list, tuple)):  # floats inline (a fit's spectra), the rest by recursion
+        return [(v if math.isfinite(v) else None) if type(v) is float else jsonable(v) for v in x]
     if isinstance(x, (bool, np.bool_)):
         return bool(x)
     if isinstance(x, (int, np.integer)):
@@ -575,5 +602,32 @@ def save_material_json(material: Material, path: str | os.PathLike[str], extra: 
 
 def material_json(doc: dict) -> str:
     """The text :func:`save_material_json` writes for ``doc`` (a :func:`material_to_dict`): JSON
-    indented by 2, UTF-8 characters as they are, no NaN (``material_to_dict`` makes them null)."""
-    return json.dumps(doc, indent=2, ensure_ascii=False, allow_nan=False) + "\n"
+    indented by 2, UTF-8 characters as they are, a number that is not finite as null (as
+    ``material_to_dict`` makes them).
+
+    msgspec encodes it: ``json.dumps`` with an indent runs Python's own encoder, 0.33 ms for a fit of
+    31 bands against 0.02 ms. Each float has the fewest significant digits that read back to it, as
+    ``json.dumps`` writes it, in msgspec's form (``0.00001``, ``1.5e-7``, ``1e16``; ``json.dumps``
+    writes ``1e-05``, ``1.5e-07``, ``1e+16``).
+
+    >>> print(material_json({"name": "glass", "s": 1.0, "F0": [0.04, 2.5e-05], "fit": {"warnings": []}}), end="")
+    {
+      "name": "glass",
+      "s": 1.0,
+      "F0": [
+        0.04,
+        0.000025
+      ],
+      "fit": {
+        "warnings": []
+      }
+    }
+    """
+    return msgspec.json.format(msgspec.json.encode(doc, enc_hook=_plain_scalar), indent=2).decode() + "\n"
+
+
+def _plain_scalar(value: Any) -> Any:
+    """A NumPy scalar as the Python number msgspec encodes (else msgspec's own TypeError)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot write a {type(value).__name__} to a material file")

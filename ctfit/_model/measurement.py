@@ -110,7 +110,7 @@ def band_labels(wavelength_nm: Sequence[float] | np.ndarray | None, channels: Se
         return ["unknown band"]
     if channels is not None:
         return list(channels)
-    return [] if wavelength_nm is None else [f"{w:g} nm" for w in wavelength_nm]
+    return [] if wavelength_nm is None else [f"{w:g} nm" for w in np.asarray(wavelength_nm, dtype=float).tolist()]  # Python floats format faster
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
