@@ -23,9 +23,14 @@ LARGEST = 72
 """The most (padded) parameters shipped: three lobes with 31 bands of n and k, or of F0 and R_d, fit below it."""
 
 
+def programs(x64: bool) -> list:
+    """The programs shipped with JAX's 64-bit types on (both dtypes) or off (float32 alone: float64
+    fits need them on)."""
+    dtypes = (np.float64, np.float32) if x64 else (np.float32,)
+    return [one for dtype in dtypes for p in range(PARAMETER_STEP, LARGEST + 1, PARAMETER_STEP) for one in shipped_solver_arguments(p, dtype)]
+
+
 def main() -> int:
-    programs = [one for dtype in (np.float64, np.float32) for p in range(PARAMETER_STEP, LARGEST + 1, PARAMETER_STEP)
-                for one in shipped_solver_arguments(p, dtype)]
     print(ship_programs(programs, "scripts/ship_programs.py (jax.export of ctfit/_fitting/chunked_fit.py's _lm_init and _lm_step)"))
     return 0
 

@@ -31,33 +31,56 @@ def _module_text(blob: bytes) -> str:
     return export.deserialize(bytearray(blob)).mlir_module()
 
 
+VARIANTS = [(True, np.float64), (True, np.float32), (False, np.float32)]
+"""(JAX's 64-bit types on, dtype) of the shipped programs: float32 ones twice, with the types off
+their counters are int32 (float64 fits need them on)."""
+
+
 def test_the_manifest_lists_every_shipped_program_and_the_versions_they_were_made_with():
     files = sorted(p.name for p in SHIPPED.glob("*.jaxexport"))
-    assert files == MANIFEST["programs"] and len(files) == 2 * 2 * 9
+    assert files == MANIFEST["programs"] and len(files) == 3 * 2 * 9
     assert set(MANIFEST["versions"]) == set(shipped_programs.SHIPPED_VERSIONS)
-    for dtype in (np.float64, np.float32):
-        for p in range(PARAMETER_STEP, 72 + 1, PARAMETER_STEP):
-            for name, _, args in shipped_solver_arguments(p, dtype):
-                assert f"{shipped_name(name, args)}.jaxexport" in files, (name, p, dtype)
+    for x64, dtype in VARIANTS:
+        with jax.enable_x64(x64):
+            for p in range(PARAMETER_STEP, 72 + 1, PARAMETER_STEP):
+                for name, _, args in shipped_solver_arguments(p, dtype):
+                    assert f"{shipped_name(name, args)}.jaxexport" in files, (name, p, dtype, x64)
 
 
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_the_shipped_programs_are_what_the_current_code_exports(dtype):
+def test_a_program_made_with_64_bit_types_on_is_not_the_one_with_them_off():
+    """The float32 ``lm_init`` takes the same arrays either way but returns int64 counters with the
+    types on: with them off it is another file (a first float32 fit without x64 once took the
+    other one and failed)."""
+    with jax.enable_x64(True):
+        on = [shipped_name(name, args) for name, _, args in shipped_solver_arguments(PARAMETER_STEP, np.float32)]
+    with jax.enable_x64(False):
+        off = [shipped_name(name, args) for name, _, args in shipped_solver_arguments(PARAMETER_STEP, np.float32)]
+    assert not set(on) & set(off)
+
+
+@pytest.mark.parametrize("x64, dtype", VARIANTS)
+def test_the_shipped_programs_are_what_the_current_code_exports(x64, dtype):
     """Where the installed versions are the manifest's (else ctfit does not use them: the second
     branch), every shipped module equals a new export of the solver's code: a change to the
     solver fails here until the programs are shipped again."""
-    if not SAME_VERSIONS:
-        assert all(shipped(name, args) is None for name, _, args in shipped_solver_arguments(PARAMETER_STEP, dtype))
-        return
-    for p in range(PARAMETER_STEP, 72 + 1, PARAMETER_STEP):
-        for name, fn, args in shipped_solver_arguments(p, dtype):
-            stored = (SHIPPED / f"{shipped_name(name, args)}.jaxexport").read_bytes()
-            assert _module_text(export_program(fn, args)) == _module_text(stored), (name, p, dtype)
+    with jax.enable_x64(x64):
+        if not SAME_VERSIONS:
+            assert all(shipped(name, args) is None for name, _, args in shipped_solver_arguments(PARAMETER_STEP, dtype))
+            return
+        for p in range(PARAMETER_STEP, 72 + 1, PARAMETER_STEP):
+            for name, fn, args in shipped_solver_arguments(p, dtype):
+                stored = (SHIPPED / f"{shipped_name(name, args)}.jaxexport").read_bytes()
+                assert _module_text(export_program(fn, args)) == _module_text(stored), (name, p, dtype, x64)
 
 
 @pytest.mark.skipif(not SAME_VERSIONS, reason="ctfit uses the shipped programs only with the manifest's versions (tested above)")
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_a_shipped_program_computes_what_the_traced_one_computes_bit_for_bit(dtype):
+@pytest.mark.parametrize("x64, dtype", VARIANTS)
+def test_a_shipped_program_computes_what_the_traced_one_computes_bit_for_bit(x64, dtype):
+    with jax.enable_x64(x64):
+        _shipped_and_traced_agree(dtype)
+
+
+def _shipped_and_traced_agree(dtype):
     rng = np.random.default_rng(0)
     p = 16
     (init_name, init_fn, init_args), (step_name, step_fn, step_args) = shipped_solver_arguments(p, dtype)
@@ -80,7 +103,7 @@ def test_a_shipped_program_computes_what_the_traced_one_computes_bit_for_bit(dty
 _FIRST_FIT = """
 import json, sys
 import jax
-jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_enable_x64", sys.argv[4] == "float64")
 import numpy as np
 import ctfit
 from ctfit._runtime import shipped_programs
@@ -88,7 +111,7 @@ if sys.argv[2] == "traced":
     shipped_programs.SHIPPED = shipped_programs.SHIPPED / "nothing here"
 ctfit.enable_compilation_cache(sys.argv[3])
 data = ctfit.read_measurement(sys.argv[1])
-res = ctfit.fit(data, ctfit.Structure(lobes=2, diffuse="F0/pi"))
+res = ctfit.fit(data, ctfit.Structure(lobes=2, diffuse="F0/pi"), dtype=getattr(jax.numpy, sys.argv[4]))
 print(json.dumps(dict(cost=float(res.stats["cost"]), m=np.asarray(res.material.params.m).tolist(), steps=int(res.stats["steps"]),
                       imported=sorted(m for m in ("equinox", "optimistix", "lineax") if m in sys.modules))))
 """
@@ -96,12 +119,14 @@ print(json.dumps(dict(cost=float(res.stats["cost"]), m=np.asarray(res.material.p
 
 @pytest.mark.slow
 @pytest.mark.skipif(not SAME_VERSIONS, reason="ctfit uses the shipped programs only with the manifest's versions (tested above)")
-def test_a_first_fit_uses_the_shipped_solver_and_fits_as_one_that_traces_it(tmp_path):
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_a_first_fit_uses_the_shipped_solver_and_fits_as_one_that_traces_it(tmp_path, dtype):
+    """float64 with JAX's 64-bit types on; float32 with them off (JAX's default, a library user's)."""
     path = ROOT / "measurements" / "testbed" / "blend-conductors.csv"
-    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env = {k: v for k, v in os.environ.items() if k not in ("JAX_COMPILATION_CACHE_DIR", "JAX_ENABLE_X64")}
     docs = {}
     for way in ("shipped", "traced"):
-        done = subprocess.run([sys.executable, "-c", _FIRST_FIT, str(path), way, str(tmp_path / way)], capture_output=True, text=True, env=env,
+        done = subprocess.run([sys.executable, "-c", _FIRST_FIT, str(path), way, str(tmp_path / way), dtype], capture_output=True, text=True, env=env,
                               timeout=600)
         assert done.returncode == 0, done.stderr[-3000:]
         docs[way] = json.loads(done.stdout.splitlines()[-1])

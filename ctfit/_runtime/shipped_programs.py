@@ -29,7 +29,7 @@ from typing import Any
 
 import jax
 
-from .._model import array_leaves, split_arrays
+from .._model import array_leaves, split_arrays, x64_enabled
 from .stored_programs import register_lapack
 
 __all__ = ["SHIPPED", "SHIPPED_VERSIONS", "export_program", "installed_versions", "ship_programs", "shipped", "shipped_name"]
@@ -43,8 +43,13 @@ SHIPPED_VERSIONS = ("jax", "jaxlib", "optimistix", "lineax", "equinox")
 
 def shipped_name(name: str, args: tuple) -> str:
     """The file name (without suffix) of program ``name`` for arguments like ``args``: the name and
-    a digest of the array leaves' shapes and dtypes."""
+    a digest of the array leaves' shapes and dtypes, and of whether JAX's 64-bit types are off
+    (``jax_enable_x64``): a float32 program made with them on takes the same arrays but returns
+    int64 counters, which JAX with them off cannot pass back in (a first float32 fit without
+    x64 failed so: "Dtype mismatch ... expected int64 and called with int32")."""
     shapes = ";".join(f"{leaf.shape}{leaf.dtype.str}" for leaf in array_leaves(args))
+    if not x64_enabled():
+        shapes += ";x32"
     return f"{name}-{hashlib.sha256(shapes.encode()).hexdigest()[:16]}"
 
 
@@ -116,18 +121,22 @@ def export_program(fn: Callable, args: tuple) -> bytes:
     return bytes(out.serialize())
 
 
-def ship_programs(programs: list[tuple[str, Callable, tuple]], made_by: str) -> str:
-    """Export each (name, function, arguments like its own) of ``programs`` (:func:`export_program`)
-    into :data:`SHIPPED`, in place of what was shipped, with ``manifest.json``: the files, the
-    installed versions (:func:`installed_versions`) and ``made_by``. Returns a line saying what it wrote."""
+def ship_programs(programs: Callable[[bool], list[tuple[str, Callable, tuple]]], made_by: str) -> str:
+    """Export each (name, function, arguments like its own) of ``programs(x64)`` (:func:`export_program`),
+    with JAX's 64-bit types on (``x64`` True) and then off (False: the programs of float32 fits
+    without ``jax_enable_x64``, whose counters are int32), into :data:`SHIPPED`, in place of what
+    was shipped, with ``manifest.json``: the files, the installed versions (:func:`installed_versions`)
+    and ``made_by``. Returns a line saying what it wrote."""
     SHIPPED.mkdir(parents=True, exist_ok=True)
     for old in SHIPPED.glob("*.jaxexport"):
         old.unlink()
     names = []
-    for name, fn, args in programs:
-        file = SHIPPED / f"{shipped_name(name, args)}.jaxexport"
-        file.write_bytes(export_program(fn, args))
-        names.append(file.name)
+    for x64 in (True, False):
+        with jax.enable_x64(x64):
+            for name, fn, args in programs(x64):
+                file = SHIPPED / f"{shipped_name(name, args)}.jaxexport"
+                file.write_bytes(export_program(fn, args))
+                names.append(file.name)
     manifest = dict(versions=installed_versions(), programs=sorted(names), made_by=made_by)
     (SHIPPED / "manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return f"{len(names)} programs in {SHIPPED}, {sum((SHIPPED / n).stat().st_size for n in names) / 1e6:.2f} MB"
