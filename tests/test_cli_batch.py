@@ -363,3 +363,22 @@ def test_a_stored_chain_needs_resume_or_overwrite(tmp_path):
     assert r.exit_code == 1 and "run longer: --steps" in r.stderr, r.output
     r = run("fit", csv, "--overwrite")
     assert r.exit_code == 2 and "--overwrite needs --backend" in r.stderr
+
+
+def test_a_file_whose_name_is_not_utf8_is_fitted_and_rerun(tmp_path):
+    """A name of bytes that are not UTF-8 (Latin-1 from an older system): Python holds them as lone
+    surrogates, which JSON text cannot hold. The result is written under the file's own name,
+    names its input with U+FFFD where the bytes were, and a rerun knows it as its own."""
+    import os
+
+    folder = tmp_path / "db"
+    name = os.fsdecode(b"caf\xe9.csv")
+    write(folder, name)
+    write(folder, "b.csv", seed=1)
+    out = tmp_path / "out"
+    for _ in range(2):  # the second run replaces its own results
+        r = run("fit", folder, "-o", out, "-q", "--lobes", "1", "--no-diffuse")
+        assert r.exit_code == 0, r.output
+    doc = json.loads((out / os.fsdecode(b"caf\xe9.fit.json")).read_text(encoding="utf-8"))
+    assert doc["data"].endswith("caf\ufffd.csv") and doc["name"].endswith("caf\ufffd.csv")
+    assert doc["fit"]["converged"] is True

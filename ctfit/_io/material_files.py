@@ -56,7 +56,7 @@ from .._model import (
 from .errors import MaterialError
 from .files import atomic_write
 from .optical_constants import TABLE_FOLDERS, is_table_name, read_material_text, read_optical_constants, table_folders, table_names
-from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits
+from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits, valid_text
 
 __all__ = ["load_material", "material_from_dict", "material_to_dict", "material_json", "save_material_json", "float_list", "jsonable"]
 
@@ -623,7 +623,11 @@ def material_json(doc: dict) -> str:
       }
     }
     """
-    return msgspec.json.format(msgspec.json.encode(doc, enc_hook=_plain_scalar), indent=2).decode() + "\n"
+    try:
+        raw = msgspec.json.encode(doc, enc_hook=_plain_scalar)
+    except UnicodeEncodeError:  # a lone surrogate: the name of a file that is not UTF-8, as Python decodes it
+        raw = msgspec.json.encode(valid_text(doc), enc_hook=_plain_scalar)
+    return msgspec.json.format(raw, indent=2).decode() + "\n"
 
 
 def _plain_scalar(value: Any) -> Any:

@@ -17,11 +17,12 @@ import json
 import os
 import stat
 import sys
+from typing import Any
 
 from .errors import DataError
 
 __all__ = ["MAX_NESTING", "QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "check_nesting", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep",
-           "too_many_digits"]
+           "too_many_digits", "valid_text"]
 
 QUOTE_CHARS = 80
 """The most characters of a file's content that an error message quotes."""
@@ -204,3 +205,24 @@ def read_json_or_none(path):
             return parse_json(f.read(), path)
     except (OSError, ValueError, MemoryError):
         return None
+
+
+def valid_text(x: Any) -> Any:
+    r"""``x`` with every string made valid UTF-8: the bytes of a file name that is not UTF-8
+    (which Python holds as lone surrogates, ``os.fsdecode``) as U+FFFD, as a terminal shows
+    them; any other lone surrogate as ``?``. JSON text cannot hold them: a fit-result document
+    names its input so (``"data": "x\ufffd.csv"``), and a rerun knows it by that name.
+
+    >>> valid_text({"data": "x\udcff.csv", "n": [1.5]}) == {"data": "x\ufffd.csv", "n": [1.5]}
+    True
+    """
+    if isinstance(x, str):
+        try:
+            return x.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+        except UnicodeEncodeError:
+            return x.encode("utf-8", "replace").decode("utf-8")
+    if isinstance(x, dict):
+        return {valid_text(k): valid_text(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [valid_text(v) for v in x]
+    return x
