@@ -314,3 +314,17 @@ def test_gltf_brdf_is_the_specifications_ggx():
         f = lambda phi, theta: gltf_brdf(white(rough), 30.0, 0.0, np.degrees(theta), np.degrees(phi))[0] * np.cos(theta) * np.sin(theta)
         albedo.append(dblquad(f, 0, np.pi / 2, 0, 2 * np.pi, epsabs=1e-5)[0])
     assert 0.7 < albedo[1] < 0.9 and 0.97 < albedo[0] < 1.0
+
+
+@pytest.mark.parametrize("to", ["mitsuba", "mitsuba-dict", "gltf"])
+def test_a_material_named_after_a_file_that_is_not_utf8_is_exported(to, tmp_path):
+    """A material file's name is its name when it has no ``name`` key; Python holds a name that
+    is not UTF-8 as lone surrogates, which UTF-8 text cannot hold: the export writes U+FFFD there."""
+    import os
+
+    gold = ctfit.Material(ctfit.Structure(), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.9, 0.7, 0.3])),
+                          channels=("R", "G", "B"), name=os.fsdecode(b"caf\xe9"))
+    path = tmp_path / f"out.{to}"
+    ctfit.export_material(gold, to=to, path=path)
+    text = path.read_text(encoding="utf-8")  # UTF-8 text (the dict form does not name the material)
+    assert "caf\ufffd" in text or to == "mitsuba-dict"

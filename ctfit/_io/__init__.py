@@ -24,6 +24,6 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "read_ahead": ['ReadAhead', 'start_read_ahead', 'usable_cores'],
         "readers": ['read_measurement', 'reader_for'],
         "rgl": ['bilinear', 'marginal_sample', 'read_rgl', 'read_tensor_file'],
-        "untrusted": ['check_input_file', 'parse_json', 'quote', 'read_json_or_none', 'shorten'],
+        "untrusted": ['check_input_file', 'parse_json', 'quote', 'read_json_or_none', 'shorten', 'valid_text'],
     },
 )
