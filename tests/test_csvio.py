@@ -577,3 +577,12 @@ def test_a_large_file_is_not_held_in_memory(tmp_path, monkeypatch):
     whole = peak()
     monkeypatch.setattr(files, "MAP_BYTES", 0)
     assert peak() < whole - 0.8 * size
+
+
+def test_metadata_naming_a_file_that_is_not_utf8_is_written_as_utf8(tmp_path):
+    """``ctfit simulate`` of a material file whose name is not UTF-8 writes that name in a ``#``
+    line: its undecodable bytes as U+FFFD (the file is UTF-8 text, which lone surrogates are not)."""
+    m = Measurement(theta_i=np.array([30.0]), phi_i=np.zeros(1), theta_o=np.array([30.0]), phi_o=np.array([180.0]),
+                    band=np.zeros(1, int), wavelength_nm=np.array([550.0]), brdf=np.array([0.25]))
+    write_csv(m, tmp_path / "one.csv", meta={"material": os.fsdecode(b"caf\xe9.toml")})
+    assert read_csv(tmp_path / "one.csv").meta["material"] == "caf\ufffd.toml"
