@@ -19,6 +19,7 @@ import stat
 import sys
 from typing import Any
 
+from .._model.names import valid_name
 from .errors import DataError
 
 __all__ = ["MAX_NESTING", "QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "check_nesting", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep",
@@ -217,10 +218,7 @@ def valid_text(x: Any) -> Any:
     True
     """
     if isinstance(x, str):
-        try:
-            return x.encode("utf-8", "surrogateescape").decode("utf-8", "replace")
-        except UnicodeEncodeError:
-            return x.encode("utf-8", "replace").decode("utf-8")
+        return valid_name(x)
     if isinstance(x, dict):
         return {valid_text(k): valid_text(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):

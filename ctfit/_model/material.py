@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .measurement import band_labels
+from .names import valid_name
 from .pytrees import pytree
 
 __all__ = ["Structure", "Params", "Material", "used", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "FAMILIES", "MAX_LOBES"]
@@ -206,6 +207,8 @@ class Material:
     band_unknown: bool = False
 
     def __post_init__(self) -> None:
+        if isinstance(self.name, str) and self.name != (name := valid_name(self.name)):
+            object.__setattr__(self, "name", name)  # a material file's name that is not UTF-8 (names.py)
         if self.band_unknown and (self.wavelength_nm is None or len(self.wavelength_nm) != 1):
             raise ValueError(f"material {self.name!r}: band_unknown needs exactly one wavelength band (a placeholder)")
 

@@ -21,6 +21,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float, Int
 
 from .direction_pairs import unique_direction_pairs
+from .names import valid_name
 
 __all__ = ["Measurement", "band_labels", "check_samples", "format_value", "invalid_value", "value_rules"]
 
@@ -155,6 +156,8 @@ class Measurement:
     band_unknown: bool = False
 
     def __post_init__(self) -> None:
+        if isinstance(self.source, str) and self.source != (source := valid_name(self.source)):
+            object.__setattr__(self, "source", source)  # a file name that is not UTF-8 (names.py)
         if (self.wavelength_nm is None) == (self.channels is None):
             raise ValueError("a Measurement has either wavelength_nm or channels, not both or neither")
         if self.band_unknown and self.n_bands != 1:
