@@ -19,7 +19,7 @@ import stat
 import sys
 from typing import Any
 
-from .._model.names import valid_name
+from .._model import valid_name
 from .errors import DataError
 
 __all__ = ["MAX_NESTING", "QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "check_nesting", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep",
