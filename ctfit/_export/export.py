@@ -8,7 +8,7 @@ import os
 
 import numpy as np
 
-from .._io import atomic_write, valid_text, write_merl
+from .._io import atomic_write, write_merl
 from .._model import Material, evaluate_at
 from .error_grid import ERROR_GRID, error_grid_angles, relative_difference
 from .gltf import gltf_brdf, gltf_material
@@ -146,8 +146,6 @@ def export_material(
         raise ValueError(f"unknown export format {to!r}: one of {', '.join(EXPORT_FORMATS)}")
     if mitsuba_plastic not in ("exact", "roughplastic"):
         raise ValueError(f"mitsuba_plastic must be 'exact' or 'roughplastic', got {mitsuba_plastic!r}")
-    if isinstance(material.name, str) and material.name != valid_text(material.name):  # from a file name that is not UTF-8
-        material = dataclasses.replace(material, name=valid_text(material.name))
     result = _export_mitsuba(material, to, mitsuba_plastic) if to.startswith("mitsuba") else _export_rgb(material, to)
     if path is not None:
         result.write(path)

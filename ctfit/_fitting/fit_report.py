@@ -166,9 +166,7 @@ def _inverse_if_conditioned(sub: np.ndarray) -> np.ndarray | None:
         cond = np.linalg.cond(sub)
     except np.linalg.LinAlgError:
         return None
-    if not np.isfinite(cond) or cond > MAX_CONDITION:
-        return None
-    return inverse if inverse is not None else np.linalg.inv(sub)
+    return inverse if np.isfinite(cond) and cond <= MAX_CONDITION else None  # (a matrix inv refused is singular: cond is not finite)
 
 
 def undetermined(jtj) -> np.ndarray:

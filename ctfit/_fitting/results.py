@@ -125,7 +125,7 @@ def quality_line(quality: dict) -> str:
 
 def _band_rows(mat: Material, se: dict) -> list[str]:
     """The per-band rows (F0, n, k, R_d); a plastic's one index on a line of its own."""
-    st, p = mat.structure, mat.params
+    st, p, labels = mat.structure, mat.params, mat.band_labels  # (a property: made once here)
     lines, cols, values = [], ["band"], []
     if st.needs_fresnel_params:
         f0 = np.asarray(_f0(mat))
@@ -136,12 +136,11 @@ def _band_rows(mat: Material, se: dict) -> list[str]:
             values += [(f0, "F0"), (np.asarray(p.n), "n")] + ([(np.asarray(p.k), "k")] if st.fresnel == "conductor" else [])
     if st.has_rd:
         cols.append("Rd (sr⁻¹)" + (", transmitted" if st.diffuse == "transmitted" else ""))
-        values.append((np.broadcast_to(np.asarray(p.rd, dtype=float), (len(mat.band_labels),)), "Rd"))
+        values.append((np.broadcast_to(np.asarray(p.rd, dtype=float), (len(labels),)), "Rd"))
     if len(cols) > 1:
         lines.append("  " + "  ".join(f"{c:>18}" for c in cols))
-        bands = len(mat.band_labels)
-        columns = [(np.asarray(v, dtype=float).tolist(), _errors(se.get(name), bands, name == "Rd" and st.diffuse == "constant")) for v, name in values]
-        for i, lab in enumerate(mat.band_labels):  # Python floats: formatting NumPy's scalars took most of a table's time
+        columns = [(np.asarray(v, dtype=float).tolist(), _errors(se.get(name), len(labels), name == "Rd" and st.diffuse == "constant")) for v, name in values]
+        for i, lab in enumerate(labels):  # Python floats: formatting NumPy's scalars took most of a table's time
             lines.append("  " + "  ".join(f"{c:>18}" for c in [lab] + [_pm(v[i], e[i]) for v, e in columns]))
     return lines
 

@@ -16,11 +16,10 @@ from collections.abc import Iterator, Mapping
 import numpy as np
 from jaxtyping import ArrayLike, Float
 
-from .._model import Measurement, format_value as _fmt, invalid_value
+from .._model import Measurement, format_value as _fmt, invalid_value, valid_name
 from .csv_table import ANGLES, CHANNELS, KNOWN_COLUMNS, CsvTable, Header, measurement_columns, read_table
 from .errors import DataError
 from .files import atomic_write
-from .untrusted import valid_text
 
 __all__ = ["measurement_from_table", "read_csv", "write_csv"]
 
@@ -202,7 +201,7 @@ def write_csv(
 def _meta_lines(meta: dict) -> list[str]:
     lines = []
     for key, value in meta.items():
-        value = valid_text(str(value))  # a name from a file that is not UTF-8: its bytes as U+FFFD (UTF-8 text cannot hold them)
+        value = valid_name(str(value))  # a name from a file that is not UTF-8: its bytes as U+FFFD (UTF-8 text cannot hold them)
         if not re.fullmatch(r"[A-Za-z_][\w.-]*", str(key)) or "\n" in value or "\r" in value:
             raise ValueError(f"metadata {key!r}: {value!r} cannot be written as a '# key: value' line")
         lines.append(f"# {key}: {value}")

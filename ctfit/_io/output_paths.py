@@ -14,8 +14,9 @@ import os
 import stat
 from pathlib import Path
 
+from .._model import valid_name
 from .files import replace_links_in, writes_in_place
-from .untrusted import quote, read_json_or_none, valid_text
+from .untrusted import quote, read_json_or_none
 
 __all__ = [
     "OutputError",
@@ -292,8 +293,8 @@ def _same_input(earlier: str, data) -> bool:
     """Whether a result's ``data`` (the input as its run named it) is ``data``: the same file, or a
     relative name that ``data``'s absolute path ends with (the earlier run was started in
     another folder: ``fits/a.fit.json`` of ``data/a.csv``, rerun on ``/home/me/data``)."""
-    if same_file(earlier, data) or os.path.normpath(earlier) in {os.path.normpath(data), os.path.normpath(valid_text(os.fspath(data)))}:
-        return True  # (valid_text: the name of a file that is not UTF-8, as its result holds it)
+    if same_file(earlier, data) or os.path.normpath(earlier) in {os.path.normpath(data), os.path.normpath(valid_name(os.fspath(data)))}:
+        return True  # (valid_name: the name of a file that is not UTF-8, as its result holds it)
     tail = os.path.normpath(earlier)
     return not os.path.isabs(tail) and not tail.startswith("..") and os.path.abspath(data).endswith(os.sep + tail)
 

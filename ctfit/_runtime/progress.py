@@ -100,22 +100,20 @@ def echo(text: str, *, err: bool = False) -> None:
 
 def _write(text: str, stream) -> None:
     _tolerant(sys.stdout, sys.stdout.flush)  # stdout first: a line on stderr never lands inside buffered table text
-    _tolerant(stream, lambda: (stream.write(_writable(text + "\n", stream)), stream.flush()))
+    _tolerant(stream, lambda: _write_text(stream, text + "\n"))
 
 
-def _writable(text: str, stream) -> str:
-    """``text`` as ``stream`` can write it: a character its encoding refuses (the lone surrogates
-    in which Python holds the name of a file that is not UTF-8, on a UTF-8 terminal) as a
-    backslash escape, as messages quote such a name (``caf\\udce9.csv``); a fit's table printed
-    so failed that file."""
-    encoding = getattr(stream, "encoding", None) or "utf-8"
+def _write_text(stream, text: str) -> None:
+    """``stream.write(text)`` and a flush; a character its encoding refuses (the lone surrogates in which
+    Python holds the name of a file that is not UTF-8, on a UTF-8 terminal) as a backslash
+    escape, as messages quote such a name (``caf\\udce9.csv``): a fit's table printed so failed
+    that file. (A text stream encodes the whole text before it writes any of it.)"""
     try:
-        text.encode(encoding, getattr(stream, "errors", None) or "strict")
+        stream.write(text)
     except UnicodeEncodeError:
-        return text.encode(encoding, "backslashreplace").decode(encoding)
-    except LookupError:  # an encoding Python does not know: the stream says what is wrong
-        pass
-    return text
+        encoding = getattr(stream, "encoding", None) or "utf-8"
+        stream.write(text.encode(encoding, "backslashreplace").decode(encoding))
+    stream.flush()
 
 
 def _tolerant(stream, action) -> None:
