@@ -57,3 +57,42 @@ def test_a_raced_seed_in_one_program_takes_the_steps_of_one_solve(data, monkeypa
     monkeypatch.setattr(seeded_solve, "RACE_STEPS", 10**6)
     alone = jax.device_get(eqx.filter_jit(lambda *a: _fit.fit_core(*a))(*args))
     _assert_same_solves(raced, alone)
+
+
+def test_the_solver_holds_each_seeds_cost_and_normal_equations_at_its_value(data):
+    """The cost and normal equations the solver returns per seed (its last accepted point's, which
+    ``fit_core`` reports instead of a pass of its own) are those a fresh pass gives there."""
+    from jax.flatten_util import ravel_pytree
+
+    from ctfit._fitting.jacobian import normal_equations
+    from ctfit._fitting.starts import seed_points
+
+    prep = _prepared(data, None)
+
+    def solve(problem, u0, grid):
+        seeds = seed_points(problem, u0, 3, grid)
+        values, _, steps, costs, normal = seeded_solve.solve_seeds(problem, seeds, "lm", 256)
+        fresh = jax.vmap(lambda u: normal_equations(problem, u))(values)
+        return steps, costs, normal, fresh, jax.vmap(lambda u: ravel_pytree(u)[0])(values)
+
+    steps, costs, (jtr, jtj), (cost, jtr_fresh, jtj_fresh), _ = jax.device_get(eqx.filter_jit(solve)(prep.problem, prep.u0, prep.grid))
+    assert np.all(steps > 0)
+    np.testing.assert_allclose(costs, cost, rtol=1e-12)
+    # Jᵀr is near 0 at a minimum, a difference of terms as large as ‖J_k‖‖r‖ (Cauchy–Schwarz): rounding of those.
+    bound = np.sqrt(np.diagonal(jtj_fresh, axis1=1, axis2=2) * 2 * cost[:, None])
+    np.testing.assert_allclose(jtr, jtr_fresh, rtol=0, atol=1e-12 * np.max(bound))
+    np.testing.assert_allclose(jtj, jtj_fresh, rtol=1e-12, atol=1e-14 * np.max(np.abs(jtj_fresh)))
+
+
+def test_a_fit_without_steps_reports_the_normal_equations_of_its_start(data):
+    """``max_steps=0``: no seed takes a step, so the solver holds no normal equations; the report's
+    come from a pass of its own (finite, the cost at the best seed)."""
+    from ctfit._fitting.jacobian import normal_equations
+
+    prep = _prepared(data, None)
+    out = jax.device_get(eqx.filter_jit(lambda *a: _fit.fit_core(*a))(prep.problem, prep.u0, prep.grid, *prep.options("lm", 0)))
+    assert np.all(out["steps"] == 0)
+    cost, _, jtj = jax.device_get(jax.jit(normal_equations)(prep.problem, out["u"]))
+    keep = ~out["on_bound"]
+    np.testing.assert_allclose(out["jtj"], np.where(keep[:, None] & keep[None, :], jtj, 0), rtol=1e-12)
+    assert np.isfinite(cost) and out["gn_decrease"] > 1e-3  # a seed, not a minimum: a Gauss–Newton step promises much

@@ -133,11 +133,15 @@ def fit_core(problem: Problem, u0: dict, grid: Any, starts: int, solver_name: st
     """Seeds, solve, pick the best, and everything the report needs, in one compiled program.
     ``keep_start``: the start ``u0`` is a seed too (a start the caller chose)."""
     seeds = seed_points(problem, u0, starts, grid, keep_start)
-    values, ok, steps, costs = solve_seeds(problem, seeds, solver_name, max_steps)
+    values, ok, steps, costs, normal = solve_seeds(problem, seeds, solver_name, max_steps)
     costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
     best = jnp.argmin(costs)
     u = jax.tree.map(lambda a: a[best], values)
-    cost, jtr, jtj = normal_equations(problem, u)
+    if normal is None:
+        cost, jtr, jtj = normal_equations(problem, u)
+    else:  # the solver's, at the seed's last accepted point (a pass of its own where it took no step or failed)
+        cost, jtr, jtj = jax.lax.cond((steps[best] > 0) & jnp.isfinite(costs[best]), lambda: (costs[best], normal[0][best], normal[1][best]),
+                                      lambda: normal_equations(problem, u))
     zero_cost = sum_over_chunks(problem, zero_model_cost)
     return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, **report_core(problem, u, cost, jtr, jtj, zero_cost), **residual_summary(problem, u))
 

@@ -105,7 +105,9 @@ def _run_solver(solver, y0, data, budget, paused=None):
     ``budget`` steps — a *traced* count, so one compiled loop serves every phase of the race.
     ``paused``: (whether, state) — where ``whether`` (traced), go on with the solve whose state
     (the array leaves of the solver's state) a run from ``y0`` on the same data returned, instead
-    of starting one. Returns (value, converged, steps, sound, state)."""
+    of starting one. Returns (value, converged, steps, sound, state, (½‖r‖², Jᵀr, JᵀJ) at the
+    value): the solver holds the last accepted point's cost and normal equations, so the caller
+    needs no pass of its own for them (only after a step: before one they are zeros)."""
     import equinox as eqx  # (with optimistix: a fit whose programs are stored imports neither)
     import optimistix as optx
 
@@ -133,7 +135,8 @@ def _run_solver(solver, y0, data, budget, paused=None):
 
     y, k, dynamic, done, result = jax.lax.while_loop(cond, body, (y0, jnp.zeros((), jnp.int32), dynamic, done, result))
     sound = result == optx.RESULTS.successful  # no numerical failure (a spent budget is none)
-    return y, done & sound, k, sound, dynamic
+    info = eqx.combine(static, dynamic).f_info  # at y, the last accepted point (after a step at least)
+    return y, done & sound, k, sound, dynamic, (info.f, info.grad, info.hessian.as_matrix())
 
 
 def stop_tolerances(dtype, tolerance: float | None = None) -> tuple[float, float]:
@@ -184,7 +187,7 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     no_states = jax.tree.map(lambda a: jnp.zeros((n, *a.shape), a.dtype), template)
 
     def task(carry, i):
-        values, ok, steps, costs, sound, states = carry
+        values, ok, steps, costs, sound, states, normal = carry
         j = i % n
         if race:
             second = i >= n
@@ -193,26 +196,31 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
             paused = (second & sound[j], jax.tree.map(lambda a: a[j], states))
         else:
             budget, paused = jnp.asarray(max_steps), None
-        v, o, k, fine, state = _run_solver(solver, values[j], data, budget, paused)
-        c = _half_squared_norm(v, data)
+        v, o, k, fine, state, at_v = _run_solver(solver, values[j], data, budget, paused)
+        c = at_v[0]
         keep = k > 0  # a seed that did not go on keeps what it had
         values = values.at[j].set(jnp.where(keep, v, values[j]))
         ok = ok.at[j].set(jnp.where(keep, o, ok[j]))
         sound = sound.at[j].set(jnp.where(keep, fine, sound[j]))
         costs = costs.at[j].set(jnp.where(keep, jnp.where(jnp.isfinite(c), c, jnp.inf), costs[j]))
         states = jax.tree.map(lambda a, b: a.at[j].set(jnp.where(keep, b, a[j])), states, state)
-        return (values, ok, steps.at[j].add(k), costs, sound, states), None
+        normal = jax.tree.map(lambda a, b: a.at[j].set(jnp.where(keep, b, a[j])), normal, at_v[1:])
+        return (values, ok, steps.at[j].add(k), costs, sound, states, normal), None
 
-    init = (flat_seeds, jnp.zeros(n, bool), jnp.zeros(n, jnp.int32), jnp.full(n, jnp.inf, flat_seeds.dtype), jnp.ones(n, bool), no_states)
-    (values, ok, steps, costs, sound, _), _ = jax.lax.scan(task, init, tasks)
+    p = flat_seeds.shape[1]
+    no_normal = (jnp.zeros((n, p), flat_seeds.dtype), jnp.zeros((n, p, p), flat_seeds.dtype))
+    init = (flat_seeds, jnp.zeros(n, bool), jnp.zeros(n, jnp.int32), jnp.full(n, jnp.inf, flat_seeds.dtype), jnp.ones(n, bool), no_states, no_normal)
+    (values, ok, steps, costs, sound, _, normal), _ = jax.lax.scan(task, init, tasks)
     # Reported per seed: no numerical failure. Whether the point is a minimum is judged after the
     # solve, by first-order optimality on the free variables (``STATIONARY_TOLERANCE``), so a
     # stationary point reached at the step limit (a flat valley the data does not determine) counts.
-    return jax.vmap(unravel)(values), sound, steps, costs
+    return jax.vmap(unravel)(values), sound, steps, costs, normal
 
 
 def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
-    """Every seed; values, success flags, steps and final costs per seed."""
+    """Every seed; values, success flags, steps and final costs per seed, and (Levenberg–Marquardt)
+    the flat Jᵀr and JᵀJ there per seed ((seeds, P), (seeds, P, P); valid where a seed took a
+    step), else None."""
     import optimistix as optx
 
     if solver_name == "lm":
@@ -230,7 +238,7 @@ def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int)
         sound = (sol.result == optx.RESULTS.successful) | (sol.result == optx.RESULTS.nonlinear_max_steps_reached)
         return sol.value, sound, sol.stats["num_steps"], 0.5 * jnp.sum(r * r)
 
-    return jax.vmap(one)(seeds)
+    return (*jax.vmap(one)(seeds), None)
 
 
 def gauss_newton_decrease(jtj, jtr, cost, scale, xp=jnp):
