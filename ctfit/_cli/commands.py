@@ -208,7 +208,7 @@ def sample_cmd(
 def _check_sample_options(o) -> Path:
     """Options and outputs checked before any work; returns the JSON target."""
     from .._fitting import LOSSES
-    from .._io import check_backend, check_output, check_output_folder
+    from .._io import check_backend, check_distinct, check_output, check_output_folder
     from .._runtime import need
 
     need("posterior", "ctfit sample")
@@ -219,15 +219,19 @@ def _check_sample_options(o) -> Path:
     if o.loss is not None and o.loss not in LOSSES:
         raise UserError(f"--loss must be one of {', '.join(LOSSES)}, got {o.loss!r}")
     o.output, o.backend, o.idata = output_file(o.output), output_file(o.backend, "--backend"), output_file(o.idata, "--idata")
-    from .sample_command import default_output
+    from .sample_command import _stem, check_default_output, check_posterior_plots, default_output
 
     target = check_output(o.output or default_output(o.fit_json), [o.fit_json, o.data] if o.output is None else [o.data], option="-o" if o.output else "")
+    if o.output is None:
+        check_default_output(target)
     if o.backend is not None:
-        check_backend(o.backend, [o.fit_json, o.data, target], resume=o.resume, overwrite=o.overwrite)
+        check_backend(o.backend, [o.fit_json, o.data], resume=o.resume, overwrite=o.overwrite)
     if o.idata is not None:
-        check_output(o.idata, [o.fit_json, o.data, target], option="--idata")
+        check_output(o.idata, [o.fit_json, o.data], option="--idata")
+    check_distinct([("-o" if o.output else "the result", target), ("--backend", o.backend), ("--idata", o.idata)])
     if o.plot is not None:
         check_output_folder(o.plot, "--plot")
+        check_posterior_plots(o.plot, _stem(target))
     return target
 
 

@@ -257,7 +257,17 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     several files, a folder of them, a trailing slash, an existing folder): distinct files in it
     (``result_targets``), none a symbolic link, and ``summary.json`` beside the results.
     """
-    from .._io import InputFiles, check_backend, check_output, check_output_folder, check_rerun_target, result_targets
+    from .._io import (
+        InputFiles,
+        check_backend,
+        check_distinct,
+        check_output,
+        check_output_folder,
+        check_rerun_plot,
+        check_rerun_target,
+        result_targets,
+        unconverged_target,
+    )
 
     many, inputs = len(files) > 1, InputFiles([*files, o.material])  # each input looked up once, not once per output
 
@@ -279,8 +289,20 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
         for p, target in json_.items():
             check_rerun_target(target, p)
         check_rerun_target(check_output(o.output / SUMMARY, inputs, option="-o", chosen=True))
+    if o.plot is not None and o.folders["plot"]:
+        for target in plot.values():
+            check_rerun_plot(target)
     names = result_targets(files, Path(), "") if many else {files[0]: Path(files[0].stem)}
-    return {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
+    plan = {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
+    for t in plan.values():
+        check_distinct([("-o", t.json), ("--plot", t.plot), ("--backend", t.backend)])
+        if t.json is not None:
+            unconverged_target(t.json)  # where a fit that does not converge would go: refused now if that is not ctfit's to replace
+        if o.sample_ and t.plot is not None:
+            from .sample_command import _stem, check_posterior_plots
+
+            check_posterior_plots(t.plot.parent, _stem(t.json) if t.json is not None else t.name)
+    return plan
 
 
 def _json_name(path: Path) -> Path:

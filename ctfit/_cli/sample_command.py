@@ -27,6 +27,19 @@ def _read_data(data):
     return read_measurement(data)
 
 
+POSTERIOR_PLOTS = ("corner", "spectra")
+"""The posterior's plots, ``<stem>.<kind>.png`` in the plot folder."""
+
+
+def check_posterior_plots(plot_dir, stem: str) -> None:
+    """Refuse, before any work, a file of the user's where the posterior's plots would go
+    (names ``ctfit`` chooses itself: only its own plots are replaced, :func:`~ctfit._io.output_paths.check_rerun_plot`)."""
+    from .._io import check_rerun_plot
+
+    for kind in POSTERIOR_PLOTS:
+        check_rerun_plot(pathlib.Path(plot_dir) / f"{stem}.{kind}.png")
+
+
 def _plots(result, plot_dir, stem: str) -> list[str]:
     """``<stem>.corner.png`` and ``<stem>.spectra.png`` in ``plot_dir``, those that have something to show."""
     from .._sampling import plot_corner, plot_spectra
@@ -34,7 +47,7 @@ def _plots(result, plot_dir, stem: str) -> list[str]:
     plot_dir = pathlib.Path(plot_dir)
     plot_dir.mkdir(parents=True, exist_ok=True)
     out = []
-    for plot, kind in ((plot_corner, "corner"), (plot_spectra, "spectra")):
+    for plot, kind in zip((plot_corner, plot_spectra), POSTERIOR_PLOTS):
         try:
             out.append(str(plot(result, plot_dir / f"{stem}.{kind}.png")))
         except ValueError:  # nothing to plot
@@ -56,6 +69,14 @@ def default_output(fit_json) -> pathlib.Path:
     (``copper.fit.json`` → ``copper.fit.posterior.json``), never FIT itself."""
     fit_json = pathlib.Path(fit_json)
     return fit_json.with_name(f"{_stem(fit_json)}.posterior.json")
+
+
+def check_default_output(target) -> None:
+    """The posterior's file without ``-o`` (:func:`default_output`), a name ``ctfit`` chooses: refused
+    where it is a link or a file that is not a posterior ctfit wrote (:func:`~ctfit._io.output_paths.check_own_name`)."""
+    from .._io import check_own_name, is_posterior
+
+    check_own_name(target, is_posterior, "a posterior of ctfit", "name the result with -o")
 
 
 def run_longer(doc: dict, *, backend=None) -> str | None:
@@ -135,8 +156,11 @@ def sample_command_body(
     target = pathlib.Path(output) if output is not None else default_output(fit_json)
     inputs = ([data] if isinstance(data, (str, os.PathLike)) else []) + ([] if output is not None else [fit_json])
     check_output(target, inputs, option="-o" if output is not None else "")
+    if output is None:
+        check_default_output(target)
     if plot_dir is not None:
         check_output_folder(plot_dir, "--plot")
+        check_posterior_plots(plot_dir, _stem(target))
     extra = {
         "uncertainty": _uncertainty(
             material, _read_data(data), walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend,

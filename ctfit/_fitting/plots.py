@@ -63,10 +63,11 @@ def plot_fit(result, data: Measurement, path) -> None:
     """
     from pathlib import Path
 
-    from .._io import atomic_save
+    from .._io import atomic_save, plot_metadata
 
     fig = make_fit_quality_figure(result, data)
-    atomic_save(path, lambda buffer: fig.savefig(buffer, format=Path(path).suffix[1:].lower() or "png", dpi=110))
+    fmt = Path(path).suffix[1:].lower() or "png"
+    atomic_save(path, lambda buffer: fig.savefig(buffer, format=fmt, dpi=110, metadata=plot_metadata(fmt)))
 
 
 def make_fit_quality_figure(result, data: Measurement):

@@ -60,9 +60,9 @@ def _new_figure(size: tuple[float, float]) -> Any:
 
 def _save(fig: Any, path: str | os.PathLike[str] | None) -> None:
     if path is not None:
-        from .._io import atomic_save
+        from .._io import atomic_save, plot_metadata
 
-        atomic_save(path, lambda buffer: fig.savefig(buffer, format="png", dpi=110))
+        atomic_save(path, lambda buffer: fig.savefig(buffer, format="png", dpi=110, metadata=plot_metadata("png")))
 
 
 def _needs_brdf(data: Measurement) -> None:

@@ -316,7 +316,7 @@ def _write(output: str | os.PathLike[str], maps: dict, dims: tuple[str, ...], sp
 def save_map_pngs(maps: Any, folder: str | os.PathLike[str]) -> list[Path]:
     """One PNG per map of an image's maps (dims y, x): per lobe (m, weight), per band (F0, Rd),
     and s, cost, rel_rmse, converged; each scaled to its own range (the PNG's name says which)."""
-    from .._io import atomic_save
+    from .._io import atomic_save, plot_metadata
     from .._runtime import matplotlib_config_fallback, need
 
     need("plots", "pictures of parameter maps")
@@ -344,7 +344,7 @@ def save_map_pngs(maps: Any, folder: str | os.PathLike[str]) -> list[Path]:
             fig.colorbar(shown, ax=ax)
             ax.set_title(stem)
             ax.set_axis_off()
-            atomic_save(folder / f"{stem}.png", lambda b, f=fig: f.savefig(b, format="png", dpi=100))
+            atomic_save(folder / f"{stem}.png", lambda b, f=fig: f.savefig(b, format="png", dpi=100, metadata=plot_metadata("png")))
             plt.close(fig)
             written.append(folder / f"{stem}.png")
     return written

@@ -27,7 +27,15 @@ __all__ = [
     "same_file",
     "result_targets",
     "check_rerun_target",
+    "check_rerun_plot",
+    "check_distinct",
+    "check_own_name",
     "unconverged_target",
+    "unconverged_name",
+    "is_fit_result",
+    "is_posterior",
+    "PLOT_SOFTWARE",
+    "plot_metadata",
 ]
 
 
@@ -299,6 +307,106 @@ def _same_input(earlier: str, data) -> bool:
     return not os.path.isabs(tail) and not tail.startswith("..") and os.path.abspath(data).endswith(os.sep + tail)
 
 
+def check_distinct(outputs) -> None:
+    """Refuse, with an :class:`OutputError`, two of a run's outputs that are one file (whatever the
+    spelling: :func:`same_file`), before any work: the later write would replace the other's
+    result (a stored chain, a fit). ``outputs``: (option, path or None) pairs; a device such as
+    ``/dev/null`` may be named by several."""
+    seen: list[tuple[str, Path]] = []
+    for option, path in outputs:
+        if path is None or writes_in_place(path):
+            continue
+        for other, earlier in seen:
+            if same_file(path, earlier):
+                raise OutputError(f"{_at(option, path)}: is also {_at(other, earlier)}; each result needs a file of its own: give them different names")
+        seen.append((option, Path(path)))
+
+
+def is_fit_result(doc, data=None) -> bool:
+    """Whether the JSON document ``doc`` is a fit result of ctfit (a ``fit`` section), and with
+    ``data``, the fit of that input."""
+    if not (isinstance(doc, dict) and isinstance(doc.get("fit"), dict)):
+        return False
+    return data is None or (isinstance(doc.get("data"), str) and _same_input(doc["data"], data))
+
+
+def is_posterior(doc) -> bool:
+    """Whether the JSON document ``doc`` is a posterior ctfit wrote (an ``uncertainty`` section)."""
+    return isinstance(doc, dict) and isinstance(doc.get("uncertainty"), dict)
+
+
+def check_own_name(path, own, what: str, instead: str) -> Path:
+    """Check, before writing, a file name that ``ctfit`` chooses itself beside a user's file
+    (``X.not-converged.json``, ``X.posterior.json``): refused (:class:`OutputError`) where it is a
+    symbolic link (a write would go through it, into a file the user never named) or an existing
+    file that ``own(document)`` does not recognise as ``what`` (a file of the user's); the
+    message ends with ``instead``, what the user can do. Returns ``path``."""
+    path = Path(path)
+    if path.is_symlink():
+        raise OutputError(f"{path}: is a symbolic link (to {os.readlink(path)}); ctfit chooses this name itself and does not write through a link "
+                          f"there: remove the link, or {instead}")
+    if path.exists() and not writes_in_place(path) and not own(read_json_or_none(path)):
+        raise OutputError(f"{path}: the file exists and is not {what}; ctfit chooses this name itself and replaces only a file of its own "
+                          f"there: move the file, or {instead}")
+    return path
+
+
+PLOT_SOFTWARE = "ctfit"
+"""How a PNG that ``ctfit`` wrote begins its ``Software`` text (``ctfit 0.1.0 (matplotlib 3.10.0)``):
+what a rerun into a folder recognises as its own plot (:func:`check_rerun_plot`)."""
+
+
+def plot_metadata(fmt: str) -> dict | None:
+    """matplotlib's ``savefig(metadata=...)`` for a plot ``ctfit`` writes in the format ``fmt``: a
+    PNG's ``Software`` text names ctfit (:data:`PLOT_SOFTWARE`, what :func:`check_rerun_plot`
+    recognises); None (matplotlib's own) for other formats."""
+    if fmt.lower() != "png":
+        return None
+    import importlib.metadata
+
+    import matplotlib
+
+    try:
+        mine = importlib.metadata.version("ctfit")
+    except importlib.metadata.PackageNotFoundError:  # a source tree on the path, not installed
+        mine = "(source)"
+    return {"Software": f"{PLOT_SOFTWARE} {mine} (matplotlib {matplotlib.__version__})"}
+
+
+def png_software(path) -> str | None:
+    """The ``Software`` text of the PNG at ``path`` (a ``tEXt`` chunk before the image data), or
+    None: not a PNG, or none there. Reads the chunks' heads only, at most 64 KiB."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16)
+    except OSError:
+        return None
+    if not head.startswith(b"\x89PNG\r\n\x1a\n"):
+        return None
+    at = 8
+    while at + 8 <= len(head):
+        size, kind = int.from_bytes(head[at: at + 4], "big"), head[at + 4: at + 8]
+        if kind in (b"IDAT", b"IEND"):
+            return None
+        body = head[at + 8: at + 8 + size]
+        if kind == b"tEXt" and body.startswith(b"Software\x00"):
+            return body[len(b"Software\x00"):].decode("latin-1")
+        at += 12 + size
+    return None
+
+
+def check_rerun_plot(target) -> None:
+    """Refuse, with an :class:`OutputError`, an existing ``target`` in a plot folder that a run
+    would replace but did not write: a file that is not a PNG of ``ctfit`` (its ``Software``
+    text, :data:`PLOT_SOFTWARE`). A rerun replaces its own plots."""
+    target = Path(target)
+    if not os.path.lexists(target) or writes_in_place(target):
+        return
+    if not (png_software(target) or "").startswith(PLOT_SOFTWARE + " "):
+        raise OutputError(f"{target}: the file exists and is not a plot of ctfit; a run replaces only its own plots: move it, or write the plots "
+                          "to another folder")
+
+
 def _holds_converged_fit(path: Path) -> bool:
     doc = read_json_or_none(path)  # nesting, huge numbers, a FIFO: not a converged fit
     return isinstance(doc, dict) and isinstance(doc.get("fit"), dict) and doc["fit"].get("converged") is True
@@ -318,17 +426,26 @@ def _fitting_name(stem: str, suffix: str, folder: Path) -> str:
     return cut + digest + suffix
 
 
+def unconverged_name(target) -> Path:
+    """``<name>.not-converged.json`` beside ``target``: where a fit that did not converge goes
+    when ``target`` holds a converged one (:func:`unconverged_target`)."""
+    target = Path(target)
+    stem = target.name[: -len(".json")] if target.name.endswith(".json") else target.name
+    return target.with_name(_fitting_name(stem, ".not-converged.json", target.parent))
+
+
 def unconverged_target(target) -> tuple[Path, str | None]:
     """Where a fit that did not converge is written, and what to tell the user.
 
     If ``target`` holds a converged fit (its JSON ``fit.converged`` is true), it is kept and the
     new result goes beside it, ``<name>.not-converged.json``; otherwise the result goes to
     ``target``, and the message says when that replaces a file. ``None``: nothing to say.
+    The name beside is refused where it is a link or a file that is not a fit result of ctfit
+    (:func:`check_own_name`; the command checks it before any work, too).
     """
     target = Path(target)
     if _holds_converged_fit(target):
-        stem = target.name[: -len(".json")] if target.name.endswith(".json") else target.name
-        beside = target.with_name(_fitting_name(stem, ".not-converged.json", target.parent))
+        beside = check_own_name(unconverged_name(target), is_fit_result, "a fit result of ctfit", f"give -o another name than {target}")
         return beside, f"{target} holds a converged fit and is kept; the fit that did not converge is written to {beside}"
     if target.exists() and not writes_in_place(target):
         return target, f"{target} replaced by a fit that did not converge"

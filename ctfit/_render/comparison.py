@@ -344,9 +344,9 @@ def render_comparison(
     fig = _comparison_figure(material, data, (right, left, de, full & ~compared & missing_px), (median, p95, int(compared.sum()), coverage),
                              measured_fn.note, max_delta_e)
     if path is not None:
-        from .._io import atomic_save
+        from .._io import atomic_save, plot_metadata
 
-        atomic_save(path, lambda buffer: fig.savefig(buffer, format="png", dpi=110))
+        atomic_save(path, lambda buffer: fig.savefig(buffer, format="png", dpi=110, metadata=plot_metadata("png")))
     return Comparison(fig, de, median, p95, coverage, measured, fitted, measured_fn.note)
 
 

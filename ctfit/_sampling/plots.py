@@ -34,10 +34,10 @@ def _pyplot() -> Any:
 
 def _save_figure(fig: Any, path: pathlib.Path, **options: Any) -> None:
     """``fig.savefig`` through an atomic write (the format from the file's suffix, PNG without one)."""
-    from .._io import atomic_save
+    from .._io import atomic_save, plot_metadata
 
     fmt = path.suffix[1:].lower() or "png"
-    atomic_save(path, lambda buffer: fig.savefig(buffer, format=fmt, dpi=110, **options))
+    atomic_save(path, lambda buffer: fig.savefig(buffer, format=fmt, dpi=110, metadata=plot_metadata(fmt), **options))
 
 
 def _global_columns(result: SampleResult) -> tuple[np.ndarray, list[str], list[float]]:
