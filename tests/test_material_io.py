@@ -676,3 +676,13 @@ def test_material_json_reads_back_to_the_same_document(values, name):
     back = json.loads(text)
     assert back["values"] == [v if math.isfinite(v) else None for v in values]
     assert (back["np"], back["count"], back["nested"], back["name"]) == (0.25, 3, {"empty": [], "none": None}, name)
+
+
+@pytest.mark.parametrize("value", ["5", '[["m"]]', '"f0"', "{m = 1}", '["m", 2]'])
+def test_fixed_must_be_a_list_of_names(tmp_path, value):
+    """A malformed ``fixed`` key is refused naming the file and the key (it raised a TypeError, or
+    a string was split into characters, or a table was taken)."""
+    path = write(tmp_path, edit("", f"fixed = {value}\n"))
+    with pytest.raises(MaterialError, match=r"m\.toml.*key 'fixed': must be a list of parameter names"):
+        load_material(path)
+    assert load_material(write(tmp_path, edit("", "fixed = [\"m\"]\n"))).meta["fixed"] == ["m"]

@@ -21,7 +21,7 @@ from ctfit.cli import app
 from conftest import ROOT
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
 MATERIAL = ROOT / "configs" / "copper-vase.toml"
 runner = CliRunner()

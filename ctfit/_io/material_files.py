@@ -204,6 +204,8 @@ class _Parser:
             close = lowered.get(key.lower()) or _close_model_key(key)
             if close:
                 raise self.error(key, f"unknown key; did you mean '{close}'?")
+            if key == "fixed" and not (isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value)):
+                raise self.error(key, f"must be a list of parameter names (fixed = [\"m\", \"s\"]), got {quote(value)}")
             meta[key] = value
         return meta
 
