@@ -252,3 +252,24 @@ def test_derivative_in_f0_is_the_formula_s_up_to_f0_one(c):
     grad = jax.grad(lambda f0: ctfit.fresnel_dielectric_f0(jnp.asarray(c), f0))
     for at, inside in ((1.0, 1.0 - 1e-9), (0.0, 1e-20)):
         assert float(grad(jnp.asarray(at))) == pytest.approx(float(grad(jnp.asarray(inside))), rel=1e-5), at
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("xp", [np, jnp], ids=["numpy", "jax"])
+def test_indices_past_what_squares_hold_give_a_perfect_reflector(xp, dtype):
+    """n or k so large (or n so small) that their squares overflow: F finite, 1 away from grazing (a
+    perfect reflector, the limit), with finite derivatives; n = k = 0 at normal incidence is that
+    limit too (R_p = R_s there: it was ½ from 0/0). Before, n = 10²⁰⁰ gave NaN."""
+    c = np.array([1.0, 0.7, 0.3, 0.1, 0.0], dtype)
+    big = np.finfo(dtype).max
+    with np.errstate(over="ignore"):
+        cases = [(ctfit.fresnel_conductor, (dtype(n), dtype(k))) for n, k in ((1e200, 0), (1, 1e200), (1e300, 1e300), (big, 0), (np.inf, np.inf), (0, 0))]
+        cases += [(ctfit.fresnel_dielectric, (dtype(n),)) for n in (1e200, np.inf, 1e-300, 1e-40)]
+    for fn, args in cases:
+        f = np.asarray(fn(c, *args, xp=xp))
+        assert np.all(np.isfinite(f)), (fn.__name__, args, f)
+        np.testing.assert_allclose(f, 1, atol=5 * np.finfo(dtype).eps, err_msg=f"{fn.__name__}{args}")
+    if xp is jnp and dtype is np.float64:
+        for fn, args in cases:
+            grads = jax.grad(lambda *a: jnp.sum(fn(jnp.asarray(c), *a)), argnums=tuple(range(len(args))))(*map(jnp.asarray, args))
+            assert all(np.isfinite(np.asarray(g)) for g in grads), (fn.__name__, args, grads)

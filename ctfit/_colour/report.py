@@ -184,6 +184,8 @@ def colour_report(
             f"material {material.name!r}: its band's wavelength is unknown (single-band data), so there is no colour to report"
         )
     c = _reflection(material, angle_deg, illuminant, colourspace, observer, chromatic_adaptation)
+    if not np.all(np.isfinite(c.XYZ)):  # the model is finite on its domain: a guard, not a path
+        raise ValueError(f"material {material.name!r}: its {c.quantity} at {float(angle_deg):g}° is not finite, so there is no colour to report")
     white_xy = c.white_XYZ[:2] / c.white_XYZ.sum()
     lin, rgb = _shown(c.XYZ, c.conversion)
     if colourspace == "sRGB":

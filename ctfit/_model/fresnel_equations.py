@@ -114,6 +114,18 @@ def n_from_f0(f0: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*bat
         return (1 + r) / (1 - r)
 
 
+def _index_in_range(x: Any, xp: Any = jnp, *, low: bool = False) -> Any:
+    """An index (n or k) held within what the formulas can raise to the fourth power without
+    overflow: at most a quarter of the dtype's largest value's fourth root (3·10⁷⁶ in float64,
+    3.4·10⁸ in float32), and with ``low``, at least its inverse. F of a larger index is then that
+    of the bound, which is 1 (a perfect reflector) to within about 2/(n cos θ): in float64 never
+    visible, in float32 below its rounding for cos θ > 0.05 and 0.6 % below 1 at cos θ = 10⁻⁶ (no
+    material has such an index). Without the clip n = 10²⁰⁰ squared to ∞ and F was NaN."""
+    dtype = xp.result_type(x, 1.0) if xp is not jnp else jnp.result_type(x, float)
+    big = float(np.finfo(dtype).max) ** 0.25 / 4
+    return xp.clip(x, 1 / big if low else -big, big)
+
+
 def _clip_cos(c: ArrayLike, xp: Any = jnp) -> tuple[Array, Array]:
     """c clipped to [0, 1] (V·H from rounded vectors can exceed 1 by an ulp) and 1 − c²."""
     clipped = xp.clip(xp.asarray(c), 0, 1)
@@ -205,7 +217,7 @@ def fresnel_dielectric(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#ba
     >>> [round(float(v), 4) for v in fresnel_dielectric(c, 1.5)]  # glass: 4 %, 5 % at 45°, 1 at grazing
     [0.04, 0.0502, 1.0]
     """
-    index: Any = xp.asarray(n)
+    index: Any = _index_in_range(xp.asarray(n), xp, low=True)
     u = 1 / index
     a = (index - 1) * (index + 1) * (u * u)
     return _dielectric(xp.asarray(c), a, u, a * a, xp=xp)
@@ -235,8 +247,8 @@ def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#bat
     [0.8206, 0.8128, 1.0]
     """
     c, s2 = _clip_cos(c, xp)
-    n_a: Any = xp.asarray(n)
-    k_a: Any = xp.asarray(k)
+    n_a: Any = _index_in_range(xp.asarray(n), xp)
+    k_a: Any = _index_in_range(xp.asarray(k), xp)
     # Stand-in c = 1 at grazing (double-where pattern); F is set there at the end.
     grazing = c == 0
     c = xp.where(grazing, 1, c)
@@ -269,7 +281,8 @@ def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#bat
     ac = a * c
     b2c2 = b2 * c2
     num_p = (ac - s2) ** 2 + b2c2
-    den_p = (ac + s2) ** 2 + b2c2  # 0 only for n = k = 0 at normal incidence
+    den_p = (ac + s2) ** 2 + b2c2  # 0 only for n = k = 0 at normal incidence, where R_p = R_s (its limit): ratio 1
+    num_p = xp.where(den_p > 0, num_p, 1)
     den_p = xp.where(den_p > 0, den_p, 1)
     # ½ R_s (1 + R_p/R_s) = ½ num_s (den_p + num_p)/(den_s den_p), with one division.
     f = 0.5 * num_s * (den_p + num_p) * (1 / (den_s * den_p))
