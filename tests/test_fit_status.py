@@ -10,6 +10,8 @@ import ctfit
 from ctfit import FitStatus
 from ctfit._fitting.status import fit_status, judge_converged
 
+from conftest import ROOT
+
 GOLD = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),
                       wavelength_nm=np.array([450.0, 650.0]))
 
@@ -66,3 +68,16 @@ def test_a_result_without_a_status_has_none():
     """A texel's fit keeps only ``converged``; a fit JSON written before the status has none."""
     res = ctfit.FitResult(material=GOLD, stats={"converged": True}, stderr=None, warnings=[], loss="relative", solver="lm")
     assert res.status is None and res.converged
+
+
+def test_a_solver_without_bounds_stuck_past_one_is_not_converged():
+    """optimistix's BFGS knows no bounds: on this plastic it pushed R_d at 400 nm below 0, where the
+    model clips it and its gradient is 0, and reported "converged" at 700× the minimum's cost. The
+    point is judged where the model takes it (on the bound): converged only at a minimum."""
+    olive = ctfit.load_material(ROOT / "configs" / "olive-drab.toml")
+    data = ctfit.simulate(olive, n_pairs=1000, noise=0.01, seed=3, wavelength_nm=np.arange(400.0, 701.0, 50.0))
+    st = ctfit.Structure(lobes=1, family="plastic", fresnel="n", diffuse="spectrum")
+    best = ctfit.fit(data, st, loss="relative")
+    assert best.converged
+    res = ctfit.fit(data, st, loss="relative", solver="bfgs")
+    assert not res.converged or res.stats["cost"] < 1.01 * best.stats["cost"], (res.status, res.stats["cost"], best.stats["cost"])

@@ -41,7 +41,7 @@ from .._model import Material, Measurement, Params, Structure, x64_enabled
 from .._runtime import cached_call, release_free_pages
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch, race_rows
 from .chunks import sum_over_chunks
-from .coordinates import from_params, to_params
+from .coordinates import bounds, from_params, to_params
 from .diagnostics import relative_residual_structure
 from .fit_report import (
     PARAM_FIELDS,
@@ -138,6 +138,12 @@ def fit_core(problem: Problem, u0: dict, grid: Any, starts: int, solver_name: st
     best = jnp.argmin(costs)
     u = jax.tree.map(lambda a: a[best], values)
     if normal is None:
+        # optimistix's own solvers (BFGS, Gauss–Newton, dogleg) know no bounds: a coordinate can
+        # leave its box, where the model clips it and its gradient is 0, so a point stuck there
+        # looked stationary (BFGS "converged" at 700× the minimum's cost). Judged where the model
+        # takes it, on the bound: there the gradient says whether it is a minimum.
+        lower, upper = bounds(problem.spec, u)
+        u = jax.tree.map(jnp.clip, u, lower, upper)
         cost, jtr, jtj = normal_equations(problem, u)
     else:  # the solver's, at the seed's last accepted point (a pass of its own where it took no step or failed)
         cost, jtr, jtj = jax.lax.cond((steps[best] > 0) & jnp.isfinite(costs[best]), lambda: (costs[best], normal[0][best], normal[1][best]),
