@@ -586,3 +586,22 @@ def test_metadata_naming_a_file_that_is_not_utf8_is_written_as_utf8(tmp_path):
                     band=np.zeros(1, int), wavelength_nm=np.array([550.0]), brdf=np.array([0.25]))
     write_csv(m, tmp_path / "one.csv", meta={"material": os.fsdecode(b"caf\xe9.toml")})
     assert read_csv(tmp_path / "one.csv").meta["material"] == "caf\ufffd.toml"
+
+
+def test_angles_the_reader_would_take_for_radians_are_written_with_their_unit(tmp_path):
+    """``write_csv`` of θ all within π/2 degrees (a narrow goniometer near normal), or of φ within
+    ±2π degrees with fractions beside larger θ: the file says ``# angle_unit: degrees`` and reads
+    back (the reader refused what ctfit wrote); other files are written without that line."""
+    rng = np.random.default_rng(0)
+    n = 50
+    narrow = ctfit.Measurement(theta_i=rng.uniform(0, 1.5, n), phi_i=np.zeros(n), theta_o=rng.uniform(0, 1.5, n), phi_o=rng.uniform(0, 360, n),
+                               band=np.zeros(n, int), wavelength_nm=np.array([550.0]), brdf=rng.uniform(0.1, 1, n))
+    small_phi = narrow.replace(theta_i=rng.uniform(0, 80, n), phi_o=rng.uniform(-6, 6, n))
+    usual = narrow.replace(theta_i=rng.uniform(0, 80, n))
+    for name, m in (("narrow", narrow), ("small_phi", small_phi), ("usual", usual)):
+        path = tmp_path / f"{name}.csv"
+        ctfit.write_csv(m, path)
+        assert ("# angle_unit: degrees" in path.read_text()) == (name != "usual")
+        back = ctfit.read_csv(path)
+        np.testing.assert_array_equal(back.theta_i, m.theta_i)
+        np.testing.assert_allclose(np.mod(back.phi_o, 360), np.mod(m.phi_o, 360), rtol=1e-15)

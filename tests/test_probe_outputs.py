@@ -163,10 +163,11 @@ from ctfit._io import files
 from ctfit._cli.interrupt import install
 install(lambda: "interrupted")
 path, where = sys.argv[1], sys.argv[2]
+SIGNAL = signal.SIGTERM if len(sys.argv) > 3 else signal.SIGINT
 def chunks():
     yield "new, "
     if where == "writing":
-        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), SIGNAL)
     yield "and more"
 if where == "renaming":
     rename = os.replace
@@ -192,6 +193,17 @@ def test_ctrl_c_during_a_write_says_what_became_of_the_file(tmp_path, where):
         assert r.stderr == f"interrupted; {out} was written in full\n"
         assert out.read_text() == "new, and more"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
+
+
+def test_sigterm_during_a_write_is_handled_as_ctrl_c_is(tmp_path):
+    """``kill`` (SIGTERM) during a write: the temporary file removed, the old file kept, one line,
+    status 143 (it left a temporary file of the whole write, and said nothing)."""
+    out = tmp_path / "out.csv"
+    out.write_text("old")
+    r = subprocess.run([sys.executable, "-c", _WRITE, out, "writing", "term"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 143 and r.stdout == ""
+    assert r.stderr == f"terminated; {out} was not written (its old content is kept)\n"
+    assert out.read_text() == "old" and sorted(p.name for p in tmp_path.iterdir()) == ["out.csv"]
 
 
 def test_stale_temporaries_are_removed_by_the_next_write_into_their_folder(tmp_path):

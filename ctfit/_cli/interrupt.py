@@ -1,4 +1,5 @@
-"""Ctrl-C in the ``ctfit`` command: exit status 130 and one line, at any moment, no file damaged.
+"""Ctrl-C in the ``ctfit`` command: exit status 130 and one line, at any moment, no file damaged
+(SIGTERM, ``kill``, the same: status 143, the line says "terminated").
 
 :func:`install` (called by ``cli.main``) replaces Python's KeyboardInterrupt with an immediate
 exit: the line is printed and the process leaves with ``os._exit(130)``. Nothing needs to
@@ -30,6 +31,7 @@ __all__ = ["exit_interrupted", "install"]
 _WAIT_WRITES_S = 30.0  # the longest the watcher waits for a deferred write
 _exiting = threading.Lock()  # taken once, by whichever thread exits
 _installed = threading.Event()
+_terminated = threading.Event()  # SIGTERM (``kill``): the same exit, with status 143 and "terminated"
 
 
 def exit_interrupted(message: str | Callable[[], str], notes=()) -> None:
@@ -48,6 +50,8 @@ def exit_interrupted(message: str | Callable[[], str], notes=()) -> None:
             message = message()
         except Exception:  # what it describes changed under it: the plain line
             message = "interrupted"
+    if _terminated.is_set():
+        message = message.replace("interrupted", "terminated", 1)
     notes = [*notes, *remove_temporaries(last=True)]
     notes += run_cleanups()
     message = "; ".join([message, *notes])
@@ -60,7 +64,7 @@ def exit_interrupted(message: str | Callable[[], str], notes=()) -> None:
         os.write(2, (message + "\n").encode())
     except OSError:
         pass
-    os._exit(130)
+    os._exit(128 + (signal.SIGTERM if _terminated.is_set() else signal.SIGINT))
 
 
 def _watch(fd: int, message: Callable[[], str]) -> None:
@@ -69,25 +73,40 @@ def _watch(fd: int, message: Callable[[], str]) -> None:
             got = os.read(fd, 64)
         except OSError:
             return
-        if signal.SIGINT in got:
+        if signal.SIGTERM in got:
+            _terminated.set()
+        if signal.SIGINT in got or signal.SIGTERM in got:
             wait_for_writes(_WAIT_WRITES_S)  # let a deferred write finish
             exit_interrupted(message)
 
 
-def install(message: Callable[[], str]) -> bool:
-    """Handle SIGINT as described in the module docstring; ``message()`` gives the line to print.
+def _on_sigterm(signum, frame) -> None:
+    _terminated.set()
+    sigint()
 
-    Does nothing (returns False) outside the main thread, or when SIGINT is ignored (a job
-    started in the background by a shell): an ignored signal stays ignored.
+
+def install(message: Callable[[], str]) -> bool:
+    """Handle SIGINT (and SIGTERM, where it has its default action) as described in the module
+    docstring; ``message()`` gives the line to print.
+
+    Does nothing (returns False) outside the main thread; an ignored SIGINT (a job started in the
+    background by a shell) stays ignored, and SIGTERM is handled only where it has its default action.
     """
     if _installed.is_set():
         return True
-    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    if threading.current_thread() is not threading.main_thread():
+        return False
+    on_int = signal.getsignal(signal.SIGINT) is not signal.SIG_IGN
+    on_term = signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # kill: the same, but status 143 (a terminated job's)
+    if not (on_int or on_term):
         return False
     r, w = os.pipe()
     os.set_blocking(w, False)
     set_exit(lambda notes: exit_interrupted(message, notes))
-    signal.signal(signal.SIGINT, lambda signum, frame: sigint())
+    if on_int:
+        signal.signal(signal.SIGINT, lambda signum, frame: sigint())
+    if on_term:
+        signal.signal(signal.SIGTERM, _on_sigterm)
     signal.set_wakeup_fd(w, warn_on_full_buffer=False)
     threading.Thread(target=_watch, args=(r, message), name="ctfit-interrupt", daemon=True).start()
     _installed.set()

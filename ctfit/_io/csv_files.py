@@ -94,9 +94,7 @@ def _check_units(values: dict, meta: dict, meta_lines: dict, cols: Header, heade
         )
     if unit is not None:
         return
-    ti, to = values["theta_i"], values["theta_o"]
-    nonzero = int(np.count_nonzero((ti > 0) | (to > 0)))
-    if nonzero > _RADIAN_ROWS and max(ti.max(), to.max()) <= _RADIAN_MAX:
+    if _theta_looks_radian(values["theta_i"], values["theta_o"]):
         raise DataError(
             f"every theta_i and theta_o is ≤ {math.pi / 2:.4f} (π/2): the angles look like radians, but ctfit reads "
             "degrees. Convert them (degrees = radians × 180/π), or, if they really are degrees, add the line "
@@ -108,6 +106,19 @@ def _check_units(values: dict, meta: dict, meta_lines: dict, cols: Header, heade
     _check_phi_units(values, cols, header_line, path)
 
 
+def _theta_looks_radian(ti: np.ndarray, to: np.ndarray) -> bool:
+    """Every θ ≤ π/2, in more than a few rows with a θ above 0: the reader takes such angles for radians."""
+    return int(np.count_nonzero((ti > 0) | (to > 0))) > _RADIAN_ROWS and max(ti.max(), to.max()) <= _RADIAN_MAX
+
+
+def _phi_looks_radian(theta_max: float, phi: np.ndarray) -> bool:
+    """φ (2, rows) within ±2π, some not whole, in more than a few rows, beside θ up to more than 2π:
+    the reader takes such φ for radians."""
+    if theta_max <= _TWO_PI or np.abs(phi).max() > _TWO_PI or np.count_nonzero(np.any(phi != 0, axis=0)) <= _RADIAN_ROWS:
+        return False
+    return bool((np.abs(phi - np.round(phi)) > 1e-9).any())
+
+
 def _check_phi_units(values: dict, cols: Header, header_line: int, path: str | os.PathLike[str]) -> None:
     """φ in radians beside θ in degrees: every |φ| ≤ 2π, some φ not whole, θ up to more than 2π.
 
@@ -115,11 +126,9 @@ def _check_phi_units(values: dict, cols: Header, header_line: int, path: str | o
     0, 1, 2 degrees) reads as degrees."""
     theta_max = max(values["theta_i"].max(), values["theta_o"].max())
     phi = np.stack([values["phi_i"], values["phi_o"]])
-    if theta_max <= _TWO_PI or np.abs(phi).max() > _TWO_PI or np.count_nonzero(np.any(phi != 0, axis=0)) <= _RADIAN_ROWS:
+    if not _phi_looks_radian(theta_max, phi):
         return
     fractional = np.abs(phi - np.round(phi)) > 1e-9
-    if not fractional.any():
-        return
     which, row = np.unravel_index(np.argmax(fractional.T.reshape(-1)), fractional.T.shape)[::-1]
     name = ("phi_i", "phi_o")[which]
     raise DataError(
@@ -193,7 +202,11 @@ def write_csv(
             raise ValueError(f"column {name!r} has {len(values)} values for {n} samples")
         if values.dtype.kind == "f" and not np.isfinite(values).all():
             raise ValueError(f"column {name!r} has non-finite values; the CSV cannot hold them")
-    lines = _meta_lines({**m.meta, **(meta or {})})
+    meta = {**m.meta, **(meta or {})}
+    ti, to = columns[0][1], columns[2][1]  # ANGLES: theta_i, phi_i, theta_o, phi_o
+    if "angle_unit" not in meta and (_theta_looks_radian(ti, to) or _phi_looks_radian(max(ti.max(), to.max()), np.stack([columns[1][1], columns[3][1]]))):
+        meta["angle_unit"] = "degrees"  # what the reader would take for radians: the file says they are degrees, so it reads back
+    lines = _meta_lines(meta)
     lines.append(",".join(name for name, _ in columns))
     atomic_write(path, _chunks(lines, [v for _, v in columns], n))
 
