@@ -97,6 +97,23 @@ def test_fit_result_is_a_material_for_eval(simulated):
     data, fitted = read_measurement(csv), read_measurement(model)
     rel = np.abs(fitted.brdf - data.brdf) / np.maximum(data.brdf, 1e-3 * data.brdf.max())
     assert np.sqrt(np.mean(rel**2)) < 0.03
+    # The model's values, described as such: not the data's "# noise:" and "# source:" lines.
+    assert "# noise:" in csv.read_text() and "# noise:" not in model.read_text()
+    assert fitted.meta == {"source": "ctfit eval", "material": str(out), "directions": str(csv)}
+
+
+@pytest.mark.filterwarnings("ignore:.*samples with theta_o")  # the file's grazing rows, dropped
+def test_eval_of_data_without_a_wavelength_needs_a_material_of_one_band(tmp_path):
+    """An ALTA file's one band has no wavelength: a spectral material's values there are not
+    defined (eval used the 550 nm placeholder without a word); a material of one band is fine."""
+    alta = ROOT / "measurements" / "brdf" / "retro-3M-jaune.dat"
+    r = run("eval", ROOT / "configs" / "copper-vase.toml", alta, "-o", tmp_path / "e.csv")
+    assert r.exit_code == 2 and "its one band has no known wavelength" in r.output and not (tmp_path / "e.csv").exists()
+    grey = tmp_path / "grey.json"
+    grey.write_text(json.dumps({"s": 1, "d": 0, "lobes": [{"m": 0.3}], "F0": [0.5], "wavelength_nm": [550]}))
+    r = run("eval", grey, alta, "-o", tmp_path / "e.csv")
+    assert r.exit_code == 0, r.output
+    assert "# band: unknown" in (tmp_path / "e.csv").read_text()
 
 
 def test_table_is_printed(simulated):

@@ -62,9 +62,15 @@ def eval_cmd(
 
         mat = load_material_file(material)
         meas = read_data(data, param_out)
+        bands = len(mat.band_labels)
+        if meas.band_unknown and not mat.band_unknown and bands > 1:
+            raise UserError(f"{data}: its one band has no known wavelength, and the material's values differ from band to band "
+                            f"({bands} bands): there is no telling which to evaluate; give the data a wavelength (a CSV)")
         values = evaluate(mat, meas)
-        meta = dict(meas.meta)
-        meta.update({"evaluated_by": "ctfit eval", "material": str(material)})
+        # The values are the model's: the data's own lines (its source, noise, instrument) would describe them wrongly.
+        meta = {"source": "ctfit eval", "material": str(material), "directions": str(data)}
+        if meas.band_unknown:
+            meta["band"] = f"unknown (the data's band has no wavelength; {float(meas.wavelength_nm[0]):g} nm stands in)"
         write_csv(meas.replace(brdf=values, sigma=None, meta=meta), output)
         echo(f"wrote {len(values)} samples to {output}", err=True)
 
