@@ -605,3 +605,11 @@ def test_angles_the_reader_would_take_for_radians_are_written_with_their_unit(tm
         back = ctfit.read_csv(path)
         np.testing.assert_array_equal(back.theta_i, m.theta_i)
         np.testing.assert_allclose(np.mod(back.phi_o, 360), np.mod(m.phi_o, 360), rtol=1e-15)
+
+
+def test_a_number_past_float64s_range_is_named_as_such(tmp_path):
+    """``1e400`` reads as inf: the message says why a number in the file is infinite."""
+    path = tmp_path / "big.csv"
+    path.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,20,180,500,1e400\n")
+    with pytest.raises(ctfit.DataError, match=r"big\.csv:2: column 'brdf' \(6\): inf is not allowed .*beyond ±1\.8e308, float64's range"):
+        ctfit.read_csv(path)

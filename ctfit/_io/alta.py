@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from .._model import Measurement
+from .._model import Measurement, not_finite_why
 from .errors import DataError, DataWarning
 from .files import read_text
 from .json_numbers import json_numbers
@@ -206,7 +206,7 @@ def _numbers(rows: list[str], lines: np.ndarray, names: list[str], path: str | o
     if data is None:
         data = _numbers_by_row(rows, lines, names, path)
     for j in range(len(names)):
-        _check(~np.isfinite(data[:, j]), lines, names, j, "{} is not allowed (values must be finite numbers)", data, path)
+        _check(~np.isfinite(data[:, j]), lines, names, j, "{}", data, path, why=not_finite_why)
     return data
 
 
@@ -240,11 +240,13 @@ def _numbers_by_row(rows: list[str], lines: np.ndarray, names: list[str], path: 
     return data
 
 
-def _check(bad: np.ndarray, lines: np.ndarray, names: list[str], j: int, message: str, data: np.ndarray, path: str | os.PathLike[str]) -> None:
+def _check(bad: np.ndarray, lines: np.ndarray, names: list[str], j: int, message: str, data: np.ndarray, path: str | os.PathLike[str],
+           why=None) -> None:
     if bad.any():
         r = int(np.argmax(bad))
         x = data[r, j]
-        raise DataError(message.format("NaN" if math.isnan(x) else repr(float(x))), path=path, line=int(lines[r]), column=names[j], index=j + 1)
+        text = why(x) if why is not None else message.format("NaN" if math.isnan(x) else repr(float(x)))
+        raise DataError(text, path=path, line=int(lines[r]), column=names[j], index=j + 1)
 
 
 def _sigma(

@@ -24,7 +24,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
                               'n_from_f0'],
         "intensity": ['Light', 'reflected_intensity'],
         "material": ['DISTRIBUTIONS', 'FAMILIES', 'FRESNELS', 'GEOMETRIES', 'MAX_LOBES', 'Material', 'NORMALIZATIONS', 'Params', 'Structure', 'used'],
-        "measurement": ['Measurement', 'band_labels', 'check_samples', 'format_value', 'invalid_value', 'value_rules'],
+        "measurement": ['Measurement', 'band_labels', 'check_samples', 'format_value', 'invalid_value', 'not_finite_why', 'value_rules'],
         "names": ['valid_name'],
         "numerics": ['array_module', 'float_dtype', 'safe_div', 'safe_sqrt', 'x64_enabled'],
         "parameters": ['PARAMETERS', 'PARAMETER_AXES', 'PLASTIC_INDEX_RANGE', 'PUBLIC_NAMES', 'box_bounds', 'clip_box', 'n_lower', 'parameter', 'value_range'],

@@ -31,6 +31,13 @@ def format_value(x: float) -> str:
     return "NaN" if np.isnan(x) else repr(float(x))
 
 
+def not_finite_why(x) -> str:
+    """Why a value that is not finite is refused; an infinite one may be a number past float64's
+    range in the file (``1e400`` reads as ``inf``)."""
+    beyond = "; a number beyond ±1.8e308, float64's range, reads as infinite" if np.isinf(x) else ""
+    return f"{format_value(x)} is not allowed (values must be finite numbers{beyond})"
+
+
 def value_rules(name: str) -> list:
     """The rules of a column of samples, each ``(test, why)``: ``test(values)`` marks the values
     that break it (any shape), ``why(value)`` says why. Every value finite, and θ in [0, 90]
@@ -39,7 +46,7 @@ def value_rules(name: str) -> list:
     >>> [why(-1.0) for test, why in value_rules("brdf")]
     ['-1.0 is not allowed (values must be finite numbers)', '-1.0 is negative (a BRDF is ≥ 0 sr⁻¹)']
     """
-    rules = [(lambda v: ~np.isfinite(v), lambda x: f"{format_value(x)} is not allowed (values must be finite numbers)")]
+    rules = [(lambda v: ~np.isfinite(v), not_finite_why)]
     if name.startswith("theta"):
         rules.append((lambda v: (v < 0) | (v > 90), lambda x: f"{format_value(x)} is outside [0, 90] degrees"))
     elif name == "wavelength_nm":
