@@ -38,6 +38,7 @@ import math
 import os
 import re
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -241,7 +242,7 @@ def _numbers_by_row(rows: list[str], lines: np.ndarray, names: list[str], path: 
 
 
 def _check(bad: np.ndarray, lines: np.ndarray, names: list[str], j: int, message: str, data: np.ndarray, path: str | os.PathLike[str],
-           why=None) -> None:
+           why: Callable[[float], str] | None = None) -> None:
     if bad.any():
         r = int(np.argmax(bad))
         x = data[r, j]

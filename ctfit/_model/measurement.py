@@ -31,7 +31,7 @@ def format_value(x: float) -> str:
     return "NaN" if np.isnan(x) else repr(float(x))
 
 
-def not_finite_why(x) -> str:
+def not_finite_why(x: float) -> str:
     """Why a value that is not finite is refused; an infinite one may be a number past float64's
     range in the file (``1e400`` reads as ``inf``)."""
     beyond = "; a number beyond ±1.8e308, float64's range, reads as infinite" if np.isinf(x) else ""
