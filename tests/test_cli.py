@@ -237,3 +237,16 @@ def test_color_json_has_the_documented_keys():
     assert 0 < doc["XYZ"][1] < 1
     r60 = json.loads(run("color", ROOT / "configs" / "gold.toml", "--json", "--angle", 80).stdout)
     assert r60["XYZ"][1] > doc["XYZ"][1]  # brighter towards grazing (Fresnel)
+
+
+def test_structure_options_that_differ_from_the_materials_are_refused(simulated, tmp_path):
+    """--material sets the structure: --lobes, --family or --diffuse that differ from it were
+    dropped without a word (while --fresnel applied); they are refused, and the same values pass."""
+    d, csv = simulated
+    mat = ROOT / "configs" / "copper-vase.toml"  # two lobes, a metal, no diffuse part
+    for option in (("--lobes", 1), ("--family", "plastic"), ("--diffuse", "F0/pi")):
+        r = run("fit", csv, "--material", mat, *option, "-q", "-o", tmp_path / "x.json")
+        assert r.exit_code == 2 and f"and {option[0]} {option[1]} differs" in r.output, r.output
+    assert not (tmp_path / "x.json").exists()
+    r = run("fit", csv, "--material", mat, "--lobes", 2, "--family", "metal", "--no-diffuse", "-q", "-o", tmp_path / "x.json")
+    assert r.exit_code == 0, r.output

@@ -64,6 +64,17 @@ def texel_structure(o):
     return structure_from_options(None, fixed)
 
 
+def check_material_options(base, o) -> None:
+    """--material sets the structure: --lobes, --family and --diffuse (--no-diffuse) agree with it
+    or are left out (they were dropped without a word, while --geometry and --fresnel apply)."""
+    st = base.structure
+    has = {"--lobes": str(st.lobes), "--family": st.family, "--diffuse": "none" if st.diffuse is None else st.diffuse}
+    for option, given in (("--lobes", o.lobes), ("--family", o.family), ("--diffuse", _diffuse(o))):
+        if given != "auto" and given != has[option]:
+            raise UserError(f"--material {o.material}: the material sets the structure ({st.lobes} lobe{'s' if st.lobes != 1 else ''}, family "
+                            f"{st.family}, diffuse {has['--diffuse']}), and {option} {given} differs: leave {option} out, or change the material")
+
+
 def _family(o) -> str:
     """--family; with auto, what the other options imply: a metal for --fresnel conductor and for
     a diffuse part none or F0/pi, a plastic for a transmitted one."""
@@ -109,6 +120,8 @@ def _fit_command(o, ahead) -> int:
     prepare_runtime()  # LAPACK's kernels registered while the fit reads its files
     check_fit_choices(o)
     base = load_material_file(o.material) if o.material else None
+    if base is not None:
+        check_material_options(base, o)
     if o.workers is not None or o.scheduler is not None:
         outcomes, hashes = fit_on_cluster(files, o, base, plan, progress_enabled(o.quiet))
     else:
