@@ -225,7 +225,7 @@ def _check_sample_options(o) -> Path:
     if o.loss is not None and o.loss not in LOSSES:
         raise UserError(f"--loss must be one of {', '.join(LOSSES)}, got {o.loss!r}")
     o.output, o.backend, o.idata = output_file(o.output), output_file(o.backend, "--backend"), output_file(o.idata, "--idata")
-    from .sample_command import _stem, check_default_output, check_posterior_plots, default_output
+    from .sample_command import check_default_output, check_posterior_plots, default_output, result_stem
 
     target = check_output(o.output or default_output(o.fit_json), [o.fit_json, o.data] if o.output is None else [o.data], option="-o" if o.output else "")
     if o.output is None:
@@ -237,7 +237,7 @@ def _check_sample_options(o) -> Path:
     check_distinct([("-o" if o.output else "the result", target), ("--backend", o.backend), ("--idata", o.idata)])
     if o.plot is not None:
         check_output_folder(o.plot, "--plot")
-        check_posterior_plots(o.plot, _stem(target))
+        check_posterior_plots(o.plot, result_stem(target))
     return target
 
 

@@ -312,9 +312,9 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
         if t.json is not None:
             unconverged_target(t.json)  # where a fit that does not converge would go: refused now if that is not ctfit's to replace
         if o.sample_ and t.plot is not None:
-            from .sample_command import _stem, check_posterior_plots
+            from .sample_command import check_posterior_plots, result_stem
 
-            check_posterior_plots(t.plot.parent, _stem(t.json) if t.json is not None else t.name)
+            check_posterior_plots(t.plot.parent, result_stem(t.json) if t.json is not None else t.name)
     return plan
 
 

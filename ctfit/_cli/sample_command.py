@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import pathlib
 
-__all__ = ["default_output", "fit_sample_body", "run_longer", "sample_command_body"]
+__all__ = ["check_default_output", "check_posterior_plots", "default_output", "fit_sample_body", "result_stem", "run_longer", "sample_command_body"]
 
 
 def _read_data(data):
@@ -55,7 +55,7 @@ def _plots(result, plot_dir, stem: str) -> list[str]:
     return out
 
 
-def _stem(path: pathlib.Path) -> str:
+def result_stem(path: pathlib.Path) -> str:
     """The file name without ``.json`` or ``.toml`` (the plots' names start with it)."""
     name = path.name
     for suffix in (".json", ".toml"):
@@ -68,7 +68,7 @@ def default_output(fit_json) -> pathlib.Path:
     """Where ``ctfit sample FIT`` writes without ``-o``: ``<stem>.posterior.json`` beside FIT
     (``copper.fit.json`` → ``copper.fit.posterior.json``), never FIT itself."""
     fit_json = pathlib.Path(fit_json)
-    return fit_json.with_name(f"{_stem(fit_json)}.posterior.json")
+    return fit_json.with_name(f"{result_stem(fit_json)}.posterior.json")
 
 
 def check_default_output(target) -> None:
@@ -160,12 +160,12 @@ def sample_command_body(
         check_default_output(target)
     if plot_dir is not None:
         check_output_folder(plot_dir, "--plot")
-        check_posterior_plots(plot_dir, _stem(target))
+        check_posterior_plots(plot_dir, result_stem(target))
     extra = {
         "uncertainty": _uncertainty(
             material, _read_data(data), walkers=walkers, steps=steps, burn=burn, thin=thin, seed=seed, backend=backend,
             resume=resume, overwrite=overwrite, progress=progress, priors=priors, loss=loss, plot_dir=plot_dir,
-            stem=_stem(target), idata=idata,
+            stem=result_stem(target), idata=idata,
         )  # fmt: skip
     }
     save_material_json(material, target, extra=extra)
@@ -183,7 +183,7 @@ def fit_sample_body(fit_result, data, *, plot_dir=None, output=None, plot_stem: 
     from .._fitting import fit_result_to_dict
     from .._io import material_to_dict, save_material_json
 
-    stem = _stem(pathlib.Path(output)) if output is not None else plot_stem
+    stem = result_stem(pathlib.Path(output)) if output is not None else plot_stem
     section = _uncertainty(fit_result, data, plot_dir=plot_dir, stem=stem, **options)
     extra = {**fit_result_to_dict(fit_result, material_keys=False), "uncertainty": section}
     if output is not None:
