@@ -89,6 +89,16 @@ def test_cli_writes_maps_and_pngs(texels, tmp_path):
     assert {p.name for p in (tmp_path / "png").iterdir()} >= {"m_0.png", "F0_0.png", "F0_1.png", "cost.png", "converged.png"}
     refused = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "maps.json")])
     assert refused.exit_code == 2 and "-o MAPS.zarr" in refused.output
+    # A folder of the user's with a file at one of the pictures' names: kept, the run refused before any work.
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "cost.png").write_text("user file\n")
+    (tmp_path / "mine" / "notes.png").write_text("not a picture's name\n")
+    refused = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "maps2.zarr"), "--plot", str(tmp_path / "mine")])
+    assert refused.exit_code == 2 and "cost.png: the file exists and is not a plot of ctfit" in refused.output, refused.output
+    assert (tmp_path / "mine" / "cost.png").read_text() == "user file\n" and not (tmp_path / "maps2.zarr").exists()
+    from ctfit._fitting import map_picture_files
+
+    assert map_picture_files(tmp_path / "png") == sorted((tmp_path / "png").iterdir())  # every picture named: a rerun checks (and replaces) them
 
 
 @pytest.mark.slow

@@ -113,7 +113,12 @@ def _check_texel_outputs(o) -> None:
     if inside or os.path.normpath(os.path.abspath(out)).startswith(os.path.normpath(os.path.abspath(data)) + os.sep):
         raise UserError(f"-o {out}: is inside the input {data}; write the maps to another store")
     if o.plot is not None:
+        from .._fitting import map_picture_files
+        from .._io import check_rerun_plot
+
         check_output_folder(o.plot, "--plot")
+        for png in map_picture_files(o.plot):  # names ctfit chooses: only its own pictures are replaced
+            check_rerun_plot(png)
 
 
 def _fit_options_record(o) -> dict:

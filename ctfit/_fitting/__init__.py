@@ -28,7 +28,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "fit_warnings": ['FitWarning', 'WARNING_KINDS'],
         "fit_stats": ['FitStats'],
         "structure_selection": ['choose_structure', 'select_structure', 'structure_label'],
-        "texel_maps": ['fit_texel_maps', 'read_texel_geometry', 'save_map_pngs'],
+        "texel_maps": ['MAP_PICTURES', 'fit_texel_maps', 'map_picture_files', 'read_texel_geometry', 'save_map_pngs'],
         "texels": ['TEXEL_STATUS', 'TexelFits', 'fit_texels', 'texel_status'],
     },
 )

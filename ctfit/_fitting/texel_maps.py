@@ -40,7 +40,7 @@ from .._model import PARAMETER_AXES, PUBLIC_NAMES, Measurement, Structure
 if TYPE_CHECKING:  # the cluster extra, imported where it is used
     import xarray as xr
 
-__all__ = ["fit_texel_maps", "read_texel_geometry", "save_map_pngs", "TexelMapError"]
+__all__ = ["fit_texel_maps", "map_picture_files", "read_texel_geometry", "save_map_pngs", "MAP_PICTURES", "TexelMapError"]
 
 _GEOMETRY = ("theta_i", "phi_i", "theta_o", "phi_o", "band")
 
@@ -313,6 +313,20 @@ def _write(output: str | os.PathLike[str], maps: dict, dims: tuple[str, ...], sp
     xr.Dataset({"status": variables["status"]}).to_zarr(output, region=region, consolidated=False)
 
 
+MAP_PICTURES = ("m", "weight", "s", "F0", "n", "k", "Rd", "cost", "rel_rmse", "converged", "status")
+"""The maps :func:`save_map_pngs` draws, each ``NAME.png`` (or ``NAME_J.png``, per lobe or band)."""
+
+
+def map_picture_files(folder: str | os.PathLike[str]) -> list[Path]:
+    """The files in ``folder`` with a name :func:`save_map_pngs` may write (``NAME.png``, ``NAME_J.png``
+    of :data:`MAP_PICTURES`): what a run there would replace."""
+    import re
+
+    folder = Path(folder)
+    pattern = re.compile(rf"({'|'.join(map(re.escape, MAP_PICTURES))})(_\d+)?\.png")
+    return sorted(p for p in folder.iterdir() if pattern.fullmatch(p.name)) if folder.is_dir() else []
+
+
 def save_map_pngs(maps: Any, folder: str | os.PathLike[str]) -> list[Path]:
     """One PNG per map of an image's maps (dims y, x): per lobe (m, weight), per band (F0, Rd),
     and s, cost, rel_rmse, converged; each scaled to its own range (the PNG's name says which)."""
@@ -329,7 +343,7 @@ def save_map_pngs(maps: Any, folder: str | os.PathLike[str]) -> list[Path]:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     written = []
-    for name in ("m", "weight", "s", "F0", "n", "k", "Rd", "cost", "rel_rmse", "converged", "status"):
+    for name in MAP_PICTURES:
         if name not in maps.variables:
             continue
         var = maps[name]
