@@ -4,6 +4,7 @@ fitted together by ``fit_batch``), reported, written; the exit status from the o
 from __future__ import annotations
 
 import json
+import os
 import re
 from pathlib import Path
 from types import SimpleNamespace
@@ -279,8 +280,10 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
         check_rerun_plot,
         check_rerun_target,
         result_targets,
+        unconverged_name,
         unconverged_target,
     )
+    from .sample_command import check_posterior_plots, result_stem
 
     many, inputs = len(files) > 1, InputFiles([*files, o.material])  # each input looked up once, not once per output
 
@@ -309,11 +312,9 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     plan = {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
     for t in plan.values():
         check_distinct([("-o", t.json), ("--plot", t.plot), ("--backend", t.backend)])
-        if t.json is not None:
+        if t.json is not None and os.path.lexists(unconverged_name(t.json)):
             unconverged_target(t.json)  # where a fit that does not converge would go: refused now if that is not ctfit's to replace
         if o.sample_ and t.plot is not None:
-            from .sample_command import check_posterior_plots, result_stem
-
             check_posterior_plots(t.plot.parent, result_stem(t.json) if t.json is not None else t.name)
     return plan
 

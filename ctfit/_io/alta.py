@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from .._model import Measurement, not_finite_why
+from .._model import Measurement, format_value, not_finite_why
 from .errors import DataError, DataWarning
 from .files import read_text
 from .json_numbers import json_numbers
@@ -207,7 +207,7 @@ def _numbers(rows: list[str], lines: np.ndarray, names: list[str], path: str | o
     if data is None:
         data = _numbers_by_row(rows, lines, names, path)
     for j in range(len(names)):
-        _check(~np.isfinite(data[:, j]), lines, names, j, "{}", data, path, why=not_finite_why)
+        _check(~np.isfinite(data[:, j]), lines, names, j, not_finite_why, data, path)
     return data
 
 
@@ -241,12 +241,13 @@ def _numbers_by_row(rows: list[str], lines: np.ndarray, names: list[str], path: 
     return data
 
 
-def _check(bad: np.ndarray, lines: np.ndarray, names: list[str], j: int, message: str, data: np.ndarray, path: str | os.PathLike[str],
-           why: Callable[[float], str] | None = None) -> None:
+def _check(bad: np.ndarray, lines: np.ndarray, names: list[str], j: int, message: str | Callable[[float], str], data: np.ndarray,
+           path: str | os.PathLike[str]) -> None:
+    """A :class:`DataError` at the first ``bad`` row of column ``j``; ``message``: a format of the value, or what says why from it."""
     if bad.any():
         r = int(np.argmax(bad))
         x = data[r, j]
-        text = why(x) if why is not None else message.format("NaN" if math.isnan(x) else repr(float(x)))
+        text = message(x) if callable(message) else message.format(format_value(x))
         raise DataError(text, path=path, line=int(lines[r]), column=names[j], index=j + 1)
 
 

@@ -9,6 +9,7 @@ The writing itself is :func:`ctfit._io.files.atomic_write`.
 from __future__ import annotations
 
 import errno
+import functools
 import hashlib
 import os
 import stat
@@ -360,17 +361,16 @@ def plot_metadata(fmt: str) -> dict | None:
     """matplotlib's ``savefig(metadata=...)`` for a plot ``ctfit`` writes in the format ``fmt``: a
     PNG's ``Software`` text names ctfit (:data:`PLOT_SOFTWARE`, what :func:`check_rerun_plot`
     recognises); None (matplotlib's own) for other formats."""
-    if fmt.lower() != "png":
-        return None
-    import importlib.metadata
+    return {"Software": _software()} if fmt.lower() == "png" else None
 
+
+@functools.cache
+def _software() -> str:
     import matplotlib
 
-    try:
-        mine = importlib.metadata.version("ctfit")
-    except importlib.metadata.PackageNotFoundError:  # a source tree on the path, not installed
-        mine = "(source)"
-    return {"Software": f"{PLOT_SOFTWARE} {mine} (matplotlib {matplotlib.__version__})"}
+    import ctfit  # its __version__: the package's own lookup, made once
+
+    return f"{PLOT_SOFTWARE} {ctfit.__version__} (matplotlib {matplotlib.__version__})"
 
 
 def png_software(path) -> str | None:

@@ -121,8 +121,7 @@ def _index_in_range(x: Any, xp: Any = jnp, *, low: bool = False) -> Any:
     of the bound, which is 1 (a perfect reflector) to within about 2/(n cos θ): in float64 never
     visible, in float32 below its rounding for cos θ > 0.05 and 0.6 % below 1 at cos θ = 10⁻⁶ (no
     material has such an index). Without the clip n = 10²⁰⁰ squared to ∞ and F was NaN."""
-    dtype = xp.result_type(x, 1.0) if xp is not jnp else jnp.result_type(x, float)
-    big = float(np.finfo(dtype).max) ** 0.25 / 4
+    big = float(np.finfo(xp.result_type(x, 1.0)).max) ** 0.25 / 4
     return xp.clip(x, 1 / big if low else -big, big)
 
 
