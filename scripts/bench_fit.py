@@ -20,7 +20,9 @@ scratch folder (``_bench_fit_data.py`` describes them).
   file (``--small``: 5,000) filled, put back before every run (issue 21).
 - **Batch**: 256 files × 2,000 samples of one geometry (``--small``: 8), one ``ctfit fit DIR -o
   OUT`` process against one SciPy process looping over the files, and ``--starts 1`` (one start, as
-  SciPy's); its floor, a bare JAX process that reads the files one after another with ctfit's reader.
+  SciPy's); its floor, a bare JAX process that reads the files one after another with ctfit's reader;
+  and that process solving them too with ``ctfit.fit_batch``, nothing printed or written (what the
+  command costs around its solves).
 - **MERL-sized**: a MERL ``.binary`` file (every cell above the horizon: 1,096,216 pairs × RGB;
   ``--small``: 100,000 pairs), ``ctfit fit FILE --no-diffuse`` warm: time and peak memory.
 - **Per texel**: ``ctfit.fit_batch(geometry, values=...)`` on 100,000 texels × 201 samples (67
@@ -78,6 +80,14 @@ READ_DIR_FLOOR = (JAX_FLOOR + "; import pathlib, sys, ctfit; "
                   "[ctfit.read_measurement(p) for p in sorted(pathlib.Path(sys.argv[1]).glob('*.csv'))]" + LEAVE)
 """The floor of a fit of a folder: the bare JAX process, and reading its files one after another
 with ctfit's reader (``ctfit fit DIR`` reads them in a thread while it fits)."""
+READ_SOLVE_DIR = ("import os, jax; jax.config.update('jax_enable_x64', True); jax.numpy.zeros(()).block_until_ready(); import pathlib, sys, ctfit; "
+                  "ms = [ctfit.read_measurement(p) for p in sorted(pathlib.Path(sys.argv[1]).glob('*.csv'))]; "
+                  "st = ctfit.Structure(lobes=2, diffuse='F0/pi', family='metal'); "
+                  "[ctfit.fit_batch(ms[a: a + 64], st, loss='relative') for a in range(0, len(ms), 64)]" + LEAVE)
+"""What ``ctfit fit DIR`` does but for its outputs, written the plain way with the library: a bare
+JAX process reads the files one after another and fits them with ``ctfit.fit_batch``, 64 at a
+call (the command's window), from the same warm cache; it prints and writes nothing. Not a floor
+(the solves are ctfit's own), but the measure of what the command adds around its solves."""
 IN_PROCESS = r"""
 import json, sys, time
 import jax
@@ -282,11 +292,13 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     one = lambda: [*args, "--starts", "1", "-o", str(b.folder("batch-out-one"))]  # one start, as the SciPy loop; a new output folder each run
     b.ctfit([*args, "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
     b.ctfit(one(), cache, "ctfit fit DIR --starts 1 (priming)")
-    t_scipy, t_ctfit, t_floor, t_one = [], [], [], []
+    t_scipy, t_ctfit, t_floor, t_one, t_solve = [], [], [], [], []
     for _ in range(b.repeat):
         r, sp = scipy_run(b, start, files)
         t_scipy.append(r.wall_s)
         t_floor.append(run([PY, "-c", READ_DIR_FLOOR, str(folder / "files")], env=b.env).check("a bare JAX process reading the files").wall_s)
+        t_solve.append(run([PY, "-c", READ_SOLVE_DIR, str(folder / "files")], env=dict(b.env, JAX_COMPILATION_CACHE_DIR=str(cache)))
+                       .check("a process reading the files and solving them with fit_batch").wall_s)
         out = b.folder("batch-out")
         r, _ = b.ctfit([*args, "-o", str(out)], cache, "ctfit fit DIR")
         t_ctfit.append(r.wall_s)
@@ -300,13 +312,15 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     rel = np.array([(ct_cost[k] - sp_cost[k]) / sp_cost[k] for k in sp_cost if k in ct_cost])
     conv = sum(bool(d["fit"]["converged"]) for d in docs.values())
     res = dict(files=n_files, samples=n_samples, scipy=median(t_scipy), ctfit=median(t_ctfit), one_start=median(t_one), read_floor=median(t_floor),
+               read_and_solve=median(t_solve),
                peak_mb=peak, results=len(docs), converged=conv,
                fit_s=sum(d["fit"]["time_s"] for d in docs.values()),
                same=int(np.sum(np.abs(rel) <= 1e-6)), ctfit_lower=int(np.sum(rel < -1e-6)), scipy_lower=int(np.sum(rel > 1e-6)),
                worst=float(np.max(np.abs(rel))) if rel.size else float("nan"))
     print(f"batch {n_files} × {n_samples:,}: SciPy loop {res['scipy']:.2f} s, ctfit fit DIR {res['ctfit']:.2f} s ({res['scipy'] / res['ctfit']:.1f}×), "
           f"with one start (--starts 1) {res['one_start']:.2f} s ({res['scipy'] / res['one_start']:.1f}×); "
-          f"floor (bare JAX process reading the files) {res['read_floor']:.2f} s; "
+          f"floor (bare JAX process reading the files) {res['read_floor']:.2f} s; reading and solving them with fit_batch, nothing written, "
+          f"{res['read_and_solve']:.2f} s; "
           f"{res['results']} results, {conv} converged; cost equal (1e-6) in {res['same']}, lower for ctfit in {res['ctfit_lower']}, "
           f"for SciPy in {res['scipy_lower']}", flush=True)
     return res
@@ -568,8 +582,11 @@ def targets_21(fl: dict, cases: list[dict], bat: dict | None) -> list[tuple[str,
             floor_at, what = bat["read_floor"], f"bare JAX process reading the {bat['files']} files one after another{calls}"
         else:
             floor_at, what = fl["jax"], f"bare JAX process{calls}"
+        solves = (f"; a process that only reads the files and solves them (`fit_batch`, 64 a call, nothing printed or written) takes "
+                  f"{_s(bat['read_and_solve'])}: ctfit fit DIR is {bat['ctfit'] - bat['read_and_solve']:+.2f} s from it, and the SciPy loop / that "
+                  f"process is {bat['scipy'] / bat['read_and_solve']:.1f}×") if "read_and_solve" in bat else ""
         ratio_row(f"{bat['files']} files × {bat['samples']:,} samples, one process: ≥ 20× the SciPy loop", bat["ctfit"], bat["scipy"], 20.0,
-                  floor_at, what)
+                  floor_at, what, solves)
     return rows
 
 
@@ -641,10 +658,13 @@ def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) 
               f"{bat['files']} files × {bat['samples']:,} scattered samples of one geometry (each its own truth and noise): one `ctfit fit DIR -o OUT "
               "--lobes 2` process (warm) against one SciPy process looping over the files. SciPy solves from one start; ctfit from "
               "three seeds by default, each to convergence (they guard against a wrong basin on real materials, docs/fitting.md); "
-              "with `--starts 1` (one seed, as SciPy) it is timed too.", "",
-              "| SciPy loop | ctfit fit DIR | files per second (SciPy / ctfit) | speed-up | ctfit `--starts 1` (speed-up) | ctfit peak memory | results | "
-              "same cost (10⁻⁶) | lower cost: ctfit / SciPy |", "|---|---|---|---|---|---|---|---|---|",
-              f"| {_s(bat['scipy'])} | {_s(bat['ctfit'])} | {bat['files'] / bat['scipy']:.1f} / {bat['files'] / bat['ctfit']:.1f} | "
+              "with `--starts 1` (one seed, as SciPy) it is timed too. **Read and solve**: a process written the plain way with the library "
+              "(read each file, `ctfit.fit_batch` 64 files a call, the same warm cache) that prints and writes nothing: what the command "
+              "costs without its outputs.", "",
+              "| SciPy loop | ctfit fit DIR | read and solve | files per second (SciPy / ctfit) | speed-up | ctfit `--starts 1` (speed-up) | "
+              "ctfit peak memory | results | same cost (10⁻⁶) | lower cost: ctfit / SciPy |", "|---|---|---|---|---|---|---|---|---|---|",
+              f"| {_s(bat['scipy'])} | {_s(bat['ctfit'])} | {_s(bat['read_and_solve']) if 'read_and_solve' in bat else '—'} | "
+              f"{bat['files'] / bat['scipy']:.1f} / {bat['files'] / bat['ctfit']:.1f} | "
               f"{_ratio(bat['scipy'] / bat['ctfit'])} | {_s(bat['one_start'])} ({_ratio(bat['scipy'] / bat['one_start'])}) | "
               f"{bat['peak_mb']:.0f} MB | {bat['results']} "
               f"({bat['converged']} converged) | {bat['same']} | {bat['ctfit_lower']} / {bat['scipy_lower']} |"]

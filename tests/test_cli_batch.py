@@ -173,6 +173,34 @@ def test_a_result_that_cannot_be_written_fails_that_file_alone(tmp_path, monkeyp
     assert r.stdout.count("fit of ") == 3  # b's table was printed before its write failed
 
 
+@pytest.mark.parametrize("lobes", ["1", "auto"])  # fitted together (a window), and one by one
+def test_the_summary_hashes_each_file_as_it_was_read(tmp_path, monkeypatch, lobes):
+    """summary.json's input_sha256 is the hash of the content that was fitted: a file rewritten
+    once the run has read it (an instrument writing its next scan) keeps the hash of its first
+    content, which is read once."""
+    import hashlib
+
+    from ctfit._cli import fit_command
+
+    data = tmp_path / "data"
+    paths = [write(data, name, seed=seed) for name, seed in (("a.csv", 1), ("b.csv", 2), ("c.csv", 3), ("d.csv", 4))]
+    before = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in paths}
+    report = fit_command.report_file
+
+    def rewriting(path, *args, **kwargs):  # each file rewritten before its result is reported
+        got = report(path, *args, **kwargs)
+        Path(path).write_text(Path(path).read_text() + "# rewritten\n")
+        return got
+
+    monkeypatch.setattr(fit_command, "report_file", rewriting)
+    out = tmp_path / "fits"
+    r = run("fit", data, "--no-diffuse", "--lobes", lobes, "-o", out)
+    assert r.exit_code == 0, r.output
+    rows = json.loads((out / "summary.json").read_text())["results"]
+    assert {Path(row["data"]).name: row["input_sha256"] for row in rows} == before
+    assert all(hashlib.sha256(p.read_bytes()).hexdigest() != before[p.name] for p in paths)
+
+
 def test_exit_1_when_a_fit_does_not_converge_and_none_failed(tmp_path):
     data = tmp_path / "data"
     write(data, "a.csv", seed=1)

@@ -130,7 +130,8 @@ def _fit_command(o, ahead) -> int:
         preload = start_preload(signature)  # last run's programs, loaded while the files are read
         ended = False
         try:
-            outcomes, hashes = _fit_each(files, o, base, plan, progress_enabled(o.quiet), ahead), {}
+            hashes: dict[Path, str] = {}
+            outcomes = _fit_each(files, o, base, plan, progress_enabled(o.quiet), ahead, hashes)
             ended = True
         finally:
             preload.finish()
@@ -339,8 +340,10 @@ def _plot_format(path: Path) -> Path:
     return path
 
 
-def _fit_each(files: list[Path], o, base, plan: dict, show: bool, ahead=None) -> list[tuple[str, str]]:
+def _fit_each(files: list[Path], o, base, plan: dict, show: bool, ahead=None, hashes: dict | None = None) -> list[tuple[str, str]]:
     """Fit every file; several: a failure is one error line and the rest go on. [(outcome, what)].
+    ``hashes``: filled with each file's SHA-256 as it is read (for the summary: the content that
+    was fitted, hashed off the report's path instead of read again at the end).
 
     Several files fitted with one structure (not ``--lobes auto``, not ``--sample``) are fitted
     together by ``fit_batch``, a window of files at a time (:func:`_read_window`), and then
@@ -350,13 +353,13 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool, ahead=None) ->
 
     together = len(files) > 1 and not o.sample_ and structure_from_options(base.structure if base else None, o) is not None
     outcomes: list[tuple[str, str]] = []
-    windows = _windows(files, o, base) if together else None
+    windows = _windows(files, o, base, hashes) if together else None
     fitted: dict[Path, Any] = {}  # path → (measurement, FitResult), or an exception (_windows)
     try:
         for path in bar(files, desc="files", enabled=show and len(files) > 1):
             try:
                 if not together:
-                    outcome = _fit_file(path, o, base, plan[path], show, ahead)
+                    outcome = _fit_file(path, o, base, plan[path], show, ahead, hashes)
                 else:
                     if path not in fitted:
                         assert windows is not None  # together
@@ -392,14 +395,15 @@ files, making each file's report) run while the other's solve (256 files of 2,00
 the programs loaded ahead: 0.88× the time of one window at a time, paired)."""
 
 
-def _windows(files: list[Path], o, base):
+def _windows(files: list[Path], o, base, hashes: dict | None = None):
     """The fits of ``files`` a window at a time (path → (measurement, FitResult) or the exception
     that stopped it), in three stages that overlap: while the caller reports one window's fits,
     the next windows are fitted (:func:`_fit_window`, :data:`FITTING_WINDOWS` at once, in threads)
     and the one after them read (:func:`_read_window`, in another thread). A window's fit is
     started by the thread that read it, as soon as it is read (its fit waits there for a fitting
     thread, not for the caller to ask for the window before); a window is read once the caller has
-    taken the one two before it, so three windows are held at most, the one being reported among them."""
+    taken the one two before it, so three windows are held at most, the one being reported among them.
+    ``hashes``: each file read gets its SHA-256 there, by the reading thread (:func:`_hash_into`)."""
     import collections
     import concurrent.futures
 
@@ -408,7 +412,9 @@ def _windows(files: list[Path], o, base):
 
     def read_and_fit(chunk: list[Path]) -> tuple[int, concurrent.futures.Future]:
         ready, failed, fixed = _read_window(chunk, o, base)
-        return len(ready) + len(failed), fitter.submit(_fit_window, ready, failed, fixed, o, base)
+        fit = fitter.submit(_fit_window, ready, failed, fixed, o, base)
+        _hash_into(hashes, [path for path, _, _ in ready])
+        return len(ready) + len(failed), fit
 
     try:
         reading: concurrent.futures.Future | None = reader.submit(read_and_fit, files)
@@ -449,10 +455,23 @@ def fit_exit_status(outcomes: list[tuple[str, str]]) -> int:
     return 2 if count["failed"] else (1 if count["not converged"] or count[UNUSABLE] else 0)
 
 
-def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool, ahead=None) -> str:
+def _hash_into(hashes: dict | None, paths: list[Path]) -> None:
+    """``hashes[path]``: the SHA-256 of each file just read (``hashes`` None: nothing); one that
+    cannot be read now is left out (the summary tries it again)."""
+    from .._fitting import input_sha256
+
+    for path in paths if hashes is not None else ():
+        try:
+            hashes[path] = input_sha256(path)
+        except OSError:
+            pass
+
+
+def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool, ahead=None, hashes: dict | None = None) -> str:
     """Read (``ahead``: parsed by a helper process, :mod:`~ctfit._io.read_ahead`), fit, print and
-    write one file's results; its outcome (:func:`report_file`)."""
+    write one file's results; its outcome (:func:`report_file`). ``hashes``: :func:`_hash_into`."""
     meas = read_data(path, o.param_out, ahead)
+    _hash_into(hashes, [path])
     return report_file(path, meas, _fit_measurement(meas, o, base, show), o, t, show)
 
 
