@@ -130,7 +130,7 @@ def _fit_command(o, ahead) -> int:
         preload = start_preload(signature)  # last run's programs, loaded while the files are read
         ended = False
         try:
-            hashes: dict[Path, str] = {}
+            hashes = {}
             outcomes = _fit_each(files, o, base, plan, progress_enabled(o.quiet), ahead, hashes)
             ended = True
         finally:
@@ -460,7 +460,9 @@ def _hash_into(hashes: dict | None, paths: list[Path]) -> None:
     cannot be read now is left out (the summary tries it again)."""
     from .._fitting import input_sha256
 
-    for path in paths if hashes is not None else ():
+    if hashes is None:
+        return
+    for path in paths:
         try:
             hashes[path] = input_sha256(path)
         except OSError:
