@@ -211,6 +211,45 @@ def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
         np.testing.assert_allclose(hess, jac.T @ jac, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ jac)))
 
 
+def test_a_stray_zero_at_a_bright_sample_keeps_its_band():
+    """robust-relative (the default without σ): one dropped sample (brdf 1e-310) where the model is
+    bright does not take its band's F0 to 0 (it did, reported converged: its relative residual of
+    thousands cost more than the band); the model's value over ROBUST_CAP floors the relative
+    residual's denominator. Below the cap the residual is soft-L1's of the relative one, and the
+    structured normal equations are the Jacobian's where the cap acts."""
+    from types import SimpleNamespace
+
+    from jax.flatten_util import ravel_pytree
+
+    from ctfit._fitting.jacobian import normal_equations
+    from ctfit._fitting.losses import RESIDUALS, ROBUST_CAP, ROBUST_SCALE
+    from ctfit._fitting.problem import model_values
+
+    wl = np.array([450.0, 550.0, 650.0])
+    st = ctfit.Structure(lobes=1, diffuse=None)
+    truth = ctfit.Material(st, ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.5, 0.7, 0.9])), wavelength_nm=wl)
+    data = simulate(truth, 200, noise=0.02, seed=1).replace(sigma=None)
+    y = np.asarray(data.brdf).copy()
+    peak = np.flatnonzero(data.band == 0)[np.argmax(y[data.band == 0])]
+    y[peak] = 1e-310
+    clean, stray = fit(data, st), fit(data.replace(brdf=y), st)
+    assert stray.loss == "robust-relative" and stray.converged
+    np.testing.assert_allclose(stray.material.params.f0, clean.material.params.f0, rtol=0.01)
+
+    soft_l1 = lambda r: np.sign(r) * np.sqrt(2 * ROBUST_SCALE**2 * (np.sqrt(1 + (r / ROBUST_SCALE) ** 2) - 1))
+    got = RESIDUALS["robust-relative"](SimpleNamespace(floor=0.1), jnp.array([50.0, 0.5, 0.05, 0.0]), jnp.array([1e-310, 0.4, 0.06, 0.02]))
+    np.testing.assert_allclose(got, soft_l1(np.array([ROBUST_CAP * (1 - 1e-310 / 50), 0.25, -0.1, -0.2])), rtol=1e-12)
+
+    problem = make_problem(st, data.replace(brdf=y), fixed_params=truth.params, loss="robust-relative")
+    u = {k: jnp.asarray(v) for k, v in from_params(problem.spec, truth.params).items()}
+    assert float(model_values(problem, u).reshape(-1)[np.argmax(np.asarray(problem.y).reshape(-1) == 1e-310)]) > ROBUST_CAP * float(problem.floor)
+    flat, unflat = ravel_pytree(u)
+    r, jac = jax.jit(lambda f: (residual(unflat(f), (problem.y, problem)), jax.jacfwd(lambda g: residual(unflat(g), (problem.y, problem)))(f)))(flat)
+    cost, grad, hess = jax.jit(lambda uu: normal_equations(problem, uu))(u)
+    np.testing.assert_allclose(cost, 0.5 * r @ r, rtol=1e-12)
+    np.testing.assert_allclose(grad, jac.T @ r, rtol=1e-9, atol=1e-12 * np.max(np.abs(jac.T @ r)))
+
+
 def test_every_loss_has_its_residual_in_the_table():
     from ctfit._fitting.losses import LOSSES, RESIDUALS
 

@@ -394,6 +394,44 @@ def test_commands_refuse_an_output_that_is_an_input(tmp_path, no_work):
     assert r.exit_code == 2 and "name it .json" in r.output and not (tmp_path / "result.toml").exists(), r.output
 
 
+@pytest.mark.parametrize("where", ["beside", "env"])
+def test_a_materials_optical_constants_csv_is_an_input_too(tmp_path, no_work, monkeypatch, where):
+    """A material file whose ``optical_constants`` names a CSV reads that file: no command writes
+    over it (simulate, export, eval, render through a link, fit --material with -o or --plot all
+    replaced it, and the material then no longer loaded). Beside the material file, and in a
+    folder of $CTFIT_OPTICAL_CONSTANTS."""
+    tables = tmp_path / ("tables" if where == "env" else "work")
+    tables.mkdir(exist_ok=True)
+    table = tables / "oc.csv"
+    table.write_bytes((ROOT / "ctfit" / "data" / "optical_constants" / "Cu.csv").read_bytes())
+    if where == "env":
+        monkeypatch.setenv("CTFIT_OPTICAL_CONSTANTS", str(tables))
+    work = tmp_path / "work"
+    work.mkdir(exist_ok=True)
+    mat = work / "m.toml"
+    mat.write_text('name = "local copper"\ns = 1.0\nlobes = [{ m = 0.2 }]\noptical_constants = "oc.csv"\n')
+    data = work / "data.csv"
+    data.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,500,1\n20,0,20,180,500,1\n")
+    (work / "pic.png").symlink_to(table)
+    before = table.read_bytes()
+    for args in [
+        ("simulate", mat, "-o", table),
+        ("export", mat, "--to", "mitsuba", "-o", table),
+        ("export", mat, "--to", "merl", "-o", table),
+        ("eval", mat, data, "-o", table),
+        ("render", mat, "-o", work / "pic.png"),
+        ("fit", data, "--material", mat, "-o", table),
+        ("fit", data, "--material", mat, "--plot", work / "pic.png"),
+    ]:
+        r = run(*args)
+        assert r.exit_code == 2, (args, r.output)
+        assert r.output.startswith("error: ") and f"is the input {table}" in r.output, (args, r.output)
+    assert table.read_bytes() == before
+    from ctfit._io import material_file_inputs
+
+    assert material_file_inputs(mat) == [mat, table.resolve()]
+
+
 def test_commands_refuse_read_only_and_unmakeable_outputs(tmp_path, no_work):
     ro = read_only(tmp_path / "ro.csv")
     r = run("simulate", MATERIAL, "-o", ro)

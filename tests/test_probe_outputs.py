@@ -111,6 +111,20 @@ def test_a_closed_stdout_costs_no_result(tmp_path):
     assert json.loads((out / "summary.json").read_text())["converged"] == 3
 
 
+@pytest.mark.parametrize("to", ["gltf", "mitsuba"])
+def test_an_export_to_stdout_is_the_file_alone(tmp_path, to):
+    """``export -o /dev/stdout``: the exported document alone on standard output, its error line
+    on standard error (the line went into the document: invalid JSON, an XML Mitsuba refused)."""
+    proc = subprocess.run(_ctfit("export", ROOT / "configs" / "rubber.toml", "--to", to, "-o", "/dev/stdout"), env=_env(tmp_path),
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.startswith(f"{to}: ") and len(proc.stderr.splitlines()) == 1, proc.stderr
+    if to == "gltf":
+        assert json.loads(proc.stdout)["asset"]["version"] == "2.0"
+    else:
+        assert proc.stdout.startswith("<!-- ctfit export") and proc.stdout.rstrip().endswith("</bsdf>") and f"{to}: " not in proc.stdout.splitlines()[0]
+
+
 def test_a_closed_pipe_as_output_ends_the_write_quietly(tmp_path):
     r, w = os.pipe()
     os.close(r)
@@ -341,6 +355,7 @@ def test_a_trailing_slash_names_a_folder_where_a_file_is_wanted(tmp_path, no_wor
         (("simulate", MATERIAL, "-o", f"{tmp_path / 'new'}/"), "-o"),
         (("eval", MATERIAL, tmp_path / "d.csv", "-o", f"{tmp_path / 'new'}/"), "-o"),
         (("render", MATERIAL, "-o", f"{tmp_path / 'new'}/"), "-o"),
+        (("export", MATERIAL, "--to", "gltf", "-o", f"{tmp_path / 'new'}/"), "-o"),  # wrote a file named new
         (("sample", tmp_path / "f.json", tmp_path / "d.csv", "--idata", f"{tmp_path / 'new'}/"), "--idata"),
     ]:
         r = run(*args)

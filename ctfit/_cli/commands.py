@@ -19,7 +19,7 @@ from typing import Optional
 
 import typer
 
-from .inputs import PARAM_OUT_HELP, WAVELENGTHS_HELP, load_material_file, output_file, parse_wavelengths, read_data, setup_jax
+from .inputs import PARAM_OUT_HELP, WAVELENGTHS_HELP, load_material_file, material_inputs, output_file, parse_wavelengths, read_data, setup_jax
 from .messages import UserError, cli_message, echo, run_body
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
@@ -55,7 +55,7 @@ def eval_cmd(
         from .._io import check_output
 
         output = output_file(output_text)
-        check_output(output, [material, data])
+        check_output(output, [*material_inputs(material), data])
         setup_jax(float32)
         from .._io import write_csv
         from .._model import evaluate
@@ -93,7 +93,7 @@ def simulate(
         from .._io import check_output
 
         output = output_file(output_text)
-        check_output(output, [material])
+        check_output(output, material_inputs(material))
         setup_jax()
         from .._io import write_csv
         from .._model import simulate as sim
@@ -291,7 +291,7 @@ def render(
 
         need("plots", "ctfit render")
         output = output_file(output_text)
-        check_output(output, [*materials, compare])
+        check_output(output, [*material_inputs(*materials), compare])
         setup_jax(float32=True)  # float32 is plenty for images
         from .render_command import render_command_body
 
@@ -355,7 +355,7 @@ def export_cmd(
     material: Path = typer.Argument(..., help="Material TOML or fit-result JSON."),
     to: str = typer.Option(..., "--to", help="mitsuba (Mitsuba 3 XML), mitsuba-dict (the same as JSON: mi.load_dict(doc['bsdf'])), merl (.binary table) or "
                                              "gltf (glTF 2.0 material)."),
-    output: Path = typer.Option(..., "-o", "--output", help="Output file."),
+    output_text: str = typer.Option(..., "-o", "--output", help="Output file."),
     mitsuba_plastic: str = typer.Option("exact", "--mitsuba-plastic", help="exact: a plastic as a blendbsdf of roughconductor and plastic (exact with "
                                                                            "smith-rational G); roughplastic: Mitsuba's roughplastic, its error measured with "
                                                                            "Mitsuba."),
@@ -363,21 +363,24 @@ def export_cmd(
     """Write the material for a renderer, and print how far the export is from the fit in one line.
 
     The line (also kept in the output: an XML comment, a JSON field) gives the median and maximum
-    relative difference of the BRDF over a hemisphere grid; docs/export.md has the mapping."""
+    relative difference of the BRDF over a hemisphere grid; docs/export.md has the mapping. It goes
+    to standard error where the output is a device or a pipe (``-o /dev/stdout``)."""
 
     def body():
-        from .._io import check_output
+        from .._io import check_output, writes_in_place
 
+        output = output_file(output_text)
         formats = ("mitsuba", "mitsuba-dict", "merl", "gltf")
         if to not in formats:
             raise UserError(f"--to {to}: not a format ctfit exports; one of {', '.join(formats)}")
         if mitsuba_plastic not in ("exact", "roughplastic"):
             raise UserError(f"--mitsuba-plastic {mitsuba_plastic}: one of exact, roughplastic")
-        check_output(output, [material])
+        check_output(output, material_inputs(material))
         setup_jax()
         from .._export import export_material
 
-        echo(export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic).line())
+        line = export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic).line()
+        echo(line, err=writes_in_place(output))  # -o /dev/stdout (or a pipe): the file alone on the stream
 
     run_body(body)
 

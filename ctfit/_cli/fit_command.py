@@ -10,7 +10,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from .inputs import check_param_out, load_material_file, read_data, setup_jax
+from .inputs import check_param_out, load_material_file, material_inputs, read_data, setup_jax
 from .messages import UserError, cli_message, failure_line
 
 __all__ = [
@@ -286,7 +286,7 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
     )
     from .sample_command import check_posterior_plots, result_stem
 
-    many, inputs = len(files) > 1, InputFiles([*files, o.material])  # each input looked up once, not once per output
+    many, inputs = len(files) > 1, InputFiles([*files, *material_inputs(o.material)])  # each input looked up once, not once per output
 
     def targets(key, value, option, suffix, check):
         if value is None:

@@ -7,7 +7,8 @@ from typing import overload
 
 from .messages import UserError
 
-__all__ = ["PARAM_OUT_HELP", "WAVELENGTHS_HELP", "check_param_out", "load_material_file", "output_file", "parse_wavelengths", "read_data", "setup_jax"]
+__all__ = ["PARAM_OUT_HELP", "WAVELENGTHS_HELP", "check_param_out", "load_material_file", "material_inputs", "output_file", "parse_wavelengths",
+           "read_data", "setup_jax"]
 
 
 def setup_jax(float32: bool = False):
@@ -37,6 +38,14 @@ def output_file(value: str | None, option: str = "-o") -> Path | None:
     if value.endswith(("/", os.sep)):
         raise UserError(f"{option} {value}: ends with '/', so it names a folder; give a file name")
     return Path(value)
+
+
+def material_inputs(*paths) -> list:
+    """Every file the material files ``paths`` read (None skipped): each file and the optical
+    constants CSV it names (:func:`~ctfit._io.material_file_inputs`): inputs no output may replace."""
+    from .._io import material_file_inputs
+
+    return [f for p in paths if p is not None for f in material_file_inputs(p)]
 
 
 def load_material_file(path: Path):

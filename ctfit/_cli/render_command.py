@@ -45,6 +45,7 @@ def render_command_body(
     """
     from .._io import check_output, load_material
     from .._render import EXPOSURES, SHAPES, check_wavelength_step, render_compare, render_materials, save_png
+    from .inputs import material_inputs
 
     if not materials:
         raise ValueError("give at least one material file")
@@ -65,7 +66,7 @@ def render_command_body(
         raise ValueError("--delta-e shows a material beside its measurement: give the measurement with --compare DATA")
     if Path(output).suffix.lower() != ".png":
         raise ValueError(f"{output}: the output is a PNG file; give a name ending in .png")
-    check_output(output, [*materials, compare])
+    check_output(output, [*material_inputs(*materials), compare])
     mats = [load_material(p) for p in materials]
     options = {"supersample": supersample, "ambient": ambient}
     if compare is not None:

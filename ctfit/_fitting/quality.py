@@ -99,14 +99,16 @@ def quality_in_regions(err: np.ndarray, grazing: np.ndarray, peak: np.ndarray, p
 
 def quality_from_residuals(data: Measurement, rel: np.ndarray, floor: float, structure: Structure, params: Params) -> dict:
     """The ``quality`` section of a fit from its relative residuals (f − y)/max(|y|, floor) per
-    sample: |f − y|/y computed in place, with one temporary (a MERL table has 3.3 million samples)."""
+    sample: |f − y|/y computed in place, with one temporary (a MERL table has 3.3 million samples);
+    inf where it lies beyond float64's range (a value of 1e-310 where the model is bright)."""
     y = np.asarray(data.brdf, dtype=float)
     positive = y > 0
     err = np.abs(rel, dtype=float)
     scale = np.abs(y)
     err *= np.maximum(scale, floor, out=scale)
     del scale
-    np.divide(err, y, out=err, where=positive)
+    with np.errstate(over="ignore"):  # a subnormal y (1e-310) under a bright model: an error past float's range, inf
+        np.divide(err, y, out=err, where=positive)
     err[~positive] = np.nan
     peak_deg = peak_width_deg(structure, params)
     return quality_in_regions(err, *sample_regions(data, peak_deg), peak_deg)

@@ -58,7 +58,7 @@ from .files import atomic_write
 from .optical_constants import TABLE_FOLDERS, is_table_name, read_material_text, read_optical_constants, table_folders, table_names
 from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_many_digits, valid_text
 
-__all__ = ["load_material", "material_from_dict", "material_to_dict", "material_json", "save_material_json", "float_list", "jsonable"]
+__all__ = ["load_material", "material_file_inputs", "material_from_dict", "material_to_dict", "material_json", "save_material_json", "float_list", "jsonable"]
 
 _TOL = 1e-9
 _MODEL_KEYS = (
@@ -132,6 +132,32 @@ def load_material(path: str | os.PathLike[str]) -> Material:
     path = pathlib.Path(path)
     data = _read_document(path)
     return material_from_dict(data, source=str(path), base_dir=path.parent, default_name=path.stem)
+
+
+def material_file_inputs(path: str | os.PathLike[str]) -> list[pathlib.Path]:
+    r"""The files that loading the material file ``path`` reads: the file itself and, where its
+    ``optical_constants`` names a CSV (not a table that ships with ctfit), that CSV where
+    :func:`load_material` finds it. What a command counts as its inputs, which no output of it may
+    replace. Only a regular file is read here (a pipe is read once, by the load); a document that
+    cannot be read, or whose table cannot be found, gives the file alone (loading it says why).
+
+    >>> import pathlib
+    >>> _ = pathlib.Path("oc.csv").write_text("wavelength_nm,n,k\n400,1.2,2.1\n700,0.3,4.0\n")
+    >>> _ = pathlib.Path("local.toml").write_text('s = 1\nlobes = [{ m = 0.2 }]\noptical_constants = "oc.csv"\n')
+    >>> [p.name for p in material_file_inputs("local.toml")]
+    ['local.toml', 'oc.csv']
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        return [path]
+    try:
+        data = _read_document(path)
+        name = data.get("optical_constants") if isinstance(data, dict) else None
+        if isinstance(name, str) and not is_table_name(name):
+            return [path, pathlib.Path(_Parser(data, str(path), path.parent).resolve(name))]
+    except (ValueError, OSError):  # MaterialError is a ValueError
+        pass
+    return [path]
 
 
 # --- validation ---------------------------------------------------------------------------------
