@@ -296,6 +296,21 @@ def test_roughplastic_on_request_prints_the_error_mitsuba_measures(diffuse, tmp_
     assert r.exit_code == 2 and r.output.startswith("error: ") and "roughplastic needs a plastic" in r.output
 
 
+def test_gltf_ior_below_one_is_its_reciprocal(tmp_path):
+    """KHR_materials_ior takes ior ≥ 1: an index below 1 (n = 0.8) is written as 1/n, which has the
+    same f0 — all glTF's Schlick F uses — and the printed error is that of the file written."""
+    from ctfit._export.gltf import gltf_material
+
+    mat = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"),
+                         ctfit.Params(s=np.array(0.3), m=np.array([0.2]), w=np.ones(1), n=np.array(0.8), rd=np.array([0.1, 0.03, 0.02])),
+                         channels=("R", "G", "B"))
+    ior = gltf_material(mat)["extensions"]["KHR_materials_ior"]["ior"]
+    assert ior == pytest.approx(1.25) and ((ior - 1) / (ior + 1)) ** 2 == pytest.approx((0.2 / 1.8) ** 2)
+    r = runner.invoke(app, ["export", str(_save(mat, tmp_path)), "--to", "gltf", "-o", str(tmp_path / "p.gltf")])
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "p.gltf").read_text())["materials"][0]["extensions"]["KHR_materials_ior"]["ior"] == pytest.approx(1.25)
+
+
 def test_gltf_brdf_is_the_specifications_ggx():
     """glTF's lobe with F = 1 (metallic 1, white): at normal incidence and view V D = 1/(4 π α²);
     the directional albedo at 30° is just below 1 for a smooth surface and falls with roughness

@@ -113,7 +113,7 @@ def gltf_material(material: Material) -> dict:
     A metal: metallic = s (1 without a diffuse part), baseColor = F0 in linear sRGB, and no
     dielectric specular layer (specularFactor 0), so its diffuse part is (1 − s) F0/π — the
     paper's R_d = F0/π exactly; without a specular part, metallic 0 and baseColor = π R_d.
-    A plastic: metallic 0, ior = n, specularFactor = s (at most 1), baseColor the diffuse
+    A plastic: metallic 0, ior = n (1/n for n < 1: the same f0, and glTF takes ior ≥ 1), specularFactor = s (at most 1), baseColor the diffuse
     part's albedo (1 − s) π R_d × its transmission, over 1 − s F0.
 
     Examples
@@ -145,7 +145,8 @@ def gltf_material(material: Material) -> dict:
         albedo = np.asarray(ambient_reflectance(diffuse, p), float) if diffuse else np.zeros(1)
         base = (1 - s) * np.broadcast_to(albedo, (to_rgb.shape[0],)) @ to_rgb / (1 - min(s, 1.0) * f0)
         metallic = 0.0
-        ext = {"KHR_materials_ior": {"ior": n}, "KHR_materials_specular": {"specularFactor": min(s, 1.0), "specularColorFactor": [1.0, 1.0, 1.0]}}
+        # KHR_materials_ior takes ior ≥ 1; n and 1/n have the same f0, which is all glTF's Schlick F uses
+        ext = {"KHR_materials_ior": {"ior": max(n, 1 / n)}, "KHR_materials_specular": {"specularFactor": min(s, 1.0), "specularColorFactor": [1.0, 1.0, 1.0]}}
     colour = [float(c) for c in np.clip(base, 0.0, 1.0)] + [1.0]
     return {"name": material.name or "ctfit material",
             "pbrMetallicRoughness": {"baseColorFactor": colour, "metallicFactor": metallic, "roughnessFactor": rough},
