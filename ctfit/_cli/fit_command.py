@@ -131,7 +131,8 @@ def _fit_command(o, ahead) -> int:
         ended = False
         try:
             hashes = {}
-            outcomes = _fit_each(files, o, base, plan, progress_enabled(o.quiet), ahead, hashes)
+            summary = o.output is not None and o.folders["output"]  # the hashes serve the summary alone
+            outcomes = _fit_each(files, o, base, plan, progress_enabled(o.quiet), ahead, hashes if summary else None)
             ended = True
         finally:
             preload.finish()
