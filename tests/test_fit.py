@@ -214,9 +214,9 @@ def test_normal_equations_are_the_jacobians_products(bands, scattered, family):
 def test_a_stray_zero_at_a_bright_sample_keeps_its_band():
     """robust-relative (the default without σ): one dropped sample (brdf 1e-310) where the model is
     bright does not take its band's F0 to 0 (it did, reported converged: its relative residual of
-    thousands cost more than the band); the model's value over ROBUST_CAP floors the relative
-    residual's denominator. Below the cap the residual is soft-L1's of the relative one, and the
-    structured normal equations are the Jacobian's where the cap acts."""
+    thousands cost more than the band); for a sample below the floor the model's value over
+    ROBUST_CAP floors the relative residual's denominator. Elsewhere the residual is soft-L1's of
+    the relative one, and the structured normal equations are the Jacobian's where the cap acts."""
     from types import SimpleNamespace
 
     from jax.flatten_util import ravel_pytree
@@ -237,8 +237,9 @@ def test_a_stray_zero_at_a_bright_sample_keeps_its_band():
     np.testing.assert_allclose(stray.material.params.f0, clean.material.params.f0, rtol=0.01)
 
     soft_l1 = lambda r: np.sign(r) * np.sqrt(2 * ROBUST_SCALE**2 * (np.sqrt(1 + (r / ROBUST_SCALE) ** 2) - 1))
-    got = RESIDUALS["robust-relative"](SimpleNamespace(floor=0.1), jnp.array([50.0, 0.5, 0.05, 0.0]), jnp.array([1e-310, 0.4, 0.06, 0.02]))
-    np.testing.assert_allclose(got, soft_l1(np.array([ROBUST_CAP * (1 - 1e-310 / 50), 0.25, -0.1, -0.2])), rtol=1e-12)
+    # capped only below the floor (a dark sample under a bright model); a sample at or above it keeps its relative residual
+    got = RESIDUALS["robust-relative"](SimpleNamespace(floor=0.1), jnp.array([50.0, 0.5, 0.05, 0.0, 5.0]), jnp.array([1e-310, 0.4, 0.06, 0.02, 0.2]))
+    np.testing.assert_allclose(got, soft_l1(np.array([ROBUST_CAP * (1 - 1e-310 / 50), 0.25, -0.1, -0.2, 24.0])), rtol=1e-12)
 
     problem = make_problem(st, data.replace(brdf=y), fixed_params=truth.params, loss="robust-relative")
     u = {k: jnp.asarray(v) for k, v in from_params(problem.spec, truth.params).items()}

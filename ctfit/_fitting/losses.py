@@ -27,14 +27,16 @@ ROBUST_SCALE = 0.05
 larger ones grow as √(2|r|c) (SciPy's ``soft_l1``), so a region the model cannot follow (a
 retro-reflection, the grazing fringe) does not pull the rest of the fit (docs/fitting.md)."""
 ROBUST_CAP = 10.0
-"""The "robust-relative" loss counts a model value more than this many times the measurement as
-about this many times off: its relative residual is (f − y)/max(y, floor, f/ROBUST_CAP), below
-ROBUST_CAP however small y is. One stray value near 0 where the model is bright (a dropped
-sample at the specular peak: y = 1e-310 against f = 50) had a residual of 5,000 and a soft-L1
-cost of some 500, more than the ~5 of setting its band's F0 to 0, which the fit did (F0(400 nm)
-0.50 → 6·10⁻¹⁵, reported converged). At the cap it costs about 1 and its gradient vanishes. Where
-the model is within ROBUST_CAP × of every sample, nothing changes (the default fits of
-``measurements/`` are the same numbers; docs/fitting.md)."""
+"""The "robust-relative" loss counts a model value more than this many times a *dark* sample (one
+below the floor, a tenth of the typical sample) as about this many times off: there its relative
+residual is (f − y)/max(floor, f/ROBUST_CAP), below ROBUST_CAP however small y is. One stray value
+near 0 where the model is bright (a dropped sample at the specular peak: y = 1e-310 against
+f = 50) had a residual of 5,000 and a soft-L1 cost of some 500, more than the 5.0 that setting its
+band's F0 to 0 cost, which the fit did (F0(400 nm) 0.50 → 6·10⁻¹⁵, reported converged). At the cap
+it costs about 0.5 and its gradient vanishes. Samples at or above the floor are not capped: a lobe
+whose peak overshot them cheaply hid between them (a smooth plastic fitted with s = 0.46 and
+m = 0.0007 instead of s = 0). The default fits of ``measurements/`` are the same numbers with the
+cap as without it (docs/fitting.md)."""
 FLOOR_OF_PEAK = 1e-6
 """The relative loss's floor is never below this fraction of the largest sample."""
 SEED_FLOOR = 1e-3
@@ -93,8 +95,10 @@ def _relative(problem: Problem, values, y):
 
 def _robust_relative(problem: Problem, values, y):
     """soft-L1 of the relative residual: ρ(r) = 2c²(√(1 + (r/c)²) − 1) = r'², with the model's
-    value over :data:`ROBUST_CAP` as a further floor of the denominator (r < ROBUST_CAP)."""
-    r = (values - y) / jnp.maximum(jnp.maximum(y, problem.floor), values / ROBUST_CAP)
+    value over :data:`ROBUST_CAP` as a further floor of the denominator of a sample below the
+    floor (there r < ROBUST_CAP)."""
+    dark = y < problem.floor  # below a tenth of the typical sample: a stray zero can only be one of these
+    r = (values - y) / jnp.maximum(jnp.maximum(y, problem.floor), jnp.where(dark, values / ROBUST_CAP, 0.0))
     return r * jnp.sqrt(2.0 / (jnp.hypot(1.0, r / ROBUST_SCALE) + 1.0))  # = sign(r)·√ρ(r), smooth at 0 (no cancellation)
 
 
