@@ -54,6 +54,7 @@ def _columns(problem: Problem, u: dict, y):
     for k in names:
         dvs[k] = jax.jvp(lambda ur: f_rest(s_dir, ur), (u_rest,), (dict(zeros, **{k: jnp.ones_like(u_rest[k])}),))[1]
     res, g = jax.jvp(lambda v: loss_residuals(problem, v, y, flat=False), (values,), (jnp.ones_like(values),))
+    res, g = _barrier(res, g)
     cols: dict[str, Any] = {}  # name → (kind, column)
     if "__S__" in dvs:
         a = g * dvs["__S__"]
@@ -133,6 +134,13 @@ def _normal_equations_from(problem: Problem, res, cols: dict, names: list[str], 
     blocks = _packed if dense and not problem.spec.grid else _blocks
     grad, hess = blocks(problem, res.reshape(problem.y.shape), cols, names)
     return 0.5 * jnp.sum(res * res), grad, hess
+
+
+def _barrier(*arrays):
+    """``arrays`` as computed, fenced off from what reads them (see :func:`_fenced`)."""
+    flat = jnp.reshape(arrays[0], (-1,))
+    nan = jnp.isnan(flat[0]) if flat.shape[0] else jnp.asarray(False)
+    return jax.lax.cond(nan, lambda x: jax.tree.map(lambda a: a * 1, x), lambda x: x, arrays)
 
 
 def _fenced(res, cols: dict, *more):
