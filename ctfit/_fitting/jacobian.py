@@ -54,7 +54,7 @@ def _columns(problem: Problem, u: dict, y):
     for k in names:
         dvs[k] = jax.jvp(lambda ur: f_rest(s_dir, ur), (u_rest,), (dict(zeros, **{k: jnp.ones_like(u_rest[k])}),))[1]
     res, g = jax.jvp(lambda v: loss_residuals(problem, v, y, flat=False), (values,), (jnp.ones_like(values),))
-    res, g = _barrier(res, g)
+    res, g = _barrier(res, g)  # the loss and its derivative once, not inside every column that reads them
     cols: dict[str, Any] = {}  # name → (kind, column)
     if "__S__" in dvs:
         a = g * dvs["__S__"]
