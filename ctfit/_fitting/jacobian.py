@@ -136,25 +136,24 @@ def _normal_equations_from(problem: Problem, res, cols: dict, names: list[str], 
     return 0.5 * jnp.sum(res * res), grad, hess
 
 
-def _barrier(*arrays):
-    """``arrays`` as computed, fenced off from what reads them (see :func:`_fenced`)."""
-    flat = jnp.reshape(arrays[0], (-1,))
+def _barrier(first, *rest):
+    """``first`` and the pytrees ``rest`` as computed, fenced off from what reads them. XLA fuses
+    elementwise work into every consumer that reads it, and removes an ``optimization_barrier``
+    before it fuses; the result of a conditional is a buffer that fusion does not cross. Its
+    predicate is data (whether the first entry of ``first`` is NaN), and both branches return
+    the same values."""
+    flat = jnp.reshape(first, (-1,))
     nan = jnp.isnan(flat[0]) if flat.shape[0] else jnp.asarray(False)
-    return jax.lax.cond(nan, lambda x: jax.tree.map(lambda a: a * 1, x), lambda x: x, arrays)
+    return jax.lax.cond(nan, lambda x: jax.tree.map(lambda a: a * 1, x), lambda x: x, (first, *rest))
 
 
 def _fenced(res, cols: dict, *more):
     """``res`` and the columns ``cols`` of :func:`_columns` (and any arrays ``more``) as computed,
-    fenced off from the products that read them. XLA fuses the elementwise work that makes each column into every
-    product that reads it, and removes an ``optimization_barrier`` before it fuses: the normal
-    equations of a chunk of 2,048 samples (31 bands, two lobes) did 4.0 MFLOP where the columns
-    and the products take 1.2, and took 0.39 ms instead of 0.21 ms. The result of a conditional is
-    a buffer that fusion does not cross; its predicate is data (whether the first residual is
-    NaN), and both branches return the same values."""
-    arrays = {k: col for k, (_, col) in cols.items()}
-    flat = jnp.reshape(res, (-1,))
-    nan = jnp.isnan(flat[0]) if flat.shape[0] else jnp.asarray(False)
-    res, arrays, more = jax.lax.cond(nan, lambda x: jax.tree.map(lambda a: a * 1, x), lambda x: x, (res, arrays, more))
+    fenced off from the products that read them (:func:`_barrier`). Unfenced, XLA made each
+    column inside every product that reads it: the normal equations of a chunk of 2,048 samples
+    (31 bands, two lobes) did 4.0 MFLOP where the columns and the products take 1.2, and took
+    0.39 ms instead of 0.21 ms."""
+    res, arrays, *more = _barrier(res, {k: col for k, (_, col) in cols.items()}, *more)
     return res, {k: (kind, arrays[k]) for k, (kind, _) in cols.items()}, *more
 
 

@@ -153,11 +153,10 @@ def material_file_inputs(path: str | os.PathLike[str]) -> list[pathlib.Path]:
     try:
         data = _read_document(path)
         name = data.get("optical_constants") if isinstance(data, dict) else None
-        if isinstance(name, str) and not is_table_name(name):
-            return [path, pathlib.Path(_Parser(data, str(path), path.parent).resolve(name))]
+        where = _Parser(data, str(path), path.parent).resolve(name) if isinstance(name, str) else None  # the loader's own lookup
     except (ValueError, OSError):  # MaterialError is a ValueError
-        pass
-    return [path]
+        where = None
+    return [path, where] if isinstance(where, pathlib.Path) else [path]  # a shipped table's name is no file of the user's
 
 
 # --- validation ---------------------------------------------------------------------------------
