@@ -4,6 +4,7 @@ Mitsuba's ``eval`` returns the BRDF × cos θ_o (the cosine is divided out here)
 float32. The hemisphere grid of the approximation error is rebuilt here from ``docs/export.md``.
 """
 
+import dataclasses
 import json
 import re
 import struct
@@ -13,6 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 import ctfit
+from ctfit._export.rgb_bands import band_to_rgb, rgb_material
 from ctfit.cli import app
 
 runner = CliRunner()
@@ -343,3 +345,73 @@ def test_a_material_named_after_a_file_that_is_not_utf8_is_exported(to, tmp_path
     ctfit.export_material(gold, to=to, path=path)
     text = path.read_text(encoding="utf-8")  # UTF-8 text (the dict form does not name the material)
     assert "caf\ufffd" in text or to == "mitsuba-dict"
+
+
+def _red_metal(tmp_path):
+    """A saturated spectral metal (F0 → 1 in the red): effective indices up to 4 × 10⁶."""
+    path = tmp_path / "red.toml"
+    path.write_text('name = "red metal"\ns = 1.0\nlobes = [{ m = 0.2 }]\ngeometry = "smith-rational"\nwavelength_nm = [450, 550, 650, 700]\n'
+                    "F0 = [0.6, 0.7, 0.99, 1.0]\n")
+    return path
+
+
+@pytest.mark.mitsuba
+def test_a_spectral_material_exported_as_colours_is_its_colour_in_mitsubas_rgb_variant(tmp_path):
+    """``--mitsuba-colour rgb``: in ``scalar_rgb`` Mitsuba gives the fit's linear-sRGB colour
+    (its spectrum under D65, CIE 1931) at mirror directions up to 25° to 0.1 %, and the printed figures
+    are Mitsuba's evaluation against that colour over the grid, recomputed here. The spectra as
+    they are (the default) come out grey in that variant: Mitsuba converts the index spectrum like a
+    colour, and clamps its negative channels."""
+    mi = pytest.importorskip("mitsuba")
+    mat = ctfit.load_material(_red_metal(tmp_path))
+    fit_rgb = ctfit_values(mat, grid()) @ band_to_rgb(mat)
+    r = runner.invoke(app, ["export", str(_red_metal(tmp_path)), "--to", "mitsuba", "--mitsuba-colour", "rgb", "-o", str(tmp_path / "c.xml")])
+    assert r.exit_code == 0, r.output
+    assert "approximate (spectra as linear-sRGB colours (D65, CIE 1931), F0 by the effective index of its colour per channel)" in r.stdout
+    mi.set_variant("scalar_rgb")
+    xml = (tmp_path / "c.xml").read_text()
+    assert '<rgb name="eta"' in xml and "<spectrum" not in xml
+    ours = mitsuba_values(mi.load_string(xml), grid())
+    near = (grid()[0] == grid()[2]) & (grid()[3] == 180.0) & (grid()[0] < 30)  # the mirror directions up to 25°
+    assert np.max(np.abs(ours[near] / fit_rgb[near] - 1)) < 1e-3  # (the grazing colour shift, per channel, differs: 0.8 % at 55°)
+    median, worst = relative(ours, fit_rgb)
+    assert _printed(r.stdout) == pytest.approx((median, worst), rel=2e-3, abs=5e-6)  # (Mitsuba evaluates in float32)
+    r = runner.invoke(app, ["export", str(_red_metal(tmp_path)), "--to", "mitsuba", "-o", str(tmp_path / "s.xml")])
+    assert r.exit_code == 0 and r.stdout.strip().endswith("its RGB variants take the spectra as colours (for those, export with mitsuba colour rgb)")
+    assert r.stdout.strip() in (tmp_path / "s.xml").read_text()
+    as_spectra = mitsuba_values(mi.load_string((tmp_path / "s.xml").read_text()), [a[near] for a in grid()])
+    assert np.ptp(as_spectra, axis=1).max() < 1e-3 * as_spectra.max() and np.ptp(fit_rgb[near], axis=1).min() > 0.2 * fit_rgb[near].max()
+
+
+def test_colours_of_a_spectral_material_keep_what_is_linear_and_say_what_is_not():
+    """:func:`rgb_material`: R_d's and F0's colours are the spectra's (a Lambertian material is its
+    colour exactly); a conductor's n, k and a metal's real n become F0's effective index; a
+    plastic keeps its one n; an RGB material is left as it is."""
+    wl = np.arange(400.0, 701.0, 20.0)
+    lam = ctfit.Material(ctfit.Structure(lobes=0, diffuse="spectrum"), ctfit.Params(rd=np.linspace(0.01, 0.2, wl.size)), wavelength_nm=wl)
+    as_rgb, notes = rgb_material(lam)
+    assert as_rgb.channels == RGB and notes == ["spectra as linear-sRGB colours (D65, CIE 1931)"]
+    np.testing.assert_allclose(ctfit_values(as_rgb, grid()), ctfit_values(lam, grid()) @ band_to_rgb(lam), rtol=1e-12)
+    st = ctfit.Structure(geometry="smith-rational", fresnel="conductor", diffuse="spectrum")
+    cond = ctfit.Material(st, ctfit.Params(s=np.array(0.9), m=np.array([0.3]), w=np.ones(1), n=np.linspace(0.2, 1.2, wl.size),
+                                           k=np.linspace(2.0, 4.0, wl.size), rd=np.linspace(0.01, 0.2, wl.size)), wavelength_nm=wl)
+    as_rgb, notes = rgb_material(cond)
+    assert as_rgb.structure.fresnel == "f0" and as_rgb.params.n is None and as_rgb.params.k is None and "n, k as the effective index of F0 (k = 0)" in notes
+    np.testing.assert_allclose(as_rgb.params.f0, np.asarray(ctfit.normal_reflectance(st, cond.params)) @ band_to_rgb(cond), rtol=1e-12)
+    normal = ctfit_values(as_rgb, ([0.0], [0.0], [0.0], [0.0]))  # at normal incidence the specular colour is F0's: exact
+    np.testing.assert_allclose(normal, ctfit_values(cond, ([0.0], [0.0], [0.0], [0.0])) @ band_to_rgb(cond), rtol=1e-9)
+    shiny = plastic(diffuse="spectrum")
+    spectral_plastic = ctfit.Material(shiny.structure, dataclasses.replace(shiny.params, rd=np.linspace(0.05, 0.2, wl.size)), wavelength_nm=wl)
+    assert rgb_material(spectral_plastic)[0].params.n == 1.5 and rgb_material(shiny) == (shiny, [])
+    narrow = ctfit.Material(ctfit.Structure(), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.where(np.abs(wl - 520) < 15, 0.95, 0.0)),
+                            wavelength_nm=wl)  # a green outside sRGB's gamut
+    as_rgb, notes = rgb_material(narrow)
+    assert notes[-1] == "a colour outside sRGB's gamut desaturated into it" and np.all(as_rgb.params.f0 >= 0)
+
+
+def test_a_bad_mitsuba_colour_is_one_error_line(tmp_path):
+    r = runner.invoke(app, ["export", str(_save(plastic(), tmp_path)), "--to", "mitsuba", "--mitsuba-colour", "xyz", "-o", str(tmp_path / "p.xml")])
+    assert r.exit_code == 2 and r.output.strip() == "error: --mitsuba-colour xyz: one of spectrum, rgb" and not (tmp_path / "p.xml").exists()
+    with pytest.raises(ValueError, match="mitsuba_colour must be one of spectrum, rgb"):
+        ctfit.export_material(plastic(), mitsuba_colour="xyz")
+    assert ctfit.export_material(metal(), mitsuba_colour="rgb").content == ctfit.export_material(metal()).content  # RGB already

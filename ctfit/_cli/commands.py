@@ -359,6 +359,10 @@ def export_cmd(
     mitsuba_plastic: str = typer.Option("exact", "--mitsuba-plastic", help="exact: a plastic as a blendbsdf of roughconductor and plastic (exact with "
                                                                            "smith-rational G); roughplastic: Mitsuba's roughplastic, its error measured with "
                                                                            "Mitsuba."),
+    mitsuba_colour: str = typer.Option("spectrum", "--mitsuba-colour", help="A spectral material's spectra for Mitsuba — spectrum: as spectra, exact in "
+                                                                          "its *_spectral variants; rgb: as linear-sRGB colours, for its RGB variants "
+                                                                          "(F0's colour as an effective index per channel), the error against the fit's "
+                                                                          "colour."),
 ):
     """Write the material for a renderer, and print how far the export is from the fit in one line.
 
@@ -375,11 +379,14 @@ def export_cmd(
             raise UserError(f"--to {to}: not a format ctfit exports; one of {', '.join(formats)}")
         if mitsuba_plastic not in ("exact", "roughplastic"):
             raise UserError(f"--mitsuba-plastic {mitsuba_plastic}: one of exact, roughplastic")
+        if mitsuba_colour not in ("spectrum", "rgb"):
+            raise UserError(f"--mitsuba-colour {mitsuba_colour}: one of spectrum, rgb")
         check_output(output, material_inputs(material))
         setup_jax()
         from .._export import export_material
 
-        line = export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic).line()
+        line = export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic,
+                               mitsuba_colour=mitsuba_colour).line()
         echo(line, err=writes_in_place(output))  # -o /dev/stdout (or a pipe): the file alone on the stream
 
     run_body(body)

@@ -14,19 +14,23 @@ from .error_grid import ERROR_GRID, error_grid_angles, relative_difference
 from .gltf import gltf_brdf, gltf_material
 from .merl_export import merl_lookup, merl_model_table
 from .mitsuba import mitsuba_bsdf, mitsuba_target, mitsuba_values, mitsuba_xml, roughplastic_bsdf
-from .rgb_bands import band_to_rgb
+from .rgb_bands import band_to_rgb, rgb_material
 
-__all__ = ["EXPORT_FORMATS", "ExportResult", "export_material"]
+__all__ = ["EXPORT_FORMATS", "MITSUBA_COLOURS", "ExportResult", "export_material"]
 
 EXPORT_FORMATS = ("mitsuba", "mitsuba-dict", "merl", "gltf")
 """What :func:`export_material` writes: Mitsuba 3 XML, the same as JSON for ``mi.load_dict``, a MERL ``.binary`` table, a glTF 2.0 material."""
+
+MITSUBA_COLOURS = ("spectrum", "rgb")
+"""How :func:`export_material` writes a spectral material for Mitsuba: spectra (its ``*_spectral`` variants) or linear-sRGB colours (its RGB variants)."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class ExportResult:
     """An exported material: ``content`` (XML or JSON text, or the (3, 90, 90, 180) MERL table),
     and its ``error`` — ``median`` and ``max`` relative difference of the BRDF over the grid of
-    :data:`ERROR_GRID`, ``exact`` and ``approximations`` (what the target cannot express).
+    :data:`ERROR_GRID`, ``exact`` and ``approximations`` (what the target cannot express); ``note``:
+    where the figures hold, if not everywhere (a Mitsuba export of spectra: its spectral variants).
 
     Examples
     --------
@@ -40,13 +44,14 @@ class ExportResult:
     format: str
     content: object
     error: dict
+    note: str = ""
 
     def line(self) -> str:
-        """The approximation error in one line, as ``ctfit export`` prints it."""
+        """The approximation error in one line, as ``ctfit export`` prints it (and ``note``, where there is one)."""
         e = self.error
         kind = "exact" if e["exact"] else "approximate (" + "; ".join(e["approximations"]) + ")"
         return (f"{self.format}: {kind}: median {100 * e['median']:.3g} %, max {100 * e['max']:.3g} % relative "
-                f"difference of the BRDF over {e['grid']}")
+                f"difference of the BRDF over {e['grid']}" + (f"; {self.note}" if self.note else ""))
 
     def write(self, path: str | os.PathLike[str]) -> None:
         """Write the export to ``path`` atomically."""
@@ -79,23 +84,25 @@ def _error(fit: np.ndarray, target: np.ndarray, approximations: list[str]) -> di
     return {**relative_difference(target, fit), "exact": not approximations, "approximations": approximations, "grid": ERROR_GRID}
 
 
-def _export_mitsuba(material: Material, to: str, plastic: str) -> ExportResult:
-    fit = _grid_values(material)
+def _export_mitsuba(material: Material, to: str, plastic: str, colour: str) -> ExportResult:
+    source, notes = rgb_material(material) if colour == "rgb" else (material, [])
+    fit = _grid_values(material) @ band_to_rgb(material) if notes else _grid_values(material)  # converted: against the fit's colour
     if plastic == "roughplastic":
-        tree = roughplastic_bsdf(material)
-        notes = ["Mitsuba's roughplastic: rough transmittance tables in its diffuse term"]
-        if material.structure.diffuse in ("spectrum", "constant"):
+        tree = roughplastic_bsdf(source)
+        notes = notes + ["Mitsuba's roughplastic: rough transmittance tables in its diffuse term"]
+        if source.structure.diffuse in ("spectrum", "constant"):
             notes.append("the Lambertian R_d as roughplastic's transmitted diffuse term of the same albedo")
-        notes += [n for n in _mitsuba_approximations(material) if "G1" in n or "Gaussian" in n]
-        error = _error(fit, mitsuba_values(tree, material, *error_grid_angles()), notes)
+        notes += [n for n in _mitsuba_approximations(source) if "G1" in n or "Gaussian" in n]
+        error = _error(fit, mitsuba_values(tree, source, *error_grid_angles()), notes)
     else:
-        tree = mitsuba_bsdf(material)
-        error = _error(fit, _grid_values(mitsuba_target(material)), _mitsuba_approximations(material))
+        tree = mitsuba_bsdf(source)
+        error = _error(fit, _grid_values(mitsuba_target(source)), notes + _mitsuba_approximations(source))
+    spectral = "" if source.is_rgb or len(source.wavelength_nm) == 1 else (
+        "spectra: figures of Mitsuba's *_spectral variants; its RGB variants take the spectra as colours (for those, export with mitsuba colour rgb)")
     if to == "mitsuba-dict":
-        return ExportResult(to, json.dumps({"bsdf": tree, "ctfit_export": error}, indent=2, ensure_ascii=False) + "\n", error)
-    spectral = "" if material.is_rgb or len(material.wavelength_nm) == 1 else "; spectra: exact in Mitsuba's *_spectral variants"
-    result = ExportResult(to, "", error)
-    comments = [f"ctfit export of {material.name or 'a material'} ({material.structure})", result.line() + spectral]
+        return ExportResult(to, json.dumps({"bsdf": tree, "ctfit_export": error}, indent=2, ensure_ascii=False) + "\n", error, spectral)
+    result = ExportResult(to, "", error, spectral)
+    comments = [f"ctfit export of {material.name or 'a material'} ({material.structure})", result.line()]
     return dataclasses.replace(result, content=mitsuba_xml(tree, comments))
 
 
@@ -115,13 +122,20 @@ def _export_rgb(material: Material, to: str) -> ExportResult:
 
 
 def export_material(
-    material: Material, to: str = "mitsuba", path: str | os.PathLike[str] | None = None, *, mitsuba_plastic: str = "exact"
+    material: Material, to: str = "mitsuba", path: str | os.PathLike[str] | None = None, *, mitsuba_plastic: str = "exact",
+    mitsuba_colour: str = "spectrum",
 ) -> ExportResult:
     """The material in a renderer's format (:data:`EXPORT_FORMATS`), written to ``path`` if given.
 
     ``mitsuba_plastic="roughplastic"`` writes a plastic as Mitsuba's ``roughplastic`` (one per
     lobe) instead of the exact ``blendbsdf`` of ``roughconductor`` and ``plastic``; its error is
     measured with Mitsuba 3 itself (needs the ``mitsuba`` package).
+
+    ``mitsuba_colour``: how a spectral material's spectra are written for Mitsuba. "spectrum":
+    as ``spectrum`` λ:value lists, exact in Mitsuba's ``*_spectral`` variants (its RGB variants
+    convert them as colours, which an effective index near F0 = 1 does not survive). "rgb": as
+    linear-sRGB colours for its RGB variants (:func:`~ctfit._export.rgb_bands.rgb_material`), the
+    error measured against the fit's colour.
 
     ``docs/export.md`` has the mapping of each structure to its target, and the grid of the
     approximation error (:data:`~ctfit._export.error_grid.ERROR_GRID`) that the result carries
@@ -146,7 +160,9 @@ def export_material(
         raise ValueError(f"unknown export format {to!r}: one of {', '.join(EXPORT_FORMATS)}")
     if mitsuba_plastic not in ("exact", "roughplastic"):
         raise ValueError(f"mitsuba_plastic must be 'exact' or 'roughplastic', got {mitsuba_plastic!r}")
-    result = _export_mitsuba(material, to, mitsuba_plastic) if to.startswith("mitsuba") else _export_rgb(material, to)
+    if mitsuba_colour not in MITSUBA_COLOURS:
+        raise ValueError(f"mitsuba_colour must be one of {', '.join(MITSUBA_COLOURS)}, got {mitsuba_colour!r}")
+    result = _export_mitsuba(material, to, mitsuba_plastic, mitsuba_colour) if to.startswith("mitsuba") else _export_rgb(material, to)
     if path is not None:
         result.write(path)
     return result

@@ -30,10 +30,10 @@ import numpy as np
 
 from .._model import Material, fresnel_diffuse_reflectance, normal_reflectance
 from .error_grid import unit_directions
+from .rgb_bands import F0_MAX
 
 __all__ = ["mitsuba_bsdf", "mitsuba_target", "mitsuba_values", "mitsuba_xml", "roughplastic_bsdf"]
 
-_F0_MAX = 1 - 1e-6  # F0 = 1 has an infinite effective index
 _PAD_NM = (300.0, 900.0)  # beyond Mitsuba's spectral range (360–830 nm): ctfit holds the end values
 
 
@@ -54,7 +54,7 @@ def mitsuba_target(material: Material) -> Material:
     st = dataclasses.replace(material.structure, geometry="smith-rational", distribution="beckmann")
     p = material.params
     if p.f0 is not None:
-        p = dataclasses.replace(p, f0=np.minimum(np.asarray(p.f0, float), _F0_MAX))
+        p = dataclasses.replace(p, f0=np.minimum(np.asarray(p.f0, float), F0_MAX))
     if p.rd is not None and material.is_rgb:
         p = dataclasses.replace(p, rd=np.minimum(np.asarray(p.rd, float), 1 / np.pi))
     return dataclasses.replace(material, structure=st, params=p)

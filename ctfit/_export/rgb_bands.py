@@ -1,13 +1,18 @@
-"""A material's per-band quantities as linear sRGB, for targets that hold three channels (glTF, MERL)."""
+"""A material's per-band quantities as linear sRGB, for targets that hold three channels (glTF, MERL, Mitsuba's RGB variants)."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from .._colour import XYZ_to_RGB, rgb_conversion, spectral_weights, spectrum_to_XYZ
-from .._model import Material
+from .._colour import XYZ_to_RGB, desaturate_to_gamut, rgb_conversion, spectral_weights, spectrum_to_XYZ
+from .._model import Material, normal_reflectance
 
-__all__ = ["band_to_rgb"]
+__all__ = ["band_to_rgb", "rgb_material", "F0_MAX"]
+
+F0_MAX = 1 - 1e-6
+"""The largest F0 an RGB target is given: F0 = 1 has an infinite effective index."""
 
 
 def band_to_rgb(material: Material) -> np.ndarray:
@@ -38,3 +43,48 @@ def band_to_rgb(material: Material) -> np.ndarray:
     weights = spectral_weights(np.asarray(material.wavelength_nm, float))
     xyz = np.asarray(spectrum_to_XYZ(np.eye(len(material.wavelength_nm)), weights), float)
     return np.asarray(XYZ_to_RGB(xyz, rgb_conversion("sRGB", white_XYZ=weights.white_XYZ)), float)
+
+
+def rgb_material(material: Material) -> tuple[Material, list[str]]:
+    """The material with its spectra as linear-sRGB colours (:func:`band_to_rgb`), and what that
+    changes in words; an RGB or one-band material as it is, with no notes.
+
+    What is linear in a spectrum keeps its colour exactly: R_d, and F0 (the BRDF at normal
+    incidence, and ``F0/pi``). The Fresnel term is not linear in F0: F0's colour becomes the
+    paper's effective index per channel (fresnel "f0", k = 0), so the normal-incidence colour is
+    exact and the shift towards the light's colour at grazing angles is the paper's, channel by
+    channel; a metal's real n or a conductor's n, k per band become the same (through their F0).
+    A colour outside sRGB's gamut is desaturated into it at constant luminance
+    (:func:`~ctfit.desaturate_to_gamut`); F0 is at most :data:`F0_MAX`. A plastic's one index is kept.
+
+    Examples
+    --------
+    >>> import numpy as np, ctfit
+    >>> from ctfit._export.rgb_bands import rgb_material
+    >>> wl = np.arange(400.0, 701.0, 10.0)
+    >>> grey = ctfit.Material(ctfit.Structure(fresnel="n"), ctfit.Params(m=np.array([0.2]), w=np.ones(1), n=np.full(31, 1.5)), wavelength_nm=wl)
+    >>> rgb, notes = rgb_material(grey)
+    >>> rgb.channels, rgb.structure.fresnel, rgb.params.f0.round(6).tolist()
+    (('R', 'G', 'B'), 'f0', [0.04, 0.04, 0.04])
+    >>> notes[1]
+    'the real index n as the effective index of F0 (k = 0)'
+    """
+    if material.is_rgb or material.band_unknown or len(material.wavelength_nm) == 1:
+        return material, []
+    st, p = material.structure, material.params
+    to_rgb = band_to_rgb(material)
+    raw: dict = {}
+    if st.has_rd and np.ndim(p.rd) > 0:
+        raw["rd"] = (np.asarray(p.rd, float) @ to_rgb, None)
+    notes = ["spectra as linear-sRGB colours (D65, CIE 1931)"]
+    if st.needs_fresnel_params and not st.shared_index:
+        raw["f0"] = (np.minimum(np.asarray(normal_reflectance(st, p), float), F0_MAX) @ to_rgb, F0_MAX)
+        notes[0] += ", F0 by the effective index of its colour per channel"
+        if st.fresnel != "f0":
+            notes.append("the real index n as the effective index of F0 (k = 0)" if st.fresnel == "n" else "n, k as the effective index of F0 (k = 0)")
+        st = dataclasses.replace(st, fresnel="f0")
+    colours = {name: np.asarray(desaturate_to_gamut(c, upper=upper), float) for name, (c, upper) in raw.items()}
+    if any(np.any((c < 0) | (c > (np.inf if upper is None else upper))) for c, upper in raw.values()):
+        notes.append("a colour outside sRGB's gamut desaturated into it")
+    params = dataclasses.replace(p, **colours, **({"n": None, "k": None} if "f0" in colours else {}))
+    return dataclasses.replace(material, structure=st, params=params, wavelength_nm=None, channels=("R", "G", "B")), notes
