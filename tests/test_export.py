@@ -306,7 +306,7 @@ def test_gltf_ior_below_one_is_its_reciprocal(tmp_path):
     mat = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"),
                          ctfit.Params(s=np.array(0.3), m=np.array([0.2]), w=np.ones(1), n=np.array(0.8), rd=np.array([0.1, 0.03, 0.02])),
                          channels=("R", "G", "B"))
-    ior = gltf_material(mat)["extensions"]["KHR_materials_ior"]["ior"]
+    ior = gltf_material(mat)[0]["extensions"]["KHR_materials_ior"]["ior"]
     assert ior == pytest.approx(1.25) and ((ior - 1) / (ior + 1)) ** 2 == pytest.approx((0.2 / 1.8) ** 2)
     r = runner.invoke(app, ["export", str(_save(mat, tmp_path)), "--to", "gltf", "-o", str(tmp_path / "p.gltf")])
     assert r.exit_code == 0, r.output
@@ -406,7 +406,7 @@ def test_colours_of_a_spectral_material_keep_what_is_linear_and_say_what_is_not(
     narrow = ctfit.Material(ctfit.Structure(), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.where(np.abs(wl - 520) < 15, 0.95, 0.0)),
                             wavelength_nm=wl)  # a green outside sRGB's gamut
     as_rgb, notes = rgb_material(narrow)
-    assert notes[-1] == "a colour outside sRGB's gamut desaturated into it" and np.all(as_rgb.params.f0 >= 0)
+    assert notes[-1] == "colours outside sRGB's gamut desaturated into it" and np.all(as_rgb.params.f0 >= 0)
 
 
 def test_a_bad_mitsuba_colour_is_one_error_line(tmp_path):
@@ -415,3 +415,27 @@ def test_a_bad_mitsuba_colour_is_one_error_line(tmp_path):
     with pytest.raises(ValueError, match="mitsuba_colour must be one of spectrum, rgb"):
         ctfit.export_material(plastic(), mitsuba_colour="xyz")
     assert ctfit.export_material(metal(), mitsuba_colour="rgb").content == ctfit.export_material(metal()).content  # RGB already
+
+
+def test_a_colour_outside_srgbs_gamut_is_desaturated_not_lost(tmp_path):
+    """A pure green R_d (520 nm ± 15 nm) has negative red and blue in linear sRGB. MERL marks a
+    negative value as a cell not measured: the table kept them, and a reader dropped two thirds of
+    the values while the line said "max 0 %". Now every cell of the MERL table and glTF's base
+    colour hold the colour desaturated at constant luminance, and both lines say so."""
+    wl = np.arange(400.0, 701.0, 20.0)
+    green = ctfit.Material(ctfit.Structure(lobes=0, diffuse="spectrum"), ctfit.Params(rd=np.where(np.abs(wl - 520) < 15, 0.3, 0.0)),
+                           wavelength_nm=wl, name="green")
+    colour = np.asarray(green.params.rd) @ band_to_rgb(green)
+    assert colour.min() < 0  # outside the gamut
+    luminance = np.asarray(ctfit.srgb_luminance())
+    r = runner.invoke(app, ["export", str(_save(green, tmp_path)), "--to", "merl", "-o", str(tmp_path / "g.binary")])
+    assert r.exit_code == 0 and "colours outside sRGB's gamut desaturated into it" in r.stdout and _printed(r.stdout)[1] > 0.1
+    m = ctfit.read_merl(tmp_path / "g.binary")
+    per_channel = np.bincount(m.band, minlength=3)
+    assert per_channel[0] == per_channel[1] == per_channel[2] > 10**6 and m.brdf.min() >= 0  # every cell above the horizon, in each channel
+    cell = np.array([m.brdf[(m.band == c)][0] for c in range(3)])  # a Lambertian: R_d's colour in every cell
+    assert cell.min() == 0 and cell @ luminance == pytest.approx(colour @ luminance, rel=1e-9)
+    gltf = ctfit.export_material(green, to="gltf")
+    base = np.array(json.loads(gltf.content)["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"][:3])
+    assert "colours outside sRGB's gamut desaturated into it" in gltf.line() and base.min() == 0
+    assert base @ luminance == pytest.approx(colour @ luminance * np.pi, rel=1e-9)

@@ -140,3 +140,14 @@ def test_scale_to_display():
     with_nan = np.vstack([scene[:-1], [[np.nan, 0, 0]]])
     ref = np.asarray(scaled(np.vstack([scene[:-1], [[0, 0, 0]]]), LUM)[0])
     np.testing.assert_allclose(np.asarray(scaled(with_nan, LUM)[0])[:-1], ref[:-1], atol=1e-12)
+
+
+@pytest.mark.parametrize("upper", [1.0, 0.5, None])
+def test_the_numpy_mapping_is_the_traced_one(upper):
+    """``xp=numpy`` (the exports' host path: nothing compiled) maps every colour as the traced
+    function does, to rounding: out-of-gamut colours of the spectral locus, in-gamut ones, black,
+    white beyond ``upper`` and a negative luminance."""
+    c = np.concatenate([out_of_gamut_colours(), np.array([[0.3, 0.2, 0.1], [0.0, 0.0, 0.0], [2.0, 2.0, 2.0], [-0.1, -0.2, 0.05]])])
+    on_host = desaturate_to_gamut(c, upper=upper, xp=np)
+    assert isinstance(on_host, np.ndarray) and on_host.dtype == np.float64
+    np.testing.assert_allclose(on_host, np.asarray(desat(c, upper=upper)), rtol=1e-12, atol=1e-15)

@@ -25,6 +25,7 @@ other pixel is affected.
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -53,21 +54,22 @@ def _float(x: ArrayLike) -> Array:
     return x.astype(float_dtype(x))
 
 
-def _ratio(num: Array, den: Array, use: Array) -> Array:
+def _ratio(num: Any, den: Any, use: Any, xp: Any = jnp) -> Any:
     """num/den where ``use``, else 1 (no constraint); both branches finite."""
     ok = use & (den > 0)
-    r = num / jnp.where(ok, den, 1)
-    return jnp.where(ok, r, jnp.where(use, 0, 1))
+    r = num / xp.where(ok, den, 1)
+    return xp.where(ok, r, xp.where(use, 0, 1))
 
 
 def desaturate_to_gamut(
-    rgb: Float[ArrayLike, "*batch 3"], luminance: Float[ArrayLike, " 3"] | None = None, *, upper: float | None = 1.0
+    rgb: Float[ArrayLike, "*batch 3"], luminance: Float[ArrayLike, " 3"] | None = None, *, upper: float | None = 1.0, xp: Any = jnp
 ) -> Float[Array, "*batch 3"]:
     """Map linear RGB (…, 3) into [0, upper]³ by mixing with the white of equal luminance.
 
     ``luminance``: the (3,) channel luminances, summing to 1 (default: sRGB's); pass
     :attr:`RGBConversion.luminance` for other colourspaces. ``upper=None`` maps only negative
-    channels (no upper bound). See the module docstring for the formula.
+    channels (no upper bound). See the module docstring for the formula. ``xp``: ``jax.numpy``
+    (traceable, differentiable) or ``numpy`` (on the host in float64, nothing compiled).
 
     Examples
     --------
@@ -76,22 +78,24 @@ def desaturate_to_gamut(
     >>> c = desaturate_to_gamut(rgb)
     >>> [round(float(v), 4) for v in c], round(float(c @ srgb_luminance()), 4) == round(float(rgb @ srgb_luminance()), 4)
     ([0.4246, 0.2123, 0.0], True)
+    >>> desaturate_to_gamut(rgb, xp=np).round(4).tolist()
+    [0.4246, 0.2123, 0.0]
     """
-    c = _float(rgb)
-    lum = jnp.asarray(srgb_luminance() if luminance is None else luminance).astype(c.dtype)
-    y = jnp.sum(c * lum, axis=-1, keepdims=True)
+    c = _float(rgb) if xp is jnp else np.asarray(rgb, dtype=float)
+    lum = xp.asarray(srgb_luminance() if luminance is None else luminance).astype(c.dtype)
+    y = xp.sum(c * lum, axis=-1, keepdims=True)
     lo = c < 0
-    t = jnp.min(_ratio(y, y - c, lo), axis=-1, keepdims=True)
+    t = xp.min(_ratio(y, y - c, lo, xp), axis=-1, keepdims=True)
     if upper is not None:
         hi = c > upper
-        t = jnp.minimum(t, jnp.min(_ratio(upper - y, c - y, hi), axis=-1, keepdims=True))
-        y_c = jnp.clip(y, 0, upper)
+        t = xp.minimum(t, xp.min(_ratio(upper - y, c - y, hi, xp), axis=-1, keepdims=True))
+        y_c = xp.clip(y, 0, upper)
     else:
-        y_c = jnp.maximum(y, 0)
-    t = jnp.clip(t, 0, 1)
-    out = jnp.where(t < 1, y_c + t * (c - y_c), c)  # in-gamut colours bit for bit
+        y_c = xp.maximum(y, 0)
+    t = xp.clip(t, 0, 1)
+    out = xp.where(t < 1, y_c + t * (c - y_c), c)  # in-gamut colours bit for bit
     # Only rounding can leave a mapped colour outside the box; untouched colours are inside.
-    return jnp.clip(out, 0, upper) if upper is not None else jnp.maximum(out, 0)
+    return xp.clip(out, 0, upper) if upper is not None else xp.maximum(out, 0)
 
 
 def in_gamut(rgb: Float[ArrayLike, "*batch 3"], *, upper: float | None = 1.0, atol: float = 0.0) -> Bool[Array, "*batch"]:

@@ -14,7 +14,7 @@ from .error_grid import ERROR_GRID, error_grid_angles, relative_difference
 from .gltf import gltf_brdf, gltf_material
 from .merl_export import merl_lookup, merl_model_table
 from .mitsuba import mitsuba_bsdf, mitsuba_target, mitsuba_values, mitsuba_xml, roughplastic_bsdf
-from .rgb_bands import band_to_rgb, rgb_material
+from .rgb_bands import GAMUT_NOTE, band_to_rgb, rgb_material
 
 __all__ = ["EXPORT_FORMATS", "MITSUBA_COLOURS", "ExportResult", "export_material"]
 
@@ -109,12 +109,12 @@ def _export_mitsuba(material: Material, to: str, plastic: str, colour: str) -> E
 def _export_rgb(material: Material, to: str) -> ExportResult:
     fit = _grid_values(material) @ band_to_rgb(material)
     if to == "merl":
-        table = merl_model_table(material)
-        error = _error(fit, merl_lookup(table, *error_grid_angles()), ["tabulated in 90 × 90 × 180 cells of linear sRGB"])
-        return ExportResult(to, table, error)
-    entry = gltf_material(material)
-    error = _error(fit, gltf_brdf(entry, *error_grid_angles()),
-                   ["glTF's GGX D, height-correlated Smith G, Schlick F and linear-sRGB colours"])
+        table, out_of_gamut = merl_model_table(material)
+        notes = ["tabulated in 90 × 90 × 180 cells of linear sRGB"] + ([GAMUT_NOTE] if out_of_gamut else [])
+        return ExportResult(to, table, _error(fit, merl_lookup(table, *error_grid_angles()), notes))
+    entry, out_of_gamut = gltf_material(material)
+    notes = ["glTF's GGX D, height-correlated Smith G, Schlick F and linear-sRGB colours"] + ([GAMUT_NOTE] if out_of_gamut else [])
+    error = _error(fit, gltf_brdf(entry, *error_grid_angles()), notes)
     entry["extras"] = {"ctfit_export": error}
     doc = {"asset": {"version": "2.0", "generator": "ctfit export"},
            "extensionsUsed": sorted(entry["extensions"]), "materials": [entry]}

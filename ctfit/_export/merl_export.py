@@ -6,25 +6,29 @@ import numpy as np
 
 from .._io import angles_deg_to_half_diff_deg, half_diff_deg_to_angles_deg, merl_cell_centres, merl_phi_d_index, merl_theta_d_index, merl_theta_h_index
 from .._model import Material, evaluate_at
-from .rgb_bands import band_to_rgb
+from .rgb_bands import band_to_rgb, into_gamut
 
 __all__ = ["merl_lookup", "merl_model_table"]
 
 
-def merl_model_table(material: Material) -> np.ndarray:
-    """The (3, 90, 90, 180) MERL table of the material (sr⁻¹; below the horizon 0).
+def merl_model_table(material: Material) -> tuple[np.ndarray, bool]:
+    """The (3, 90, 90, 180) MERL table of the material (sr⁻¹; below the horizon 0), and whether
+    a cell's colour was outside sRGB's gamut.
 
     Each cell holds the BRDF at its centre (``ctfit._io.merl``), per band, turned into linear
-    sRGB by :func:`~ctfit._export.rgb_bands.band_to_rgb`. One θ_h row at a time.
+    sRGB by :func:`~ctfit._export.rgb_bands.band_to_rgb`. One θ_h row at a time. A colour with a
+    negative channel (a spectrum outside sRGB's gamut) is desaturated into the gamut at constant
+    luminance (:func:`~ctfit._export.rgb_bands.into_gamut`): a MERL file's negative value marks
+    a cell that was not measured.
 
     Examples
     --------
     >>> import numpy as np, ctfit
     >>> from ctfit._export.merl_export import merl_model_table
     >>> matte = ctfit.Material(ctfit.Structure(lobes=0, diffuse="constant"), ctfit.Params(rd=np.array(0.1)), channels=("G",))
-    >>> table = merl_model_table(matte)
-    >>> table.shape, round(float(table[0, 10, 10, 10]), 6), round(float(table[2, 10, 89, 10]), 6)  # below the horizon: 0
-    ((3, 90, 90, 180), 0.1, 0.0)
+    >>> table, out_of_gamut = merl_model_table(matte)
+    >>> out_of_gamut, table.shape, round(float(table[0, 10, 10, 10]), 6), round(float(table[2, 10, 89, 10]), 6)  # below the horizon: 0
+    (False, (3, 90, 90, 180), 0.1, 0.0)
     """
     to_rgb = band_to_rgb(material)
     th, td, pd = (np.rad2deg(a) for a in merl_cell_centres())
@@ -32,7 +36,8 @@ def merl_model_table(material: Material) -> np.ndarray:
     for i, theta_h in enumerate(th):
         ti, pi, to, po = half_diff_deg_to_angles_deg(theta_h, td[:, None], pd[None, :])
         table[i] = np.asarray(evaluate_at(material, theta_i=ti, phi_i=pi, theta_o=to, phi_o=po), float) @ to_rgb
-    return np.moveaxis(table, -1, 0)
+    table, changed = into_gamut(table)
+    return np.moveaxis(table, -1, 0), changed
 
 
 def merl_lookup(table, theta_i, phi_i, theta_o, phi_o) -> np.ndarray:

@@ -9,10 +9,13 @@ import numpy as np
 from .._colour import XYZ_to_RGB, desaturate_to_gamut, rgb_conversion, spectral_weights, spectrum_to_XYZ
 from .._model import Material, normal_reflectance
 
-__all__ = ["band_to_rgb", "rgb_material", "F0_MAX"]
+__all__ = ["band_to_rgb", "into_gamut", "rgb_material", "F0_MAX", "GAMUT_NOTE"]
 
 F0_MAX = 1 - 1e-6
 """The largest F0 an RGB target is given: F0 = 1 has an infinite effective index."""
+
+GAMUT_NOTE = "colours outside sRGB's gamut desaturated into it"
+"""What an export says where :func:`into_gamut` changed a colour."""
 
 
 def band_to_rgb(material: Material) -> np.ndarray:
@@ -45,6 +48,26 @@ def band_to_rgb(material: Material) -> np.ndarray:
     return np.asarray(XYZ_to_RGB(xyz, rgb_conversion("sRGB", white_XYZ=weights.white_XYZ)), float)
 
 
+def into_gamut(rgb, upper: float | None = None) -> tuple[np.ndarray, bool]:
+    """Linear-sRGB colours (…, 3) with each one outside [0, ``upper``]³ (``upper`` None: only
+    negative channels) desaturated into it at constant luminance, the paper's rule
+    (:func:`~ctfit.desaturate_to_gamut`), the others as they are; and whether any was changed.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from ctfit._export.rgb_bands import into_gamut
+    >>> colours, changed = into_gamut(np.array([[0.5, 0.2, -0.1], [0.3, 0.2, 0.1]]))
+    >>> colours.round(4).tolist(), changed
+    ([[0.4246, 0.2123, 0.0], [0.3, 0.2, 0.1]], True)
+    """
+    rgb = np.array(rgb, dtype=float)
+    out = np.any((rgb < 0) | (rgb > (np.inf if upper is None else upper)), axis=-1)
+    if np.any(out):
+        rgb[out] = desaturate_to_gamut(rgb[out], upper=upper, xp=np)
+    return rgb, bool(np.any(out))
+
+
 def rgb_material(material: Material) -> tuple[Material, list[str]]:
     """The material with its spectra as linear-sRGB colours (:func:`band_to_rgb`), and what that
     changes in words; an RGB or one-band material as it is, with no notes.
@@ -55,7 +78,7 @@ def rgb_material(material: Material) -> tuple[Material, list[str]]:
     exact and the shift towards the light's colour at grazing angles is the paper's, channel by
     channel; a metal's real n or a conductor's n, k per band become the same (through their F0).
     A colour outside sRGB's gamut is desaturated into it at constant luminance
-    (:func:`~ctfit.desaturate_to_gamut`); F0 is at most :data:`F0_MAX`. A plastic's one index is kept.
+    (:func:`into_gamut`); F0 is at most :data:`F0_MAX`. A plastic's one index is kept.
 
     Examples
     --------
@@ -83,8 +106,9 @@ def rgb_material(material: Material) -> tuple[Material, list[str]]:
         if st.fresnel != "f0":
             notes.append("the real index n as the effective index of F0 (k = 0)" if st.fresnel == "n" else "n, k as the effective index of F0 (k = 0)")
         st = dataclasses.replace(st, fresnel="f0")
-    colours = {name: np.asarray(desaturate_to_gamut(c, upper=upper), float) for name, (c, upper) in raw.items()}
-    if any(np.any((c < 0) | (c > (np.inf if upper is None else upper))) for c, upper in raw.values()):
-        notes.append("a colour outside sRGB's gamut desaturated into it")
+    mapped = {name: into_gamut(c, upper) for name, (c, upper) in raw.items()}
+    colours = {name: c for name, (c, _) in mapped.items()}
+    if any(changed for _, changed in mapped.values()):
+        notes.append(GAMUT_NOTE)
     params = dataclasses.replace(p, **colours, **({"n": None, "k": None} if "f0" in colours else {}))
     return dataclasses.replace(material, structure=st, params=params, wavelength_nm=None, channels=("R", "G", "B")), notes
