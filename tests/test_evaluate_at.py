@@ -93,3 +93,26 @@ def test_directions_and_wavelengths_that_are_no_numbers_or_not_unit_are_refused_
     with pytest.raises(ValueError) as err:
         ctfit.evaluate_at(GOLD, **kwargs)
     assert words in str(err.value)
+
+
+def test_a_material_without_a_parameter_per_band_has_every_band_alike(tmp_path):
+    """An RGB matte of one R_d number (a spectral one too): ``evaluate_at`` gives each of its bands
+    (it gave one column), ``evaluate`` each sample's band (it raised IndexError), ``ctfit eval``
+    writes all three channels (it printed a traceback)."""
+    from typer.testing import CliRunner
+
+    from ctfit.cli import app
+
+    rgb = ctfit.Material(ctfit.Structure(lobes=0, diffuse="constant"), ctfit.Params(rd=np.asarray(0.1)), channels=("R", "G", "B"))
+    spectral = ctfit.Material(rgb.structure, rgb.params, wavelength_nm=np.array([450.0, 550.0, 650.0, 700.0]))
+    for mat, bands in ((rgb, 3), (spectral, 4)):
+        np.testing.assert_allclose(ctfit.evaluate_at(mat, theta_i=[10.0, 20.0], theta_o=[30.0, 40.0]), np.full((2, bands), 0.1), rtol=1e-12)
+    assert ctfit.evaluate_at(spectral, theta_i=10.0, theta_o=30.0, wavelength_nm=[500.0, 600.0]).shape == (2,)
+    m = ctfit.Measurement(theta_i=np.full(3, 30.0), phi_i=np.zeros(3), theta_o=np.full(3, 30.0), phi_o=np.full(3, 180.0), band=np.arange(3),
+                          channels=("R", "G", "B"))
+    np.testing.assert_allclose(ctfit.evaluate(rgb, m), np.full(3, 0.1), rtol=1e-12)
+    (tmp_path / "grey.toml").write_text('name = "grey"\ns = 0\nd = 1\nchannels = ["R", "G", "B"]\nRd = 0.1\n')
+    (tmp_path / "at.csv").write_text("theta_i,phi_i,theta_o,phi_o,channel\n30,0,30,180,R\n30,0,30,180,G\n30,0,30,180,B\n")
+    r = CliRunner().invoke(app, ["eval", str(tmp_path / "grey.toml"), str(tmp_path / "at.csv"), "-o", str(tmp_path / "out.csv")])
+    assert r.exit_code == 0, r.output
+    assert [line.rsplit(",", 1)[1] for line in (tmp_path / "out.csv").read_text().splitlines()[-3:]] == ["0.1"] * 3

@@ -8,6 +8,7 @@ import dataclasses
 import json
 import re
 import struct
+import warnings
 
 import numpy as np
 import pytest
@@ -439,3 +440,60 @@ def test_a_colour_outside_srgbs_gamut_is_desaturated_not_lost(tmp_path):
     base = np.array(json.loads(gltf.content)["materials"][0]["pbrMetallicRoughness"]["baseColorFactor"][:3])
     assert "colours outside sRGB's gamut desaturated into it" in gltf.line() and base.min() == 0
     assert base @ luminance == pytest.approx(colour @ luminance * np.pi, rel=1e-9)
+
+
+@pytest.mark.mitsuba
+def test_a_spectral_plastic_exported_as_colours_keeps_its_one_index(tmp_path):
+    """``configs/rubber.toml`` (a plastic, its index listed per band) with ``--mitsuba-colour rgb``:
+    it failed on the index's shape; now Mitsuba's ``scalar_rgb`` gives the printed figures against
+    the fit's colour."""
+    mi = pytest.importorskip("mitsuba")
+    rubber = "configs/rubber.toml"
+    r = runner.invoke(app, ["export", rubber, "--to", "mitsuba", "--mitsuba-colour", "rgb", "-o", str(tmp_path / "r.xml")])
+    assert r.exit_code == 0, r.output
+    mat = ctfit.load_material(rubber)
+    mi.set_variant("scalar_rgb")
+    xml = (tmp_path / "r.xml").read_text()
+    assert 'name="int_ior" value="1.5"' in xml or "int_ior" not in xml
+    median, worst = relative(mitsuba_values(mi.load_string(xml), grid()), ctfit_values(mat, grid()) @ band_to_rgb(mat))
+    assert _printed(r.stdout) == pytest.approx((median, worst), rel=2e-3, abs=5e-6)
+
+
+def test_a_coarse_spectrum_has_the_colour_ctfit_color_and_colour_science_give():
+    """Two and three bands: the exports' colour of a spectrum is that of the spectrum
+    ``docs/formats.md`` defines (linear between bands, held beyond), the colour ``ctfit color``
+    reports and colour-science finds for it. (It integrated the bands as rectangles over their own
+    range alone: 37 % more red for two bands.)"""
+    import colour
+
+    for wl, f0 in (([500.0, 600.0], [0.3, 0.9]), ([450.0, 550.0, 650.0], [0.2, 0.5, 0.9])):
+        mat = ctfit.Material(ctfit.Structure(), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array(f0)), wavelength_nm=np.array(wl))
+        nm = np.arange(360.0, 831.0)
+        sd = colour.SpectralDistribution(dict(zip(nm, np.interp(nm, wl, f0))))
+        with warnings.catch_warnings():  # colour-science says it aligns D65 (5 nm) to the observer's 1 nm
+            warnings.simplefilter("ignore", colour.utilities.ColourRuntimeWarning)
+            xyz = colour.sd_to_XYZ(sd, colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"], colour.SDS_ILLUMINANTS["D65"]) / 100
+        expected = colour.XYZ_to_RGB(xyz, "sRGB", apply_cctf_encoding=False)
+        np.testing.assert_allclose(np.array(f0) @ band_to_rgb(mat), expected, rtol=1e-3)  # (colour-science integrates its own way: 2e-4)
+        np.testing.assert_allclose(np.array(f0) @ band_to_rgb(mat), ctfit.colour_report(mat, angle_deg=0.0)["linear_rgb"], rtol=1e-9)
+
+
+@pytest.mark.parametrize("to", ["mitsuba-dict", "gltf", "merl"])
+def test_a_black_material_exports_exactly_with_no_nan(to):
+    """A black material: the fit and the target are 0 everywhere. The figures are 0 (they were NaN,
+    and the JSON held NaN, which JSON does not have)."""
+    black = ctfit.Material(ctfit.Structure(lobes=0, diffuse="spectrum"), ctfit.Params(rd=np.zeros(3)), wavelength_nm=np.array([400.0, 550.0, 700.0]))
+    result = ctfit.export_material(black, to=to)
+    assert (result.error["median"], result.error["max"]) == (0.0, 0.0) and "nan" not in result.line()
+    if to != "merl":
+        json.loads(result.content, parse_constant=lambda name: pytest.fail(f"{name} in the JSON"))
+
+
+def test_gltf_says_when_a_metals_own_diffuse_colour_is_lost():
+    """glTF has one base colour: a metal's own R_d becomes F0/π, and the line names it."""
+    st = ctfit.Structure(geometry="smith-rational", diffuse="spectrum")
+    mat = ctfit.Material(st, ctfit.Params(s=np.array(0.3), m=np.array([0.3]), w=np.ones(1), f0=np.full(3, 0.9), rd=np.array([0.25, 0.01, 0.01])),
+                         channels=RGB)
+    line = ctfit.export_material(mat, to="gltf").line()
+    assert "glTF's one base colour is F0: the diffuse part F0/π, not R_d" in line
+    assert "R_d" not in ctfit.export_material(metal(), to="gltf").line()  # F0/π: glTF's own

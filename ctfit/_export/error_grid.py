@@ -34,7 +34,8 @@ def error_grid_angles():
 
 
 def relative_difference(target, fit) -> dict:
-    """Median and maximum of |target − fit| / fit over the entries where fit ≥ 10⁻⁶ max(fit).
+    """Median and maximum of |target − fit| / fit over the entries where fit > 0 and fit ≥ 10⁻⁶ max(fit)
+    (0 and 0 where the fit and the target are 0 everywhere: a black material).
 
     Examples
     --------
@@ -43,7 +44,11 @@ def relative_difference(target, fit) -> dict:
     {'median': 0.05, 'max': 0.1}
     """
     target, fit = np.asarray(target, float), np.asarray(fit, float)
-    keep = fit >= _FLOOR * np.max(fit)
+    keep = (fit > 0) & (fit >= _FLOOR * np.max(fit))
+    if not keep.any():  # a black fit: exact where the target is black too
+        if np.any(target != 0):
+            raise ValueError("the fit is 0 over the whole grid and the export is not: no relative difference")
+        return {"median": 0.0, "max": 0.0}
     rel = np.abs(target[keep] - fit[keep]) / fit[keep]
     return {"median": round(float(np.median(rel)), 12), "max": round(float(np.max(rel)), 12)}
 

@@ -112,8 +112,8 @@ def _export_rgb(material: Material, to: str) -> ExportResult:
         table, out_of_gamut = merl_model_table(material)
         notes = ["tabulated in 90 × 90 × 180 cells of linear sRGB"] + ([GAMUT_NOTE] if out_of_gamut else [])
         return ExportResult(to, table, _error(fit, merl_lookup(table, *error_grid_angles()), notes))
-    entry, out_of_gamut = gltf_material(material)
-    notes = ["glTF's GGX D, height-correlated Smith G, Schlick F and linear-sRGB colours"] + ([GAMUT_NOTE] if out_of_gamut else [])
+    entry, notes = gltf_material(material)
+    notes = ["glTF's GGX D, height-correlated Smith G, Schlick F and linear-sRGB colours"] + notes
     error = _error(fit, gltf_brdf(entry, *error_grid_angles()), notes)
     entry["extras"] = {"ctfit_export": error}
     doc = {"asset": {"version": "2.0", "generator": "ctfit export"},

@@ -24,7 +24,7 @@ from scipy.optimize import minimize_scalar
 
 from .._model import Material, Params, ambient_reflectance, evaluate_at, normal_reflectance
 from .error_grid import unit_directions
-from .rgb_bands import band_to_rgb, into_gamut
+from .rgb_bands import GAMUT_NOTE, band_to_rgb, into_gamut
 
 __all__ = ["fit_ggx_roughness", "gltf_brdf", "gltf_material"]
 
@@ -107,10 +107,11 @@ def fit_ggx_roughness(material: Material) -> float:
     return float(minimize_scalar(loss, bounds=(0.01, 1.0), method="bounded", options={"xatol": 1e-6}).x)
 
 
-def gltf_material(material: Material) -> tuple[dict, bool]:
+def gltf_material(material: Material) -> tuple[dict, list[str]]:
     """The glTF 2.0 ``materials[]`` entry closest to ``material`` (no error: see ``export_material``),
-    and whether its base colour was outside sRGB's gamut (desaturated into [0, 1]³ at constant
-    luminance, :func:`~ctfit._export.rgb_bands.into_gamut`).
+    and what it changes beyond glTF's BRDF, in words: a base colour outside sRGB's gamut
+    (desaturated into [0, 1]³ at constant luminance, :func:`~ctfit._export.rgb_bands.into_gamut`),
+    a metal's own R_d (glTF's one base colour is F0: its diffuse part becomes F0/π).
 
     A metal: metallic = s (1 without a diffuse part), baseColor = F0 in linear sRGB, and no
     dielectric specular layer (specularFactor 0), so its diffuse part is (1 − s) F0/π — the
@@ -125,9 +126,9 @@ def gltf_material(material: Material) -> tuple[dict, bool]:
     >>> red = ctfit.Material(ctfit.Structure(family="plastic", diffuse="spectrum"),
     ...                      ctfit.Params(s=np.array(0.1), m=np.array([0.2]), w=np.ones(1), n=np.array(1.5), rd=np.array([0.2, 0.02, 0.02])),
     ...                      channels=("R", "G", "B"))
-    >>> mat, out_of_gamut = gltf_material(red)
-    >>> mat["pbrMetallicRoughness"]["metallicFactor"], mat["extensions"]["KHR_materials_ior"], out_of_gamut
-    (0.0, {'ior': 1.5}, False)
+    >>> mat, notes = gltf_material(red)
+    >>> mat["pbrMetallicRoughness"]["metallicFactor"], mat["extensions"]["KHR_materials_ior"], notes
+    (0.0, {'ior': 1.5}, [])
     """
     st, p = material.structure, material.params
     to_rgb = band_to_rgb(material)
@@ -150,7 +151,10 @@ def gltf_material(material: Material) -> tuple[dict, bool]:
         # KHR_materials_ior takes ior ≥ 1; n and 1/n have the same f0, which is all glTF's Schlick F uses
         ext = {"KHR_materials_ior": {"ior": max(n, 1 / n)}, "KHR_materials_specular": {"specularFactor": min(s, 1.0), "specularColorFactor": [1.0, 1.0, 1.0]}}
     base, changed = into_gamut(base, 1.0)
+    notes = [GAMUT_NOTE] if changed else []
+    if st.family == "metal" and st.has_specular and st.has_rd:
+        notes.append("glTF's one base colour is F0: the diffuse part F0/π, not R_d")
     colour = [float(c) for c in base] + [1.0]
     return {"name": material.name or "ctfit material",
             "pbrMetallicRoughness": {"baseColorFactor": colour, "metallicFactor": metallic, "roughnessFactor": rough},
-            "extensions": ext}, changed
+            "extensions": ext}, notes

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from .._colour import XYZ_to_RGB, desaturate_to_gamut, rgb_conversion, spectral_weights, spectrum_to_XYZ
+from .._colour import DEFAULT_OBSERVER, XYZ_to_RGB, desaturate_to_gamut, observer_cmfs, rgb_conversion, spectral_weights, spectrum_to_XYZ
 from .._model import Material, normal_reflectance
 
 __all__ = ["band_to_rgb", "into_gamut", "rgb_material", "F0_MAX", "GAMUT_NOTE"]
@@ -22,8 +22,10 @@ def band_to_rgb(material: Material) -> np.ndarray:
     """The (bands, 3) matrix that takes values per band to linear sRGB (R, G, B).
 
     R, G, B channels are taken as they are; one band (or a band of unknown wavelength) is grey;
-    a spectrum is integrated as a reflectance under D65 with the CIE 1931 observer (a flat
-    spectrum of 1 is white (1, 1, 1)) — linear, so it applies to BRDF values as to F0.
+    a spectrum is the one ``docs/formats.md`` defines — linear between the listed wavelengths,
+    held at the end values beyond them — on the observer's 1 nm grid (360–830 nm), integrated as
+    a reflectance under D65 with the CIE 1931 observer (a flat spectrum of 1 is white (1, 1, 1)):
+    the colour ``ctfit color`` gives a spectrum. Linear, so it applies to BRDF values as to F0.
 
     Examples
     --------
@@ -43,8 +45,11 @@ def band_to_rgb(material: Material) -> np.ndarray:
         return np.eye(3)
     if material.band_unknown or len(material.wavelength_nm) == 1:
         return np.ones((1, 3))
-    weights = spectral_weights(np.asarray(material.wavelength_nm, float))
-    xyz = np.asarray(spectrum_to_XYZ(np.eye(len(material.wavelength_nm)), weights), float)
+    wl = np.asarray(material.wavelength_nm, float)
+    grid = np.asarray(observer_cmfs(DEFAULT_OBSERVER).wavelengths, float)
+    weights = spectral_weights(grid)
+    spectra = np.stack([np.interp(grid, wl, band) for band in np.eye(wl.size)])  # each band's unit value, as a spectrum
+    xyz = np.asarray(spectrum_to_XYZ(spectra, weights), float)
     return np.asarray(XYZ_to_RGB(xyz, rgb_conversion("sRGB", white_XYZ=weights.white_XYZ)), float)
 
 
@@ -107,8 +112,12 @@ def rgb_material(material: Material) -> tuple[Material, list[str]]:
             notes.append("the real index n as the effective index of F0 (k = 0)" if st.fresnel == "n" else "n, k as the effective index of F0 (k = 0)")
         st = dataclasses.replace(st, fresnel="f0")
     mapped = {name: into_gamut(c, upper) for name, (c, upper) in raw.items()}
-    colours = {name: c for name, (c, _) in mapped.items()}
+    colours: dict[str, np.ndarray | None] = {name: c for name, (c, _) in mapped.items()}
     if any(changed for _, changed in mapped.values()):
         notes.append(GAMUT_NOTE)
-    params = dataclasses.replace(p, **colours, **({"n": None, "k": None} if "f0" in colours else {}))
+    if "f0" in colours:
+        colours.update(n=None, k=None)
+    elif p.n is not None:  # a plastic's one index (a file may list it per band)
+        colours["n"] = np.asarray(p.n, float).reshape(-1)[0]
+    params = dataclasses.replace(p, **colours)
     return dataclasses.replace(material, structure=st, params=params, wavelength_nm=None, channels=("R", "G", "B")), notes

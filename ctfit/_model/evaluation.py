@@ -110,7 +110,7 @@ def evaluate(material: Material, measurement: Measurement, *, dtype: DTypeLike |
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
     values = by_blocks(lambda block: _grid_values(material.structure, params, block), np.asarray(pairs, dtype=dt), _NORMAL_PAIR)
-    return values[index, measurement.band]
+    return values[index, measurement.band if values.shape[1] > 1 else 0]  # one column: no parameter per band, every band alike
 
 
 def evaluate_at(
@@ -171,6 +171,9 @@ def evaluate_at(
                 raise ValueError(f"{name} must be unit vectors: |{name}{_index(at)}| = {float(length[at]):.6g}")
         shape, rows, run, pad = lv[0].shape[:-1], np.concatenate([a.reshape(-1, 3) for a in lv], axis=1), _vector_values, _NORMAL_VECTORS
     values = by_blocks(lambda block: run(material.structure, params, block), rows.astype(dt), pad)
+    bands = wl.size if wl is not None else len(material.band_labels)  # (none for a material of neither wavelengths nor channels)
+    if values.shape[-1] == 1 < bands:  # no parameter per band (an R_d of one number): every band alike
+        values = np.repeat(values, bands, axis=-1)
     return values.reshape(*shape, values.shape[-1])
 
 
