@@ -84,6 +84,7 @@ def fitted(tmp_path_factory):
     (("simulate", COPPER, "-o", "{d}/n.csv", "--samples", 3, "--noise", 1e308), "--noise=1e+308 is too large"),
     (("simulate", COPPER, "-o", "{d}/m.csv", "--samples", 999_999_999_999_999), "not enough memory"),  # was a 64-line traceback
     (("render", COPPER, "-o", "{d}/r.png", "--size", 16, "--ambient", "inf"), "--ambient must be a finite fraction"),
+    (("render", COPPER, "-o", "{d}/r.png", "--size", 16, "--ambient", 1e300), "--ambient must be a finite fraction in [0, 1e+06]"),  # was a black sphere
     (("color", COPPER, "--angle", 95), "--angle must be in [0, 90]"),
 ])
 def test_extreme_options_are_one_error_line_naming_the_option(fitted, args, words):

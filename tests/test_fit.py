@@ -275,6 +275,14 @@ def test_a_fit_result_names_its_values_and_errors_alike():
     assert abs(values["lobes"][0]["m"] - 0.1) < 5 * errors["lobes"][0]["m"] + 1e-3
     doc = json.loads(json.dumps(fit_result_to_dict(res)))
     assert doc["fit"]["stderr"] == errors and doc["lobes"] == values["lobes"] and doc["F0"] == values["F0"]
+    # A plastic's one index (and its F0) is one value in both (its errors were a list, one per band).
+    from conftest import ROOT
+
+    rubber = ctfit.load_material(ROOT / "configs" / "rubber.toml")
+    res = ctfit.fit(ctfit.simulate(rubber, 200, noise=0.02, seed=1), rubber.structure)
+    values, errors = res.parameters, res.parameter_errors
+    for name in ("F0", "n", "Rd"):
+        assert type(values[name]) is type(errors[name]) and np.size(values[name]) == np.size(errors[name]), name
 
 
 @pytest.mark.slow

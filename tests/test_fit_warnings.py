@@ -78,3 +78,20 @@ def test_every_figure_a_fit_reports_is_declared_in_fit_stats_with_its_type():
             assert key in hints, key
             kind = typing.get_origin(hints[key]) or hints[key]
             assert isinstance(value, kind) and not (kind is int and isinstance(value, bool)), (key, value, hints[key])
+
+
+def test_as_many_samples_as_parameters_give_no_standard_errors_and_say_why():
+    """Three noisy samples, three free parameters (s, m, F0): the fit goes through every sample, so
+    nothing is left to estimate the noise from. The errors were ~1e-16 (rounding, 10¹⁴ below the
+    scatter over noise seeds); now there are none, and a warning says why. A sigma column gives them."""
+    import numpy as np
+
+    gold = ctfit.Material(ctfit.Structure(diffuse="F0/pi"), ctfit.Params(s=np.array(0.8), m=np.array([0.2]), w=np.ones(1), f0=np.array([0.9])),
+                          wavelength_nm=np.array([550.0]))
+    data = ctfit.simulate(gold, n_pairs=3, seed=1, noise=0.05, wavelength_nm=[550.0])
+    res = ctfit.fit(data.replace(sigma=None), gold.structure)
+    assert res.stats["n_samples"] == res.stats["n_params"] == 3 and res.stderr is None
+    warned = [w for w in res.warnings if w.kind == "no_standard_errors"]
+    assert len(warned) == 1 and "3 samples for 3 free parameters leave no residual" in warned[0]
+    with_sigma = ctfit.fit(data.replace(sigma=np.full(3, 0.01)), gold.structure, loss="sigma")
+    assert with_sigma.stderr is not None and not any(w.kind == "no_standard_errors" for w in with_sigma.warnings)

@@ -474,9 +474,25 @@ def test_uncertainty_section_colour_plots_and_command_body(metal, tmp_path):
     assert "priors: uniform in F0 on [0, 1]; uniform in m on [1e-05, 4]" in table
     # 200 steps are about 4 τ: the walkers have not mixed, and the table says so and how long to run.
     assert "posterior: NOT usable" in table and "problem: not mixed: " in table and "steps in all" in table
-    # Only the uncertainty section (no wavelengths beside it): bands are numbered, not "0 nm".
-    bare = format_uncertainty_table({"uncertainty": u}, "metal")
+    # The uncertainty section names the bands it was sampled on (the data's); without them, bands are numbered, not "0 nm".
+    assert u["wavelength_nm"] == data.wavelength_nm.tolist()
+    assert f"{data.wavelength_nm[0]:g} nm" in format_uncertainty_table({"uncertainty": u}, "metal")
+    bare = format_uncertainty_table({"uncertainty": {k: v for k, v in u.items() if k != "wavelength_nm"}}, "metal")
     assert "band 0" in bare and " 0 nm" not in bare
+
+    # Data of two of the fit's four bands: sampled there, and the section says which (it held the
+    # data's two entries beside the material's four wavelengths, and the table raised IndexError).
+    two = csv.with_name("two.csv")
+    keep = data.band < 2
+    write_csv(data.replace(**{k: getattr(data, k)[keep] for k in ("theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf", "sigma")},
+                           wavelength_nm=data.wavelength_nm[:2]), two)
+    doc2 = sample_command_body(fit_json, two, walkers=None, steps=20, burn=None, thin=1, seed=0, backend=None, resume=False, plot_dir=None,
+                               output=tmp_path / "two.posterior.json")
+    u2 = doc2["uncertainty"]
+    assert u2["wavelength_nm"] == data.wavelength_nm[:2].tolist() and len(u2["F0"]) == 2 and doc2["wavelength_nm"] == data.wavelength_nm.tolist()
+    assert any(w.startswith("sampled on the data's 2 bands") for w in u2["warnings"])
+    table2 = format_uncertainty_table(doc2, "metal")
+    assert all(f"{w:g} nm" in table2 for w in data.wavelength_nm[:2]) and f"{data.wavelength_nm[2]:g} nm" not in table2
 
     # Plots of a result directly (a diffuse-only material has no global parameter but R_d).
     res = sample(truth, data, steps=100, seed=0, colour=False)

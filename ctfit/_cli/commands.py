@@ -278,7 +278,7 @@ def render(
     columns: Optional[int] = typer.Option(None, "--columns", min=1, help="Tiles per row (default: up to 6)."),
     step: float = typer.Option(5.0, "--step", help="Wavelength step of spectral rendering over 380–780 nm: 1 to 400 nm."),
     supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
-    ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %)."),
+    ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %), at most 1e6."),
     exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),
     delta_e: bool = typer.Option(False, "--delta-e", help="With --compare: a figure measured (interpolated) | fitted | ΔE2000, its median and 95th percentile "
                                                           "in the title."),

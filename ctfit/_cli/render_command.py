@@ -8,9 +8,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["render_command_body"]
+__all__ = ["render_command_body", "MAX_AMBIENT"]
 
 _MAX_SIZE = 4096
+MAX_AMBIENT = 1e6
+"""The largest ``--ambient``: a million times the lights' irradiance hides them; 10³⁰⁰ overflowed the
+image's float32 into a black sphere."""
 
 
 def render_command_body(
@@ -57,8 +60,8 @@ def render_command_body(
         raise ValueError(f"--size must be in 8..{_MAX_SIZE} pixels, got {size}")
     if not 1 <= supersample <= 8:
         raise ValueError(f"--supersample must be in 1..8, got {supersample}")
-    if not 0 <= ambient < float("inf"):
-        raise ValueError(f"--ambient must be a finite fraction ≥ 0, got {ambient}")
+    if not 0 <= ambient <= MAX_AMBIENT:
+        raise ValueError(f"--ambient must be a finite fraction in [0, {MAX_AMBIENT:g}] (of the lights' irradiance), got {ambient}")
     check_wavelength_step(wavelength_step)  # its message names --step (messages.cli_message)
     if columns is not None and columns < 1:
         raise ValueError(f"--columns must be ≥ 1, got {columns}")

@@ -86,7 +86,7 @@ def _error(fit: np.ndarray, target: np.ndarray, approximations: list[str]) -> di
 
 def _export_mitsuba(material: Material, to: str, plastic: str, colour: str) -> ExportResult:
     source, notes = rgb_material(material) if colour == "rgb" else (material, [])
-    fit = _grid_values(material) @ band_to_rgb(material) if notes else _grid_values(material)  # converted: against the fit's colour
+    fit = _grid_values(material) @ band_to_rgb(material) if source is not material else _grid_values(material)  # colours: the fit's colour
     if plastic == "roughplastic":
         tree = roughplastic_bsdf(source)
         notes = notes + ["Mitsuba's roughplastic: rough transmittance tables in its diffuse term"]

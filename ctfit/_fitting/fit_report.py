@@ -26,7 +26,7 @@ from .stationarity import active_set
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
     "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "quantity_jacobian", "zero_model_cost",
-    "summary_of_part", "summary_of_values", "combined_rms", "PARAM_FIELDS",
+    "summary_of_part", "summary_of_values", "combined_rms", "PARAM_FIELDS", "NO_STDERR_SINGULAR",
 ]
 
 PARAM_FIELDS = ("s", "m", "w", "f0", "n", "k", "rd")
@@ -193,9 +193,14 @@ def coordinate_names(u: dict) -> list[str]:
     return [k for k in sorted(u) for _ in range(int(np.size(u[k])))]
 
 
-def fit_warnings(params: Params, stderr, not_determined=()) -> list[FitWarning]:
+NO_STDERR_SINGULAR = "JᵀJ is singular or ill-conditioned (cond > 1e12)"
+"""Why a fit has no standard errors, unless another reason is given (:func:`fit_warnings`)."""
+
+
+def fit_warnings(params: Params, stderr, not_determined=(), no_stderr_because: str = NO_STDERR_SINGULAR) -> list[FitWarning]:
     """Plain-language notes on a degenerate or suspicious solution: lobes that merge or vanish, s
-    or F0 on a bound, coordinates the data does not determine, standard errors not computed."""
+    or F0 on a bound, coordinates the data does not determine, standard errors not computed
+    (``no_stderr_because``: why, where ``stderr`` is None)."""
     out = []
     if params.m is not None and len(params.m) > 1:
         m = np.asarray(params.m)
@@ -231,7 +236,7 @@ def fit_warnings(params: Params, stderr, not_determined=()) -> list[FitWarning]:
         out.append(FitWarning(f"degenerate: the data does not determine {names} (no standard error there): the model has more freedom than the data shows",
                                "degenerate", names))
     if stderr is None:
-        out.append(FitWarning("standard errors not computed: JᵀJ is singular or ill-conditioned (cond > 1e12)", "no_standard_errors"))
+        out.append(FitWarning(f"standard errors not computed: {no_stderr_because}", "no_standard_errors"))
     return out
 
 

@@ -44,6 +44,7 @@ from .chunks import sum_over_chunks
 from .coordinates import bounds, from_params, to_params
 from .diagnostics import relative_residual_structure
 from .fit_report import (
+    NO_STDERR_SINGULAR,
     PARAM_FIELDS,
     coordinate_names,
     fit_warnings,
@@ -423,7 +424,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     params, order = sorted_lobes(params)
     on_bound = np.asarray(out["on_bound"], bool)
     loose = undetermined(out["jtj"]) & ~on_bound  # coordinates the data does not determine
-    stderr = standard_errors(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose)
+    no_noise = loss != "sigma" and n <= p  # no residual left to estimate the noise from: the errors would be rounding
+    stderr = None if no_noise else standard_errors(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose)
     pairs, index = data.directions()
     rel = np.reshape(out["rel"], problem.y.shape)
     if problem.spec.grid:
@@ -467,7 +469,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     material = _fitted_material(prep, params)
     names = coordinate_names(u)
     not_determined = [names[i] for i in np.flatnonzero(loose)]
-    notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined)
+    why = f"{n} samples for {p} free parameters leave no residual to estimate the noise from (a sigma column gives them)" if no_noise else NO_STDERR_SINGULAR
+    notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined, why)
     worst = quality_warning(quality)
     if status.converged and worst:  # "even at the best fit": only a fit that got there says so
         notes.append(worst)

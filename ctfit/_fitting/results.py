@@ -34,10 +34,12 @@ def stderr_block(res: FitResult) -> dict | None:
     if "m" in se:
         w = se.get("weight", np.full(len(se["m"]), np.nan)) if len(se["m"]) > 1 else [0.0]
         out["lobes"] = [{"m": float(m), "weight": float(wj)} for m, wj in zip(se["m"], w)]
+    st = res.material.structure
     for name in ("F0", "n", "k", "Rd"):
         if name in se:
             v = np.asarray(se[name], dtype=float).reshape(-1)
-            out[name] = [float(x) for x in v] if res.material.structure.diffuse != "constant" or name != "Rd" else float(v[0])
+            one = (name == "Rd" and st.diffuse == "constant") or (name in ("F0", "n") and st.shared_index)  # one value for every band, as in the JSON
+            out[name] = float(v[0]) if one else [float(x) for x in v]
     return out
 
 

@@ -59,6 +59,9 @@ def check_fittable(data: Measurement, structure: Structure, *, fixed: tuple[str,
         raise ValueError(f"{data.source}: the data has no 'brdf' column to fit")
     y = np.asarray(data.brdf, dtype=float)
     n, p = len(y), n_free_parameters(structure, data.n_bands, fixed)
+    if p == 0:
+        raise ValueError(f"{data.source}: nothing to fit: every parameter of the structure is fixed (fixed = {list(fixed)}); "
+                         "ctfit eval evaluates the material as it is")
     if n < p:
         raise ValueError(
             f"{data.source}: {n} sample{'s' if n != 1 else ''}, {p} free parameters ({_describe(structure)}): "

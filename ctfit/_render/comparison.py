@@ -41,7 +41,8 @@ __all__ = ["MeasuredBRDF", "Comparison", "half_diff_folded_deg", "render_compari
 
 MAX_POINTS = 100_000  # direction pairs interpolated from at most (a fixed random subset beyond)
 OUTSIDE_GREY = 140  # uint8 grey of sphere pixels outside the measured domain
-_LOG_FLOOR = 1e-6  # values below this fraction of the maximum are interpolated as this fraction
+_LOG_FLOOR = 1e-6  # values below this fraction of the band's 99th percentile are interpolated as this fraction
+_FLOOR_QUANTILE = 0.99  # (not the maximum: one exact grazing value, 10⁵ sr⁻¹, floored every other value and greyed the sphere)
 _AXES = ("θ_h", "θ_d", "φ_d")
 NEIGHBOURS = 16  # samples that shape each interpolated value (in 2 or 3 dimensions)
 
@@ -112,7 +113,7 @@ class MeasuredBRDF:
         self.parts = []
         kept = set()
         for bands, pairs, values in _band_groups(data):
-            floor = _LOG_FLOOR * max(float(np.max(values)), np.finfo(float).tiny)
+            floor = _LOG_FLOOR * max(float(np.quantile(values, _FLOOR_QUANTILE)), np.finfo(float).tiny)
             points, logs = _mean_of_repeats(half_diff_folded_deg(*pairs.T), np.log(np.maximum(values, floor)))
             if len(points) > max_points:
                 pick = np.sort(np.random.default_rng(0).choice(len(points), max_points, replace=False))

@@ -20,7 +20,7 @@ from .._model import Material, Measurement, x64_enabled
 from .engine import Engine
 from .logprob import Layout
 from .priors import normalise_priors
-from .start import optimum_point, resolve_fit, start_params
+from .start import on_data_bands, optimum_point, resolve_fit, start_params
 
 __all__ = ["default_walkers", "PosteriorSetup", "set_up_posterior", "LogProbability", "log_probability"]
 
@@ -57,6 +57,8 @@ def set_up_posterior(
     if loss is not None and loss not in LOSSES:
         raise ValueError(f"loss must be one of {LOSSES}, got {loss!r}")
     material, loss, fixed, note = resolve_fit(target, data, loss, fixed)
+    material, bands_note = on_data_bands(material, data)
+    note = "; ".join(n for n in (bands_note, note) if n) or None
     st = material.structure
     dtype = jnp.float64 if x64_enabled() else jnp.float32
     start = start_params(material, data)

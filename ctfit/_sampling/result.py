@@ -100,6 +100,13 @@ class SampleResult:
         for key in ("F0", "n", "k", "Rd", "sigma_noise"):
             if key in sm:
                 out[key] = sm[key]
+        mat = self.material  # the data's bands, on which the per-band quantities were sampled
+        if mat.channels is not None:
+            out["channels"] = list(mat.channels)
+        elif mat.wavelength_nm is not None:
+            out["wavelength_nm"] = [float(w) for w in mat.wavelength_nm]
+        if mat.band_unknown:
+            out["band_unknown"] = True
         if self.colour is not None:
             out["colour"] = self.colour
         out["diagnostics"] = self.diagnostics

@@ -20,7 +20,7 @@ import numpy as np
 from .._fitting import FitResult, standard_errors, undetermined
 from .._model import Material, Params, x64_enabled
 
-__all__ = ["start_params", "resolve_fit", "optimum_point", "laplace_start", "fit_covariance", "start_walkers"]
+__all__ = ["start_params", "on_data_bands", "resolve_fit", "optimum_point", "laplace_start", "fit_covariance", "start_walkers"]
 
 BALL_SD = 1e-2
 """Spread (in u) of a coordinate without a usable Laplace variance."""
@@ -42,6 +42,22 @@ def start_params(material: Material, data) -> Params:
 
         start = dataclasses.replace(start, f0=np.asarray(f0_from_n(start.n)))
     return start
+
+
+def on_data_bands(material: Material, data) -> tuple[Material, str | None]:
+    """The material on the data's bands (its parameters by :func:`start_params`), and a note,
+    where the two differ (a fit of 7 bands sampled on data of 4): what is sampled, and reported,
+    is per band of the data. Otherwise the material as it is, and None."""
+    if material.wavelength_nm is None and material.channels is None:
+        return material, None
+    same = (material.channels == data.channels if data.channels is not None
+            else material.wavelength_nm is not None and np.array_equal(material.wavelength_nm, data.wavelength_nm))
+    if same:
+        return material, None
+    bands = ", ".join(data.band_labels)
+    resampled = dataclasses.replace(material, params=start_params(material, data), wavelength_nm=data.wavelength_nm, channels=data.channels,
+                                    band_unknown=data.band_unknown)
+    return resampled, f"sampled on the data's {len(data.band_labels)} bands ({bands}), the material's values taken there"
 
 
 def resolve_fit(target, data, loss: str | None, fixed: tuple[str, ...] | None):

@@ -45,8 +45,9 @@ def format_uncertainty_table(doc: dict, label: str = "") -> str:
         lines.append(f"  lobe {j}: m = {_fmt(lobe['m'])}   weight = {_fmt(lobe['weight'])}")
     band_keys = [k for k in ("F0", "n", "k", "Rd") if isinstance(u.get(k), list)]
     if band_keys:
-        if doc.get("wavelength_nm") or doc.get("channels"):  # the material's labels: "450 nm", a channel, "unknown band"
-            labels = band_labels(doc.get("wavelength_nm"), doc.get("channels"), bool(doc.get("band_unknown")))
+        bands = u if ("wavelength_nm" in u or "channels" in u) else doc  # the bands sampled (the data's), else the material's
+        if bands.get("wavelength_nm") or bands.get("channels"):  # their labels: "450 nm", a channel, "unknown band"
+            labels = band_labels(bands.get("wavelength_nm"), bands.get("channels"), bool(bands.get("band_unknown")))
         else:  # band indices, without a wavelength
             labels = [f"band {i}" for i in range(len(u[band_keys[0]]))]
         lines.append("  " + f"{'band':>12}" + "".join(f"  {k:>32}" for k in band_keys))
