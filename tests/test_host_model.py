@@ -88,3 +88,21 @@ def test_the_median_error_of_a_candidate_makes_no_program(compilations):
     y = np.asarray(data.brdf)
     expected = np.median(np.abs(f[y > 0] - y[y > 0]) / y[y > 0])
     assert err == pytest.approx(expected, rel=1e-9) and 0.005 < err < 0.05
+
+
+def test_one_sample_near_zero_does_not_make_a_candidates_median_infinite():
+    """One held-out brdf of 1e-310 where the model gives 53 sr⁻¹: its relative error overflows to
+    ∞, and that made every candidate's median ∞, so the structure was chosen by the tie-break
+    (copper, `ctfit simulate configs/copper.toml --samples 200` with one such value: one lobe, where
+    the clean data chooses two). The median is the other samples'; a model that is not finite
+    somewhere is still no candidate (∞)."""
+    truth = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.6, 0.9])),
+                           wavelength_nm=np.array([450.0, 650.0]))
+    data = ctfit.simulate(truth, n_pairs=400, noise=0.02, seed=1)
+    y = np.array(data.brdf)
+    clean = structure_selection.model_median_error(types.SimpleNamespace(material=truth), data)
+    y[int(np.argmax(y))] = 1e-310
+    stray = structure_selection.model_median_error(types.SimpleNamespace(material=truth), data.replace(brdf=y))
+    assert np.isfinite(stray) and stray == pytest.approx(clean, rel=0.02)
+    broken = dataclasses.replace(truth, params=dataclasses.replace(truth.params, f0=np.array([np.nan, 0.9])))
+    assert structure_selection.model_median_error(types.SimpleNamespace(material=broken), data) == np.inf

@@ -462,7 +462,8 @@ def heldout_error(res: FitResult, held: Measurement) -> float:
 
 
 def model_median_error(res: FitResult, data: Measurement) -> float:
-    """The median over the samples of ``data`` with y > 0 of |f − y| / y, f the model of ``res``,
+    """The median over the samples of ``data`` with y > 0 of |f − y| / y, f the model of ``res`` (∞
+    where f is not finite somewhere),
     evaluated on the host (``brdf(..., xp=numpy)``: no program per structure) in the dtype of the
     fit's programs (float64 with ``jax_enable_x64``, else float32), at the geometry the fits lay
     out (``problem.geometry_deg``: the screen's pairs are those every candidate was fitted to, and
@@ -474,11 +475,11 @@ def model_median_error(res: FitResult, data: Measurement) -> float:
         values = brdf(res.material.structure, params, geometry_deg(np.asarray(pairs, dtype=dt), on_host=True), xp=np)
     f, y = values[index, np.asarray(data.band)], np.asarray(data.brdf, dtype=float)
     ok = y > 0
-    if not ok.any():
+    if not ok.any() or not np.all(np.isfinite(f[ok])):  # a model that is not finite somewhere is no candidate
         return np.inf
-    with np.errstate(invalid="ignore", over="ignore"):
+    with np.errstate(over="ignore"):  # a finite model over a y near 0 (1e-310) is an infinite error: one sample, not the median
         err = np.abs(f[ok] - y[ok]) / y[ok]
-    return float(np.median(err)) if np.all(np.isfinite(err)) else np.inf
+    return float(np.median(err))
 
 
 def screening_sample(data: Measurement, samples: int = SCREEN_SAMPLES) -> Measurement:
