@@ -228,6 +228,10 @@ def test_one_sample_in_ten_dropped_to_zero_does_not_make_the_fit_zero():
     assert res.converged and res.stats["quality"]["median_relative_error"] < 1.05 * clean.stats["quality"]["median_relative_error"]
     np.testing.assert_allclose(res.material.params.rd, clean.material.params.rd, rtol=0.01)
     assert abs(float(res.material.params.s) - float(clean.material.params.s)) < 0.01
+    # One in five still makes the zero model the cheaper fit: the fit fails, and says the zeros may be why.
+    y[4::5] = 0.0
+    res = fit(data.replace(brdf=y), rubber.structure)
+    assert not res.converged and any("20% of the samples are exactly 0: if those are values that were not measured" in w for w in res.warnings)
 
 
 def test_a_stray_zero_at_a_bright_sample_keeps_its_band():

@@ -151,3 +151,22 @@ def test_cli_cluster_options_are_refused_before_any_work(tmp_path, args, message
     got = runner.invoke(app, ["fit", *map(str, files), *[a.replace("OUT", str(tmp_path / "out")) for a in args]])
     assert got.exit_code == 2 and message in got.output
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_a_data_chosen_structure_keeps_the_candidates_asked_for(client, tmp_path):
+    """``ctfit fit DIR --family plastic --lobes 1 --workers N`` chose among every family and lobe
+    count (the workers called ``ctfit.fit``'s default) and wrote the options it had not used into
+    the result; ``choice`` (``choose_structure``'s candidates) now reaches the workers, and the
+    result is the one fitted in this process."""
+    data = one_lobe(0.2, 3)
+    choice = dict(families=("plastic",), lobes=(1,))
+    (got,) = ctfit.fit_many([data], None, client, choice=choice)
+    alone = ctfit.choose_structure(data, **choice)[0]
+    assert [row["structure"] for row in got.stats["structure_choice"]] == [row["structure"] for row in alone.stats["structure_choice"]]
+    assert got.material.structure == alone.material.structure and got.material.structure.family == "plastic"
+    assert all(row["structure"].startswith("plastic, 1 lobe,") for row in got.stats["structure_choice"])
+    ctfit.write_csv(data, (tmp_path / "data").mkdir() or tmp_path / "data" / "a.csv")
+    r = runner.invoke(app, ["fit", str(tmp_path / "data"), "-o", str(tmp_path / "out"), "--workers", "1", "--family", "plastic", "--lobes", "1"])
+    doc = json.loads((tmp_path / "out" / "a.fit.json").read_text())
+    assert r.exit_code in (0, 1), r.output
+    assert doc["family"] == "plastic" and all(row["structure"].startswith("plastic, 1 lobe,") for row in doc["fit"]["structure_choice"])

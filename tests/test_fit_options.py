@@ -74,25 +74,26 @@ def test_material_file_fixes_parameters_and_gives_starts(tmp_path):
     assert doc["fit"]["n_params"] == 1
 
 
-def test_fixing_an_unknown_parameter_is_an_error(tmp_path):
+def _fit_fixing(tmp_path, fixed: str):
+    """``ctfit fit`` of a one-lobe file with a material file whose ``fixed`` is ``fixed`` (TOML):
+    the data, its path and the command's result."""
     _, data = one_lobe(n_pairs=20)
     csv = tmp_path / "d.csv"
     ctfit.write_csv(data, csv)
     toml = tmp_path / "start.toml"
-    toml.write_text('s = 1.0\nd = 0.0\nlobes = [{ m = 0.3, weight = 1.0 }]\nwavelength_nm = [450.0, 650.0]\nF0 = [0.6, 0.9]\nfixed = ["k"]\n')
-    r = CliRunner().invoke(app, ["fit", str(csv), "--material", str(toml)])
+    toml.write_text(f's = 1.0\nd = 0.0\nlobes = [{{ m = 0.3, weight = 1.0 }}]\nwavelength_nm = [450.0, 650.0]\nF0 = [0.6, 0.9]\nfixed = {fixed}\n')
+    return data, csv, CliRunner().invoke(app, ["fit", str(csv), "--material", str(toml)])
+
+
+def test_fixing_an_unknown_parameter_is_an_error(tmp_path):
+    r = _fit_fixing(tmp_path, '["k"]')[2]
     assert r.exit_code == 2 and "fixed" in r.output
 
 
 def test_fixing_every_parameter_leaves_nothing_to_fit(tmp_path):
     """Every parameter fixed: one error line naming the file (it was a StopIteration traceback),
     from the command and from ``ctfit.fit``."""
-    _, data = one_lobe(n_pairs=20)
-    csv = tmp_path / "d.csv"
-    ctfit.write_csv(data, csv)
-    toml = tmp_path / "start.toml"
-    toml.write_text('s = 1.0\nd = 0.0\nlobes = [{ m = 0.3, weight = 1.0 }]\nwavelength_nm = [450.0, 650.0]\nF0 = [0.6, 0.9]\nfixed = ["m", "f0"]\n')
-    r = CliRunner().invoke(app, ["fit", str(csv), "--material", str(toml)])
+    data, csv, r = _fit_fixing(tmp_path, '["m", "f0"]')
     assert r.exit_code == 2 and r.output.strip() == (f"error: {csv}: nothing to fit: every parameter of the structure is fixed (fixed = ['m', 'f0']); "
                                                      "ctfit eval evaluates the material as it is")
     with pytest.raises(ValueError, match="nothing to fit"):

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .fit_command import KEPT, check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_from_options, texel_structure
+from .fit_command import KEPT, check_fit_choices, echo_wrote, fit_kwargs, report_file, structure_choice, structure_from_options, texel_structure
 from .inputs import read_data, setup_jax
 from .messages import UserError, failure_line
 
@@ -55,7 +55,7 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> tuple[
         kw = fit_kwargs(o)
         with dask_client(workers=o.workers, scheduler=o.scheduler) as client:
             fit_many([str(p) for p in pending], st, client, material=base, param_out=o.param_out, return_errors=True, on_result=done,
-                     progress=show, **kw)
+                     progress=show, choice=structure_choice(o) if st is None else None, **kw)
     return [outcomes[p] for p in files], hashes
 
 

@@ -22,6 +22,7 @@ __all__ = [
     "fit_command",
     "fit_exit_status",
     "fit_kwargs",
+    "structure_choice",
     "report_file",
     "structure_from_options",
     "texel_structure",
@@ -546,16 +547,20 @@ def _fit_measurement(meas, o, base, show: bool):
     kw = fit_kwargs(o)
     st = structure_from_options(base.structure if base else None, o)
     if st is None:
-        family, diffuse = _family(o), _diffuse(o)
-        res, tried = choose_structure(
-            meas, families=("metal", "plastic") if family == "auto" else (family,), lobes=(1, 2, 3) if o.lobes == "auto" else (int(o.lobes),),
-            diffuse=None if diffuse == "auto" else diffuse, geometry=o.geometry or "v-cavity", fresnel={"conductor": "conductor"}.get(o.fresnel),
-            progress=lambda it: bar(it, desc="structures", enabled=show), **kw)
+        res, tried = choose_structure(meas, progress=lambda it: bar(it, desc="structures", enabled=show), **structure_choice(o), **kw)
         if not o.as_json:
             echo(_choice_table(res))
         return res
     start, fixed = start_from_material(base, st, meas) if base else (None, ())
     return run_fit(meas, st, start=start, fixed=fixed, **kw)
+
+
+def structure_choice(o) -> dict:
+    """The candidates of :func:`~ctfit.choose_structure` that the options leave open (where
+    :func:`structure_from_options` gives None): families, lobes, diffuse part, geometry, Fresnel."""
+    family, diffuse = _family(o), _diffuse(o)
+    return dict(families=("metal", "plastic") if family == "auto" else (family,), lobes=(1, 2, 3) if o.lobes == "auto" else (int(o.lobes),),
+                diffuse=None if diffuse == "auto" else diffuse, geometry=o.geometry or "v-cavity", fresnel={"conductor": "conductor"}.get(o.fresnel))
 
 
 def fit_kwargs(o) -> dict:

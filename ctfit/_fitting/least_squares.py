@@ -61,7 +61,7 @@ from .fit_warnings import FitWarning
 from .jacobian import normal_equations
 from .losses import LOSSES, default_loss
 from .problem import Problem, make_problem
-from .quality import quality_from_residuals, quality_warning
+from .quality import quality_from_residuals, quality_warning, zeros_hint
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds
 from .starts import default_start, m_points, seed_points
 from .status import FitStatus, fit_status
@@ -419,8 +419,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     floor = float(problem.floor)
     n, p = int(mask.sum()), int(sum(np.size(v) for v in u.values()))
     cost = float(costs[best])
-    rss_like = 2 * cost
-    scale2 = 1.0 if loss == "sigma" else rss_like / max(n - p, 1)
+    scale2 = 1.0 if loss == "sigma" else 2 * cost / max(n - p, 1)
     params, order = sorted_lobes(params)
     on_bound = np.asarray(out["on_bound"], bool)
     loose = undetermined(out["jtj"]) & ~on_bound  # coordinates the data does not determine
@@ -471,7 +470,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     not_determined = [names[i] for i in np.flatnonzero(loose)]
     why = f"{n} samples for {p} free parameters leave no residual to estimate the noise from (a sigma column gives them)" if no_noise else NO_STDERR_SINGULAR
     notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined, why)
-    worst = quality_warning(quality)
+    hint = zeros_hint(data.brdf)
+    worst = quality_warning(quality, hint)
     if status.converged and worst:  # "even at the best fit": only a fit that got there says so
         notes.append(worst)
     if not stationary:
@@ -480,8 +480,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
                                 f"cost{hint}", "not_a_minimum"))
     if explains_nothing:
         notes.append(FitWarning(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
-                                "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another loss=",
-                                "explains_nothing"))
+                                "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another "
+                                f"loss={hint}", "explains_nothing"))
     if not bool(np.asarray(ok)[best]):
         notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another "
                                 "start, "

@@ -55,10 +55,13 @@ def fit_many(
     workers: int | None = None,
     on_result: Callable[[int, object], None] | None = None,
     progress: bool = False,
+    choice: dict | None = None,
 ) -> list:
     """Fit ``structure`` to every item on a Dask cluster; one :class:`~ctfit.FitResult` per item, in input order.
     ``structure=None``: each item's structure is chosen by its data, as :func:`~ctfit.fit` chooses it
-    (then ``start`` and ``fixed`` do not apply, and items are fitted one by one on their worker).
+    (then ``start`` and ``fixed`` do not apply, and items are fitted one by one on their worker),
+    among the candidates ``choice`` names (the keywords of :func:`~ctfit.choose_structure`:
+    ``families``, ``lobes``, ``diffuse``, ``geometry``, ``fresnel``; None: all of its defaults).
 
     ``items``: paths of measurement files (CSV, ALTA, MERL .binary, RGL .bsdf; read on the workers, with
     ``param_out`` as for :func:`~ctfit.read_alta`) or :class:`~ctfit.Measurement` objects.
@@ -93,7 +96,8 @@ def fit_many(
         raise ValueError("start: fit_many takes one Params (or None) for every item")
     if files_per_task is not None and files_per_task < 1:
         raise ValueError(f"files_per_task must be ≥ 1, got {files_per_task}")
-    options = dict(start=start, fixed=tuple(fixed), material=material, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
+    options = dict(start=start, fixed=tuple(fixed), material=material, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps,
+                   choice=dict(choice or {}))
     x64 = np.dtype(dtype).itemsize == 8
     results: list = [None] * len(items)
     if not items:
@@ -256,7 +260,7 @@ def _fit_task(items: list, structure: Structure | None, options: dict, param_out
         except _CAUGHT as e:
             outs[j] = _portable(e)
     options = dict(options)
-    base = options.pop("material")
+    base, choice = options.pop("material"), options.pop("choice", {})
     if base is not None:  # each item's start on its own bands, as `ctfit fit --material` makes it
         from .starts import start_from_material
 
@@ -269,12 +273,12 @@ def _fit_task(items: list, structure: Structure | None, options: dict, param_out
             except _CAUGHT as e:
                 outs[j] = _portable(e)
         ready, options["start"] = kept, starts
-    if ready and structure is None:  # the data chooses each item's structure (ctfit.fit's default)
-        from .least_squares import fit
+    if ready and structure is None:  # the data chooses each item's structure among the candidates of ``choice`` (ctfit.fit's default: all)
+        from .structure_selection import choose_structure
 
         for j, meas in ready:
             try:
-                outs[j] = fit(meas, **{k: v for k, v in options.items() if k not in ("start", "fixed")})
+                outs[j] = choose_structure(meas, **choice, **{k: v for k, v in options.items() if k not in ("start", "fixed")})[0]
             except _CAUGHT as e:
                 outs[j] = _portable(e)
     elif ready:

@@ -29,7 +29,8 @@ from .._model import Material, Measurement, Params, Structure
 from .diagnostics import pair_half_angle_deg
 from .fit_warnings import FitWarning
 
-__all__ = ["MODEL_LIMIT", "TAIL_LIMIT", "GRAZING_DEG", "fit_quality", "quality_from_residuals", "quality_in_regions", "quality_warning", "sample_regions"]
+__all__ = ["MODEL_LIMIT", "TAIL_LIMIT", "ZEROS_HINT", "zeros_hint", "GRAZING_DEG", "fit_quality", "quality_from_residuals", "quality_in_regions",
+           "quality_warning", "sample_regions"]
 
 MODEL_LIMIT = 0.3
 """A median relative error above this: the model does not represent the material (iridescent
@@ -135,9 +136,27 @@ def fit_quality(material: Material, data: Measurement, model: Float[ArrayLike, "
     return quality_in_regions(err, *sample_regions(data, peak_deg), peak_deg)
 
 
-def quality_warning(quality: dict) -> FitWarning | None:
+ZEROS_HINT = 0.05
+"""A fit that fails with at least this fraction of its samples exactly 0 says so (:func:`zeros_hint`)."""
+
+
+def zeros_hint(brdf: ArrayLike) -> str:
+    """"; k % of the samples are exactly 0: …" where at least :data:`ZEROS_HINT` of ``brdf`` is 0,
+    else "": values not measured, written as 0, each count as a miss under a bright model, and
+    from about one sample in five a model that is 0 everywhere is the cheaper fit (docs/fitting.md).
+
+    >>> zeros_hint([0.0, 0.0, 1.0, 2.0])[:44]
+    '; 50% of the samples are exactly 0: if those'
+    """
+    zeros = float(np.mean(np.asarray(brdf) == 0)) if np.size(brdf) else 0.0
+    if zeros < ZEROS_HINT:
+        return ""
+    return f"; {zeros:.0%} of the samples are exactly 0: if those are values that were not measured, leave them out of the file (each counts as a miss)"
+
+
+def quality_warning(quality: dict, hint: str = "") -> FitWarning | None:
     """One line when the median relative error is above :data:`MODEL_LIMIT` or its 90th percentile
-    above :data:`TAIL_LIMIT`, naming the worst region."""
+    above :data:`TAIL_LIMIT`, naming the worst region (and ``hint``, :func:`zeros_hint`'s)."""
     median, tail = quality.get("median_relative_error"), quality.get("p90_relative_error")
     if median is None or tail is None or (median <= MODEL_LIMIT and tail <= TAIL_LIMIT):
         return None
@@ -148,6 +167,6 @@ def quality_warning(quality: dict) -> FitWarning | None:
     region = names[worst] if worst else None
     if median > MODEL_LIMIT:
         return FitWarning(f"the Cook–Torrance model does not represent this material: the typical sample is off by {median:.0%} "
-                          f"even at the best fit{where}", "not_represented", region=region)
+                          f"even at the best fit{where}{hint}", "not_represented", region=region)
     return FitWarning(f"the Cook–Torrance model does not represent this material: a tenth of the samples are off by {tail:.0%} or more "
-                      f"even at the best fit (the typical one by {median:.0%}){where}", "not_represented", region=region)
+                      f"even at the best fit (the typical one by {median:.0%}){where}{hint}", "not_represented", region=region)
