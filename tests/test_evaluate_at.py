@@ -116,3 +116,19 @@ def test_a_material_without_a_parameter_per_band_has_every_band_alike(tmp_path):
     r = CliRunner().invoke(app, ["eval", str(tmp_path / "grey.toml"), str(tmp_path / "at.csv"), "-o", str(tmp_path / "out.csv")])
     assert r.exit_code == 0, r.output
     assert [line.rsplit(",", 1)[1] for line in (tmp_path / "out.csv").read_text().splitlines()[-3:]] == ["0.1"] * 3
+
+
+def test_a_material_that_does_not_fit_its_structure_or_a_bad_dtype_is_refused():
+    """A structure of two lobes with one m evaluated that lobe twice (twice the BRDF), R_d of three
+    values on two wavelengths gave three bands, an integer dtype NaN everywhere, a path an
+    AttributeError: each is now an error naming what is wrong."""
+    two = ctfit.Material(ctfit.Structure(lobes=2), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.5])), wavelength_nm=np.array([550.0]))
+    with pytest.raises(ValueError, match="m has 1 values; its structure has 2 lobes"):
+        ctfit.evaluate_at(two, theta_i=30.0, theta_o=30.0, phi_o=180.0)
+    bands = ctfit.Material(ctfit.Structure(lobes=0, diffuse="spectrum"), ctfit.Params(rd=np.array([0.1, 0.2, 0.3])), wavelength_nm=np.array([450.0, 650.0]))
+    with pytest.raises(ValueError, match="rd has 3 values for its 2 bands"):
+        ctfit.evaluate(bands, ctfit.simulate(GOLD, 5, seed=0))
+    with pytest.raises(ValueError, match="dtype must be a float type"):
+        ctfit.evaluate_at(GOLD, theta_i=30.0, theta_o=30.0, dtype=np.int32)
+    with pytest.raises(TypeError, match=r"material must be a ctfit.Material, got str \(read a file with ctfit.load_material\(path\)\)"):
+        ctfit.evaluate_at("gold.toml", theta_i=30.0, theta_o=30.0)

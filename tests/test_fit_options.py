@@ -114,3 +114,24 @@ def test_folder_of_files_and_plots(tmp_path):
         assert doc["fit"]["converged"]
         png = (plots / f"s{seed}.fit.png").read_bytes()
         assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+
+
+def test_starts_and_fixed_names_that_do_not_fit_the_structure_are_refused():
+    """``start`` of two lobes for a one-lobe structure gave a result of two lobes reported as
+    converged; a start of other bands failed inside JAX; ``fixed=("F0",)`` (the files' name) or a
+    misspelt name was ignored, the parameter fitted. Each is now an error naming the argument;
+    the files' names are accepted."""
+    truth, data = one_lobe()
+    st = truth.structure
+    with pytest.raises(ValueError, match=r"start\.m has 2 values; this fit takes one per lobe: 1"):
+        ctfit.fit(data, st, start=ctfit.Params(m=np.array([0.3, 0.1]), w=np.array([0.5, 0.5])))
+    with pytest.raises(ValueError, match=r"start\.f0 has 3 values; this fit takes one per band \(2\) or one for all"):
+        ctfit.fit(data, st, start=ctfit.Params(f0=np.full(3, 0.5)))
+    with pytest.raises(TypeError, match="start must be a ctfit.Params"):
+        ctfit.fit(data, st, start=truth)
+    with pytest.raises(ValueError, match=r"fixed names \['roughness'\]: this structure's parameters are \['m', 'F0'\]"):
+        ctfit.fit(data, st, fixed=("roughness",))
+    with pytest.raises(TypeError, match="not the string 'F0'"):
+        ctfit.fit(data, st, fixed="F0")
+    held = ctfit.fit(data, st, fixed=("F0",), start=ctfit.Params(f0=np.array([0.5, 0.5])))
+    assert held.material.params.f0.tolist() == [0.5, 0.5] and held.stats["n_params"] == 1

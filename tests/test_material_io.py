@@ -686,3 +686,30 @@ def test_fixed_must_be_a_list_of_names(tmp_path, value):
     with pytest.raises(MaterialError, match=r"m\.toml.*key 'fixed': must be a list of parameter names"):
         load_material(path)
     assert load_material(write(tmp_path, edit("", "fixed = [\"m\"]\n"))).meta["fixed"] == ["m"]
+
+
+def test_a_key_given_twice_in_a_json_material_is_refused(tmp_path):
+    """JSON leaves which of two equal keys counts to the reader (Python keeps the last; TOML
+    refuses): ctfit refuses, naming the file, the place of the repeat and the key."""
+    path = tmp_path / "dup.json"
+    path.write_text('{"s": 1,\n "d": 0,\n "s": 0.5, "lobes": [{"m": 0.2}], "wavelength_nm": [400], "F0": 0.5}')
+    with pytest.raises(ValueError, match=r"dup\.json:3:2: key 's' given twice in one object"):
+        ctfit.load_material(path)
+    nested = tmp_path / "nested.json"
+    nested.write_text('{"s": 1, "lobes": [{"m": 0.2, "m": 0.3}], "wavelength_nm": [400], "F0": 0.5}')
+    with pytest.raises(ValueError, match="key 'm' given twice"):
+        ctfit.load_material(nested)
+
+
+def test_saving_refuses_what_would_change_the_material():
+    """Weights that do not sum to 1 were renormalised on saving (a different BRDF, said nowhere);
+    values of m for another number of lobes than the structure's were written as that many lobes.
+    Both are refused; float32 rounding of the weights' sum is still renormalised."""
+    st = ctfit.Structure(lobes=2)
+    made = lambda w, m=(0.1, 0.3): ctfit.Material(st, ctfit.Params(m=np.array(m), w=np.array(w), f0=np.array([0.5])), wavelength_nm=np.array([550.0]))
+    with pytest.raises(ctfit.MaterialError, match=r"lobe weights \[0.5, 0.3\] sum to 0.8, not 1"):
+        ctfit.material_to_dict(made([0.5, 0.3]))
+    with pytest.raises(ctfit.MaterialError, match="1 values of m and 1 weights for a structure of 2 lobes"):
+        ctfit.material_to_dict(made([1.0], m=(0.2,)))
+    w32 = np.array([0.7, 0.3], dtype=np.float32).astype(float)  # sums to 1 within float32's rounding
+    assert math.fsum(ctfit.material_to_dict(made(w32))["lobes"][i]["weight"] for i in range(2)) == pytest.approx(1, abs=1e-12)

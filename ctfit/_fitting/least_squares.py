@@ -65,7 +65,7 @@ from .quality import quality_from_residuals, quality_warning, zeros_hint
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds
 from .starts import default_start, m_points, seed_points
 from .status import FitStatus, fit_status
-from .validate import check_fittable, nonfinite_reason
+from .validate import check_fittable, checked_start, fixed_names, nonfinite_reason
 
 __all__ = ["fit", "fit_to_tolerance", "prefetch_fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "finish_light",
            "solve_prepared"]
@@ -203,6 +203,7 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
         loss = default_loss(data)
     if loss not in LOSSES:
         raise ValueError(f"loss must be 'auto' or one of {LOSSES}, got {loss!r}")
+    start, fixed = checked_start(structure, data.n_bands, start), fixed_names(structure, fixed)
     default = default_start(structure, data)
     given_start = start is not None
     if start is None:

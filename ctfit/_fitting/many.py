@@ -53,15 +53,12 @@ def fit_many(
     return_errors: bool = False,
     files_per_task: int | None = None,
     workers: int | None = None,
-    on_result: Callable[[int, object], None] | None = None,
-    progress: bool = False,
-    choice: dict | None = None,
+    on_result: Callable[[int, object], None] | None = None, progress: bool = False, choice: dict | None = None,
 ) -> list:
     """Fit ``structure`` to every item on a Dask cluster; one :class:`~ctfit.FitResult` per item, in input order.
-    ``structure=None``: each item's structure is chosen by its data, as :func:`~ctfit.fit` chooses it
-    (then ``start`` and ``fixed`` do not apply, and items are fitted one by one on their worker),
-    among the candidates ``choice`` names (the keywords of :func:`~ctfit.choose_structure`:
-    ``families``, ``lobes``, ``diffuse``, ``geometry``, ``fresnel``; None: all of its defaults).
+    ``structure=None``: each item's structure is chosen by its data, as :func:`~ctfit.fit` chooses it (then ``start``
+    and ``fixed`` do not apply; items are fitted one by one on their worker), among the candidates ``choice``
+    names (:func:`~ctfit.choose_structure`'s ``families``, ``lobes``, ``diffuse``, ``geometry``, ``fresnel``).
 
     ``items``: paths of measurement files (CSV, ALTA, MERL .binary, RGL .bsdf; read on the workers, with
     ``param_out`` as for :func:`~ctfit.read_alta`) or :class:`~ctfit.Measurement` objects.
@@ -96,8 +93,8 @@ def fit_many(
         raise ValueError("start: fit_many takes one Params (or None) for every item")
     if files_per_task is not None and files_per_task < 1:
         raise ValueError(f"files_per_task must be ≥ 1, got {files_per_task}")
-    options = dict(start=start, fixed=tuple(fixed), material=material, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps,
-                   choice=dict(choice or {}))
+    options = dict(start=start, fixed=tuple(fixed), material=material, loss=loss, solver=solver, dtype=dtype, starts=starts, max_steps=max_steps)
+    options["choice"] = choice or {}
     x64 = np.dtype(dtype).itemsize == 8
     results: list = [None] * len(items)
     if not items:

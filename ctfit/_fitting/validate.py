@@ -17,10 +17,10 @@ import math
 
 import numpy as np
 
-from .._model import Measurement, Structure
+from .._model import PUBLIC_NAMES, Measurement, Params, Structure
 from .coordinates import free_names
 
-__all__ = ["check_fittable", "n_free_parameters", "nonfinite_reason", "representable_range"]
+__all__ = ["check_fittable", "checked_start", "fixed_names", "n_free_parameters", "nonfinite_reason", "representable_range"]
 
 _HEADROOM = 1e4
 """Squares of values up to max/1e4 summed over 1e8 samples stay finite."""
@@ -38,9 +38,51 @@ def representable_range(dtype) -> tuple[float, float]:
 
 def n_free_parameters(structure: Structure, n_bands: int, fixed: tuple[str, ...] = ()) -> int:
     """The number of values a fit of ``structure`` on ``n_bands`` bands adjusts."""
-    size = {"s": 1, "m": structure.lobes, "w": structure.lobes - 1, "f0": n_bands, "n": 1 if structure.shared_index else n_bands, "k": n_bands}
-    size["rd"] = 1 if structure.diffuse == "constant" else n_bands
+    size = {**_sizes(structure, n_bands), "w": structure.lobes - 1}
     return sum(size[name] for name in free_names(structure, fixed))
+
+
+def _sizes(structure: Structure, n_bands: int) -> dict[str, int]:
+    return {"s": 1, "m": structure.lobes, "w": structure.lobes, "f0": n_bands, "n": 1 if structure.shared_index else n_bands, "k": n_bands,
+            "rd": 1 if structure.diffuse == "constant" else n_bands}
+
+
+def fixed_names(structure: Structure, fixed) -> tuple[str, ...]:
+    """``fixed`` as :class:`~ctfit.Params` field names (the files' names accepted too: ``F0``,
+    ``weight``, ``Rd``); a ``ValueError`` listing the structure's parameters for a name it does
+    not have (it was ignored: the parameter was fitted), a ``TypeError`` for a bare string.
+
+    >>> fixed_names(Structure(lobes=2), ("F0", "m"))
+    ('f0', 'm')
+    """
+    if isinstance(fixed, str):
+        raise TypeError(f"fixed must be a sequence of parameter names, e.g. ({fixed!r},), not the string {fixed!r}")
+    internal = {public: name for name, public in PUBLIC_NAMES.items()}
+    names = tuple(internal.get(f, f) for f in fixed)
+    allowed = free_names(structure)
+    bad = [f for f, name in zip(fixed, names) if name not in allowed]
+    if bad:
+        raise ValueError(f"fixed names {bad}: this structure's parameters are {[PUBLIC_NAMES[n] for n in allowed]}")
+    return names
+
+
+def checked_start(structure: Structure, n_bands: int, start) -> Params | None:
+    """``start`` (a :class:`~ctfit.Params` or None) when each value it gives has the structure's
+    shape on ``n_bands`` bands — one per lobe, one per band (or one for all) — else a
+    ``ValueError`` naming it (a start of two lobes for a one-lobe structure gave a result of two
+    lobes reported as converged); a ``TypeError`` for anything but Params."""
+    if start is None:
+        return None
+    if not isinstance(start, Params):
+        raise TypeError(f"start must be a ctfit.Params (a material's: material.params), got {type(start).__name__}")
+    sizes = _sizes(structure, n_bands)
+    for name, size in sizes.items():
+        value = getattr(start, name)
+        if value is None or np.size(value) == size or (name in ("f0", "n", "k", "rd") and np.size(value) in (1, n_bands)):
+            continue  # (a plastic's one index may come listed per band)
+        what = "one per lobe" if name in ("m", "w") else ("one" if size == 1 else f"one per band ({n_bands}) or one for all")
+        raise ValueError(f"start.{name} has {np.size(value)} values; this fit takes {what}: {size} ({_describe(structure) or 'its structure'})")
+    return start
 
 
 def _describe(structure: Structure) -> str:

@@ -61,6 +61,8 @@ from .untrusted import check_nesting, parse_json, quote, shorten, too_deep, too_
 __all__ = ["load_material", "material_file_inputs", "material_from_dict", "material_to_dict", "material_json", "save_material_json", "float_list", "jsonable"]
 
 _TOL = 1e-9
+_WEIGHT_ROUNDING = 1e-6
+"""Lobe weights that sum to 1 within this (float32 rounding) are renormalised when saved; others are refused."""
 _MODEL_KEYS = (
     "name", "s", "d", "lobes", "distribution", "geometry", "normalization", "fresnel",
     "wavelength_nm", "channels", "optical_constants", "F0", "n", "k", "Rd", "band_unknown", "family", "diffuse",
@@ -552,8 +554,13 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     specular, diffuse = st.has_specular and s > 0, st.diffuse if s < 1 else None
     if specular:
         m, w = float_list(p.m), float_list(p.w)
-        if abs(math.fsum(w) - 1) > _TOL:  # float32 weights sum to 1 only to ~1e-7; the format asks 1e-9
-            w = [x / math.fsum(w) for x in w]
+        if len(m) != st.lobes or len(w) != st.lobes:
+            raise MaterialError(f"material {material.name!r}: {len(m)} values of m and {len(w)} weights for a structure of {st.lobes} lobes")
+        total = math.fsum(w)
+        if abs(total - 1) > _WEIGHT_ROUNDING:  # renormalising would change the BRDF: the format asks Σw = 1
+            raise MaterialError(f"material {material.name!r}: lobe weights {w} sum to {total:.9g}, not 1")
+        if abs(total - 1) > _TOL:  # float32 weights sum to 1 only to ~1e-7; the format asks 1e-9
+            w = [x / total for x in w]
         out["lobes"] = [{"m": m[j], "weight": w[j]} for j in sorted(range(len(m)), key=m.__getitem__)]
     out["distribution"], out["geometry"], out["normalization"] = st.distribution, st.geometry, st.normalization
     if st.family == "plastic":

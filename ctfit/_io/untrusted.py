@@ -15,6 +15,7 @@ from __future__ import annotations
 import codecs
 import json
 import os
+import re
 import stat
 import sys
 from typing import Any
@@ -166,9 +167,15 @@ def parse_json(text: str, source):
     Traceback (most recent call last):
     ...
     ValueError: big.json: a number of more than 4300 digits; not a value ctfit can read
+    >>> parse_json('{"s": 1, "s": 0.5}', "dup.json")  # JSON leaves which one counts to the reader: neither
+    Traceback (most recent call last):
+    ...
+    ValueError: dup.json:1:10: key 's' given twice in one object
     """
     try:
-        doc = json.loads(text)
+        doc = json.loads(text, object_pairs_hook=_unique_keys)
+    except _DuplicateKey as dup:
+        raise ValueError(f"{source}{_second_place(text, dup.key)}: key {dup.key!r} given twice in one object") from None
     except json.JSONDecodeError as err:
         raise ValueError(f"{source}:{err.lineno}:{err.colno}: JSON syntax error: {err.msg}") from None
     except RecursionError:
@@ -179,6 +186,34 @@ def parse_json(text: str, source):
         raise ValueError(too_many_digits(source)) from None
     check_nesting(doc, source)
     return doc
+
+
+class _DuplicateKey(Exception):
+    def __init__(self, key: str):
+        self.key = key
+
+
+def _unique_keys(pairs: list) -> dict:
+    """A JSON object as a dict; :class:`_DuplicateKey` for a key given twice (``json.loads`` keeps the last)."""
+    doc = dict(pairs)
+    if len(doc) != len(pairs):
+        seen: set = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise _DuplicateKey(key)
+            seen.add(key)
+    return doc
+
+
+def _second_place(text: str, key: str) -> str:
+    """":line:column" of the second ``"key":`` in ``text`` (the repeat, where the object is the first to
+    give the key twice), or "" where it cannot be told (an escaped key)."""
+    found = list(re.finditer(re.escape(json.dumps(key)) + r"\s*:", text))
+    if len(found) < 2:
+        return ""
+    at = found[1].start()
+    line = text.count("\n", 0, at) + 1
+    return f":{line}:{at - (text.rfind(chr(10), 0, at) + 1) + 1}"
 
 
 def too_many_digits(source) -> str:

@@ -105,12 +105,23 @@ def evaluate(material: Material, measurement: Measurement, *, dtype: DTypeLike |
     >>> np.asarray(np.pi * ctfit.evaluate(paint, samples), float).round(6).tolist()
     [0.5, 0.5]
     """
-    params = material.params_at(measurement.wavelength_nm if measurement.channels is None else None, measurement.channels)
+    params = _checked(material, dtype).params_at(measurement.wavelength_nm if measurement.channels is None else None, measurement.channels)
     pairs, index = measurement.directions()
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
     values = by_blocks(lambda block: _grid_values(material.structure, params, block), np.asarray(pairs, dtype=dt), _NORMAL_PAIR)
     return values[index, measurement.band if values.shape[1] > 1 else 0]  # one column: no parameter per band, every band alike
+
+
+def _checked(material: Material, dtype: DTypeLike | None) -> Material:
+    """``material``, checked to be a :class:`Material` whose parameters fit its structure, and
+    ``dtype`` a float type (an integer one gave NaN everywhere)."""
+    if not isinstance(material, Material):
+        hint = " (read a file with ctfit.load_material(path))" if isinstance(material, (str, bytes)) or hasattr(material, "__fspath__") else ""
+        raise TypeError(f"material must be a ctfit.Material, got {type(material).__name__}{hint}")
+    if dtype is not None and not jnp.issubdtype(dtype, jnp.floating):
+        raise ValueError(f"dtype must be a float type (float32 or float64), got {np.dtype(dtype).name}")
+    return material.check_shapes()
 
 
 def evaluate_at(
@@ -150,7 +161,7 @@ def evaluate_at(
     wl = None if wavelength_nm is None else np.asarray(wavelength_nm, dtype=float)
     if wl is not None and not np.all(np.isfinite(wl) & (wl > 0)):
         raise ValueError(f"wavelength_nm must be positive finite numbers of nm, got {np.asarray(wavelength_nm).tolist()!r}")
-    params = material.params_at(wavelength_nm)
+    params = _checked(material, dtype).params_at(wavelength_nm)
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
     pad: tuple[float, ...]
@@ -171,9 +182,9 @@ def evaluate_at(
                 raise ValueError(f"{name} must be unit vectors: |{name}{_index(at)}| = {float(length[at]):.6g}")
         shape, rows, run, pad = lv[0].shape[:-1], np.concatenate([a.reshape(-1, 3) for a in lv], axis=1), _vector_values, _NORMAL_VECTORS
     values = by_blocks(lambda block: run(material.structure, params, block), rows.astype(dt), pad)
-    bands = wl.size if wl is not None else len(material.band_labels)  # (none for a material of neither wavelengths nor channels)
-    if values.shape[-1] == 1 < bands:  # no parameter per band (an R_d of one number): every band alike
-        values = np.repeat(values, bands, axis=-1)
+    if values.shape[-1] == 1:  # no parameter per band (an R_d of one number): every band of the material (or of wl) alike
+        bands = wl.size if wl is not None else len(material.band_labels)  # (none for a material of neither wavelengths nor channels)
+        values = np.repeat(values, max(bands, 1), axis=-1)
     return values.reshape(*shape, values.shape[-1])
 
 

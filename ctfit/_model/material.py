@@ -212,6 +212,30 @@ class Material:
         if self.band_unknown and (self.wavelength_nm is None or len(self.wavelength_nm) != 1):
             raise ValueError(f"material {self.name!r}: band_unknown needs exactly one wavelength band (a placeholder)")
 
+    def check_shapes(self) -> Material:
+        """The material itself, when its parameters have its structure's shapes — m and the
+        weights one per lobe, F0, n, k, R_d one per band (or one for all) — else a ``ValueError``
+        naming the parameter (a structure of two lobes with one m evaluated its lobe twice).
+
+        >>> import numpy as np, ctfit
+        >>> ctfit.Material(ctfit.Structure(lobes=2), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.5])),
+        ...                wavelength_nm=np.array([550.0])).check_shapes()
+        Traceback (most recent call last):
+        ...
+        ValueError: material '': m has 1 values; its structure has 2 lobes
+        """
+        p, lobes = self.params, self.structure.lobes if self.structure.has_specular else None
+        for name in ("m", "w"):
+            value = getattr(p, name)
+            if lobes is not None and value is not None and np.size(value) != lobes:
+                raise ValueError(f"material {self.name!r}: {name} has {np.size(value)} values; its structure has {lobes} lobes")
+        bands = len(self.channels) if self.channels is not None else (len(self.wavelength_nm) if self.wavelength_nm is not None else None)
+        for name in _SPECTRAL_FIELDS:
+            value = getattr(p, name)
+            if bands is not None and value is not None and np.size(value) not in (1, bands):
+                raise ValueError(f"material {self.name!r}: {name} has {np.size(value)} values for its {bands} bands")
+        return self
+
     @property
     def is_rgb(self) -> bool:
         return self.channels is not None
