@@ -713,3 +713,15 @@ def test_saving_refuses_what_would_change_the_material():
         ctfit.material_to_dict(made([1.0], m=(0.2,)))
     w32 = np.array([0.7, 0.3], dtype=np.float32).astype(float)  # sums to 1 within float32's rounding
     assert math.fsum(ctfit.material_to_dict(made(w32))["lobes"][i]["weight"] for i in range(2)) == pytest.approx(1, abs=1e-12)
+
+
+def test_numpy_numbers_in_a_document_and_a_numpy_lobe_count_are_numbers():
+    """A dict made in a notebook holds NumPy scalars (np.float32, np.int64): they were refused as
+    "must be a number"; ``Structure(lobes=np.int64(2))`` was refused as not an integer. Both are
+    the numbers they hold; a bool is still no lobe count."""
+    made = material_from_dict({"s": 1, "lobes": [{"m": np.float32(0.25)}], "wavelength_nm": [np.int64(400), np.int64(500)], "F0": np.float64(0.5)})
+    assert made.params.m.tolist() == [0.25] and made.wavelength_nm.tolist() == [400.0, 500.0]
+    st = Structure(lobes=np.int64(2))
+    assert st == Structure(lobes=2) and hash(st) == hash(Structure(lobes=2)) and type(st.lobes) is int
+    with pytest.raises(ValueError, match="lobes must be an integer"):
+        Structure(lobes=True)

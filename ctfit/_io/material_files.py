@@ -165,7 +165,8 @@ def material_file_inputs(path: str | os.PathLike[str]) -> list[pathlib.Path]:
 
 
 def _is_number(v: object) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
+    """A number of a document: Python's or NumPy's (a dict made in a notebook), not a bool."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
 @functools.lru_cache(maxsize=256)

@@ -145,7 +145,9 @@ def evaluate_at(
     Returns shape ``directions + (bands,)``; directions at or below the horizon give 0. A NaN or
     infinite direction, a vector whose length is not 1 (to 10⁻³) or a wavelength that is not a
     positive number raises ``ValueError``, naming it. One structure compiles at most three
-    programs, whatever the number of directions (:data:`EVAL_BLOCK`).
+    programs, whatever the number of directions (:data:`EVAL_BLOCK`). The values come back as
+    NumPy, computed by compiled programs: to differentiate, trace :func:`ctfit.brdf` (with
+    :func:`ctfit.geometry_from_angles_deg`), which ``jax.grad`` goes through in every parameter.
 
     >>> import numpy as np, ctfit
     >>> gold = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.4, 0.9])),

@@ -9,6 +9,7 @@ not exist in the pytree, so they are neither traced nor fitted.
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from collections.abc import Callable, Sequence
 from typing import Literal
 
@@ -83,7 +84,9 @@ class Structure:
     def __post_init__(self) -> None:
         if self.family == "plastic" and self.fresnel == "f0":
             object.__setattr__(self, "fresnel", "n")  # a plastic's index is a real n
-        if not isinstance(self.lobes, int) or not 0 <= self.lobes <= MAX_LOBES:
+        if isinstance(self.lobes, numbers.Integral) and not isinstance(self.lobes, (bool, np.bool_)):
+            object.__setattr__(self, "lobes", int(self.lobes))  # np.int64(2) is 2: one hash, one compiled program
+        if not isinstance(self.lobes, int) or isinstance(self.lobes, bool) or not 0 <= self.lobes <= MAX_LOBES:
             raise ValueError(f"lobes must be an integer in 0..{MAX_LOBES}, got {self.lobes!r}")
         for name, allowed in (
             ("distribution", DISTRIBUTIONS),
