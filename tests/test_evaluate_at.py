@@ -132,3 +132,22 @@ def test_a_material_that_does_not_fit_its_structure_or_a_bad_dtype_is_refused():
         ctfit.evaluate_at(GOLD, theta_i=30.0, theta_o=30.0, dtype=np.int32)
     with pytest.raises(TypeError, match=r"material must be a ctfit.Material, got str \(read a file with ctfit.load_material\(path\)\)"):
         ctfit.evaluate_at("gold.toml", theta_i=30.0, theta_o=30.0)
+
+
+def test_bad_arguments_are_named():
+    """Angles that do not broadcast named NumPy's "arg 0" and "arg 2"; ``simulate(noise="0.1")``
+    compared an int with a str; ``render_materials(material)`` said a Material is not iterable;
+    ``fit(max_steps=0)`` reported an infinite cost and ``starts=-1`` was taken. Each names its argument."""
+    with pytest.raises(ValueError, match=r"the angles must broadcast together \(NumPy's rules\), got shapes theta_i \(2,\), phi_i \(\), theta_o \(3,\)"):
+        ctfit.evaluate_at(GOLD, theta_i=[30.0, 40.0], theta_o=[30.0, 40.0, 50.0])
+    with pytest.raises(ValueError, match="l and v must broadcast together"):
+        ctfit.evaluate_at(GOLD, l=np.array([[0.0, 0.0, 1.0]] * 2), v=np.array([[0.0, 0.0, 1.0]] * 3))
+    with pytest.raises(ValueError, match="noise must be a finite number ≥ 0, got '0.1'"):
+        ctfit.simulate(GOLD, 10, noise="0.1")
+    with pytest.raises(TypeError, match="materials must be a sequence of ctfit.Material"):
+        ctfit.render_materials(GOLD, 16)
+    data = ctfit.simulate(GOLD, 50, seed=0)
+    for kw, words in ((dict(max_steps=0), "max_steps must be a whole number ≥ 1, got 0"), (dict(max_steps=1.5), "max_steps must be a whole number"),
+                      (dict(starts=-1), "starts must be a whole number ≥ 0")):
+        with pytest.raises(ValueError, match=words):
+            ctfit.fit(data, GOLD.structure, **kw)

@@ -65,7 +65,7 @@ from .quality import quality_from_residuals, quality_warning, zeros_hint
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds
 from .starts import default_start, m_points, seed_points
 from .status import FitStatus, fit_status
-from .validate import check_fittable, checked_start, fixed_names, nonfinite_reason
+from .validate import check_fittable, check_solve_options, checked_start, fixed_names, nonfinite_reason
 
 __all__ = ["fit", "fit_to_tolerance", "prefetch_fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "finish_light",
            "solve_prepared"]
@@ -250,6 +250,7 @@ def fit(
     (True, array([0.2]), array([0.4, 0.9]))
     """
     check_fit_arguments(data, structure)
+    check_solve_options(starts, max_steps)
     if structure is None:
         from .structure_selection import choose_structure
 

@@ -20,7 +20,7 @@ import numpy as np
 from .._model import PUBLIC_NAMES, Measurement, Params, Structure
 from .coordinates import free_names
 
-__all__ = ["check_fittable", "checked_start", "fixed_names", "n_free_parameters", "nonfinite_reason", "representable_range"]
+__all__ = ["check_fittable", "check_solve_options", "checked_start", "fixed_names", "n_free_parameters", "nonfinite_reason", "representable_range"]
 
 _HEADROOM = 1e4
 """Squares of values up to max/1e4 summed over 1e8 samples stay finite."""
@@ -64,6 +64,17 @@ def fixed_names(structure: Structure, fixed) -> tuple[str, ...]:
     if bad:
         raise ValueError(f"fixed names {bad}: this structure's parameters are {[PUBLIC_NAMES[n] for n in allowed]}")
     return names
+
+
+def check_solve_options(starts, max_steps) -> None:
+    """A ``ValueError`` naming ``starts`` (a whole number ≥ 0; 0: from the start alone) or
+    ``max_steps`` (a whole number ≥ 1) otherwise: ``max_steps=0`` reported an infinite cost,
+    ``starts=-1`` and 1.5 steps were taken as they came."""
+    whole = lambda v: isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+    if not whole(starts) or starts < 0:
+        raise ValueError(f"starts must be a whole number ≥ 0 (0: from the start alone), got {starts!r}")
+    if not whole(max_steps) or max_steps < 1:
+        raise ValueError(f"max_steps must be a whole number ≥ 1, got {max_steps!r}")
 
 
 def checked_start(structure: Structure, n_bands: int, start) -> Params | None:

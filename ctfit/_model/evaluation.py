@@ -168,12 +168,20 @@ def evaluate_at(
     params = jax.tree.map(lambda a: jnp.asarray(a, dtype=dt), params)
     pad: tuple[float, ...]
     if by_angles:
-        angles = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)))
+        given = [np.asarray(a, dtype=float) for a in (theta_i, phi_i, theta_o, phi_o)]
+        try:
+            angles = np.broadcast_arrays(*given)
+        except ValueError:
+            shapes = ", ".join(f"{name} {a.shape}" for name, a in zip(("theta_i", "phi_i", "theta_o", "phi_o"), given))
+            raise ValueError(f"the angles must broadcast together (NumPy's rules), got shapes {shapes}") from None
         for name, a in zip(("theta_i", "phi_i", "theta_o", "phi_o"), angles):
             _check_finite(name, a)
         shape, rows, run, pad = angles[0].shape, np.stack([a.reshape(-1) for a in angles], axis=1), _grid_values, _NORMAL_PAIR
     else:
-        lv = np.broadcast_arrays(np.asarray(l, dtype=float), np.asarray(v, dtype=float))
+        try:
+            lv = np.broadcast_arrays(np.asarray(l, dtype=float), np.asarray(v, dtype=float))
+        except ValueError:
+            raise ValueError(f"l and v must broadcast together, got shapes {np.asarray(l).shape} and {np.asarray(v).shape}") from None
         if lv[0].shape[-1:] != (3,):
             raise ValueError(f"l and v must be unit vectors of shape (..., 3), got shapes {np.shape(lv[0])} and {np.shape(lv[1])}")
         for name, a in zip("lv", lv):
@@ -274,8 +282,8 @@ def simulate(
     >>> print(f"{np.std(noisy.brdf / exact.brdf - 1):.2f}")
     0.05
     """
-    if not 0 <= noise < np.inf:
-        raise ValueError(f"noise must be a finite number ≥ 0, got {noise}")
+    if isinstance(noise, (bool, np.bool_)) or not isinstance(noise, (int, float, np.integer, np.floating)) or not 0 <= noise < np.inf:
+        raise ValueError(f"noise must be a finite number ≥ 0, got {noise!r}")
     for name, value in (("n_pairs", n_pairs), ("seed", seed)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise ValueError(f"{name} must be a whole number, got {value!r}")

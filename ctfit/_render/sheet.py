@@ -157,6 +157,8 @@ def render_materials(
     >>> render_materials([matte, mirror], 16, ["sphere", "vase"], ["matte", "mirror"], supersample=1).shape
     (30, 32, 3)
     """
+    if isinstance(materials, Material):
+        raise TypeError("materials must be a sequence of ctfit.Material (one tile each): [material] for one, or ctfit.render_material(material)")
     materials = list(materials)
     shapes = [shape] * len(materials) if isinstance(shape, str) else list(shape)
     if len(shapes) != len(materials):
