@@ -139,7 +139,8 @@ def test_a_group_of_several_calls_makes_its_program_first_on_members_all_skipped
     data = same_geometry([0.15, 0.2, 0.25, 0.3, 0.35], n_pairs=90, seed=3)
     got = ctfit.fit_batch(data, ST)
     assert events[0] == ("stored_program", "fit_shared", [False, False])
-    assert events[1:] == [("cached_call", "fit_shared", on) for on in ([True, True], [True, True], [True, False])]
+    # the calls run side by side, so their order is the threads' (a loaded machine started the third before the second)
+    assert sorted(events[1:]) == sorted(("cached_call", "fit_shared", on) for on in ([True, True], [True, True], [True, False]))
     assert_same_fit(got[4], ctfit.fit(data[4], ST))
     events.clear()
     patch_module(monkeypatch, shared_geometry, "SHARED_CALL", 8)
