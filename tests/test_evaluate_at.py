@@ -151,3 +151,13 @@ def test_bad_arguments_are_named():
                       (dict(starts=-1), "starts must be a whole number ≥ 0")):
         with pytest.raises(ValueError, match=words):
             ctfit.fit(data, GOLD.structure, **kw)
+
+
+def test_fit_batch_checks_its_solve_options_as_fit_does():
+    """``fit_batch`` and ``fit_texels`` take ``fit``'s options through one decorator: ``max_steps``
+    and ``starts`` are checked there, once for all three."""
+    data = ctfit.simulate(GOLD, 50, seed=0)
+    with pytest.raises(ValueError, match="max_steps must be a whole number ≥ 1, got 0"):
+        ctfit.fit_batch([data, data], GOLD.structure, max_steps=0)
+    with pytest.raises(ValueError, match="starts must be a whole number ≥ 0"):
+        ctfit.fit_batch([data], GOLD.structure, starts=-1)

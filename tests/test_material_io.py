@@ -697,8 +697,12 @@ def test_a_key_given_twice_in_a_json_material_is_refused(tmp_path):
         ctfit.load_material(path)
     nested = tmp_path / "nested.json"
     nested.write_text('{"s": 1, "lobes": [{"m": 0.2, "m": 0.3}], "wavelength_nm": [400], "F0": 0.5}')
-    with pytest.raises(ValueError, match="key 'm' given twice"):
+    with pytest.raises(ValueError, match=r"nested\.json:1:31: key 'm' given twice"):
         ctfit.load_material(nested)
+    lobes = tmp_path / "lobes.json"  # "m" in every lobe: which two share an object is not told, so no place is guessed
+    lobes.write_text('{"s": 1, "lobes": [{"m": 0.2, "weight": 0.5}, {"m": 0.3, "m": 0.4, "weight": 0.5}], "wavelength_nm": [400], "F0": 0.5}')
+    with pytest.raises(ValueError, match=r"lobes\.json: key 'm' given twice"):
+        ctfit.load_material(lobes)
 
 
 def test_saving_refuses_what_would_change_the_material():
@@ -709,7 +713,7 @@ def test_saving_refuses_what_would_change_the_material():
     made = lambda w, m=(0.1, 0.3): ctfit.Material(st, ctfit.Params(m=np.array(m), w=np.array(w), f0=np.array([0.5])), wavelength_nm=np.array([550.0]))
     with pytest.raises(ctfit.MaterialError, match=r"lobe weights \[0.5, 0.3\] sum to 0.8, not 1"):
         ctfit.material_to_dict(made([0.5, 0.3]))
-    with pytest.raises(ctfit.MaterialError, match="1 values of m and 1 weights for a structure of 2 lobes"):
+    with pytest.raises(ctfit.MaterialError, match="m has 1 values; its structure has 2 lobes"):
         ctfit.material_to_dict(made([1.0], m=(0.2,)))
     w32 = np.array([0.7, 0.3], dtype=np.float32).astype(float)  # sums to 1 within float32's rounding
     assert math.fsum(ctfit.material_to_dict(made(w32))["lobes"][i]["weight"] for i in range(2)) == pytest.approx(1, abs=1e-12)

@@ -472,8 +472,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     not_determined = [names[i] for i in np.flatnonzero(loose)]
     why = f"{n} samples for {p} free parameters leave no residual to estimate the noise from (a sigma column gives them)" if no_noise else NO_STDERR_SINGULAR
     notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined, why)
-    hint = zeros_hint(data.brdf)
-    worst = quality_warning(quality, hint)
+    worst = quality_warning(quality, data.brdf)
     if status.converged and worst:  # "even at the best fit": only a fit that got there says so
         notes.append(worst)
     if not stationary:
@@ -483,7 +482,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     if explains_nothing:
         notes.append(FitWarning(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
                                 "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another "
-                                f"loss={hint}", "explains_nothing"))
+                                f"loss={zeros_hint(data.brdf)}", "explains_nothing"))
     if not bool(np.asarray(ok)[best]):
         notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another "
                                 "start, "

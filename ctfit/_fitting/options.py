@@ -12,12 +12,15 @@ import functools
 import inspect
 from collections.abc import Callable
 
+from .validate import check_solve_options
+
 __all__ = ["takes_fit_options"]
 
 
 def takes_fit_options(fit: Callable) -> Callable:
     """Decorator: ``fn(..., **options)`` accepts ``fit``'s keyword-only parameters, and gets all of
-    them in ``options`` (defaults filled in); any other keyword is a ``TypeError``, as for ``fit``."""
+    them in ``options`` (defaults filled in, ``starts`` and ``max_steps`` checked as ``fit`` checks
+    them); any other keyword is a ``TypeError``, as for ``fit``."""
     shared = [p for p in inspect.signature(fit).parameters.values() if p.kind is p.KEYWORD_ONLY]
 
     def decorate(fn: Callable) -> Callable:
@@ -30,6 +33,7 @@ def takes_fit_options(fit: Callable) -> Callable:
             bound.apply_defaults()
             arguments = dict(bound.arguments)
             options = {p.name: arguments.pop(p.name) for p in shared}
+            check_solve_options(options["starts"], options["max_steps"])  # as fit checks them
             return fn(**arguments, **options)
 
         wrapper.__signature__ = signature  # type: ignore[attr-defined]  # what inspect.signature reads

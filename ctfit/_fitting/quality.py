@@ -154,12 +154,14 @@ def zeros_hint(brdf: ArrayLike) -> str:
     return f"; {zeros:.0%} of the samples are exactly 0: if those are values that were not measured, leave them out of the file (each counts as a miss)"
 
 
-def quality_warning(quality: dict, hint: str = "") -> FitWarning | None:
+def quality_warning(quality: dict, brdf: ArrayLike | None = None) -> FitWarning | None:
     """One line when the median relative error is above :data:`MODEL_LIMIT` or its 90th percentile
-    above :data:`TAIL_LIMIT`, naming the worst region (and ``hint``, :func:`zeros_hint`'s)."""
+    above :data:`TAIL_LIMIT`, naming the worst region (and, given the data's ``brdf``,
+    :func:`zeros_hint`'s share of zeros)."""
     median, tail = quality.get("median_relative_error"), quality.get("p90_relative_error")
     if median is None or tail is None or (median <= MODEL_LIMIT and tail <= TAIL_LIMIT):
         return None
+    hint = "" if brdf is None else zeros_hint(brdf)
     names = {"peak": "near the specular peak", "off_peak": "off the peak", "grazing": "at grazing angles"}
     regions = [(r["median_relative_error"], k) for k, r in quality["regions"].items() if r["median_relative_error"] is not None]
     worst = max(regions)[1] if regions else None

@@ -548,6 +548,10 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     ('n', [0.04, 0.04, 0.04], {'converged': True})
     """
     _check_finite(material)
+    try:
+        material.check_shapes()  # each parameter's length that of its structure and bands: saved, it would be read as another material
+    except ValueError as err:
+        raise MaterialError(str(err)) from None
     st, p = material.structure, material.params
     out: dict = {"name": material.name}
     s = float(p.s) if st.has_s else (1.0 if st.has_specular else 0.0)
@@ -555,8 +559,6 @@ def material_to_dict(material: Material, extra: dict | None = None) -> dict:
     specular, diffuse = st.has_specular and s > 0, st.diffuse if s < 1 else None
     if specular:
         m, w = float_list(p.m), float_list(p.w)
-        if len(m) != st.lobes or len(w) != st.lobes:
-            raise MaterialError(f"material {material.name!r}: {len(m)} values of m and {len(w)} weights for a structure of {st.lobes} lobes")
         total = math.fsum(w)
         if abs(total - 1) > _WEIGHT_ROUNDING:  # renormalising would change the BRDF: the format asks Σw = 1
             raise MaterialError(f"material {material.name!r}: lobe weights {w} sum to {total:.9g}, not 1")

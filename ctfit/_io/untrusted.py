@@ -206,10 +206,11 @@ def _unique_keys(pairs: list) -> dict:
 
 
 def _second_place(text: str, key: str) -> str:
-    """":line:column" of the second ``"key":`` in ``text`` (the repeat, where the object is the first to
-    give the key twice), or "" where it cannot be told (an escaped key)."""
+    """":line:column" of the repeated ``"key":`` where ``text`` gives that key exactly twice (then the
+    second is the repeat), else "": with more, which pair shares an object is not told here (the
+    key of every lobe), and an escaped key is not found."""
     found = list(re.finditer(re.escape(json.dumps(key)) + r"\s*:", text))
-    if len(found) < 2:
+    if len(found) != 2:
         return ""
     at = found[1].start()
     line = text.count("\n", 0, at) + 1
