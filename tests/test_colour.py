@@ -490,3 +490,30 @@ def test_importing_colour_science_leaves_numpy_printing_alone():
             "from ctfit._colour import colour_science; colour_science()\n"
             "print(np.get_printoptions() == before)")
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "True"
+
+
+def _infrared(wl):
+    return ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.linspace(0.3, 0.9, len(wl))),
+                          wavelength_nm=np.asarray(wl, float), name="ir")
+
+
+@pytest.mark.parametrize("wl, held", [([900.0, 1200.0, 1500.0], "its 900 nm value held flat"), ([250.0, 300.0], "its 300 nm value held flat"),
+                                      ([300.0, 900.0], "interpolated between its 300 and 900 nm values")])
+def test_a_material_with_no_visible_band_gets_its_colour_with_a_warning(wl, held):
+    """docs/formats.md holds a material at its end values: with no band in 380–780 nm, the whole
+    colour is held (or interpolated across the visible), and the colour, the render and the RGB
+    export say so (they were silent)."""
+    from ctfit._export.rgb_bands import band_to_rgb
+    from ctfit._render.scene import render_bands
+
+    for make in (lambda m: colour_report(m, 0.0), band_to_rgb, render_bands):
+        with pytest.warns(ctfit.SpectralResamplingWarning, match=f"material 'ir': no band in the visible range .*: its colour is {held}"):
+            make(_infrared(wl))
+
+
+@pytest.mark.parametrize("wl", [[700.0, 900.0, 1500.0], [1000.0]])
+def test_a_material_with_a_visible_band_or_one_band_is_silent(wl):
+    """One visible band among infrared ones gives a colour from data; one band is grey wherever it lies."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        colour_report(_infrared(wl), 0.0)

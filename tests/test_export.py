@@ -497,3 +497,24 @@ def test_gltf_says_when_a_metals_own_diffuse_colour_is_lost():
     line = ctfit.export_material(mat, to="gltf").line()
     assert "glTF's one base colour is F0: the diffuse part F0/π, not R_d" in line
     assert "R_d" not in ctfit.export_material(metal(), to="gltf").line()  # F0/π: glTF's own
+
+
+@pytest.mark.parametrize("to", ["mitsuba-dict", "gltf", "merl"])
+def test_channels_b_g_r_export_as_the_same_material_in_r_g_b(to):
+    """Channels listed B, G, R are picked by name, as ``ctfit color`` and the renderer pick them:
+    the export is the R, G, B material's, byte for byte (it was refused)."""
+    rgb = metal()
+    order = [2, 1, 0]
+    bgr = dataclasses.replace(rgb, params=dataclasses.replace(rgb.params, f0=rgb.params.f0[order]), channels=("B", "G", "R"))
+    ours, theirs = ctfit.export_material(bgr, to=to), ctfit.export_material(rgb, to=to)
+    assert ours.line() == theirs.line()
+    if to == "merl":
+        np.testing.assert_array_equal(ours.content, theirs.content)
+    else:
+        assert ours.content == theirs.content
+
+
+def test_channels_that_are_not_r_g_b_are_still_refused():
+    grey = ctfit.Material(ctfit.Structure(), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.3, 0.6, 0.9])), channels=("X", "Y", "Z"))
+    with pytest.raises(ValueError, match=r"channels \['X', 'Y', 'Z'\]"):
+        ctfit.export_material(grey, to="gltf")

@@ -33,7 +33,7 @@ from .._model import Material, ambient_reflectance, fresnel
 from .chromaticity import XYZ_to_xy, dominant_wavelength, excitation_purity
 from .gamut import in_gamut
 from .rgb import RGB_to_XYZ, RGBConversion, XYZ_to_display_RGB, XYZ_to_RGB, encode_RGB, rgb_conversion
-from .tristimulus import DEFAULT_OBSERVER, colour_science, observer_cmfs, spectral_weights, spectrum_to_XYZ
+from .tristimulus import DEFAULT_OBSERVER, colour_science, observer_cmfs, spectral_weights, spectrum_to_XYZ, warn_outside_visible
 
 __all__ = ["colour_report", "reflectance_spectrum"]
 
@@ -120,6 +120,7 @@ def _reflection(
         quantity, r = reflectance_spectrum(material, angle_deg)
         XYZ = RGB_to_XYZ(np.asarray(r, dtype=float), conv)
         return _Reflection(quantity, np.asarray(XYZ, dtype=float), float(np.finfo(XYZ.dtype).eps), conv.white_XYZ, f"{colourspace} white", conv)
+    warn_outside_visible(material)
     grid = np.asarray(observer_cmfs(observer).wavelengths, dtype=float)
     quantity, r = reflectance_spectrum(material, angle_deg, grid)
     weights = spectral_weights(grid, illuminant, observer)

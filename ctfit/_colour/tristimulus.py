@@ -59,8 +59,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._model import float_dtype
 
-__all__ = ["DEFAULT_OBSERVER", "SpectralResamplingWarning", "SpectralWeights", "colour_science", "observer_cmfs", "spectral_weights", "spectrum_to_XYZ",
-           "table_entry"]
+__all__ = ["DEFAULT_OBSERVER", "SpectralResamplingWarning", "SpectralWeights", "VISIBLE_NM", "colour_science", "observer_cmfs", "spectral_weights",
+           "spectrum_to_XYZ", "table_entry", "warn_outside_visible"]
 
 
 DEFAULT_OBSERVER = "CIE 1931 2 Degree Standard Observer"
@@ -76,6 +76,41 @@ class SpectralResamplingWarning(UserWarning):
     >>> caught[0].category.__name__
     'SpectralResamplingWarning'
     """
+
+
+VISIBLE_NM = (380.0, 780.0)
+"""The visible range (nm) a spectral material needs one band in for its colour to be measured
+(:func:`warn_outside_visible`); the renderer's default bands span it."""
+
+
+def warn_outside_visible(material: Any) -> None:
+    """A :class:`SpectralResamplingWarning` when none of a spectral material's bands lies in
+    :data:`VISIBLE_NM`: its colour is then that of its values held from the nearest band across
+    the visible (``docs/formats.md``'s rule), not a colour the data holds. RGB materials and
+    materials of one band (grey wherever it lies) say nothing.
+
+    >>> import warnings, numpy as np, ctfit
+    >>> infrared = ctfit.Material(ctfit.Structure(lobes=0, diffuse="spectrum"), ctfit.Params(rd=np.array([0.2, 0.3])),
+    ...                           wavelength_nm=np.array([900.0, 1500.0]), name="ir")
+    >>> with warnings.catch_warnings(record=True) as caught:
+    ...     warnings.simplefilter("always")
+    ...     warn_outside_visible(infrared)
+    >>> print(caught[0].message)
+    material 'ir': no band in the visible range (380–780 nm; its bands 900–1500 nm): its colour is its 900 nm value held flat across the visible
+    """
+    wl = getattr(material, "wavelength_nm", None)
+    if material.is_rgb or wl is None or np.size(wl) < 2:
+        return
+    wl = np.asarray(wl, dtype=float)
+    lo, hi = VISIBLE_NM
+    if np.any((wl >= lo) & (wl <= hi)):
+        return
+    if wl.max() < lo or wl.min() > hi:
+        held = f"its {(wl.max() if wl.max() < lo else wl.min()):g} nm value held flat across the visible"
+    else:
+        held = f"interpolated between its {wl[wl < lo].max():g} and {wl[wl > hi].min():g} nm values across the visible"
+    warnings.warn(f"material {material.name!r}: no band in the visible range ({lo:g}–{hi:g} nm; its bands {wl.min():g}–{wl.max():g} nm): its colour is {held}",
+                  SpectralResamplingWarning, stacklevel=3)
 
 
 def colour_science() -> Any:

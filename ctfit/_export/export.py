@@ -14,7 +14,7 @@ from .error_grid import ERROR_GRID, error_grid_angles, relative_difference
 from .gltf import gltf_brdf, gltf_material
 from .merl_export import merl_lookup, merl_model_table
 from .mitsuba import mitsuba_bsdf, mitsuba_target, mitsuba_values, mitsuba_xml, roughplastic_bsdf
-from .rgb_bands import GAMUT_NOTE, band_to_rgb, rgb_material
+from .rgb_bands import GAMUT_NOTE, band_to_rgb, in_rgb_order, rgb_material
 
 __all__ = ["EXPORT_FORMATS", "MITSUBA_COLOURS", "ExportResult", "export_material"]
 
@@ -162,6 +162,7 @@ def export_material(
         raise ValueError(f"mitsuba_plastic must be 'exact' or 'roughplastic', got {mitsuba_plastic!r}")
     if mitsuba_colour not in MITSUBA_COLOURS:
         raise ValueError(f"mitsuba_colour must be one of {', '.join(MITSUBA_COLOURS)}, got {mitsuba_colour!r}")
+    material = in_rgb_order(material.check_shapes())  # channels B, G, R are written as R, G, B
     result = _export_mitsuba(material, to, mitsuba_plastic, mitsuba_colour) if to.startswith("mitsuba") else _export_rgb(material, to)
     if path is not None:
         result.write(path)

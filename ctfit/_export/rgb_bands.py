@@ -6,16 +6,35 @@ import dataclasses
 
 import numpy as np
 
-from .._colour import DEFAULT_OBSERVER, XYZ_to_RGB, desaturate_to_gamut, observer_cmfs, rgb_conversion, spectral_weights, spectrum_to_XYZ
+from .._colour import DEFAULT_OBSERVER, XYZ_to_RGB, desaturate_to_gamut, observer_cmfs, rgb_conversion, spectral_weights, spectrum_to_XYZ, warn_outside_visible
 from .._model import Material, normal_reflectance
 
-__all__ = ["band_to_rgb", "into_gamut", "rgb_material", "F0_MAX", "GAMUT_NOTE"]
+__all__ = ["band_to_rgb", "in_rgb_order", "into_gamut", "rgb_material", "F0_MAX", "GAMUT_NOTE"]
 
 F0_MAX = 1 - 1e-6
 """The largest F0 an RGB target is given: F0 = 1 has an infinite effective index."""
 
 GAMUT_NOTE = "colours outside sRGB's gamut desaturated into it"
 """What an export says where :func:`into_gamut` changed a colour."""
+
+
+def in_rgb_order(material: Material) -> Material:
+    """The material with its channels R, G, B in that order (picked by name, as ``ctfit color``
+    and the renderer pick them), which every RGB target writes; any other material as it is.
+
+    >>> import numpy as np, ctfit
+    >>> from ctfit._export.rgb_bands import in_rgb_order
+    >>> bgr = ctfit.Material(ctfit.Structure(), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.3, 0.6, 0.9])), channels=("B", "G", "R"))
+    >>> rgb = in_rgb_order(bgr)
+    >>> rgb.channels, rgb.params.f0.tolist()
+    (('R', 'G', 'B'), [0.9, 0.6, 0.3])
+    """
+    if not material.is_rgb or tuple(material.channels) == _RGB or sorted(material.channels) != sorted(_RGB):
+        return material
+    return dataclasses.replace(material, params=material.params_at(channels=_RGB), channels=_RGB)
+
+
+_RGB = ("R", "G", "B")
 
 
 def band_to_rgb(material: Material) -> np.ndarray:
@@ -45,6 +64,7 @@ def band_to_rgb(material: Material) -> np.ndarray:
         return np.eye(3)
     if material.band_unknown or len(material.wavelength_nm) == 1:
         return np.ones((1, 3))
+    warn_outside_visible(material)
     wl = np.asarray(material.wavelength_nm, float)
     grid = np.asarray(observer_cmfs(DEFAULT_OBSERVER).wavelengths, float)
     weights = spectral_weights(grid)

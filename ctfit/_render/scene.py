@@ -34,7 +34,7 @@ import numpy as np
 import numpy.typing as npt
 from jaxtyping import Array, ArrayLike, Float
 
-from .._colour import colour_science, rgb_conversion, spectral_weights
+from .._colour import colour_science, rgb_conversion, spectral_weights, warn_outside_visible
 from .._io import DataWarning
 from .._model import Light, Material, Params, Structure, by_blocks, reflected_intensity
 from .surfaces import VIEW_DIRECTION, Surface, surface_normals
@@ -109,6 +109,7 @@ def render_bands(
         lo, hi = SPECTRAL_RANGE_NM
         wavelength_nm = np.arange(lo, hi + 1e-9, wavelength_step)
     wl = tuple(float(w) for w in np.asarray(wavelength_nm, dtype=float))
+    warn_outside_visible(material)
     spectrum, to_rgb = _spectral_setup(wl)
     params = material.params if material.wavelength_nm is None else material.params_at(wavelength_nm=np.asarray(wl))
     return params, spectrum, to_rgb

@@ -40,7 +40,7 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
     when there is a specular part (F(0) from the interpolated F0, n or n and k, as the report
     computes it), π R_d(λ) otherwise.
     """
-    from .._colour import DEFAULT_OBSERVER, XYZ_to_display_RGB, XYZ_to_Lab, observer_cmfs, rgb_conversion, spectral_weights
+    from .._colour import DEFAULT_OBSERVER, XYZ_to_display_RGB, XYZ_to_Lab, observer_cmfs, rgb_conversion, spectral_weights, warn_outside_visible
 
     if material.band_unknown:
         raise ValueError("the band's wavelength is unknown (single-band data), so there is no colour")
@@ -58,6 +58,7 @@ def draw_colours(material: Material, chain: dict, *, illuminant="D65", max_draws
         to_bands = lambda a: a[:, order]
         n_out = 3
     else:
+        warn_outside_visible(material)
         grid = np.asarray(observer_cmfs(DEFAULT_OBSERVER).wavelengths, dtype=float)
         A = _interp_matrix(material.wavelength_nm, grid)
         to_bands = lambda a: a @ A.T
