@@ -83,3 +83,25 @@ def test_texels_that_cannot_be_fitted_are_recorded_and_the_rest_fitted(texels):
     np.testing.assert_allclose(fits.params.m[~skipped], alone.params.m, rtol=1e-8)
     with pytest.raises(ValueError, match="loss 'sigma'"):
         ctfit.fit_texels(geometry, values, ST, loss="sigma")
+
+
+def test_the_callers_values_are_never_written_and_a_read_only_map_is_fitted(texels, tmp_path):
+    """A texel that cannot be fitted is solved as a copy of a good one in ctfit's own block: the
+    caller's array, and through a writable memory map their .npy file, keep their values (they
+    got the good texel's); a read-only map (``mmap_mode="r"``, the docs' example) is fitted (it
+    raised "assignment destination is read-only")."""
+    geometry, values, _ = texels
+    bad = values[:6].copy()
+    bad[1, 0] = np.nan
+    np.save(tmp_path / "texels.npy", bad)
+    writable = np.load(tmp_path / "texels.npy", mmap_mode="r+")
+    ctfit.fit_texels(geometry, writable, ST, chunk=4)
+    writable.flush()
+    del writable
+    np.testing.assert_array_equal(np.load(tmp_path / "texels.npy"), bad)
+    in_memory = bad.copy()
+    ctfit.fit_texels(geometry, in_memory, ST, chunk=4)
+    np.testing.assert_array_equal(in_memory, bad)
+    np.save(tmp_path / "good.npy", values[:6])
+    fits = ctfit.fit_texels(geometry, np.load(tmp_path / "good.npy", mmap_mode="r"), ST, chunk=4)
+    assert fits.converged.all()

@@ -164,7 +164,7 @@ def fit_texels(
     core_options = prep.options(solver, max_steps)
     pending, outs = None, []  # one chunk dispatched while the previous one's results are fetched
     for a in range(0, n_texels, chunk):
-        block = np.asarray(values[a: a + chunk], dtype=float)
+        block = np.array(values[a: a + chunk], dtype=float)  # a copy: the caller's array (a memory map of their file) is never written
         block[status[a: a + chunk] != 0] = first  # a texel that cannot be fitted: fitted as a copy of a good one, then blanked
         active = np.arange(chunk) < len(block)
         block = np.concatenate([block, np.broadcast_to(block[-1:], (chunk - len(block), block.shape[1]))])
