@@ -1,6 +1,7 @@
 """``ctfit fit`` over several files: per-file errors, summary, exit status, distinct and kept results,
 --param-out, option checks before any work, progress bars, warnings and 'wrote' lines."""
 
+import importlib
 import json
 import re
 import threading
@@ -155,7 +156,8 @@ def test_a_result_that_cannot_be_written_fails_that_file_alone(tmp_path, monkeyp
             raise OSError(28, "No space left on device", str(path))
         return write_atomically(path, *args, **kwargs)
 
-    monkeypatch.setattr(io, "atomic_write", failing)  # (where every result file is written)
+    monkeypatch.setattr(io, "atomic_write", failing)  # (where every result file is written: a folder's through write_own_result)
+    monkeypatch.setattr(importlib.import_module("ctfit._io.output_paths"), "atomic_write", failing)
     r = run("fit", data, "--no-diffuse", "--lobes", "1", "-o", out)
     assert r.exit_code == 2, r.output
     assert [line.split()[0] for line in summary(r.stderr)] == ["converged", "failed", "converged"]
@@ -410,3 +412,29 @@ def test_a_file_whose_name_is_not_utf8_is_fitted_and_rerun(tmp_path):
     doc = json.loads((out / os.fsdecode(b"caf\xe9.fit.json")).read_text(encoding="utf-8"))
     assert doc["data"].endswith("caf\ufffd.csv") and doc["name"].endswith("caf\ufffd.csv")
     assert doc["fit"]["converged"] is True
+
+
+def test_the_summary_names_the_file_a_fit_that_did_not_converge_went_to(tmp_path):
+    data = tmp_path / "data"
+    write(data, "a.csv", seed=1)
+    write(data, "b.csv", seed=2)
+    out = tmp_path / "out"
+    assert run("fit", data, "--lobes", 1, "-q", "-o", out).exit_code == 0
+    r = run("fit", data, "--lobes", 1, "-q", "-o", out, "--max-steps", 1)
+    assert r.exit_code == 1, r.output
+    rows = {Path(row["data"]).name: row for row in json.loads((out / "summary.json").read_text())["results"]}
+    assert rows["a.csv"]["outcome"] == "not converged" and rows["a.csv"]["result"] == str(out / "a.fit.not-converged.json")
+    assert (out / "a.fit.not-converged.json").is_file() and json.loads((out / "a.fit.json").read_text())["fit"]["converged"]
+
+
+def test_a_fifo_in_a_folder_is_one_error_and_the_summary_is_written(tmp_path):
+    import os
+
+    data = tmp_path / "data"
+    write(data, "a.csv", seed=1)
+    os.mkfifo(data / "p.csv")
+    out = tmp_path / "out"
+    r = run("fit", data, "--lobes", 1, "-q", "-o", out)
+    assert r.exit_code == 2 and r.output.count("p.csv: not a regular file") == 2, r.output  # its error line and its summary row
+    rows = {Path(row["data"]).name: row for row in json.loads((out / "summary.json").read_text())["results"]}
+    assert rows["p.csv"]["outcome"] == "failed" and rows["p.csv"]["input_sha256"] is None and rows["a.csv"]["outcome"] == "converged"

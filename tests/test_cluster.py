@@ -201,3 +201,17 @@ def test_a_scheduler_nobody_runs_is_given_up_after_the_timeout(tmp_path, monkeyp
     with pytest.raises(OSError, match=f"127.0.0.1:{port}"):
         with cluster.dask_client(scheduler=str(tmp_path / "s.json")):
             pass
+
+
+def test_a_stored_result_is_kept_only_if_it_loads_as_a_material(tmp_path):
+    """A result of the same input and options edited since (s = 2) is fitted again, not counted
+    as "converged (kept)" (``ctfit color`` then refused it)."""
+    from ctfit._cli.fit_cluster import _kept_result
+
+    doc = {"s": 1.0, "lobes": [{"m": 0.2}], "wavelength_nm": [450.0], "F0": [0.5], "data": "a.csv", "input_sha256": "ab" * 32,
+           "fit_options": {"lobes": "1"}, "fit": {"converged": True}}
+    target = tmp_path / "a.fit.json"
+    target.write_text(json.dumps(doc))
+    assert _kept_result(target, "ab" * 32, {"lobes": "1"}) == "converged"
+    target.write_text(json.dumps(dict(doc, s=2.0)))
+    assert _kept_result(target, "ab" * 32, {"lobes": "1"}) is None

@@ -691,3 +691,46 @@ def test_a_folder_run_replaces_only_its_own_results(tmp_path, monkeypatch):
     r = run("fit", other, *args)
     assert r.exit_code == 2 and "holds the fit of another input" in r.output and str(first / "a.csv") in r.output, r.output
     assert (out / "a.fit.json").read_bytes() == before
+
+
+def test_a_result_of_a_file_of_the_same_name_in_another_folder_is_kept(tmp_path, monkeypatch):
+    """A run started inside its data folder names its input ``a.csv``; another folder's ``a.csv``
+    fitted into the same results folder is another input (its content differs), not a rerun: it
+    was written over the first one's fit."""
+    first, other, out = tmp_path / "db1", tmp_path / "db2", tmp_path / "out"
+    for folder, seed in ((first, 1), (other, 2)):
+        folder.mkdir()
+        assert run("simulate", MATERIAL, "-o", folder / "a.csv", "--samples", 40, "--wavelengths", "450,650", "--seed", seed).exit_code == 0
+    args = ("--lobes", 1, "--no-diffuse", "-q")
+    monkeypatch.chdir(first)
+    assert run("fit", "a.csv", *args, "-o", f"{out}/").exit_code == 0
+    before = (out / "a.fit.json").read_bytes()
+    assert json.loads(before)["data"] == "a.csv" and len(json.loads(before)["input_sha256"]) == 64
+    monkeypatch.chdir(tmp_path)
+    r = run("fit", other / "a.csv", *args, "-o", f"{out}/")
+    assert r.exit_code == 2 and "holds the fit of another input, 'a.csv'" in r.output, r.output
+    assert (out / "a.fit.json").read_bytes() == before
+    assert run("fit", first / "a.csv", *args, "-o", f"{out}/").exit_code == 0  # the same file from elsewhere: its own result, replaced
+
+
+def test_a_result_written_meanwhile_by_another_run_is_kept(tmp_path, monkeypatch):
+    """Two runs into one folder at once: the check before the run saw no file, but by the time of
+    the write another run's fit of another input is there; it is kept and this file fails (both
+    printed 'wrote' and one fit was lost)."""
+    import ctfit._cli.fit_command as fit_command
+
+    data = tmp_path / "a.csv"
+    assert run("simulate", MATERIAL, "-o", data, "--samples", 40, "--wavelengths", "450,650").exit_code == 0
+    out = tmp_path / "out"
+    theirs = json.dumps({"data": "/elsewhere/a.csv", "fit": {"converged": True}, "s": 1.0}) + "\n"
+    report = fit_command._report_fit
+
+    def meanwhile(res, path, o, target, own=False):
+        Path(target).write_text(theirs)  # the other run's rename lands between the plan and this write
+        return report(res, path, o, target, own=own)
+
+    monkeypatch.setattr(fit_command, "_report_fit", meanwhile)
+    r = run("fit", data, "--lobes", 1, "--no-diffuse", "-q", "-o", f"{out}/")
+    assert r.exit_code == 2 and "holds the fit of another input, '/elsewhere/a.csv'" in r.output, r.output
+    assert (out / "a.fit.json").read_text() == theirs
+    assert not [p for p in out.iterdir() if p.name.startswith(".ctfit-")]  # no temporary left

@@ -199,6 +199,9 @@ def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path
     np.testing.assert_array_equal(again.chain_u, ref.chain_u)
     with pytest.raises(ValueError, match="other data"):
         sample(truth, data.replace(brdf=data.brdf * 1.01), steps=80, backend=path, resume=True, colour=False)
+    # Another seed is refused: the chain goes on from its own random state, and would be reported with a seed it never had.
+    with pytest.raises(ValueError, match=r"started with seed=4, this one asks for seed=5; pass seed=4"):
+        sample(truth, data, steps=80, seed=5, backend=path, resume=True, colour=False)
 
 
 def _stored_steps(path) -> int:

@@ -131,13 +131,18 @@ def _fit_options_record(o) -> dict:
 
 
 def _kept_result(target, sha: str, options: dict) -> str | None:
-    """'converged' or 'not converged' when ``target`` holds a fit of the same input and options, else None."""
+    """'converged' or 'not converged' when ``target`` holds a fit of the same input and options
+    that loads as a material, else None (fitted again: a result edited since, e.g. s = 2, is not kept)."""
     if target is None or not Path(target).is_file():
         return None
-    from .._io import read_json_or_none
+    from .._io import material_from_dict, read_json_or_none
 
     doc = read_json_or_none(target)  # nesting, huge numbers: not a result to keep
     fit = doc.get("fit") if isinstance(doc, dict) else None
     if not isinstance(fit, dict) or doc.get("input_sha256") != sha or doc.get("fit_options") != options:
+        return None
+    try:
+        material_from_dict(doc)
+    except (ValueError, KeyError, TypeError):
         return None
     return "converged" if fit.get("converged") is True else "not converged"

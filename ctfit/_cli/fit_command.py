@@ -179,19 +179,18 @@ def _paths(o):
 
 def write_summary(target: Path, files: list[Path], outcomes: list[tuple[str, str]], plan: dict, hashes: dict) -> None:
     """``summary.json``: per file its outcome, result file, input hash and (failed) the reason."""
-    from .._fitting import input_sha256
-    from .._io import atomic_write
+    from .._io import atomic_write, input_sha256
 
     def sha(path):
         try:
             return hashes[path] if path in hashes else input_sha256(path)
-        except OSError:
+        except (OSError, ValueError):  # unreadable now, or not a file to read (a FIFO, /dev/zero): no hash
             return None
 
     rows = []
     for path, (outcome, what) in zip(files, outcomes):
         rows.append(dict(data=str(path), outcome=outcome, kept=what.endswith(KEPT),
-                         result=None if outcome == "failed" else str(plan[path].json), input_sha256=sha(path),
+                         result=None if outcome == "failed" else str(getattr(plan[path], "written", plan[path].json)), input_sha256=sha(path),
                          reason=what if outcome == "failed" else None))
     count = {k: sum(r["outcome"] == k for r in rows) for k in ("converged", "not converged", "failed")}
     atomic_write(target, [json.dumps(dict(files=len(rows), **count, results=rows), indent=2) + "\n"])
@@ -312,7 +311,8 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
         for target in plot.values():
             check_rerun_plot(target)
     names = result_targets(files, Path(), "") if many else {files[0]: Path(files[0].stem)}
-    plan = {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name) for p in files}
+    own = o.output is not None and o.folders["output"]  # results in a folder: each written over nothing or its own earlier result only
+    plan = {p: SimpleNamespace(json=json_[p], plot=plot[p], backend=backend[p], name=names[p].name, own=own) for p in files}
     for t in plan.values():
         check_distinct([("-o", t.json), ("--plot", t.plot), ("--backend", t.backend)])
         if t.json is not None and os.path.lexists(unconverged_name(t.json)):
@@ -370,7 +370,7 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool, ahead=None, ha
                     if isinstance(got, Exception):
                         raise got
                     meas, res = got
-                    outcome = report_file(path, meas, res, o, plan[path], show)
+                    outcome = report_file(path, meas, res, o, plan[path], show, sha=None if hashes is None else hashes.get(path))
                 outcomes.append((outcome, str(path)))
             except (UserError, ValueError, OSError, KeyError) as e:
                 if len(files) == 1:
@@ -467,7 +467,7 @@ def _hash_into(hashes: dict | None, paths: list[Path]) -> None:
     for path in paths:
         try:
             hashes[path] = input_sha256(path)
-        except OSError:
+        except (OSError, ValueError):
             pass
 
 
@@ -476,7 +476,7 @@ def _fit_file(path: Path, o, base, t: SimpleNamespace, show: bool, ahead=None, h
     write one file's results; its outcome (:func:`report_file`). ``hashes``: :func:`_hash_into`."""
     meas = read_data(path, o.param_out, ahead)
     _hash_into(hashes, [path])
-    return report_file(path, meas, _fit_measurement(meas, o, base, show), o, t, show)
+    return report_file(path, meas, _fit_measurement(meas, o, base, show), o, t, show, sha=None if hashes is None else hashes.get(path))
 
 
 def _read_window(files: list[Path], o, base) -> tuple[list, dict, tuple]:
@@ -516,20 +516,25 @@ def _fit_window(ready: list, failed: dict, fixed: tuple, o, base) -> dict:
     return done
 
 
-def report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool) -> str:
+def report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool, sha: str | None = None) -> str:
     """Print and write one file's results; its outcome: "converged", "not converged", or with
-    --sample ``UNUSABLE`` when the fit converged but its posterior is not usable."""
+    --sample ``UNUSABLE`` when the fit converged but its posterior is not usable. ``sha``: the
+    input's SHA-256 as it was read, written into the result (a rerun from another folder knows
+    its own results by it)."""
     res.material.meta["data"] = str(path)
+    if sha is not None:
+        res.material.meta["input_sha256"] = sha
     target, note = t.json, None
     if target is not None and not res.converged:
         from .._io import unconverged_target
 
         target, note = unconverged_target(target)
+    t.written = target  # the summary names the file written (a fit that did not converge may go beside a converged one)
     usable = True
     if o.sample_:
         usable = _sample_and_report(res, meas, path, o, t, target)
     else:
-        _report_fit(res, path, o, target)
+        _report_fit(res, path, o, target, own=t.own)
     echo_wrote(target, note)
     if t.plot is not None:
         from .._fitting import plot_fit
@@ -570,14 +575,14 @@ def fit_kwargs(o) -> dict:
     return dict(loss=o.loss, solver=o.solver, dtype=jnp.float32 if o.float32 else jnp.float64, starts=o.starts, max_steps=o.max_steps)
 
 
-def _report_fit(res, path: Path, o, target) -> None:
+def _report_fit(res, path: Path, o, target, own: bool = False) -> None:
     """The table (or JSON) on stdout; the fit-result JSON written to ``target``. The two JSON
     documents are one (:func:`~ctfit._fitting.fit_result_to_dict`), made and encoded once: the
     file's text is what ``--json`` prints where it holds only ASCII characters (``json.dumps``
     escapes the others on stdout). ``json.dumps`` with an indent runs Python's own encoder, so
     encoding twice cost a database a few milliseconds a file (256 files: 0.92× the time once)."""
     from .._fitting import fit_result_to_dict, format_fit_table
-    from .._io import atomic_write, material_json
+    from .._io import atomic_write, material_json, write_own_result
     from .._runtime import echo
 
     if not o.as_json:
@@ -589,7 +594,10 @@ def _report_fit(res, path: Path, o, target) -> None:
     if o.as_json:
         echo(ascii_json(text[:-1]))
     if target is not None:
-        atomic_write(target, [text])
+        if own:
+            write_own_result(target, [text], path)
+        else:
+            atomic_write(target, [text])
 
 
 def ascii_json(text: str) -> str:

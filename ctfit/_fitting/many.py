@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from jax.typing import DTypeLike
 
-from .._io import check_input_file
+from .._io import input_sha256
 from .._model import Material, Measurement, Params, Structure
 
 __all__ = ["fit_many", "input_sha256", "read_input", "geometry_key", "FILES_PER_TASK"]
@@ -180,17 +180,6 @@ def geometry_key(data: Measurement) -> str:
         h.update(np.ascontiguousarray(a, dtype=float).tobytes())
     h.update(repr((None if data.wavelength_nm is None else np.asarray(data.wavelength_nm).tolist(), data.channels,
                    data.sigma is None, data.band_unknown)).encode())
-    return h.hexdigest()
-
-
-def input_sha256(path: str | os.PathLike[str]) -> str:
-    """The SHA-256 of a file's bytes (read in blocks): what a stored result was fitted from. A
-    device or FIFO, which may never end, raises :class:`~ctfit.DataError` unread."""
-    check_input_file(path, text=False)
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
     return h.hexdigest()
 
 

@@ -22,10 +22,10 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "optical_constants": ['read_optical_constants'],
         "output_paths": ['InputFiles', 'PLOT_SOFTWARE', 'broken_link', 'check_backend', 'check_distinct', 'check_output', 'check_output_folder',
                          'check_own_name', 'check_rerun_plot', 'check_rerun_target', 'is_fit_result', 'is_posterior', 'plot_metadata',
-                         'result_targets', 'same_file', 'unconverged_name', 'unconverged_target'],
+                         'result_targets', 'same_file', 'unconverged_name', 'unconverged_target', 'write_own_result'],
         "read_ahead": ['ReadAhead', 'start_read_ahead', 'usable_cores'],
         "readers": ['read_measurement', 'reader_for'],
         "rgl": ['bilinear', 'marginal_sample', 'read_rgl', 'read_tensor_file'],
-        "untrusted": ['check_input_file', 'parse_json', 'quote', 'read_json_or_none', 'shorten', 'valid_text'],
+        "untrusted": ['check_input_file', 'input_sha256', 'parse_json', 'quote', 'read_json_or_none', 'shorten', 'valid_text'],
     },
 )

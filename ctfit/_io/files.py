@@ -214,7 +214,7 @@ def temporary_for(path) -> tuple[str, str, int | None]:
     return os.path.join(folder, f".ctfit-{os.getpid()}-{os.urandom(4).hex()}.tmp"), target, mode
 
 
-def atomic_write(path, chunks, *, quiet: bool = False) -> None:
+def atomic_write(path, chunks, *, quiet: bool = False, new: bool = False) -> None:
     """Write ``chunks`` (all ``str`` or all ``bytes``) to a new file beside ``path``, then rename it
     over ``path``: readers see the old file or the whole new one, never a part.
 
@@ -226,7 +226,10 @@ def atomic_write(path, chunks, *, quiet: bool = False) -> None:
     removed on any error; the first write into a folder removes stale ones
     (:func:`remove_stale_temporaries`). In the ``ctfit`` command a Ctrl-C during the write
     removes the temporary file and keeps the old one, and says so (``_cli/interrupt.py``);
-    ``quiet``: a write of ctfit's own (a cache entry), removed but not mentioned then.
+    ``quiet``: a write of ctfit's own (a cache entry), removed but not mentioned then. ``new``:
+    only where no file is: one that another process put there since (even a moment before the
+    rename) is left as it is, and ``FileExistsError`` raised (the new file is linked in place,
+    which fails where a file is; where the file system has no links, checked just before).
     """
     path = os.fspath(path)
     if os.path.isdir(path):
@@ -247,7 +250,7 @@ def atomic_write(path, chunks, *, quiet: bool = False) -> None:
             f.flush()
             os.fsync(f.fileno())
         with deferred(done=None if quiet else f"{path} was written in full"):
-            os.replace(tmp, target)
+            (_link_new if new else os.replace)(tmp, target)
             _temporaries.pop(tmp, None)
     except BaseException as e:
         remove_temporaries([tmp])
@@ -256,6 +259,20 @@ def atomic_write(path, chunks, *, quiet: bool = False) -> None:
         raise
     finally:
         _temporaries.pop(tmp, None)
+
+
+def _link_new(tmp: str, target: str) -> None:
+    """``tmp`` renamed to ``target`` where no file is, else ``FileExistsError`` (``tmp`` left)."""
+    try:
+        os.link(tmp, target)
+    except FileExistsError:
+        raise
+    except OSError:  # no hard links here (some network and FAT file systems): checked, then renamed
+        if os.path.lexists(target):
+            raise FileExistsError(errno.EEXIST, "the file exists", target) from None
+        os.replace(tmp, target)
+        return
+    os.unlink(tmp)
 
 
 def atomic_save(path, save) -> None:

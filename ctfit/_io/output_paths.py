@@ -16,8 +16,8 @@ import stat
 from pathlib import Path
 
 from .._model import valid_name
-from .files import replace_links_in, writes_in_place
-from .untrusted import quote, read_json_or_none
+from .files import atomic_write, replace_links_in, writes_in_place
+from .untrusted import input_sha256, quote, read_json_or_none
 
 __all__ = [
     "OutputError",
@@ -28,6 +28,7 @@ __all__ = [
     "same_file",
     "result_targets",
     "check_rerun_target",
+    "write_own_result",
     "check_rerun_plot",
     "check_distinct",
     "check_own_name",
@@ -291,21 +292,43 @@ def check_rerun_target(target, data=None) -> None:
         why = "is not a summary of ctfit"
     else:
         earlier = doc.get("data") if isinstance(doc, dict) and isinstance(doc.get("fit"), dict) else None
-        if isinstance(earlier, str) and _same_input(earlier, data):
+        if isinstance(earlier, str) and _same_input(doc, data):
             return
         why = f"holds the fit of another input, {quote(earlier, 4096)}" if isinstance(earlier, str) else "is not a fit result of ctfit"  # (a path: whole)
     raise OutputError(f"{target}: the file exists and {why}; a run replaces only its own results: move it, or write the results "
                       "to another folder")
 
 
-def _same_input(earlier: str, data) -> bool:
-    """Whether a result's ``data`` (the input as its run named it) is ``data``: the same file, or a
-    relative name that ``data``'s absolute path ends with (the earlier run was started in
-    another folder: ``fits/a.fit.json`` of ``data/a.csv``, rerun on ``/home/me/data``)."""
+def write_own_result(target, chunks, data) -> None:
+    """Write the fit result of ``data`` (``chunks``, :func:`~ctfit._io.files.atomic_write`) to
+    ``target`` in a results folder, over nothing or over an earlier fit of the same input only,
+    checked at the write (:func:`check_rerun_target`), not only before the run: a file that
+    another run put there meanwhile (its input's fit of that name) is kept, and an
+    :class:`OutputError` says so."""
+    try:
+        atomic_write(target, chunks, new=True)
+        return
+    except FileExistsError:
+        check_rerun_target(target, data)
+    atomic_write(target, chunks)
+
+
+def _same_input(doc: dict, data) -> bool:
+    """Whether a fit result ``doc`` is of the input ``data``: its ``data`` (the input as its run
+    named it) is the same file, or a relative name that ``data``'s absolute path ends with (the
+    earlier run was started in another folder: ``fits/a.fit.json`` of ``data/a.csv``, rerun on
+    ``/home/me/data``) *and* its ``input_sha256`` is ``data``'s content's. A name alone may be
+    another folder's file: ``a.csv`` of a run started in ``db1`` is not ``db2/a.csv``."""
+    earlier = doc["data"]
     if same_file(earlier, data) or os.path.normpath(earlier) in {os.path.normpath(data), os.path.normpath(valid_name(os.fspath(data)))}:
         return True  # (valid_name: the name of a file that is not UTF-8, as its result holds it)
     tail = os.path.normpath(earlier)
-    return not os.path.isabs(tail) and not tail.startswith("..") and os.path.abspath(data).endswith(os.sep + tail)
+    if os.path.isabs(tail) or tail.startswith("..") or not os.path.abspath(data).endswith(os.sep + tail):
+        return False
+    try:
+        return isinstance(doc.get("input_sha256"), str) and doc["input_sha256"] == input_sha256(data)
+    except (OSError, ValueError):  # gone, or not a file to read
+        return False
 
 
 def check_distinct(outputs) -> None:
@@ -328,7 +351,7 @@ def is_fit_result(doc, data=None) -> bool:
     ``data``, the fit of that input."""
     if not (isinstance(doc, dict) and isinstance(doc.get("fit"), dict)):
         return False
-    return data is None or (isinstance(doc.get("data"), str) and _same_input(doc["data"], data))
+    return data is None or (isinstance(doc.get("data"), str) and _same_input(doc, data))
 
 
 def is_posterior(doc) -> bool:

@@ -13,6 +13,7 @@ rather than read whole. Messages quote at most :data:`QUOTE_CHARS` characters of
 from __future__ import annotations
 
 import codecs
+import hashlib
 import json
 import os
 import re
@@ -23,8 +24,8 @@ from typing import Any
 from .._model import valid_name
 from .errors import DataError
 
-__all__ = ["MAX_NESTING", "QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "check_nesting", "parse_json", "quote", "read_json_or_none", "shorten", "too_deep",
-           "too_many_digits", "valid_text"]
+__all__ = ["MAX_NESTING", "QUOTE_CHARS", "SNIFF_BYTES", "check_input_file", "check_nesting", "input_sha256", "parse_json", "quote", "read_json_or_none",
+           "shorten", "too_deep", "too_many_digits", "valid_text"]
 
 QUOTE_CHARS = 80
 """The most characters of a file's content that an error message quotes."""
@@ -260,3 +261,14 @@ def valid_text(x: Any) -> Any:
     if isinstance(x, (list, tuple)):
         return [valid_text(v) for v in x]
     return x
+
+
+def input_sha256(path: str | os.PathLike[str]) -> str:
+    """The SHA-256 of a file's bytes (read in blocks): what a stored result was fitted from. A
+    device or FIFO, which may never end, raises :class:`~ctfit.DataError` unread."""
+    check_input_file(path, text=False)
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()

@@ -70,6 +70,10 @@ def _opened(path: pathlib.Path, new, *, resume: bool, overwrite: bool, steps: in
         stored = _read_attr(path, "ctfit_fingerprint")
         if stored is not None and stored != fingerprint:
             raise ValueError(f"{path}: the stored run was sampled for other data, loss or parameters; start again (overwrite=True)")
+        started = _read_attr(path, "ctfit_seed")
+        if started is not None and int(started) != int(seed):  # the chain goes on from its own random state: its seed is the one it began with
+            raise ValueError(f"{path}: the stored run was started with seed={int(started)}, this one asks for seed={int(seed)}; pass seed="
+                             f"{int(started)} to continue it, or start again (overwrite=True)")
         done = int(be.iteration)
         if done > steps:
             raise ValueError(f"{path}: the stored run already has {done} steps, more than steps={steps}")
