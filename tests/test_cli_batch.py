@@ -438,3 +438,17 @@ def test_a_fifo_in_a_folder_is_one_error_and_the_summary_is_written(tmp_path):
     assert r.exit_code == 2 and r.output.count("p.csv: not a regular file") == 2, r.output  # its error line and its summary row
     rows = {Path(row["data"]).name: row for row in json.loads((out / "summary.json").read_text())["results"]}
     assert rows["p.csv"]["outcome"] == "failed" and rows["p.csv"]["input_sha256"] is None and rows["a.csv"]["outcome"] == "converged"
+
+
+def test_json_of_several_files_is_one_document_a_line(tmp_path):
+    """``--json`` with several inputs printed indented documents back to back, which no JSON parser
+    reads; it is JSON Lines, each line the document written for that file."""
+    data = tmp_path / "data"
+    for name, seed in (("a.csv", 1), ("b.csv", 2)):
+        write(data, name, seed=seed)
+    out = tmp_path / "out"
+    r = run("fit", data / "a.csv", data / "b.csv", "--lobes", 1, "--json", "-o", out)
+    assert r.exit_code == 0, r.output
+    docs = [json.loads(line) for line in r.stdout.splitlines() if line.strip()]
+    assert [Path(d["data"]).name for d in docs] == ["a.csv", "b.csv"]
+    assert docs == [json.loads((out / f"{n}.fit.json").read_text()) for n in ("a", "b")]

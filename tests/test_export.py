@@ -378,7 +378,7 @@ def test_a_spectral_material_exported_as_colours_is_its_colour_in_mitsubas_rgb_v
     median, worst = relative(ours, fit_rgb)
     assert _printed(r.stdout) == pytest.approx((median, worst), rel=2e-3, abs=5e-6)  # (Mitsuba evaluates in float32)
     r = runner.invoke(app, ["export", str(_red_metal(tmp_path)), "--to", "mitsuba", "-o", str(tmp_path / "s.xml")])
-    assert r.exit_code == 0 and r.stdout.strip().endswith("its RGB variants take the spectra as colours (for those, export with mitsuba colour rgb)")
+    assert r.exit_code == 0 and r.stdout.strip().endswith("its RGB variants take the spectra as colours (for those, export the Mitsuba colours as rgb)")
     assert r.stdout.strip() in (tmp_path / "s.xml").read_text()
     as_spectra = mitsuba_values(mi.load_string((tmp_path / "s.xml").read_text()), [a[near] for a in grid()])
     assert np.ptp(as_spectra, axis=1).max() < 1e-3 * as_spectra.max() and np.ptp(fit_rgb[near], axis=1).min() > 0.2 * fit_rgb[near].max()

@@ -705,6 +705,15 @@ def test_a_key_given_twice_in_a_json_material_is_refused(tmp_path):
         ctfit.load_material(lobes)
 
 
+@pytest.mark.parametrize("text, where, key", [('name = "t"\ns = 1\nname = "x"\n', "3:11", "name"), ('name = "t"\n[a]\nx = 1\n[a]\n', "4:3", "a")])
+def test_a_key_given_twice_in_a_toml_material_is_named(tmp_path, text, where, key):
+    """TOML's own error ("Cannot overwrite a value") names no key; the message now does, as JSON's (docs/formats.md)."""
+    path = tmp_path / "dup.toml"
+    path.write_text(text)
+    with pytest.raises(MaterialError, match=rf"dup\.toml:{where}: TOML syntax error: .*\(key '{key}' given twice\)"):
+        load_material(path)
+
+
 def test_saving_refuses_what_would_change_the_material():
     """Weights that do not sum to 1 were renormalised on saving (a different BRDF, said nowhere);
     values of m for another number of lobes than the structure's were written as that many lobes.

@@ -118,6 +118,7 @@ def _fit_command(o, ahead) -> int:
     if len(files) > 1 or any(p.is_dir() for p in o.data):
         o.folders = dict.fromkeys(o.folders, True)  # several files, or a folder of them: results in folders
     plan = _fit_plan(files, o)
+    o.json_lines = len(files) > 1  # --json of several files: one document a line (JSON Lines), a stream a parser reads
     setup_jax(o.float32)
     prepare_runtime()  # LAPACK's kernels registered while the fit reads its files
     check_fit_choices(o)
@@ -592,7 +593,7 @@ def _report_fit(res, path: Path, o, target, own: bool = False) -> None:
     doc = fit_result_to_dict(res)
     text = material_json(doc)
     if o.as_json:
-        echo(ascii_json(text[:-1]))
+        echo(json.dumps(json.loads(text), separators=(",", ":")) if getattr(o, "json_lines", False) else ascii_json(text[:-1]))
     if target is not None:
         if own:
             write_own_result(target, [text], path)
@@ -630,7 +631,7 @@ def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target) -> 
             plot_stem=t.name, progress=progress_mode(o.quiet),
         )
     if o.as_json:
-        echo(json.dumps(doc, indent=2))
+        echo(json.dumps(doc, separators=(",", ":")) if getattr(o, "json_lines", False) else json.dumps(doc, indent=2))
     else:
         echo(cli_message(format_fit_table(res, str(path))))  # the library's argument names as options
         echo(cli_message(format_uncertainty_table(doc, str(path))))

@@ -98,7 +98,7 @@ def _export_mitsuba(material: Material, to: str, plastic: str, colour: str) -> E
         tree = mitsuba_bsdf(source)
         error = _error(fit, _grid_values(mitsuba_target(source)), notes + _mitsuba_approximations(source))
     spectral = "" if source.is_rgb or len(source.wavelength_nm) == 1 else (
-        "spectra: figures of Mitsuba's *_spectral variants; its RGB variants take the spectra as colours (for those, export with mitsuba colour rgb)")
+        "spectra: figures of Mitsuba's *_spectral variants; its RGB variants take the spectra as colours (for those, export the Mitsuba colours as rgb)")
     if to == "mitsuba-dict":
         return ExportResult(to, json.dumps({"bsdf": tree, "ctfit_export": error}, indent=2, ensure_ascii=False) + "\n", error, spectral)
     result = ExportResult(to, "", error, spectral)

@@ -84,6 +84,16 @@ def _toml_position(err: tomllib.TOMLDecodeError, text: str) -> tuple[int, int, s
     return len(lines), len(lines[-1]) + 1, re.sub(r"\s*\(at end of document\)$", "", msg)
 
 
+def _given_twice(msg: str, text: str, line: int) -> str:
+    """The key that a TOML "Cannot overwrite a value" (or "Cannot declare … twice") error is about,
+    from its line: ``" (key 'name' given twice)"``, or nothing where the line holds no key."""
+    if not msg.startswith(("Cannot overwrite", "Cannot declare")):
+        return ""
+    lines = text.split("\n")
+    found = re.match(r"\s*\[*\s*([^=\]\[]+?)\s*(=|\])", lines[line - 1]) if 0 < line <= len(lines) else None
+    return f" (key {found[1]!r} given twice)" if found else ""
+
+
 def _read_document(path: pathlib.Path) -> dict:
     suffix = path.suffix.lower()
     if suffix not in (".toml", ".json"):
@@ -99,7 +109,7 @@ def _read_document(path: pathlib.Path) -> dict:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as err:
             line, col, msg = _toml_position(err, text)
-            raise MaterialError(f"{path}:{line}:{col}: TOML syntax error: {msg}") from None
+            raise MaterialError(f"{path}:{line}:{col}: TOML syntax error: {msg}{_given_twice(msg, text, line)}") from None
         except RecursionError:
             raise MaterialError(too_deep(path)) from None
         except ValueError:  # int() past sys.get_int_max_str_digits()
