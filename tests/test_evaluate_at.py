@@ -1,5 +1,7 @@
 """``ctfit.evaluate_at``: the material at any directions (angles or unit vectors) and bands."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -161,3 +163,27 @@ def test_fit_batch_checks_its_solve_options_as_fit_does():
         ctfit.fit_batch([data, data], GOLD.structure, max_steps=0)
     with pytest.raises(ValueError, match="starts must be a whole number ≥ 0"):
         ctfit.fit_batch([data], GOLD.structure, starts=-1)
+
+
+def test_simulate_keeps_a_materials_one_visible_band():
+    """docs: the material's own wavelengths within 400–700 nm, the 10 nm grid only where it lists
+    none there; one band at 550 nm made 31 bands of one value."""
+    one = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(s=np.asarray(0.6), m=np.array([0.15]), w=np.ones(1), f0=np.array([0.3])),
+                         wavelength_nm=np.array([550.0]))
+    assert ctfit.simulate(one, 10).wavelength_nm.tolist() == [550.0]
+    far = dataclasses.replace(one, wavelength_nm=np.array([900.0]))
+    assert len(ctfit.simulate(far, 10).wavelength_nm) == 31
+
+
+def test_a_material_of_a_band_of_unknown_wavelength_is_evaluated_on_that_band_alone():
+    """A fit of an ALTA file (one band, wavelength unknown) was copied to every band of other data
+    by ``evaluate`` (``ctfit eval`` wrote a spectrum of one value); it is refused, as ``simulate`` refuses it."""
+    unknown = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(s=np.asarray(0.6), m=np.array([0.15]), w=np.ones(1), f0=np.array([0.3])),
+                             wavelength_nm=np.array([550.0]), band_unknown=True, name="alta fit")
+    spectral = ctfit.simulate(GOLD, 5)
+    with pytest.raises(ValueError, match=r"material 'alta fit' has one band of unknown wavelength .* no values at the bands of"):
+        ctfit.evaluate(unknown, spectral)
+    same = spectral.replace(brdf=None, sigma=None)
+    own = ctfit.Measurement(theta_i=same.theta_i[:5], phi_i=same.phi_i[:5], theta_o=same.theta_o[:5], phi_o=same.phi_o[:5], band=np.zeros(5, int),
+                            wavelength_nm=np.array([550.0]), band_unknown=True)
+    assert np.all(np.isfinite(np.asarray(ctfit.evaluate(unknown, own))))

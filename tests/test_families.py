@@ -159,6 +159,20 @@ def test_a_plastic_fit_recovers_its_index_and_keeps_it_in_range():
     assert "n" in res.stats["on_bound"]
 
 
+@pytest.mark.parametrize("n, s", [(2.2, 0.0), (1.9, 0.0), (2.0, 0.3)])
+def test_a_plastic_of_a_high_index_is_not_left_in_a_local_minimum_near_1_5(n, s):
+    """The cost is not convex in n: from seeds all at n = 1.5, a smooth plastic of n = 2.2 (its own
+    noise-free data) ended at n = 1.33, reported converged with an error 500 times below its
+    distance from the truth. The seeds now spread over n (``starts.PLASTIC_INDEX_SEEDS``)."""
+    truth = plastic(n=n, s=s)
+    truth = dataclasses.replace(truth, params=dataclasses.replace(truth.params, rd=np.array([0.16, 0.1, 0.03])))
+    data = ctfit.simulate(truth, n_pairs=300, seed=3)
+    res = ctfit.fit(data, truth.structure)
+    assert res.converged
+    assert float(res.material.params.n[0]) == pytest.approx(n, rel=1e-4)
+    np.testing.assert_allclose(res.material.params.rd, truth.params.rd, rtol=1e-3)
+
+
 def test_the_default_fit_of_the_papers_rubber_is_a_plastic_and_recovers_s(tmp_path):
     """Acceptance (issue 25): `ctfit fit FILE` on `ctfit simulate configs/rubber.toml` recovers s
     within 3 standard errors, as a plastic with 1.2 ≤ n ≤ 2.5; the choice is printed."""

@@ -2,6 +2,7 @@
 above that candidate's; conductor fits start from n, k that match the data's F0."""
 
 import numpy as np
+import pytest
 
 import ctfit
 from ctfit import normal_reflectance, simulate
@@ -51,3 +52,17 @@ def test_conductor_fit_starts_near_a_low_f0():
     f0 = np.asarray(normal_reflectance(st, res.material.params))
     f0_true = ((truth.params.n - 1) / (truth.params.n + 1)) ** 2
     np.testing.assert_allclose(f0, f0_true, atol=2e-3)
+
+
+def test_lobes_a_larger_candidate_leaves_unused_are_not_chosen():
+    """A one-lobe metal with F0 = 10⁻⁴ and its own R_d: the one-lobe candidate stopped at the
+    candidates' step budget, and a larger one that reached the exact fit with its extra lobes at
+    weight 0 (and 7·10⁻¹⁸) was chosen. The one-lobe structure is now solved on from it, and chosen."""
+    truth = ctfit.Material(ctfit.Structure(lobes=1, diffuse="spectrum"),
+                           ctfit.Params(s=np.asarray(0.5), m=np.array([0.2]), w=np.ones(1), f0=np.full(3, 1e-4), rd=np.array([0.05, 0.1, 0.3])),
+                           wavelength_nm=np.array([450.0, 550.0, 650.0]))
+    best, tried = ctfit.choose_structure(simulate(truth, n_pairs=300, seed=0))
+    st = best.material.structure
+    assert (st.family, st.lobes, st.diffuse) == ("metal", 1, "spectrum"), [(s.family, s.lobes, s.diffuse) for s, _ in tried]
+    assert best.converged and float(best.material.params.m[0]) == pytest.approx(0.2, rel=1e-6)
+    assert sum(s == st for s, _ in tried) == 1  # its row in the table is the fit solved on, not a second one

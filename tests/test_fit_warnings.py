@@ -93,5 +93,21 @@ def test_as_many_samples_as_parameters_give_no_standard_errors_and_say_why():
     assert res.stats["n_samples"] == res.stats["n_params"] == 3 and res.stderr is None
     warned = [w for w in res.warnings if w.kind == "no_standard_errors"]
     assert len(warned) == 1 and "3 samples for 3 free parameters leave no residual" in warned[0]
+    assert {"s[0]", "m[0]", "F0[0]"} <= set(res.stats["no_stderr"])  # docs/fitting.md: every entry without one (it was [])
     with_sigma = ctfit.fit(data.replace(sigma=np.full(3, 0.01)), gold.structure, loss="sigma")
     assert with_sigma.stderr is not None and not any(w.kind == "no_standard_errors" for w in with_sigma.warnings)
+
+
+def test_s_near_one_with_a_grown_diffuse_part_says_they_trade_not_that_there_is_none():
+    """A metal with its own R_d(λ): s → 1 with R_d → 200 sr⁻¹ keeps a diffuse part of albedo
+    0.05–0.25 (Mitsuba's blend of a Lambertian and silver); "almost no diffuse part" was false there."""
+    import numpy as np
+
+    from ctfit._fitting.fit_report import fit_warnings
+
+    grown = ctfit.Params(s=np.array(0.99992), m=np.array([0.02]), w=np.ones(1), f0=np.full(3, 0.9), rd=np.array([1000.0, 200.0, 200.0]) / np.pi)
+    texts = [str(w) for w in fit_warnings(grown, None)]
+    assert any("s and R_d are not determined apart" in t and "up to 0.08" in t for t in texts), texts
+    assert not any("almost no diffuse part" in t for t in texts)
+    small = ctfit.Params(s=np.array(0.99992), m=np.array([0.02]), w=np.ones(1), f0=np.full(3, 0.9), rd=np.array([0.02, 0.05, 0.08]))
+    assert any("almost no diffuse part" in w for w in fit_warnings(small, None))

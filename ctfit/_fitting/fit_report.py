@@ -226,7 +226,7 @@ def fit_warnings(params: Params, stderr, not_determined=(), no_stderr_because: s
         elif s < 1e-4:
             out.append(FitWarning(f"s = {s:.2g} is near its lower bound: the data shows almost no specular part", "on_bound", "s"))
         elif s > 1 - 1e-4:
-            out.append(FitWarning(f"s = {s:.6g} is near its upper bound: the data shows almost no diffuse part", "on_bound", "s"))
+            out.append(_near_one(s, params.rd))
     if params.f0 is not None:
         f0 = np.asarray(params.f0)
         if np.any(f0 < 1e-6) or np.any(f0 > 1 - 1e-6):
@@ -238,6 +238,20 @@ def fit_warnings(params: Params, stderr, not_determined=(), no_stderr_because: s
     if stderr is None:
         out.append(FitWarning(f"standard errors not computed: {no_stderr_because}", "no_standard_errors"))
     return out
+
+
+DIFFUSE_SHOWN = 1e-3
+"""A diffuse part whose albedo (1 − s) π R_d reaches this in some band is one the data shows."""
+
+
+def _near_one(s: float, rd) -> FitWarning:
+    """The note on s just below 1: almost no diffuse part, unless R_d grew as d = 1 − s shrank (a
+    diffuse part of its own, free per band, trades with s): then only d R_d is determined."""
+    albedo = None if rd is None else (1 - s) * np.pi * np.asarray(rd, dtype=float)
+    if albedo is None or not np.all(np.isfinite(albedo)) or np.max(albedo) < DIFFUSE_SHOWN:
+        return FitWarning(f"s = {s:.6g} is near its upper bound: the data shows almost no diffuse part", "on_bound", "s")
+    return FitWarning(f"degenerate: s = {s:.6g} is near its upper bound, but R_d grew to {np.max(rd):.3g} sr⁻¹: the diffuse part, (1 − s) π R_d up to "
+                      f"{np.max(albedo):.3g}, is there, and s and R_d are not determined apart (only (1 − s) R_d is)", "degenerate", "s")
 
 
 def zero_model_cost(part: Problem):

@@ -402,6 +402,14 @@ def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance
     return FitResult(material=_fitted_material(prep, params), stats=stats, stderr=None, warnings=[], loss=prep.loss, solver=solver)
 
 
+def _no_stderr(stderr: dict | None, jt: dict | None, p: int) -> list[str]:
+    """Every reported entry ("F0[2]") without a standard error: those that are NaN, or all of
+    them (the quantities of ``jt``, P = ``p`` coordinates) where none were computed."""
+    if stderr is None:
+        return [f"{k}[{i}]" for k, v in (jt or {}).items() for i in range(np.asarray(v).reshape(-1, max(p, 1)).shape[0])]
+    return [f"{k}[{i}]" for k, v in stderr.items() for i in np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))]
+
+
 def _fitted_material(prep: PreparedFit, params: Params) -> Material:
     """The :class:`~ctfit.Material` of a fit of ``prep`` with the fitted ``params``."""
     data = prep.data
@@ -462,7 +470,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
         "relative_floor": floor,
         "gauss_newton_decrease": gn_decrease,
         "on_bound": labelled(u, on_bound),
-        "no_stderr": [f"{k}[{i}]" for k, v in (stderr or {}).items() for i in np.flatnonzero(~np.isfinite(np.asarray(v, dtype=float)))],
+        "no_stderr": _no_stderr(stderr, out["jt"], p),
         "quality": quality,
     }
     if "race_samples" in out:
@@ -473,7 +481,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     why = f"{n} samples for {p} free parameters leave no residual to estimate the noise from (a sigma column gives them)" if no_noise else NO_STDERR_SINGULAR
     notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined, why)
     worst = quality_warning(quality, data.brdf)
-    if status.converged and worst:  # "even at the best fit": only a fit that got there says so
+    if status.converged and worst:  # "at the best fit its seeds found": only a fit that got there says so
         notes.append(worst)
     if not stationary:
         hint = " (float32 rounding: fit in float64)" if jnp.dtype(dtype).name == "float32" else " (more max_steps=, or another start)"

@@ -194,6 +194,6 @@ def quality_warning(quality: dict, brdf: ArrayLike | None = None) -> FitWarning 
     region = names[worst] if worst else None
     if median > MODEL_LIMIT:
         return FitWarning(f"the Cook–Torrance model does not represent this material: the typical sample is off by {median:.0%} "
-                          f"even at the best fit{where}{hint}", "not_represented", region=region)
+                          f"at the best fit its seeds found{where}{hint}", "not_represented", region=region)
     return FitWarning(f"the Cook–Torrance model does not represent this material: a tenth of the samples are off by {tail:.0%} or more "
-                      f"even at the best fit (the typical one by {median:.0%}){where}{hint}", "not_represented", region=region)
+                      f"at the best fit its seeds found (the typical one by {median:.0%}){where}{hint}", "not_represented", region=region)

@@ -81,6 +81,35 @@ def _embedded_start(inner: FitResult, big: Structure) -> Params:
     return Params(s=s, m=m, w=w, f0=p.f0 if big.fresnel == "f0" else None, n=p.n if big.fresnel != "f0" else None, k=p.k, rd=rd)
 
 
+UNUSED_WEIGHT = 1e-6
+"""A lobe of a larger candidate whose weight is below this is one it does not use (:func:`_fewer_lobes`)."""
+
+
+def _fewer_lobes(res: FitResult, tried: list, fit_screen: Callable, better: Callable) -> tuple[Structure, FitResult] | None:
+    """Where the candidate ``res``, chosen over one lobe fewer, leaves lobes unused (weight below
+    :data:`UNUSED_WEIGHT`): the structure without them, solved from ``res``'s other lobes (its entry
+    in ``tried`` replaced), when it is not worse (``better``). Then the larger one won by its extra
+    steps, not its lobes: a one-lobe metal stopped at the candidates' step budget lost to a
+    three-lobe one that reached the exact fit with two lobes of weight 0 and 7·10⁻¹⁸. Else None."""
+    p, st = res.material.params, res.material.structure
+    keep = np.asarray(p.w, dtype=float) >= UNUSED_WEIGHT
+    if keep.all() or not keep.any():
+        return None
+    smaller = Structure(**{**st.__dict__, "lobes": int(keep.sum())})
+    w = np.asarray(p.w, dtype=float)[keep]
+    start = dataclasses.replace(p, m=np.asarray(p.m, dtype=float)[keep], w=w / w.sum())
+    again = fit_screen(smaller, start, False)
+    if better(res, again):
+        return None
+    for i, (st_tried, _) in enumerate(tried):
+        if st_tried == smaller:
+            tried[i] = (smaller, again)
+            break
+    else:
+        tried.append((smaller, again))
+    return smaller, again
+
+
 def _lobes_start(res: FitResult, other: Structure) -> Params:
     """``res``'s lobes, s and Fresnel parameters as a start of ``other`` (same family and lobe
     count, another diffuse part); what ``other`` needs beyond them starts at the defaults."""
@@ -192,6 +221,10 @@ def choose_structure(
                 ahead(Structure(**{**best_st.__dict__, "lobes": lobes[i]}))
             res = fit_tried(bigger, _embedded_start(best, bigger))
             if not better(res, best):
+                break
+            fewer = _fewer_lobes(res, tried, fit_screen, better)  # lobes it does not use: the smaller structure, solved on from it
+            if fewer is not None:
+                best_st, best = fewer
                 break
             best_st, best = bigger, res
         if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen

@@ -105,6 +105,10 @@ def evaluate(material: Material, measurement: Measurement, *, dtype: DTypeLike |
     >>> np.asarray(np.pi * ctfit.evaluate(paint, samples), float).round(6).tolist()
     [0.5, 0.5]
     """
+    if material.band_unknown and not measurement.band_unknown:
+        raise ValueError(f"material {material.name!r} has one band of unknown wavelength (band_unknown); it has no values at the bands of "
+                         f"{measurement.source or 'the data'} ({', '.join(measurement.band_labels[:4])}{', …' if measurement.n_bands > 4 else ''}): "
+                         "evaluate it on data of that one band")
     params = _checked(material, dtype).params_at(measurement.wavelength_nm if measurement.channels is None else None, measurement.channels)
     pairs, index = measurement.directions()
     dt = dtype or (jnp.float64 if x64_enabled() else jnp.float32)
@@ -305,7 +309,7 @@ def simulate(
         if wavelength_nm is None:
             own = np.asarray(material.wavelength_nm, dtype=float)
             sel = own[(own >= 400) & (own <= 700)]
-            wavelength_nm = sel if len(sel) >= 2 else np.arange(400.0, 701.0, 10.0)
+            wavelength_nm = sel if len(sel) else np.arange(400.0, 701.0, 10.0)
         wl = np.unique(np.asarray(wavelength_nm, dtype=float).reshape(-1))
         if wl.size == 0 or not np.all(np.isfinite(wl) & (wl > 0)):
             raise ValueError(f"wavelength_nm must be positive finite numbers of nm, got {np.asarray(wavelength_nm).tolist()!r}")
