@@ -229,21 +229,29 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
 
 
 def _names(paths: list[Path]) -> list[str]:
-    """Distinct file stems: shared names get their parent folders' names in front (a/x, b/x → a-x, b-x),
-    and a number where the folders cannot tell them apart."""
-    parts = [Path(os.path.abspath(p)).parent.parts[1:] for p in paths]
+    """Distinct file stems: files of one folder that share a stem get their suffix after it (x.csv,
+    x.dat → x-csv, x-dat); shared names in other folders get their parent folders' names in front
+    (a/x, b/x → a-x, b-x), only as far as the folders differ; a number where nothing tells them
+    apart (x.csv, X.CSV where case counts). A file's name so depends on the files beside it and of
+    its name, not on the whole set: one taken away or added elsewhere renames none."""
+    parents = [Path(os.path.abspath(p)).parent for p in paths]
+    parts = [q.parts[1:] for q in parents]
+    beside: dict[tuple, int] = {}
+    for q, p in zip(parents, paths):
+        beside[(q, p.stem.casefold())] = beside.get((q, p.stem.casefold()), 0) + 1
+    stems = [p.stem + (f"-{p.suffix[1:]}" if p.suffix and beside[(q, p.stem.casefold())] > 1 else "") for q, p in zip(parents, paths)]
     level = [0] * len(paths)
 
     def name(i: int) -> str:
         k = min(level[i], len(parts[i]))
-        return "-".join([*parts[i][len(parts[i]) - k :], paths[i].stem])
+        return "-".join([*parts[i][len(parts[i]) - k :], stems[i]])
 
     while True:
         seen: dict[str, list[int]] = {}
         for i in range(len(paths)):
             seen.setdefault(name(i).casefold(), []).append(i)
         clashes = [g for g in seen.values() if len(g) > 1]
-        grow = [i for g in clashes for i in g if level[i] < len(parts[i])]
+        grow = [i for g in clashes for i in g if level[i] < len(parts[i]) and any(parents[j] != parents[i] for j in g)]
         if not grow:
             break
         for i in grow:
@@ -266,10 +274,12 @@ def _names(paths: list[Path]) -> list[str]:
 def result_targets(inputs, folder, suffix: str) -> dict[Path, Path]:
     """One result file in ``folder`` per input: ``<stem><suffix>`` (``x.csv`` → ``x.fit.json``).
 
-    Inputs that share a stem get their parent folders' names in front, as many as it takes
-    (``a/x.csv``, ``b/x.csv`` → ``a-x.fit.json``, ``b-x.fit.json``; compared ignoring case), then
-    a number. The names depend only on the inputs, in order, so two suffixes (``.fit.json``,
-    ``.fit.png``) pair up. Keys are the inputs as given; the same input twice has one target.
+    Inputs of one folder that share a stem get their suffix after it (``x.csv``, ``x.dat`` →
+    ``x-csv.fit.json``, ``x-dat.fit.json``); inputs of other folders that share a name get their
+    parent folders' names in front, as many as it takes (``a/x.csv``, ``b/x.csv`` →
+    ``a-x.fit.json``, ``b-x.fit.json``; compared ignoring case), then a number. The names depend
+    only on the inputs, in order, so two suffixes (``.fit.json``, ``.fit.png``) pair up. Keys are
+    the inputs as given; the same input twice has one target.
     """
     paths = list(dict.fromkeys(Path(p) for p in inputs))
     folder = Path(folder)
