@@ -180,7 +180,7 @@ def _slices_panel(ax, mat, data, labels) -> None:
         n = len(line)
         probe = Measurement(
             theta_i=np.full(n, ti), phi_i=np.zeros(n), theta_o=np.abs(line), phi_o=np.where(line >= 0, 0.0, 180.0),
-            band=np.full(n, band), wavelength_nm=data.wavelength_nm, channels=data.channels,
+            band=np.full(n, band), wavelength_nm=data.wavelength_nm, channels=data.channels, band_unknown=data.band_unknown,
         )
         curve = evaluate(mat, probe)
         ax.plot(line, curve, color=c, lw=1.2, label=f"model, θ_i = {ti:.3g}°")
@@ -204,7 +204,7 @@ def _half_angle_panel(ax, mat, data, labels) -> None:
         n = len(line)
         probe = Measurement(
             theta_i=line, phi_i=np.zeros(n), theta_o=line, phi_o=np.zeros(n),
-            band=np.full(n, b), wavelength_nm=data.wavelength_nm, channels=data.channels,
+            band=np.full(n, b), wavelength_nm=data.wavelength_nm, channels=data.channels, band_unknown=data.band_unknown,
         )
         curve = evaluate(mat, probe)
         name = "" if labels[b] == "unknown band" else f" {labels[b]}"

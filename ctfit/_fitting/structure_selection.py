@@ -222,11 +222,9 @@ def choose_structure(
             res = fit_tried(bigger, _embedded_start(best, bigger))
             if not better(res, best):
                 break
-            fewer = _fewer_lobes(res, tried, fit_screen, better)  # lobes it does not use: the smaller structure, solved on from it
-            if fewer is not None:
-                best_st, best = fewer
+            best_st, best = _fewer_lobes(res, tried, fit_screen, better) or (bigger, res)  # unused lobes: the smaller one, solved on
+            if best_st is not bigger:
                 break
-            best_st, best = bigger, res
         if best_st.lobes > lobes[0]:  # the other diffuse forms of the family, at the lobe count chosen
             best_st, best = _other_diffuse_parts(combos, best_st, best, fit_tried, ahead, better)
     table = choice_table(tried, best, n_full)
