@@ -443,3 +443,21 @@ def test_a_few_samples_get_the_lobes_they_can_determine_not_an_error():
     best, tried = ctfit.choose_structure(data)
     assert best.material.structure.lobes == 1
     assert tried and all(int(r.stats["n_params"]) <= len(data) for _, r in tried)
+
+
+@pytest.mark.parametrize("n", [2.6, 3.0, 3.9, 4.0, 5.0, 10.0, 500.0])
+def test_a_transmitted_diffuse_part_stays_positive_at_any_index(n):
+    """Mitsuba's fit of F_dr(1/n) leaves its range beyond n ≈ 2.5 and turns 1 − F_dr(1/n) negative
+    at 3.9: a plastic of n = 4 gave a negative BRDF and ambient reflectance, with no error. Beyond
+    ``cook_torrance.FIT_INDEX_LIMIT`` the exact relation (1 − F_dr(n))/n² holds."""
+    import jax
+
+    from ctfit._model.cook_torrance import internal_transmittance
+
+    truth = plastic(n=n)
+    values = np.asarray(ctfit.evaluate(truth, ctfit.simulate(truth, n_pairs=200, seed=1)))
+    assert np.all(np.isfinite(values)) and values.min() >= 0
+    assert np.all(np.asarray(ctfit.ambient_reflectance(truth.structure, truth.params)) > 0)
+    exact = (1 - float(ctfit.fresnel_diffuse_reflectance(n))) / n**2
+    assert float(internal_transmittance(n)) == pytest.approx(exact, rel=1e-12)
+    assert np.isfinite(float(jax.grad(lambda x: ctfit.transmitted_diffuse_factor(x, 0.3, 0.8))(float(n))))

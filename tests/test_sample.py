@@ -199,6 +199,10 @@ def test_resume_after_interruption_gives_the_uninterrupted_chain(metal, tmp_path
     np.testing.assert_array_equal(again.chain_u, ref.chain_u)
     with pytest.raises(ValueError, match="other data"):
         sample(truth, data.replace(brdf=data.brdf * 1.01), steps=80, backend=path, resume=True, colour=False)
+    with pytest.raises(ValueError, match="other data"):  # the same values, another sigma column: another likelihood (it was continued)
+        sample(truth, data.replace(sigma=data.sigma / 3), steps=80, seed=4, backend=path, resume=True, colour=False)
+    with pytest.raises(ValueError, match="other data"):  # another prior
+        sample(truth, data, steps=80, seed=4, backend=path, resume=True, colour=False, priors={"m": ("uniform", 0.1, 0.5)})
     # Another seed is refused: the chain goes on from its own random state, and would be reported with a seed it never had.
     with pytest.raises(ValueError, match=r"started with seed=4, this one asks for seed=5; pass seed=4"):
         sample(truth, data, steps=80, seed=5, backend=path, resume=True, colour=False)
@@ -534,6 +538,59 @@ def test_resume_refuses_an_hdf5_file_without_a_chain(metal, tmp_path):
     with h5py.File(other, "w") as f:
         f["x"] = np.arange(3)
     before = other.read_bytes()
-    with pytest.raises(ValueError, match="no chain of ctfit.*overwrite"):
+    with pytest.raises(ValueError, match="no chain of ctfit.*name another file .it holds groups 'x', which a new chain would replace"):
         sample(fitted, data, steps=5, backend=other, resume=True, colour=False)
     assert other.read_bytes() == before
+    empty = tmp_path / "empty.h5"
+    h5py.File(empty, "w").close()  # nothing in it to lose: starting a chain there is offered
+    with pytest.raises(ValueError, match=r"no chain of ctfit.*or start a chain in this one \(overwrite=True\)"):
+        sample(fitted, data, steps=5, backend=empty, resume=True, colour=False)
+
+
+def test_a_new_chain_never_replaces_a_file_with_more_than_ctfits_chain(metal, tmp_path):
+    """A new chain is written beside the file and renamed over it: an HDF5 file of the user's (a
+    calibration group beside, or instead of, a chain) lost everything else to overwrite=True, which
+    the resume error itself suggested. It is refused, and the file kept."""
+    import h5py
+
+    truth, data, _ = metal
+    lab = tmp_path / "lab.h5"
+    with h5py.File(lab, "w") as f:
+        f["calibration"] = np.arange(5.0)
+    before = lab.read_bytes()
+    with pytest.raises(ValueError, match=r"holds no chain of ctfit .* name another file \(it holds groups 'calibration'"):
+        sample(truth, data, steps=10, backend=lab, resume=True, colour=False)
+    with pytest.raises(ValueError, match=r"holds 'calibration' beside ctfit's chain, which a new chain would replace"):
+        sample(truth, data, steps=10, backend=lab, overwrite=True, colour=False)
+    text = tmp_path / "notes.h5"
+    text.write_text("my notes\n")
+    with pytest.raises(ValueError, match="not an HDF5 file"):
+        sample(truth, data, steps=10, backend=text, overwrite=True, colour=False)
+    assert lab.read_bytes() == before and text.read_text() == "my notes\n"
+
+
+def test_a_log_ratio_posterior_is_described_and_written(metal):
+    """``loss="log-ratio"`` ran the whole chain, then failed (KeyError) describing its likelihood,
+    and the CLI lost the fit's JSON with it; every loss the sampler takes has its description."""
+    from ctfit._fitting.losses import LOSSES
+    from ctfit._sampling.chain_diagnostics import _RESIDUAL
+
+    assert set(LOSSES) - {"robust-relative"} <= set(_RESIDUAL)  # robust-relative is sampled with the relative likelihood
+    truth, data, _ = metal
+    with pytest.warns(ChainTooShortWarning):
+        res = sample(truth, data.replace(sigma=None), steps=30, loss="log-ratio", colour=False)
+    assert res.to_dict()["likelihood"]["loss"] == "log-ratio"
+
+
+def test_a_sigma_column_that_does_not_explain_the_residuals_fails_the_posterior(metal):
+    """A sigma column three times too small: χ²/dof ≈ 9, and the intervals, which take it as the
+    noise, were too narrow (4 of 8 missed the truth) in a run that read usable. It fails now."""
+    truth, data, _ = metal
+    small = data.replace(sigma=data.sigma / 3)
+    with pytest.warns(ChainTooShortWarning):
+        res = sample(truth, small, steps=60, loss="sigma", colour=False)
+    problems = res.problems
+    assert not res.usable and any("the sigma column does not explain the residuals: χ²/dof = " in p for p in problems), problems
+    with pytest.warns(ChainTooShortWarning):
+        fine = sample(truth, data, steps=60, loss="sigma", colour=False)
+    assert not any("sigma column" in p for p in fine.problems)

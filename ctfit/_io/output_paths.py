@@ -214,7 +214,10 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
     if resume and overwrite:
         raise OutputError(f"{flags[0]} and {flags[1]} exclude each other: continue the stored chain, or start again")
     check_output(path, inputs, option=option, chosen=chosen)
-    if overwrite or not path.is_file() or path.stat().st_size == 0:
+    if not path.is_file() or path.stat().st_size == 0:
+        return path
+    if overwrite:
+        _check_only_chains(path, option)
         return path
     if not resume:
         raise OutputError(
@@ -226,6 +229,22 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
     if not h5py.is_hdf5(path):
         raise OutputError(f"{_at(option, path)}: is not an HDF5 file, so it holds no chain to continue")
     return path
+
+
+def _check_only_chains(path: Path, option: str) -> None:
+    """Refuse (:class:`OutputError`) to start a chain again in a file that holds more than ctfit's
+    chain: the new chain replaces the whole file (one rename), and with it the user's other data
+    (a lab's HDF5 file lost its calibration group so), or a file that is not HDF5 at all."""
+    import h5py
+
+    if not h5py.is_hdf5(path):
+        raise OutputError(f"{_at(option, path)}: is not an HDF5 file; a new chain replaces only a file of ctfit's chain: name another file")
+    with h5py.File(path, "r") as f:
+        others = [k for k in f.keys() if k != "ctfit"]
+    if others:
+        listed = ", ".join(repr(k) for k in others[:5]) + (", …" if len(others) > 5 else "")
+        raise OutputError(f"{_at(option, path)}: the HDF5 file holds {listed} beside ctfit's chain, which a new chain would replace (the "
+                          "whole file is written anew): name another file")
 
 
 def _names(paths: list[Path]) -> list[str]:

@@ -34,6 +34,7 @@ from .fresnel_equations import (
     fresnel_diffuse_reflectance,
 )
 from .material import Params, Structure, used
+from .numerics import array_module
 from .shadowing import smith_g1_reduced, smith_rational_g1_reduced, v_cavity_reduced
 
 __all__ = [
@@ -174,8 +175,29 @@ def transmitted_diffuse_factor(
     >>> print(f"{float(transmitted_diffuse_factor(1.5, 1.0, 1.0)):.4f}")  # (1 − 0.04)² / (2.25 (1 − 0.597))
     1.0159
     """
-    f_int = fresnel_diffuse_reflectance(1 / xp.asarray(n))
-    return (1 - fresnel_dielectric(cos_l, n, xp=xp)) * (1 - fresnel_dielectric(cos_v, n, xp=xp)) / (n * n * (1 - f_int))
+    return (1 - fresnel_dielectric(cos_l, n, xp=xp)) * (1 - fresnel_dielectric(cos_v, n, xp=xp)) / (n * n * internal_transmittance(n))
+
+
+FIT_INDEX_LIMIT = 2.5
+"""Up to this index, 1 − F_dr(1/n) is Mitsuba's fit (Egan & Hilgeman); beyond it, where that fit
+leaves its range (the factor fell from 0.97 at n = 3 and turned negative at n = 3.9: a negative
+BRDF), the exact relation of the two sides of the interface (:func:`internal_transmittance`)."""
+
+
+def internal_transmittance(n: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch"]:
+    """1 − F_dr(1/n): the fraction of the diffuse light inside a dielectric of index n that
+    crosses its interface. Mitsuba 3's fit of F_dr(1/n) up to :data:`FIT_INDEX_LIMIT`; beyond, the
+    exact relation (1 − F_dr(n))/n² (reciprocity: what crosses outwards of the light from inside
+    equals what crosses inwards, scaled by the solid angles, n²), positive for every n.
+
+    >>> print(f"{float(internal_transmittance(1.5)):.4f}, {float(internal_transmittance(4.0)):.4f}")
+    0.4032, 0.0395
+    """
+    xp = array_module(n)
+    n = xp.asarray(n)
+    far = xp.greater(n, FIT_INDEX_LIMIT)
+    safe = xp.where(far, FIT_INDEX_LIMIT, n)  # (double where: the fit's branch never sees an index it would turn negative at)
+    return xp.where(far, (1 - fresnel_diffuse_reflectance(n)) / (n * n), 1 - fresnel_diffuse_reflectance(1 / safe))
 
 
 def ambient_reflectance(structure: Structure, params: Params) -> Float[Array | np.ndarray, "*bands"]:
@@ -200,7 +222,7 @@ def ambient_reflectance(structure: Structure, params: Params) -> Float[Array | n
     """
     if structure.diffuse == "transmitted":
         n = used(params.n)
-        through = (1 - fresnel_diffuse_reflectance(n)) ** 2 / (n * n * (1 - fresnel_diffuse_reflectance(1 / n)))
+        through = (1 - fresnel_diffuse_reflectance(n)) ** 2 / (n * n * internal_transmittance(n))
         return jnp.pi * used(params.rd) * through
     return jnp.pi * diffuse_reflectance(structure, params)
 

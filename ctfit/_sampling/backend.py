@@ -19,6 +19,7 @@ import json
 import os
 import pathlib
 
+import jax
 import numpy as np
 
 from .._io import deferred, note_resumable, on_interrupt, temporary_for
@@ -26,11 +27,19 @@ from .._io import deferred, note_resumable, on_interrupt, temporary_for
 __all__ = ["NewChain", "fingerprint", "open_run"]
 
 
-def fingerprint(y, loss: str, labels: list[str]) -> str:
+def fingerprint(problem, loss: str, labels: list[str], prior=()) -> str:
+    """What a stored chain was sampled for, as a hash: every array of the ``problem`` (the values,
+    their sigma column, the directions' geometry, the held parameters' values, the mask), the
+    loss, the parameters' labels and the ``prior``. A chain resumed for anything else is refused:
+    one whose sigma column was divided by 3 was continued under the other likelihood (R̂ 4·10¹⁵)."""
     h = hashlib.sha1()
-    h.update(np.asarray(y).tobytes())
+    for leaf in jax.tree.leaves(problem):
+        a = np.asarray(leaf)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
     h.update(loss.encode())
     h.update(json.dumps(labels).encode())
+    h.update(repr(jax.tree.map(lambda a: np.asarray(a).tolist(), prior)).encode())
     return h.hexdigest()
 
 
@@ -57,9 +66,10 @@ def _opened(path: pathlib.Path, new, *, resume: bool, overwrite: bool, steps: in
     be = _open_backend(write_to, overwrite=overwrite and new is None)
     done = 0
     if resume and path.is_file() and path.stat().st_size and not be.initialized:  # another program's HDF5 file: never written into unasked
+        others = _other_contents(path)
         raise ValueError(
-            f"{path}: the HDF5 file holds no chain of ctfit (no group 'ctfit') to continue; name another file, or start a "
-            "chain in this one (overwrite=True)"
+            f"{path}: the HDF5 file holds no chain of ctfit (no group 'ctfit') to continue; name another file"
+            + (f" (it holds {others}, which a new chain would replace)" if others else ", or start a chain in this one (overwrite=True)")
         )
     if resume and path.exists() and be.initialized and be.iteration > 0:
         if be.shape != shape:
@@ -177,6 +187,15 @@ def _whole_steps_backend():
                 return super().grow(*args, **kwargs)
 
     return WholeStepsHDFBackend
+
+
+def _other_contents(path: pathlib.Path) -> str:
+    """What an HDF5 file holds beside ctfit's group ("groups 'calibration', 'raw'"), or ""."""
+    h5py = _h5py()
+
+    with h5py.File(path, "r") as f:
+        keys = [k for k in f.keys() if k != "ctfit"]
+    return ("groups " + ", ".join(repr(k) for k in keys[:5]) + (", …" if len(keys) > 5 else "")) if keys else ""
 
 
 def _write_attrs(path: pathlib.Path, attrs: dict) -> None:

@@ -88,6 +88,7 @@ _RESIDUAL = {
     "relative": "r_i = (R_i − y_i)/R_i, R_i the model at θ (max(R_i, tiny))",
     "cosine": "r_i = (R_i − y_i) cos θ_i",
     "log": "r_i = log(1 + R_i cos θ_i) − log(1 + y_i cos θ_i)",
+    "log-ratio": "r_i = log(max(R_i, 0) + ε) − log(max(y_i, 0) + ε), ε the loss's floor",
 }
 
 

@@ -1,4 +1,4 @@
-"""Is the posterior usable? Four checks, each one plain line when it fails.
+"""Is the posterior usable? Five checks, each one plain line when it fails.
 
 - **not mixed**: the walkers have not run long enough for their draws to stand for the
   posterior. Any of: ArviZ's rank-normalised split-R̂ above :data:`R_HAT_LIMIT` (1.05), its
@@ -24,6 +24,9 @@
   log θ for m and σ_noise): the interval is the prior's cut, not the data's.
 - **not constrained**: a parameter's 95 % range covers more than half of its prior's range, or
   JᵀJ at the optimum has no curvature along it (:func:`ctfit._fitting.fit_report.undetermined`).
+- **sigma misfit** (the data's sigma column as the noise): χ²/dof at the fit above
+  :data:`CHI2_LIMIT` and noise (:func:`sigma_misfit`): the column does not explain the
+  residuals, and the intervals, which assume it does, are too narrow.
 
 A run with any of them is not a usable posterior (``SampleResult.usable`` False; the ``ctfit
 sample`` exit status 1).
@@ -42,7 +45,7 @@ from .._model import PARAMETERS
 from .priors import prior_bounds, public_name
 from .table import number_text
 
-__all__ = ["ESS_LIMIT", "HPD_LEVEL", "R_HAT_LIMIT", "TAU_RUNS", "check_mixing", "check_posterior", "fit_distance", "steps_needed"]
+__all__ = ["CHI2_LIMIT", "ESS_LIMIT", "HPD_LEVEL", "R_HAT_LIMIT", "TAU_RUNS", "check_mixing", "check_posterior", "fit_distance", "sigma_misfit", "steps_needed"]
 
 HPD_LEVEL = 0.99
 R_HAT_LIMIT = 1.05
@@ -111,11 +114,36 @@ def _left_fit_line(frac: float, d2: float, limit: float, chain: dict, optimum: d
     )
 
 
+CHI2_LIMIT = 1.5
+"""With the data's sigma column as the noise (loss "sigma"), a χ²/dof at the fit above this (and
+five of its standard deviations, √(2/dof), above 1) fails the posterior (:func:`sigma_misfit`)."""
+
+
+def sigma_misfit(chi_square: float, dof: int) -> str | None:
+    """The problem line when a sigma column does not explain the fit's residuals (χ² = Σ r², r the
+    residuals over sigma, ``dof`` = N − P): the intervals assume it does, so they are too narrow by
+    about √(χ²/dof) (a column three times too small: 4 of 8 intervals missed the truth, "usable").
+    None where χ²/dof is within :data:`CHI2_LIMIT` and noise.
+
+    >>> sigma_misfit(7880.5, 1993)[:69]
+    'the sigma column does not explain the residuals: χ²/dof = 3.95 at the'
+    >>> sigma_misfit(2050.0, 1993) is None
+    True
+    """
+    if dof <= 0 or not np.isfinite(chi_square):
+        return None
+    ratio = chi_square / dof
+    if ratio <= max(CHI2_LIMIT, 1 + 5 * np.sqrt(2 / dof)):
+        return None
+    return (f"the sigma column does not explain the residuals: χ²/dof = {ratio:.3g} at the fit ({dof} degrees of freedom, 1 expected): the sigma are "
+            f"too small, or the model misses the data, and the intervals are about {np.sqrt(ratio):.2g}× too narrow")
+
+
 def check_posterior(chain: dict, prior: tuple, fresnel: str, lp_draws, lp_optimum: float, optimum: dict, distance=(np.inf, 0.0),
-                    undetermined_labels=()) -> dict:
-    """The three checks (module docstring) on the constrained draws ``chain``; ``lp_draws`` and
+                    undetermined_labels=(), misfit: str | None = None) -> dict:
+    """The checks but mixing (module docstring) on the constrained draws ``chain``; ``lp_draws`` and
     ``lp_optimum``: the posterior log-density in θ of the draws and of the fit's optimum;
-    ``distance``: (D², its limit) from :func:`fit_distance`.
+    ``distance``: (D², its limit) from :func:`fit_distance`; ``misfit``: :func:`sigma_misfit`'s line, a failed check too.
     Returns {"usable", "problems" (one line per failed check), "left_fit", "at_bound", "not_constrained"}."""
     higher = float(np.mean(np.asarray(lp_draws) > lp_optimum)) if np.isfinite(lp_optimum) else 1.0
     d2, limit = distance
@@ -139,6 +167,8 @@ def check_posterior(chain: dict, prior: tuple, fresnel: str, lp_draws, lp_optimu
                         "data's")
     if loose:
         problems.append(f"not constrained: the data cannot pin down {', '.join(loose)} (95 % range over half the prior's, or no curvature of the fit there)")
+    if misfit:
+        problems.append(misfit)
     return {
         "usable": not problems,
         "problems": problems,

@@ -39,7 +39,7 @@ from .._fitting import FitResult, undetermined
 from .._model import Material, Measurement
 from .backend import fingerprint, open_run
 from .chain_diagnostics import ChainTooShortWarning, autocorr_time, default_burn, likelihood_description, residual_spread, run_notes
-from .checks import check_mixing, check_posterior, fit_distance
+from .checks import check_mixing, check_posterior, fit_distance, sigma_misfit
 from .draw_colours import colour_summary
 from .posterior_density import PosteriorSetup, set_up_posterior
 from .priors import describe_priors
@@ -60,7 +60,7 @@ def _run(
     labels = s.layout.labels()
     shape = (s.walkers, s.layout.ndim)
     be, done, new = open_run(backend, resume=resume, overwrite=overwrite, steps=steps, shape=shape,
-                             fingerprint=fingerprint(s.engine.problem.y, s.loss, labels), labels=labels, seed=seed)
+                             fingerprint=fingerprint(s.engine.problem, s.loss, labels, s.prior), labels=labels, seed=seed)
     try:
         sampler = emcee.EnsembleSampler(s.walkers, s.layout.ndim, s.engine, vectorize=True, backend=be)
         state, todo = None, steps - done  # resumed: the backend's last sample and random state
@@ -96,8 +96,11 @@ def _checks(s: PosteriorSetup, x0: np.ndarray, flat: np.ndarray, draw_lp: np.nda
     lp_opt = float(s.engine(x0[None])[0] - s.engine.log_jacobian(x0[None])[0])
     distance = fit_distance(flat[:, : s.layout.n_u], s.x_u, fit_covariance(s.engine, s.x_u))
     labels = s.layout.labels()
-    loose = [labels[i] for i in np.flatnonzero(undetermined(s.engine.normal(s.x_u)[2]))]
-    return check_posterior(chain, s.prior, s.layout.fresnel, lp_theta, lp_opt, optimum, distance, loose)
+    half_chi2, _, jtj = s.engine.normal(s.x_u)
+    loose = [labels[i] for i in np.flatnonzero(undetermined(jtj))]
+    dof = int(np.sum(np.asarray(s.engine.problem.mask))) - s.layout.n_u
+    misfit = sigma_misfit(2 * float(half_chi2), dof) if s.loss == "sigma" else None
+    return check_posterior(chain, s.prior, s.layout.fresnel, lp_theta, lp_opt, optimum, distance, loose, misfit)
 
 
 def _diagnostics(
