@@ -3,6 +3,7 @@ parameter and the region of the data it is about; the fit JSON keeps both. Its f
 (``ctfit.FitStats``)."""
 
 import copy
+import dataclasses
 import json
 import pickle
 
@@ -111,3 +112,15 @@ def test_s_near_one_with_a_grown_diffuse_part_says_they_trade_not_that_there_is_
     assert not any("almost no diffuse part" in t for t in texts)
     small = ctfit.Params(s=np.array(0.99992), m=np.array([0.02]), w=np.ones(1), f0=np.full(3, 0.9), rd=np.array([0.02, 0.05, 0.08]))
     assert any("almost no diffuse part" in w for w in fit_warnings(small, None))
+
+
+def test_f0_near_a_bound_but_determined_away_from_it_is_not_at_a_bound():
+    """F0 = 9.986·10⁻⁷ ± 9.6·10⁻¹⁰ (the truth 10⁻⁶) was warned to be "at a bound (0 or 1)"."""
+    import numpy as np
+
+    from ctfit._fitting.fit_report import fit_warnings
+
+    params = ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([9.986e-7, 0.5]))
+    assert not any("F0 at a bound" in w for w in fit_warnings(params, {"F0": np.array([9.6e-10, 1e-3])}))
+    assert any("F0 at a bound" in w for w in fit_warnings(params, {"F0": np.array([np.nan, 1e-3])}))  # on its bound: no error
+    assert any("F0 at a bound" in w for w in fit_warnings(dataclasses.replace(params, f0=np.array([0.0, 0.5])), None))

@@ -227,10 +227,8 @@ def fit_warnings(params: Params, stderr, not_determined=(), no_stderr_because: s
             out.append(FitWarning(f"s = {s:.2g} is near its lower bound: the data shows almost no specular part", "on_bound", "s"))
         elif s > 1 - 1e-4:
             out.append(_near_one(s, params.rd))
-    if params.f0 is not None:
-        f0 = np.asarray(params.f0)
-        if np.any(f0 < 1e-6) or np.any(f0 > 1 - 1e-6):
-            out.append(FitWarning("F0 at a bound (0 or 1) in some bands: the effective index is at its limit there", "on_bound", "F0"))
+    if params.f0 is not None and _f0_at_bound(np.asarray(params.f0, dtype=float), None if stderr is None else stderr.get("F0")):
+        out.append(FitWarning("F0 at a bound (0 or 1) in some bands: the effective index is at its limit there", "on_bound", "F0"))
     if not_determined:
         names = ", ".join(parameter(k).public for k in dict.fromkeys(not_determined))
         out.append(FitWarning(f"degenerate: the data does not determine {names} (no standard error there): the model has more freedom than the data shows",
@@ -238,6 +236,18 @@ def fit_warnings(params: Params, stderr, not_determined=(), no_stderr_because: s
     if stderr is None:
         out.append(FitWarning(f"standard errors not computed: {no_stderr_because}", "no_standard_errors"))
     return out
+
+
+def _f0_at_bound(f0: np.ndarray, se) -> bool:
+    """Whether F0 lies within 10⁻⁶ of 0 or 1 in some band and is not determined away from it (no
+    standard error there, or one over a third of its distance): F0 = 9.986·10⁻⁷ ± 9.6·10⁻¹⁰, the
+    truth 10⁻⁶, is no bound."""
+    gap = np.minimum(f0, 1 - f0)
+    near = gap < 1e-6
+    if se is None:
+        return bool(np.any(near))
+    err = np.broadcast_to(np.asarray(se, dtype=float), f0.shape)
+    return bool(np.any(near & ~(np.isfinite(err) & (gap > 3 * err))))
 
 
 DIFFUSE_SHOWN = 1e-3
