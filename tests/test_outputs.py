@@ -129,7 +129,7 @@ def test_an_existing_chain_needs_resume_or_overwrite(tmp_path):
 
     chain = tmp_path / "run.h5"
     with h5py.File(chain, "w") as f:
-        f["x"] = [1.0]
+        f.create_group("ctfit")["x"] = [1.0]  # (a chain of ctfit's: its group)
     with pytest.raises(OutputError, match=r"--backend .*run.h5: the file exists; .* --resume, .* --overwrite"):
         check_backend(chain, resume=False, overwrite=False)
     with pytest.raises(OutputError, match="resume=True.* overwrite=True"):
@@ -138,6 +138,10 @@ def test_an_existing_chain_needs_resume_or_overwrite(tmp_path):
     assert check_backend(chain, resume=False, overwrite=True) == chain
     with pytest.raises(OutputError, match="exclude each other"):
         check_backend(chain, resume=True, overwrite=True)
+    with h5py.File(chain, "a") as f:
+        f["calibration"] = [2.0]  # the user's data beside the chain: a new chain (the whole file anew) would lose it
+    with pytest.raises(OutputError, match=r"run.h5: the HDF5 file holds 'calibration' beside ctfit's chain"):
+        check_backend(chain, resume=False, overwrite=True)
     text = tmp_path / "notes.txt"
     text.write_text("not a chain")
     with pytest.raises(OutputError, match="is not an HDF5 file"):
