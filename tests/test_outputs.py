@@ -742,3 +742,25 @@ def test_a_result_written_meanwhile_by_another_run_is_kept(tmp_path, monkeypatch
     assert r.exit_code == 2 and "holds the fit of another input, '/elsewhere/a.csv'" in r.output, r.output
     assert (out / "a.fit.json").read_text() == theirs
     assert not [p for p in out.iterdir() if p.name.startswith(".ctfit-")]  # no temporary left
+
+
+def test_a_sampled_result_written_meanwhile_by_another_run_is_kept(tmp_path, monkeypatch):
+    """``fit --sample`` into a folder: the sampling takes minutes, and another run's fit of another
+    input put at the result's name meanwhile is kept (the write checks again); that input fails."""
+    import ctfit._cli.sample_command as sample_command
+
+    data = tmp_path / "a.csv"
+    assert run("simulate", MATERIAL, "-o", data, "--samples", 40, "--wavelengths", "450,650").exit_code == 0
+    out = tmp_path / "out"
+    theirs = json.dumps({"data": "/elsewhere/a.csv", "fit": {"converged": True}, "s": 1.0}) + "\n"
+    sampled = sample_command._uncertainty
+
+    def meanwhile(*args, **kwargs):
+        section = sampled(*args, **kwargs)
+        (out / "a.fit.json").write_text(theirs)  # the other run's rename lands while this one samples
+        return section
+
+    monkeypatch.setattr(sample_command, "_uncertainty", meanwhile)
+    r = run("fit", data, "--lobes", 1, "--no-diffuse", "-q", "--sample", "--steps", 40, "-o", f"{out}/")
+    assert r.exit_code == 2 and "holds the fit of another input, '/elsewhere/a.csv'" in r.output, r.output
+    assert (out / "a.fit.json").read_text() == theirs

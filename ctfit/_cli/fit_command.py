@@ -627,7 +627,7 @@ def _sample_and_report(res, meas, path: Path, o, t: SimpleNamespace, target) -> 
         warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
         doc = fit_sample_body(
             res, meas, walkers=o.walkers, steps=o.steps, burn=o.burn, thin=o.thin, seed=o.seed, backend=t.backend,
-            resume=o.resume, overwrite=o.overwrite, output=target, plot_dir=None if t.plot is None else t.plot.parent,
+            resume=o.resume, overwrite=o.overwrite, output=target, own_of=path if t.own else None, plot_dir=None if t.plot is None else t.plot.parent,
             plot_stem=t.name, progress=progress_mode(o.quiet),
         )
     if o.as_json:

@@ -172,20 +172,24 @@ def sample_command_body(
     return material_to_dict(material, extra=extra)
 
 
-def fit_sample_body(fit_result, data, *, plot_dir=None, output=None, plot_stem: str = "fit", **options) -> dict:
+def fit_sample_body(fit_result, data, *, plot_dir=None, output=None, plot_stem: str = "fit", own_of=None, **options) -> dict:
     """``ctfit fit DATA --sample``: sample a fresh :class:`~ctfit.FitResult` on its measurement.
 
     Returns the fit-result document with ``fit`` and ``uncertainty`` sections; writes it
-    atomically to ``output`` when given, and the plots to ``plot_dir`` (named after ``output``,
+    atomically to ``output`` when given (``own_of``: the input's path, in a results folder, where
+    ``output`` is written over nothing or that input's earlier result only, checked at the write:
+    :func:`~ctfit._io.write_own_result`), and the plots to ``plot_dir`` (named after ``output``,
     else ``plot_stem``). ``options``: those of :func:`ctfit.sample` (``walkers``, ``steps``,
     ``backend``, ``resume``, ``overwrite``, ``progress``, ...).
     """
     from .._fitting import fit_result_to_dict
-    from .._io import material_to_dict, save_material_json
+    from .._io import material_json, material_to_dict, save_material_json, write_own_result
 
     stem = result_stem(pathlib.Path(output)) if output is not None else plot_stem
     section = _uncertainty(fit_result, data, plot_dir=plot_dir, stem=stem, **options)
     extra = {**fit_result_to_dict(fit_result, material_keys=False), "uncertainty": section}
-    if output is not None:
+    if output is not None and own_of is not None:
+        write_own_result(output, [material_json(material_to_dict(fit_result.material, extra))], own_of)
+    elif output is not None:
         save_material_json(fit_result.material, output, extra=extra)
     return material_to_dict(fit_result.material, extra=extra)
