@@ -115,7 +115,7 @@ def fit(
     data: list[Path] = typer.Argument(..., metavar="DATA", help="Measurement files (CSV, ALTA, MERL .binary, RGL .bsdf) or folders of them."),
     output: Optional[str] = typer.Option(None, "-o", "--output", help="Write the fit-result JSON here (one file: this path; several, a folder of them, a name "
                                                                       "ending in / or an existing folder: a folder, with summary.json)."),
-    as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table."),
+    as_json: bool = typer.Option(False, "--json", help="Print the fit-result JSON to stdout instead of the table (several inputs: JSON Lines)."),
     material: Optional[Path] = typer.Option(None, "--material", help="Material file: structure, starting values and (key 'fixed') fixed parameters."),
     family: str = typer.Option("auto", "--family", help="metal (F0(λ), or n, k), plastic (one real index n, its own R_d(λ)) or auto (chosen by the data: "
                                                         "docs/fitting.md)."),
