@@ -124,3 +124,17 @@ def test_f0_near_a_bound_but_determined_away_from_it_is_not_at_a_bound():
     assert not any("F0 at a bound" in w for w in fit_warnings(params, {"F0": np.array([9.6e-10, 1e-3])}))
     assert any("F0 at a bound" in w for w in fit_warnings(params, {"F0": np.array([np.nan, 1e-3])}))  # on its bound: no error
     assert any("F0 at a bound" in w for w in fit_warnings(dataclasses.replace(params, f0=np.array([0.0, 0.5])), None))
+
+
+def test_held_parameters_have_no_standard_error():
+    """A material file's ``fixed = ["m", "n"]`` printed "m = 0.3 ± 0", as if measured exactly;
+    held parameters now have none (null, listed in no_stderr), and the table shows their value alone."""
+    import numpy as np
+
+    rubber = ctfit.load_material(ROOT / "configs" / "rubber.toml")
+    data = ctfit.simulate(rubber, n_pairs=200, noise=0.02, seed=2)
+    res = ctfit.fit(data, rubber.structure, start=rubber.params, fixed=("m", "n"))
+    assert np.isnan(res.stderr["m"]).all() and np.isnan(res.stderr["n"]).all() and np.isfinite(res.stderr["s"])
+    assert "m[0]" in res.stats["no_stderr"] and "n[0]" in res.stats["no_stderr"]
+    table = ctfit.format_fit_table(res)
+    assert "± 0 " not in table and f"m = {float(res.material.params.m[0]):.6g}   " in table

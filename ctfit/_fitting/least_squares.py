@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.typing import DTypeLike
 
-from .._model import Material, Measurement, Params, Structure, x64_enabled
+from .._model import Material, Measurement, Params, Structure, parameter, x64_enabled
 from .._runtime import cached_call, release_free_pages
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch, race_rows
 from .chunks import sum_over_chunks
@@ -402,6 +402,15 @@ def finish_light(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance
     return FitResult(material=_fitted_material(prep, params), stats=stats, stderr=None, warnings=[], loss=prep.loss, solver=solver)
 
 
+def _held_without_error(stderr: dict | None, fixed: tuple[str, ...]) -> dict | None:
+    """``stderr`` with the parameters held at their given values (``fixed``; F0's effective index
+    with F0) NaN: they have no standard error (they printed "± 0" as if measured exactly)."""
+    if stderr is None or not fixed:
+        return stderr
+    held = {parameter(k).public for k in fixed} | ({"n"} if "f0" in fixed else set())
+    return {k: np.full(np.shape(v), np.nan) if k in held else v for k, v in stderr.items()}
+
+
 def _no_stderr(stderr: dict | None, jt: dict | None, p: int) -> list[str]:
     """Every reported entry ("F0[2]") without a standard error: those that are NaN, or all of
     them (the quantities of ``jt``, P = ``p`` coordinates) where none were computed."""
@@ -434,7 +443,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     on_bound = np.asarray(out["on_bound"], bool)
     loose = undetermined(out["jtj"]) & ~on_bound  # coordinates the data does not determine
     no_noise = loss != "sigma" and n <= p  # no residual left to estimate the noise from: the errors would be rounding
-    stderr = None if no_noise else standard_errors(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose)
+    stderr = None if no_noise else _held_without_error(standard_errors(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose), prep.fixed)
     pairs, index = data.directions()
     rel = np.reshape(out["rel"], problem.y.shape)
     if problem.spec.grid:
