@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from .._model import PUBLIC_NAMES, Measurement, Params, Structure
+from .._model import PUBLIC_NAMES, Measurement, Params, Structure, wrong_size
 from .coordinates import free_names
 
 __all__ = ["check_fittable", "check_solve_options", "checked_start", "fixed_names", "n_free_parameters", "nonfinite_reason", "representable_range"]
@@ -38,13 +38,9 @@ def representable_range(dtype) -> tuple[float, float]:
 
 def n_free_parameters(structure: Structure, n_bands: int, fixed: tuple[str, ...] = ()) -> int:
     """The number of values a fit of ``structure`` on ``n_bands`` bands adjusts."""
-    size = {**_sizes(structure, n_bands), "w": structure.lobes - 1}
+    size = {"s": 1, "m": structure.lobes, "w": structure.lobes - 1, "f0": n_bands, "n": 1 if structure.shared_index else n_bands, "k": n_bands}
+    size["rd"] = 1 if structure.diffuse == "constant" else n_bands
     return sum(size[name] for name in free_names(structure, fixed))
-
-
-def _sizes(structure: Structure, n_bands: int) -> dict[str, int]:
-    return {"s": 1, "m": structure.lobes, "w": structure.lobes, "f0": n_bands, "n": 1 if structure.shared_index else n_bands, "k": n_bands,
-            "rd": 1 if structure.diffuse == "constant" else n_bands}
 
 
 def fixed_names(structure: Structure, fixed) -> tuple[str, ...]:
@@ -86,14 +82,13 @@ def checked_start(structure: Structure, n_bands: int, start) -> Params | None:
         return None
     if not isinstance(start, Params):
         raise TypeError(f"start must be a ctfit.Params (a material's: material.params), got {type(start).__name__}")
-    sizes = _sizes(structure, n_bands)
-    for name, size in sizes.items():
-        value = getattr(start, name)
-        if value is None or np.size(value) == size or (name in ("f0", "n", "k", "rd") and np.size(value) in (1, n_bands)):
-            continue  # (a plastic's one index may come listed per band)
-        what = "one per lobe" if name in ("m", "w") else ("one" if size == 1 else f"one per band ({n_bands}) or one for all")
-        raise ValueError(f"start.{name} has {np.size(value)} values; this fit takes {what}: {size} ({_describe(structure) or 'its structure'})")
-    return start
+    bad = wrong_size(structure, start, n_bands)  # (a plastic's one index may come listed per band)
+    if bad is None:
+        return start
+    name, got = bad
+    what, size = {"m": ("one per lobe", structure.lobes), "w": ("one per lobe", structure.lobes), "s": ("one", 1)}.get(
+        name, (f"one per band ({n_bands}) or one for all", n_bands))
+    raise ValueError(f"start.{name} has {got} values; this fit takes {what}: {size} ({_describe(structure) or 'its structure'})")
 
 
 def _describe(structure: Structure) -> str:

@@ -20,7 +20,8 @@ from .measurement import band_labels
 from .names import valid_name
 from .pytrees import pytree
 
-__all__ = ["Structure", "Params", "Material", "used", "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "FAMILIES", "MAX_LOBES"]
+__all__ = ["Structure", "Params", "Material", "used", "wrong_size",
+           "DISTRIBUTIONS", "GEOMETRIES", "FRESNELS", "DIFFUSES", "NORMALIZATIONS", "FAMILIES", "MAX_LOBES"]
 
 DISTRIBUTIONS = ("beckmann", "gaussian")
 GEOMETRIES = ("v-cavity", "smith", "smith-rational")
@@ -227,17 +228,14 @@ class Material:
         ...
         ValueError: material '': m has 1 values; its structure has 2 lobes
         """
-        p, lobes = self.params, self.structure.lobes if self.structure.has_specular else None
-        for name in ("m", "w"):
-            value = getattr(p, name)
-            if lobes is not None and value is not None and np.size(value) != lobes:
-                raise ValueError(f"material {self.name!r}: {name} has {np.size(value)} values; its structure has {lobes} lobes")
         bands = len(self.channels) if self.channels is not None else (len(self.wavelength_nm) if self.wavelength_nm is not None else None)
-        for name in _SPECTRAL_FIELDS:
-            value = getattr(p, name)
-            if bands is not None and value is not None and np.size(value) not in (1, bands):
-                raise ValueError(f"material {self.name!r}: {name} has {np.size(value)} values for its {bands} bands")
-        return self
+        bad = wrong_size(self.structure, self.params, bands)
+        if bad is None:
+            return self
+        name, got = bad
+        takes = {"m": f"; its structure has {self.structure.lobes} lobes", "w": f"; its structure has {self.structure.lobes} lobes",
+                 "s": "; s is one number"}.get(name, f" for its {bands} bands")
+        raise ValueError(f"material {self.name!r}: {name} has {got} values{takes}")
 
     @property
     def is_rgb(self) -> bool:
@@ -271,6 +269,24 @@ class Material:
         src = np.asarray(self.wavelength_nm, dtype=float)
 
         return _map_bands(p, lambda a: np.interp(wl, src, np.asarray(a, dtype=float)))
+
+
+def wrong_size(structure: Structure, params: Params, bands: int | None) -> tuple[str, int] | None:
+    """(name, number of values) of the first of ``params`` whose size is not what ``structure``
+    takes on ``bands`` bands — m and the weights one per lobe, s one, F0, n, k, R_d one per band
+    or one for all (``bands`` None: not checked) — or None where every one fits."""
+    lobes = structure.lobes if structure.has_specular else None
+    for name in ("m", "w"):
+        value = getattr(params, name)
+        if lobes is not None and value is not None and np.size(value) != lobes:
+            return name, int(np.size(value))
+    if params.s is not None and np.size(params.s) != 1:
+        return "s", int(np.size(params.s))
+    for name in _SPECTRAL_FIELDS:
+        value = getattr(params, name)
+        if bands is not None and value is not None and np.size(value) not in (1, bands):
+            return name, int(np.size(value))
+    return None
 
 
 def _map_bands(p: Params, fn: Callable[[Array], Array | np.ndarray]) -> Params:
