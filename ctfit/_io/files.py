@@ -8,6 +8,7 @@ import os
 import re
 import stat
 import threading
+from collections.abc import Callable
 
 from .errors import DataError
 from .interrupt import deferred
@@ -214,7 +215,7 @@ def temporary_for(path) -> tuple[str, str, int | None]:
     return os.path.join(folder, f".ctfit-{os.getpid()}-{os.urandom(4).hex()}.tmp"), target, mode
 
 
-def atomic_write(path, chunks, *, quiet: bool = False, new: bool = False) -> None:
+def atomic_write(path, chunks, *, quiet: bool = False, existing: Callable[[str], None] | None = None) -> None:
     """Write ``chunks`` (all ``str`` or all ``bytes``) to a new file beside ``path``, then rename it
     over ``path``: readers see the old file or the whole new one, never a part.
 
@@ -226,10 +227,11 @@ def atomic_write(path, chunks, *, quiet: bool = False, new: bool = False) -> Non
     removed on any error; the first write into a folder removes stale ones
     (:func:`remove_stale_temporaries`). In the ``ctfit`` command a Ctrl-C during the write
     removes the temporary file and keeps the old one, and says so (``_cli/interrupt.py``);
-    ``quiet``: a write of ctfit's own (a cache entry), removed but not mentioned then. ``new``:
-    only where no file is: one that another process put there since (even a moment before the
-    rename) is left as it is, and ``FileExistsError`` raised (the new file is linked in place,
-    which fails where a file is; where the file system has no links, checked just before).
+    ``quiet``: a write of ctfit's own (a cache entry), removed but not mentioned then.
+    ``existing``: the new file is placed where no file is (linked in place, which fails where one
+    is; where the file system has no links, checked just before); where one is at that moment,
+    ``existing(path)`` is called first and may raise to keep it (even one that another process
+    put there a moment before).
     """
     path = os.fspath(path)
     if os.path.isdir(path):
@@ -250,7 +252,10 @@ def atomic_write(path, chunks, *, quiet: bool = False, new: bool = False) -> Non
             f.flush()
             os.fsync(f.fileno())
         with deferred(done=None if quiet else f"{path} was written in full"):
-            (_link_new if new else os.replace)(tmp, target)
+            if existing is None:
+                os.replace(tmp, target)
+            else:
+                _place_new(tmp, target, lambda: existing(path))
             _temporaries.pop(tmp, None)
     except BaseException as e:
         remove_temporaries([tmp])
@@ -261,15 +266,14 @@ def atomic_write(path, chunks, *, quiet: bool = False, new: bool = False) -> Non
         _temporaries.pop(tmp, None)
 
 
-def _link_new(tmp: str, target: str) -> None:
-    """``tmp`` renamed to ``target`` where no file is, else ``FileExistsError`` (``tmp`` left)."""
+def _place_new(tmp: str, target: str, existing: Callable[[], None]) -> None:
+    """``tmp`` renamed to ``target`` where no file is; where one is, after ``existing()`` (which
+    raises to keep it)."""
     try:
         os.link(tmp, target)
-    except FileExistsError:
-        raise
-    except OSError:  # no hard links here (some network and FAT file systems): checked, then renamed
-        if os.path.lexists(target):
-            raise FileExistsError(errno.EEXIST, "the file exists", target) from None
+    except OSError as e:  # a file there, or no hard links here (some network and FAT file systems): checked, then renamed
+        if isinstance(e, FileExistsError) or os.path.lexists(target):
+            existing()
         os.replace(tmp, target)
         return
     os.unlink(tmp)

@@ -334,12 +334,7 @@ def write_own_result(target, chunks, data) -> None:
     checked at the write (:func:`check_rerun_target`), not only before the run: a file that
     another run put there meanwhile (its input's fit of that name) is kept, and an
     :class:`OutputError` says so."""
-    try:
-        atomic_write(target, chunks, new=True)
-        return
-    except FileExistsError:
-        check_rerun_target(target, data)
-    atomic_write(target, chunks)
+    atomic_write(target, chunks, existing=lambda path: check_rerun_target(path, data))  # written once, checked where a file is
 
 
 def _same_input(doc: dict, data) -> bool:
