@@ -21,7 +21,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
                  'merl_phi_d_index', 'merl_theta_d_index', 'merl_theta_h_index', 'merl_table', 'read_merl', 'write_merl'],
         "optical_constants": ['read_optical_constants'],
         "output_paths": ['InputFiles', 'PLOT_SOFTWARE', 'broken_link', 'check_backend', 'check_distinct', 'check_output', 'check_output_folder',
-                         'check_own_name', 'check_rerun_plot', 'check_rerun_target', 'is_fit_result', 'is_posterior', 'plot_metadata',
+                         'check_own_name', 'check_rerun_plot', 'check_rerun_target', 'groups_beside_chain', 'is_fit_result', 'is_posterior', 'plot_metadata',
                          'result_targets', 'same_file', 'unconverged_name', 'unconverged_target', 'write_own_result'],
         "read_ahead": ['ReadAhead', 'start_read_ahead', 'usable_cores'],
         "readers": ['read_measurement', 'reader_for'],

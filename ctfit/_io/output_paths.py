@@ -29,6 +29,7 @@ __all__ = [
     "result_targets",
     "check_rerun_target",
     "write_own_result",
+    "groups_beside_chain",
     "check_rerun_plot",
     "check_distinct",
     "check_own_name",
@@ -239,12 +240,20 @@ def _check_only_chains(path: Path, option: str) -> None:
 
     if not h5py.is_hdf5(path):
         raise OutputError(f"{_at(option, path)}: is not an HDF5 file; a new chain replaces only a file of ctfit's chain: name another file")
-    with h5py.File(path, "r") as f:
-        others = [k for k in f.keys() if k != "ctfit"]
-    if others:
-        listed = ", ".join(repr(k) for k in others[:5]) + (", …" if len(others) > 5 else "")
+    listed = groups_beside_chain(path)
+    if listed:
         raise OutputError(f"{_at(option, path)}: the HDF5 file holds {listed} beside ctfit's chain, which a new chain would replace (the "
                           "whole file is written anew): name another file")
+
+
+def groups_beside_chain(path) -> str:
+    """The names of what an HDF5 file holds beside ctfit's group ``ctfit`` ("'calibration', 'raw'",
+    five at most), or ""."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        others = [k for k in f.keys() if k != "ctfit"]
+    return ", ".join(repr(k) for k in others[:5]) + (", …" if len(others) > 5 else "")
 
 
 def _names(paths: list[Path]) -> list[str]:

@@ -22,7 +22,7 @@ import pathlib
 import jax
 import numpy as np
 
-from .._io import deferred, note_resumable, on_interrupt, temporary_for
+from .._io import deferred, groups_beside_chain, note_resumable, on_interrupt, temporary_for
 
 __all__ = ["NewChain", "fingerprint", "open_run"]
 
@@ -66,10 +66,10 @@ def _opened(path: pathlib.Path, new, *, resume: bool, overwrite: bool, steps: in
     be = _open_backend(write_to, overwrite=overwrite and new is None)
     done = 0
     if resume and path.is_file() and path.stat().st_size and not be.initialized:  # another program's HDF5 file: never written into unasked
-        others = _other_contents(path)
+        others = groups_beside_chain(path)
         raise ValueError(
             f"{path}: the HDF5 file holds no chain of ctfit (no group 'ctfit') to continue; name another file"
-            + (f" (it holds {others}, which a new chain would replace)" if others else ", or start a chain in this one (overwrite=True)")
+            + (f" (it holds groups {others}, which a new chain would replace)" if others else ", or start a chain in this one (overwrite=True)")
         )
     if resume and path.exists() and be.initialized and be.iteration > 0:
         if be.shape != shape:
@@ -187,15 +187,6 @@ def _whole_steps_backend():
                 return super().grow(*args, **kwargs)
 
     return WholeStepsHDFBackend
-
-
-def _other_contents(path: pathlib.Path) -> str:
-    """What an HDF5 file holds beside ctfit's group ("groups 'calibration', 'raw'"), or ""."""
-    h5py = _h5py()
-
-    with h5py.File(path, "r") as f:
-        keys = [k for k in f.keys() if k != "ctfit"]
-    return ("groups " + ", ".join(repr(k) for k in keys[:5]) + (", …" if len(keys) > 5 else "")) if keys else ""
 
 
 def _write_attrs(path: pathlib.Path, attrs: dict) -> None:
