@@ -93,7 +93,7 @@ def test_a_batch_stopped_by_an_unexpected_error_ends_its_threads_at_once(tmp_pat
     before = set(threading.enumerate())
     r = run("fit", data, "--no-diffuse", "--lobes", "1", "-o", tmp_path / "fits")
     assert r.exit_code != 0 and isinstance(r.exception, RuntimeError)  # the result keeps the traceback, and so the frames
-    left = [t.name for t in set(threading.enumerate()) - before if t.name.startswith(("ctfit-read", "ctfit-fit", "ThreadPoolExecutor-"))]
+    left = [t.name for t in set(threading.enumerate()) - before if t.name.startswith(("ctfit-read", "ctfit-fit", "ctfit-write", "ThreadPoolExecutor-"))]
     assert not left, left
 
 
@@ -452,3 +452,64 @@ def test_json_of_several_files_is_one_document_a_line(tmp_path):
     docs = [json.loads(line) for line in r.stdout.splitlines() if line.strip()]
     assert [Path(d["data"]).name for d in docs] == ["a.csv", "b.csv"]
     assert docs == [json.loads((out / f"{n}.fit.json").read_text()) for n in ("a", "b")]
+
+
+def test_result_files_are_written_while_the_next_files_are_reported(tmp_path, monkeypatch):
+    """Files fitted together: a result file is written in a writer thread (its sync waits for the
+    disk) while the next file is reported, and its 'wrote' line follows, in the files' order."""
+    import ctfit._cli.fit_command as fit_command
+    import ctfit._io as io
+
+    data = tmp_path / "data"
+    for k in range(3):
+        write(data, f"{k}.csv", seed=k)
+    reported = {k: threading.Event() for k in range(3)}
+    report, own = fit_command.report_file, io.write_own_result
+    overlapped = []
+
+    def noting(path, *args, **kwargs):
+        reported[int(Path(path).stem)].set()
+        return report(path, *args, **kwargs)
+
+    def slow(target, chunks, data):  # the first file's write lasts until the next file is reported
+        if Path(data).stem == "0":
+            overlapped.append(reported[1].wait(timeout=60))
+        return own(target, chunks, data)
+
+    monkeypatch.setattr(fit_command, "report_file", noting)
+    monkeypatch.setattr(io, "write_own_result", slow)
+    out = tmp_path / "fits"
+    r = run("fit", data, "--no-diffuse", "--lobes", "1", "-o", out)
+    assert r.exit_code == 0, r.output
+    assert overlapped == [True]
+    wrote = [line for line in r.stderr.splitlines() if line.startswith("wrote ")]
+    assert wrote[:3] == [f"wrote {out / f'{k}.fit.json'}" for k in range(3)]
+    assert sorted(p.name for p in out.iterdir()) == ["0.fit.json", "1.fit.json", "2.fit.json", "summary.json"]
+
+
+def test_a_result_that_cannot_be_written_fails_its_file_only(tmp_path, monkeypatch):
+    """A write in the writer thread that fails is that file's error line and 'failed' outcome, in
+    its place among the others; the other results are written and the run's status is 2."""
+    import ctfit._io as io
+
+    data = tmp_path / "data"
+    for k in range(3):
+        write(data, f"{k}.csv", seed=k)
+    own = io.write_own_result
+
+    def full(target, chunks, data):
+        if Path(data).stem == "1":
+            raise OSError(28, "No space left on device", str(target))
+        return own(target, chunks, data)
+
+    monkeypatch.setattr(io, "write_own_result", full)
+    out = tmp_path / "fits"
+    r = run("fit", data, "--no-diffuse", "--lobes", "1", "-o", out)
+    assert r.exit_code == 2, r.output
+    errors = [line for line in r.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "no space left on the device" in errors[0] and str(out / "1.fit.json") in errors[0], errors
+    assert [line.split()[0] for line in summary(r.stderr)] == ["converged", "failed", "converged"]
+    assert sorted(p.name for p in out.iterdir()) == ["0.fit.json", "2.fit.json", "summary.json"]
+    rows = json.loads((out / "summary.json").read_text())["results"]
+    assert [row["outcome"] for row in rows] == ["converged", "failed", "converged"]
+    assert rows[1]["result"] is None

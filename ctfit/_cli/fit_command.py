@@ -351,18 +351,25 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool, ahead=None, ha
     Several files fitted with one structure (not ``--lobes auto``, not ``--sample``) are fitted
     together by ``fit_batch``, a window of files at a time (:func:`_read_window`), and then
     reported file by file, as they would be one at a time; the next windows are fitted and read
-    in background threads while one is reported (:func:`_windows`)."""
-    from .._runtime import bar, echo
+    in background threads while one is reported (:func:`_windows`), and each result file is
+    written in a writer thread while the next files are reported (:data:`RESULT_WRITERS`): its
+    ``wrote`` line, or its error, follows once it is written."""
+    import collections
+    import concurrent.futures
+
+    from .._runtime import bar
 
     together = len(files) > 1 and not o.sample_ and structure_from_options(base.structure if base else None, o) is not None
     outcomes: list[tuple[str, str]] = []
     windows = _windows(files, o, base, hashes) if together else None
+    writer = concurrent.futures.ThreadPoolExecutor(RESULT_WRITERS, thread_name_prefix="ctfit-write") if together else None
+    queued: collections.deque = collections.deque()  # (path, outcome or a failure, the write under way or None), in the files' order
     fitted: dict[Path, Any] = {}  # path → (measurement, FitResult), or an exception (_windows)
     try:
         for path in bar(files, desc="files", enabled=show and len(files) > 1):
             try:
                 if not together:
-                    outcome = _fit_file(path, o, base, plan[path], show, ahead, hashes)
+                    queued.append((path, _fit_file(path, o, base, plan[path], show, ahead, hashes), None))
                 else:
                     if path not in fitted:
                         assert windows is not None  # together
@@ -371,22 +378,52 @@ def _fit_each(files: list[Path], o, base, plan: dict, show: bool, ahead=None, ha
                     if isinstance(got, Exception):
                         raise got
                     meas, res = got
-                    outcome = report_file(path, meas, res, o, plan[path], show, sha=None if hashes is None else hashes.get(path))
-                outcomes.append((outcome, str(path)))
+                    outcome = report_file(path, meas, res, o, plan[path], show, sha=None if hashes is None else hashes.get(path), writer=writer)
+                    queued.append((path, outcome, plan[path].writing))
             except (UserError, ValueError, OSError, KeyError) as e:
                 if len(files) == 1:
                     raise
-                line = failure_line(path, e)
-                echo(f"error: {line}", err=True)
-                outcomes.append(("failed", line))
+                queued.append((path, e, None))
+            _settle(queued, outcomes, wait=False)
+        _settle(queued, outcomes, wait=True)
     finally:
         # Stopped by anything else (Ctrl-C, an error of ctfit's own): the windows' threads end
         # here, in this thread. Left to the garbage collector, the generator's close (which
         # joins them) ran wherever a collection happened, once inside Python's own lock of
-        # thread starts: a later command in the process hung for good.
+        # thread starts: a later command in the process hung for good. Writes under way end first.
         if windows is not None:
             windows.close()
+        if writer is not None:
+            writer.shutdown(wait=True)
     return outcomes
+
+
+RESULT_WRITERS = 4
+"""Result files written at once, each in its own thread, while the next files are reported. A
+write waits for the disk (:func:`~ctfit._io.atomic_write` syncs the new file before its rename:
+0.7–3.6 ms here, 256 files 0.2–0.9 s one after another), and writes in several threads share
+the file system's journal commits (256 files in 4 threads: 0.1–0.17 s)."""
+
+
+def _settle(queued, outcomes: list[tuple[str, str]], *, wait: bool) -> None:
+    """Move the files of ``queued`` whose result is written (all of them, with ``wait``) to
+    ``outcomes``, in the files' order: a ``wrote`` line for each result written, an error line for
+    each file that failed (its report, or its write)."""
+    from .._runtime import echo
+
+    while queued and (wait or queued[0][2] is None or queued[0][2].done()):
+        path, outcome, writing = queued.popleft()
+        try:
+            if isinstance(outcome, Exception):
+                raise outcome
+            if writing is not None:
+                echo_wrote(*writing.result())
+        except (UserError, ValueError, OSError, KeyError) as e:
+            line = failure_line(path, e)
+            echo(f"error: {line}", err=True)
+            outcomes.append(("failed", line))
+            continue
+        outcomes.append((outcome, str(path)))
 
 
 WINDOW_FILES = 64
@@ -517,11 +554,13 @@ def _fit_window(ready: list, failed: dict, fixed: tuple, o, base) -> dict:
     return done
 
 
-def report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool, sha: str | None = None) -> str:
+def report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool, sha: str | None = None, writer=None) -> str:
     """Print and write one file's results; its outcome: "converged", "not converged", or with
     --sample ``UNUSABLE`` when the fit converged but its posterior is not usable. ``sha``: the
     input's SHA-256 as it was read, written into the result (a rerun from another folder knows
-    its own results by it)."""
+    its own results by it). ``writer`` (an executor; not with --sample): the result file is
+    written there, and ``t.writing`` is the future of that write, giving the arguments of
+    :func:`echo_wrote` once written; the caller says so (without: said here, ``t.writing`` None)."""
     res.material.meta["data"] = str(path)
     if sha is not None:
         res.material.meta["input_sha256"] = sha
@@ -531,12 +570,15 @@ def report_file(path: Path, meas, res, o, t: SimpleNamespace, show: bool, sha: s
 
         target, note = unconverged_target(target)
     t.written = target  # the summary names the file written (a fit that did not converge may go beside a converged one)
-    usable = True
+    usable, t.writing = True, None
     if o.sample_:
         usable = _sample_and_report(res, meas, path, o, t, target)
+    elif writer is not None:
+        t.writing = _report_fit(res, path, o, target, own=t.own, writer=writer, wrote=(target, note))
     else:
         _report_fit(res, path, o, target, own=t.own)
-    echo_wrote(target, note)
+    if t.writing is None:
+        echo_wrote(target, note)
     if t.plot is not None:
         from .._fitting import plot_fit
 
@@ -576,12 +618,14 @@ def fit_kwargs(o) -> dict:
     return dict(loss=o.loss, solver=o.solver, dtype=jnp.float32 if o.float32 else jnp.float64, starts=o.starts, max_steps=o.max_steps)
 
 
-def _report_fit(res, path: Path, o, target, own: bool = False) -> None:
+def _report_fit(res, path: Path, o, target, own: bool = False, writer=None, wrote: tuple = ()):
     """The table (or JSON) on stdout; the fit-result JSON written to ``target``. The two JSON
     documents are one (:func:`~ctfit._fitting.fit_result_to_dict`), made and encoded once: the
     file's text is what ``--json`` prints where it holds only ASCII characters (``json.dumps``
     escapes the others on stdout). ``json.dumps`` with an indent runs Python's own encoder, so
-    encoding twice cost a database a few milliseconds a file (256 files: 0.92× the time once)."""
+    encoding twice cost a database a few milliseconds a file (256 files: 0.92× the time once).
+    ``writer``: the file is written there; returns the write's future (its value: ``wrote``), or
+    None where nothing is written."""
     from .._fitting import fit_result_to_dict, format_fit_table
     from .._io import atomic_write, material_json, write_own_result
     from .._runtime import echo
@@ -589,16 +633,25 @@ def _report_fit(res, path: Path, o, target, own: bool = False) -> None:
     if not o.as_json:
         echo(cli_message(format_fit_table(res, str(path))))
     if not o.as_json and target is None:
-        return
+        return None
     doc = fit_result_to_dict(res)
     text = material_json(doc)
     if o.as_json:
         echo(json.dumps(json.loads(text), separators=(",", ":")) if getattr(o, "json_lines", False) else ascii_json(text[:-1]))
-    if target is not None:
+    if target is None:
+        return None
+
+    def write() -> tuple:
         if own:
             write_own_result(target, [text], path)
         else:
             atomic_write(target, [text])
+        return wrote
+
+    if writer is None:
+        write()
+        return None
+    return writer.submit(write)
 
 
 def ascii_json(text: str) -> str:
