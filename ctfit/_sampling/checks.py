@@ -183,23 +183,25 @@ def steps_needed(steps: int, burn: int, tau_max: float, ess_min: float) -> int:
     as this chain tells (τ read on a short chain tends to grow with it: a lower bound): the
     steps kept after burn-in grow to :data:`TAU_RUNS` τ_max and to what brings the smallest ESS
     to :data:`ESS_LIMIT` (ESS grows in proportion to them), twice the steps kept where neither
-    can be read (τ or ESS not finite) or neither falls short (only R̂ does); the default burn-in,
-    max(2 τ_max, steps/10), on top. Rounded up to two significant digits.
+    falls short (only R̂ does); the default burn-in, max(2 τ_max, steps/10), on top. Rounded up
+    to two significant digits. τ is at least 1 (a draw is worth one step at most): where it
+    cannot be read (a chain of a few steps), or reads below 1, the steps kept grow to
+    :data:`TAU_RUNS` at least.
 
     >>> steps_needed(2000, 200, 60.0, 100.0)  # ESS 100 of 400: four times the 1800 steps kept, and a tenth to burn
     8000
+    >>> steps_needed(5, 1, float("nan"), float("nan"))  # no τ read: 50 steps kept at least, not twice the 4 kept
+    56
     """
     kept = max(steps - burn, 1)
-    wants = []
-    if np.isfinite(tau_max):
-        wants.append(TAU_RUNS * tau_max)
+    tau_max = max(tau_max, 1.0) if np.isfinite(tau_max) else 1.0
+    wants = [TAU_RUNS * tau_max]
     if np.isfinite(ess_min) and ess_min > 0:
         wants.append(kept * ESS_LIMIT / ess_min)
     need = max(wants) if wants else 2 * kept
     if need <= kept:
         need = 2 * kept
-    tau = tau_max if np.isfinite(tau_max) else 0.0
-    total = max(need + 2 * tau, need / 0.9, steps + 1)
+    total = max(need + 2 * tau_max, need / 0.9, steps + 1)
     digits = 10 ** max(int(np.floor(np.log10(total))) - 1, 0)
     return int(np.ceil(total / digits) * digits)
 
