@@ -66,11 +66,13 @@ def run(n: int, steps: int, pairs: int, noise: float, loss: str, seed: int = 0, 
     inside68 = np.zeros((n, len(names)), bool)
     inside95 = np.zeros((n, len(names)), bool)
     z = np.zeros((n, len(names)))
+    spread = np.full(n, np.nan)  # the noise-scale check's ratio, and whether it failed the run (data sets whose noise the likelihood describes: never)
+    scale_failed = np.zeros(n, bool)
     t0 = time.perf_counter()
     for i in range(n):
         rng = np.random.default_rng([seed, 1000 + i])
         if loss == "absolute":
-            y = clean.brdf + noise * np.median(clean.brdf) * rng.standard_normal(len(clean))
+            y = np.maximum(clean.brdf + noise * np.median(clean.brdf) * rng.standard_normal(len(clean)), 0.0)  # a BRDF is ≥ 0 (Measurement refuses less)
         else:
             y = np.maximum(clean.brdf * (1 + noise * rng.standard_normal(len(clean))), 0.0)
         sigma = noise * np.maximum(clean.brdf, 1e-6 * clean.brdf.max())
@@ -79,6 +81,8 @@ def run(n: int, steps: int, pairs: int, noise: float, loss: str, seed: int = 0, 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ChainTooShortWarning)
             res = sample(fitted, data, steps=steps, seed=i, colour=False)
+        spread[i] = np.nan if res.diagnostics.get("residual_scale_ratio") is None else res.diagnostics["residual_scale_ratio"]
+        scale_failed[i] = any(p.startswith("one noise scale") for p in res.problems)
         col = 0
         for key in ("m", "F0"):
             draws = res.chain[key]
@@ -94,6 +98,7 @@ def run(n: int, steps: int, pairs: int, noise: float, loss: str, seed: int = 0, 
             print(
                 f"  data set {i + 1:>3}/{n}: 68 % {inside68[i].sum()}/{len(names)}, 95 % {inside95[i].sum()}/{len(names)}"
                 f"   τ_max {res.diagnostics['autocorr_time_max']:5.1f}   acceptance {res.diagnostics['acceptance_fraction']['mean']:.2f}"
+                f"   residual scale ratio {spread[i]:.2f}{' (failed)' if scale_failed[i] else ''}"
                 f"   {time.perf_counter() - t0:6.1f} s",
                 flush=True,
             )
@@ -109,6 +114,8 @@ def run(n: int, steps: int, pairs: int, noise: float, loss: str, seed: int = 0, 
         "overall68": float(inside68.mean()),
         "overall95": float(inside95.mean()),
         "z_rms": dict(zip(names, np.sqrt(np.mean(z**2, axis=0)).tolist())),
+        "residual_scale_ratio_max": None if np.all(np.isnan(spread)) else float(np.nanmax(spread)),
+        "noise_scale_failed": int(scale_failed.sum()),
         "time_s": time.perf_counter() - t0,
     }
 
@@ -125,6 +132,8 @@ def report(r: dict) -> str:
     for p in r["parameters"]:
         lines.append(f"  {p:>14}  {r['coverage68'][p]:6.2f}  {r['coverage95'][p]:6.2f}  {r['z_rms'][p]:6.2f}")
     lines.append(f"  {'overall':>14}  {r['overall68']:6.3f}  {r['overall95']:6.3f}")
+    if r.get("residual_scale_ratio_max") is not None:
+        lines.append(f"  noise-scale check: largest residual scale ratio {r['residual_scale_ratio_max']:.2f}, failed {r['noise_scale_failed']} of {n} runs")
     lines.append(
         f"  target 0.60–0.76 and 0.90–0.98; ±2 binomial sd per parameter: {b68[0]:.2f}–{b68[1]:.2f}, {b95[0]:.2f}–{min(b95[1], 1):.2f};"
         f" overall: {o68[0]:.3f}–{o68[1]:.3f}, {o95[0]:.3f}–{min(o95[1], 1):.3f}"

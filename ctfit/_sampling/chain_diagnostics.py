@@ -49,8 +49,8 @@ def default_burn(chain_u: np.ndarray) -> int:
     return int(min(n // 2, max(math.ceil(2 * tau_max), n // 10)))
 
 
-def run_notes(kept: int, tau: np.ndarray, labels: list[str], acceptance: np.ndarray, spread: float | None) -> list[str]:
-    """Plain notes on the run: chain shorter than 50 τ, acceptance outside 0.15–0.7, one noise scale."""
+def run_notes(kept: int, tau: np.ndarray, labels: list[str], acceptance: np.ndarray) -> list[str]:
+    """Plain notes on the run: chain shorter than 50 τ, acceptance outside 0.15–0.7."""
     notes = []
     tau_max = float(np.max(tau))
     if not np.all(np.isfinite(tau)):  # too few steps (or a coordinate no walker moved) for emcee's τ
@@ -63,18 +63,15 @@ def run_notes(kept: int, tau: np.ndarray, labels: list[str], acceptance: np.ndar
         )
     if not 0.15 <= np.mean(acceptance) <= 0.7:
         notes.append(f"mean acceptance fraction {np.mean(acceptance):.2f} is outside 0.15–0.7: the posterior may be multimodal or badly scaled")
-    if spread is not None and spread > 2:
-        notes.append(
-            f"the residuals' scale varies by ×{spread:.3g} between the lowest and highest quarter of the data "
-            f"(by value): one σ_noise for all of them is a poor noise model, and the intervals may be too narrow; "
-            "give the data a sigma column (loss 'sigma'), or use a loss whose residuals have one scale"
-        )
     return notes
 
 
 def residual_spread(r: np.ndarray, y: np.ndarray) -> float | None:
-    """rms residual of the quarter of the samples (sorted by value) where it is largest, over the
-    quarter where it is smallest: ≈ 1 when one noise scale fits every residual (None: < 40 samples)."""
+    """rms residual of the quarter of the samples (sorted by ``y``, the model's values) where it
+    is largest, over the quarter where it is smallest: ≈ 1 when one noise scale fits every
+    residual (None: < 40 samples). By the model's values, not the data's: the data's quarters
+    select on the noise (the lowest values are those with the most negative noise, or clipped
+    at 0), and one scale of noise read as ×3–4 from one quarter to another."""
     if r.size < 40:
         return None
     groups = np.array_split(np.argsort(y, kind="stable"), 4)

@@ -39,7 +39,7 @@ from .._fitting import FitResult, undetermined
 from .._model import Material, Measurement
 from .backend import fingerprint, open_run
 from .chain_diagnostics import ChainTooShortWarning, autocorr_time, default_burn, likelihood_description, residual_spread, run_notes
-from .checks import check_mixing, check_posterior, fit_distance, sigma_misfit
+from .checks import check_mixing, check_posterior, fit_distance, noise_scale_misfit, sigma_misfit
 from .draw_colours import colour_summary
 from .posterior_density import PosteriorSetup, set_up_posterior
 from .priors import describe_priors
@@ -90,16 +90,17 @@ def _run(
     return sampler, todo, done, time.perf_counter() - t
 
 
-def _checks(s: PosteriorSetup, x0: np.ndarray, flat: np.ndarray, draw_lp: np.ndarray, chain: dict, optimum: dict) -> dict:
-    """The usability checks, with the posterior density in θ (the density in u less log|∂θ/∂u|)."""
+def _checks(s: PosteriorSetup, x0: np.ndarray, flat: np.ndarray, draw_lp: np.ndarray, chain: dict, optimum: dict, spread: float | None) -> dict:
+    """The usability checks, with the posterior density in θ (the density in u less log|∂θ/∂u|);
+    ``spread``: :func:`_residual_spread`."""
     lp_theta = draw_lp - s.engine.log_jacobian(flat)
     lp_opt = float(s.engine(x0[None])[0] - s.engine.log_jacobian(x0[None])[0])
     distance = fit_distance(flat[:, : s.layout.n_u], s.x_u, fit_covariance(s.engine, s.x_u))
     labels = s.layout.labels()
     half_chi2, _, jtj = s.engine.normal(s.x_u)
     loose = [labels[i] for i in np.flatnonzero(undetermined(jtj))]
-    dof = int(np.sum(np.asarray(s.engine.problem.mask))) - s.layout.n_u
-    misfit = sigma_misfit(2 * float(half_chi2), dof) if s.loss == "sigma" else None
+    observed = int(np.sum(np.asarray(s.engine.problem.mask)))
+    misfit = sigma_misfit(2 * float(half_chi2), observed - s.layout.n_u) if s.loss == "sigma" else noise_scale_misfit(spread, s.loss, observed)
     return check_posterior(chain, s.prior, s.layout.fresnel, lp_theta, lp_opt, optimum, distance, loose, misfit)
 
 
@@ -200,8 +201,20 @@ def sample(
     chain = s.engine.constrained(flat)
     optimum = {k: v[0] for k, v in s.engine.constrained(x0[None]).items()}
     d = _diagnostics(s, sampler, burn=burn, thin=thin, todo=todo, done=done, run_s=run_s, seed=seed, backend=backend)
-    checks = _checks(s, x0, flat, draw_lp, chain, optimum)
+    d["residual_scale_ratio"] = _residual_spread(s, flat, draw_lp)
+    checks = _checks(s, x0, flat, draw_lp, chain, optimum, d["residual_scale_ratio"])
     return _result(s, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0)
+
+
+def _residual_spread(s: PosteriorSetup, flat: np.ndarray, draw_lp: np.ndarray) -> float | None:
+    """:func:`residual_spread` of the likelihood's residuals at its own best draw (the fit's
+    optimum is another loss's), where the noise scale is sampled; else None."""
+    if not s.layout.noise:
+        return None
+    keep = np.asarray(s.engine.problem.mask).reshape(-1) > 0
+    best = flat[int(np.argmax(draw_lp)), : s.layout.n_u]
+    r, values = s.engine.residuals(best)
+    return residual_spread(r[keep], values[keep])
 
 
 def _result(
@@ -211,10 +224,8 @@ def _result(
     """The :class:`SampleResult`: summaries, ArviZ's diagnostics, notes and warnings."""
     problem = s.engine.problem
     keep = np.asarray(problem.mask).reshape(-1) > 0
-    best = flat[int(np.argmax(draw_lp)), : s.layout.n_u]  # the likelihood's own best draw (the fit's optimum is another loss's)
-    spread = residual_spread(s.engine.residuals(best)[keep], np.asarray(problem.y).reshape(-1)[keep]) if s.layout.noise else None
     tau = np.asarray(list(d["autocorr_time"].values()))
-    run = run_notes(d["steps"] - d["burn"], tau, s.layout.labels(), sampler.acceptance_fraction, spread)
+    run = run_notes(d["steps"] - d["burn"], tau, s.layout.labels(), sampler.acceptance_fraction)
     short = run[0] if not d["chain_long_enough"] else None  # run_notes says so first
     if short is not None:
         warnings.warn(short, ChainTooShortWarning, stacklevel=3)
@@ -237,7 +248,7 @@ def _result(
 
     per = diagnostics(res.to_inference_data())
     d.update(draws=int(flat.shape[0]), ess_bulk={k: v["ess_bulk"] for k, v in per.items()}, ess_tail={k: v["ess_tail"] for k, v in per.items()},
-             r_hat={k: v["r_hat"] for k, v in per.items()}, residual_scale_ratio=spread, time_s=time.perf_counter() - t0)
+             r_hat={k: v["r_hat"] for k, v in per.items()}, time_s=time.perf_counter() - t0)
     d.update(ess_min=_least(d["ess_bulk"].values()), ess_tail_min=_least(d["ess_tail"].values()), r_hat_max=-_least(-r for r in d["r_hat"].values()))
     return _with_mixing(res, check_mixing(d), short)
 

@@ -92,7 +92,8 @@ def _reported(problem: Problem, layout: Layout, x):
 
 
 def _residual(problem: Problem, layout: Layout, x):
-    return likelihood_residual(problem, layout, layout.unravel(x))[0]
+    u = layout.unravel(x)
+    return likelihood_residual(problem, layout, u)[0], model_values(problem, u).reshape(-1)
 
 
 @eqx.filter_jit
@@ -152,9 +153,11 @@ class Engine:
         out = _normal(self.problem, self.layout, jnp.asarray(x_u, dtype=self.dtype), likelihood)
         return tuple(np.asarray(a, dtype=float) for a in out)
 
-    def residuals(self, x_u) -> np.ndarray:
-        """The likelihood's residual vector (flat, missing cells 0) at a flat u."""
-        return self._draws(_residual, x_u, 1, self.problem, self.layout)[0]
+    def residuals(self, x_u) -> tuple[np.ndarray, np.ndarray]:
+        """The likelihood's residual vector (flat, missing cells 0) at a flat u, and the model's
+        values there (flat, the same order)."""
+        r, values = self._draws(_residual, x_u, 1, self.problem, self.layout)
+        return r[0], values[0]
 
     def constrained(self, xs) -> dict:
         """The reported quantities of every row of ``xs``: {"m": (n, J), "F0": (n, W), ...}."""
