@@ -11,6 +11,7 @@ file's error and ends with a summary (docs/fitting.md). Outputs are checked befo
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -211,8 +212,9 @@ def sample_cmd(
         raise typer.Exit(code)
 
 
-def _check_sample_options(o) -> Path:
-    """Options and outputs checked before any work; returns the JSON target."""
+def _check_sample_options(o, hold: contextlib.ExitStack) -> Path:
+    """Options and outputs checked before any work; returns the JSON target. The --backend
+    file's lock is taken into ``hold`` (:func:`~ctfit._io.output_paths.check_backend`)."""
     from .._fitting import LOSSES
     from .._io import check_backend, check_distinct, check_output, check_output_folder
     from .._runtime import need
@@ -231,7 +233,7 @@ def _check_sample_options(o) -> Path:
     if o.output is None:
         check_default_output(target)
     if o.backend is not None:
-        check_backend(o.backend, [o.fit_json, o.data], resume=o.resume, overwrite=o.overwrite)
+        check_backend(o.backend, [o.fit_json, o.data], resume=o.resume, overwrite=o.overwrite, hold=hold)
     if o.idata is not None:
         check_output(o.idata, [o.fit_json, o.data], option="--idata")
     check_distinct([("-o" if o.output else "the result", target), ("--backend", o.backend), ("--idata", o.idata)])
@@ -242,8 +244,16 @@ def _check_sample_options(o) -> Path:
 
 
 def _sample_command(o) -> int:
-    """The ``sample`` command's body: the exit status (0, or ``SAMPLE_NOT_USABLE``)."""
-    target = _check_sample_options(o)
+    """The ``sample`` command's body: the exit status (0, or ``SAMPLE_NOT_USABLE``). A --backend
+    file that another run is writing is refused at once; this run's lock on it is held until
+    the command ends."""
+    with contextlib.ExitStack() as hold:
+        target = _check_sample_options(o, hold)
+        return _sampled(o, target)
+
+
+def _sampled(o, target: Path) -> int:
+    """Sample, print the table (or JSON), write ``target``; the exit status."""
     setup_jax()
     import warnings
 

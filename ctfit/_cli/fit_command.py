@@ -3,6 +3,7 @@ fitted together by ``fit_batch``), reported, written; the exit status from the o
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -100,7 +101,9 @@ def fit_command(o) -> int:
     one = len(o.data) == 1 and o.workers is None and o.scheduler is None
     ahead = start_read_ahead(o.data[0]) if one else None
     try:
-        return _fit_command(o, ahead)
+        with contextlib.ExitStack() as chains:
+            o.chains = chains  # the --backend file's lock (_fit_plan), held until the command ends
+            return _fit_command(o, ahead)
     finally:
         if ahead is not None:
             ahead.cancel()  # not taken (an option refused, say): stopped
@@ -272,7 +275,10 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
 
     An option that names a file (one input file): that path; one that names a folder (``o.folders``:
     several files, a folder of them, a trailing slash, an existing folder): distinct files in it
-    (``result_targets``), none a symbolic link, and ``summary.json`` beside the results.
+    (``result_targets``), none a symbolic link, and ``summary.json`` beside the results. A chain
+    file that another run is writing is refused; one file's chain stays locked in ``o.chains``
+    until the command ends (of several, each is locked while it is sampled: a descriptor each
+    for the whole command could run out).
     """
     from .._io import (
         InputFiles,
@@ -298,8 +304,8 @@ def _fit_plan(files: list[Path], o) -> dict[Path, SimpleNamespace]:
         found = result_targets(files, check_output_folder(value, option=option), suffix)
         return {p: check(target, True) for p, target in found.items()}
 
-    def chain(target, chosen):
-        return check_backend(target, inputs, resume=o.resume, overwrite=o.overwrite, chosen=chosen)
+    def chain(target, chosen):  # one chain: locked from now on; several: checked now, each locked by its own sampling run
+        return check_backend(target, inputs, resume=o.resume, overwrite=o.overwrite, chosen=chosen, hold=None if many else o.chains)
 
     json_ = targets("output", o.output, "-o", ".fit.json", lambda t, c: _json_name(check_output(t, inputs, option="-o", chosen=c)))
     plot = targets("plot", o.plot, "--plot", ".fit.png", lambda t, c: _plot_format(check_output(t, inputs, option="--plot", chosen=c)))

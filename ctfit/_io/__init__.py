@@ -9,6 +9,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
         "alta": ['read_alta'],
+        "chain_lock": ['hold_chain', 'lock_path'],
         "csv_files": ['read_csv', 'write_csv'],
         "csv_table": ['CsvTable', 'read_table'],
         "errors": ['DataError', 'DataWarning', 'MaterialError'],

@@ -8,6 +8,7 @@ The writing itself is :func:`ctfit._io.files.atomic_write`.
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import functools
 import hashlib
@@ -16,6 +17,7 @@ import stat
 from pathlib import Path
 
 from .._model import valid_name
+from .chain_lock import hold_chain
 from .files import atomic_write, replace_links_in, writes_in_place
 from .untrusted import input_sha256, quote, read_json_or_none
 
@@ -203,18 +205,22 @@ def check_output_folder(path, option: str = "-o") -> Path:
 
 
 def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--resume", "--overwrite"), option: str = "--backend",
-                  chosen: bool = False) -> Path:
-    """Check an HDF5 chain file before sampling: a stored chain is never wiped unasked.
+                  chosen: bool = False, hold: contextlib.ExitStack | None = None) -> Path:
+    """Check an HDF5 chain file before sampling: a stored chain is never wiped unasked, nor
+    written by two runs at once.
 
     An existing, non-empty ``path`` needs ``resume`` (continue the chain there; refused when
     the file is not HDF5) or ``overwrite`` (start again); ``flags`` name the two in messages
-    (the command's options, or the library's ``resume=True`` / ``overwrite=True``). The other
-    checks are :func:`check_output`'s.
+    (the command's options, or the library's ``resume=True`` / ``overwrite=True``). A file that
+    another run is writing is refused before it is read (:mod:`~ctfit._io.chain_lock`): its
+    lock is taken into ``hold``, and kept until that closes (the run's end); without ``hold``
+    it is only checked that no run holds it now. The other checks are :func:`check_output`'s.
     """
     path = Path(path)
     if resume and overwrite:
         raise OutputError(f"{flags[0]} and {flags[1]} exclude each other: continue the stored chain, or start again")
     check_output(path, inputs, option=option, chosen=chosen)
+    _lock_chain(path, option, hold)
     if not path.is_file() or path.stat().st_size == 0:
         return path
     if overwrite:
@@ -230,6 +236,18 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
     if not h5py.is_hdf5(path):
         raise OutputError(f"{_at(option, path)}: is not an HDF5 file, so it holds no chain to continue")
     return path
+
+
+def _lock_chain(path: Path, option: str, hold: contextlib.ExitStack | None) -> None:
+    """Take the lock of the chain file ``path`` into ``hold`` (None: take it and give it back);
+    refused (:class:`OutputError`) where another run holds it."""
+    try:
+        if hold is None:
+            with hold_chain(path):
+                return
+        hold.enter_context(hold_chain(path))
+    except BlockingIOError:
+        raise OutputError(f"{_at(option, path)}: another ctfit run is writing this chain file; wait for it to end, or name another file") from None
 
 
 def _check_only_chains(path: Path, option: str) -> None:

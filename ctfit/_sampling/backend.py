@@ -9,6 +9,9 @@ a temporary file of the same folder (:class:`NewChain`), and moved over it when 
 chain of before is lost only once the new one has its steps. A run that fails keeps the old file;
 one interrupted with steps stored replaces it (then it can be resumed), one interrupted before
 its first step keeps it; a killed process leaves the old file (and the temporary one, until a later write sweeps it).
+
+One run at a time writes a chain file: :func:`~ctfit.sample` holds its lock (:mod:`ctfit._io.chain_lock`,
+named after the file's real path) from its check to the run's end, the new chain's rename included.
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ References
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import time
@@ -143,7 +144,8 @@ def sample(
     (default max(2 τ_max, steps/10), at most steps/2), ``thin``; ``seed`` fixes the start and
     emcee's generator. ``backend``: HDF5 file of the chain; ``resume`` continues a stored run to
     ``steps`` (bit-identical to an uninterrupted run), ``overwrite`` starts it again (written beside
-    the file, which it replaces when it ends: :mod:`ctfit._sampling.backend`).
+    the file, which it replaces when it ends: :mod:`ctfit._sampling.backend`). A backend that
+    another run is writing is refused (a ``ValueError`` naming it) before anything is read from it.
     ``colour``: also summarise the colour (sRGB, CIELAB) of the draws. ``progress``: True (or
     "bar"), a tqdm bar on stderr; "lines", a line on stderr every few seconds
     (:class:`~ctfit._runtime.progress.ProgressLines`: for a log file).
@@ -171,11 +173,39 @@ def sample(
 
     need("posterior", "posterior sampling")  # ArviZ's ESS and R̂ end every run: checked before it starts
     t0 = time.perf_counter()
+    _check_lengths(steps=steps, burn=burn, thin=thin, seed=seed, resume=resume, backend=backend)
+    with contextlib.ExitStack() as hold:  # the backend's lock (check_backend), held until the chain is read back: one run writes it at a time
+        if backend is not None:
+            from .._io import check_backend
+
+            check_backend(backend, resume=resume, overwrite=overwrite, flags=("resume=True", "overwrite=True"), option="backend", hold=hold)
+        s = set_up_posterior(fit_result_or_material, data, loss=loss, fixed=fixed, priors=priors, walkers=walkers)
+        x0, cov, laplace = laplace_start(s.engine, s.x_u)
+        sampler, todo, done, run_s = _run(s, x0, cov, steps=steps, seed=seed, backend=backend, resume=resume, overwrite=overwrite, progress=progress)
+        chain_u = np.asarray(sampler.get_chain())
+        burn = default_burn(chain_u) if burn is None else int(burn)
+        if not 0 <= burn < chain_u.shape[0]:
+            raise ValueError(f"burn must be in [0, steps), got {burn} with steps={chain_u.shape[0]}")
+        if chain_u.shape[0] - burn < thin:
+            raise ValueError(f"thin must be at most steps − burn = {chain_u.shape[0] - burn} to keep a draw, got thin={thin} (burn={burn})")
+        flat = np.asarray(sampler.get_chain(discard=burn, thin=thin, flat=True))
+        draw_lp = np.asarray(sampler.get_log_prob(discard=burn, thin=thin, flat=True))
+        chain = s.engine.constrained(flat)
+        optimum = {k: v[0] for k, v in s.engine.constrained(x0[None]).items()}
+        d = _diagnostics(s, sampler, burn=burn, thin=thin, todo=todo, done=done, run_s=run_s, seed=seed, backend=backend)
+        d["residual_scale_ratio"] = _residual_spread(s, flat, draw_lp)
+        checks = _checks(s, x0, flat, draw_lp, chain, optimum, d["residual_scale_ratio"])
+        return _result(s, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0)  # (it reads the chain file too)
+
+
+def _check_lengths(*, steps: int, burn: int | None, thin: int, seed: int, resume: bool, backend: Any) -> None:
+    """Refuse (``ValueError``) a chain length, burn-in, thinning or seed that keeps no draw or
+    cannot be, before the backend is touched or a step is run."""
     if steps < 1 or thin < 1:
         raise ValueError(f"steps and thin must be ≥ 1, got steps={steps}, thin={thin}")
     if thin > steps:
         raise ValueError(f"thin must be at most steps ({steps}) to keep a draw, got thin={thin}")
-    if burn is not None and not 0 <= burn < steps:  # before the backend is touched or a step is run
+    if burn is not None and not 0 <= burn < steps:
         raise ValueError(f"burn must be in [0, steps), got {burn} with steps={steps}")
     if burn is not None and steps - burn < thin:
         raise ValueError(f"thin must be at most steps − burn = {steps - burn} to keep a draw, got thin={thin} (burn={burn})")
@@ -183,27 +213,6 @@ def sample(
         raise ValueError(f"seed must be ≥ 0 (NumPy's generators take no negative seed), got seed={seed}")
     if resume and backend is None:
         raise ValueError("resume=True needs a backend (the HDF5 file of the run to continue)")
-    if backend is not None:
-        from .._io import check_backend
-
-        check_backend(backend, resume=resume, overwrite=overwrite, flags=("resume=True", "overwrite=True"), option="backend")
-    s = set_up_posterior(fit_result_or_material, data, loss=loss, fixed=fixed, priors=priors, walkers=walkers)
-    x0, cov, laplace = laplace_start(s.engine, s.x_u)
-    sampler, todo, done, run_s = _run(s, x0, cov, steps=steps, seed=seed, backend=backend, resume=resume, overwrite=overwrite, progress=progress)
-    chain_u = np.asarray(sampler.get_chain())
-    burn = default_burn(chain_u) if burn is None else int(burn)
-    if not 0 <= burn < chain_u.shape[0]:
-        raise ValueError(f"burn must be in [0, steps), got {burn} with steps={chain_u.shape[0]}")
-    if chain_u.shape[0] - burn < thin:
-        raise ValueError(f"thin must be at most steps − burn = {chain_u.shape[0] - burn} to keep a draw, got thin={thin} (burn={burn})")
-    flat = np.asarray(sampler.get_chain(discard=burn, thin=thin, flat=True))
-    draw_lp = np.asarray(sampler.get_log_prob(discard=burn, thin=thin, flat=True))
-    chain = s.engine.constrained(flat)
-    optimum = {k: v[0] for k, v in s.engine.constrained(x0[None]).items()}
-    d = _diagnostics(s, sampler, burn=burn, thin=thin, todo=todo, done=done, run_s=run_s, seed=seed, backend=backend)
-    d["residual_scale_ratio"] = _residual_spread(s, flat, draw_lp)
-    checks = _checks(s, x0, flat, draw_lp, chain, optimum, d["residual_scale_ratio"])
-    return _result(s, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0)
 
 
 def _residual_spread(s: PosteriorSetup, flat: np.ndarray, draw_lp: np.ndarray) -> float | None:
