@@ -112,6 +112,41 @@ def test_predicted_decrease_where_rounding_makes_the_matrix_indefinite():
     assert float(predicted_decrease(jnp.zeros((3, 3)), jnp.zeros(3))) == 0.0
 
 
+def test_a_step_through_a_bound_near_by_promises_only_what_it_can_take():
+    """A conductor's k of 2.6·10⁻⁸ (F depends on k², so its curvature vanishes at k = 0) with a
+    gradient towards 0: its own Newton step, −g/H, goes 5·10⁸ times past the bound. The step
+    held there gains |g|·k at most, not the g²/(H + μ) that :func:`predicted_decrease` reads with
+    k free; a variable far from its bound keeps its share. NumPy and JAX agree."""
+    from ctfit._fitting.stationarity import held_by_bound, stationary_decrease
+
+    y, g = np.array([2.55e-8, 0.5]), np.array([1.31e-4, 3.0])
+    h = np.diag([2.76e-7, 2.0e8])
+    lo, hi = np.array([0.0, 0.0]), np.array([np.inf, 1.0])
+    free = predicted_decrease(h, g, xp=np)
+    np.testing.assert_array_equal(held_by_bound(y, g, np.diag(h), lo, hi, np), [True, False])
+    want = 1.31e-4 * 2.55e-8 + 0.5 * 9 / (2.0e8 * (1 + np.finfo(float).eps * 20))
+    assert stationary_decrease(y, g, h, lo, hi, np) == pytest.approx(want, rel=1e-9)
+    assert free > 1e4 * want  # the promise that kept a fit at the truth running to its step limit
+    traced = stationary_decrease(jnp.asarray(y), jnp.asarray(g), jnp.asarray(h), jnp.asarray(lo), jnp.asarray(hi))
+    assert float(traced) == pytest.approx(want, rel=1e-9)
+    # Undetermined (H ≈ 0) and near a bound: no more than its regularised share, as free.
+    y2, g2, h2 = np.array([0.3]), np.array([1e-9]), np.array([[0.0]])
+    assert stationary_decrease(y2, g2, h2, np.zeros(1), np.ones(1), np) <= predicted_decrease(h2, g2, xp=np) + 1e-30
+
+
+def test_a_conductor_fit_started_at_the_truth_stops_there():
+    """n(λ) crossing 1 with k = 0 (docs/stability.md), started at the truth: it ran to its step
+    limit and read 'not a minimum' (k of one band 2.6·10⁻⁸ above its bound, promising a step
+    through it); it stops in a few steps."""
+    mat = ctfit.Material(ctfit.Structure(lobes=1, fresnel="conductor"),
+                         ctfit.Params(m=np.array([0.2]), w=np.array([1.0]), n=np.array([1.3, 1.1, 1.0, 0.8]), k=np.zeros(4)),
+                         wavelength_nm=np.array([400.0, 500.0, 600.0, 700.0]))
+    data = simulate(mat, 300, noise=0.01, seed=1, max_theta=85.0)
+    res = ctfit.fit(data, mat.structure, start=mat.params, dtype=jnp.float64)
+    assert res.converged and res.stats["steps"] <= 10, (res.stats["steps"], res.warnings)
+    assert not any(w.startswith("not a minimum") for w in res.warnings)
+
+
 def test_the_solver_evaluates_the_cost_without_linearising_it(monkeypatch):
     """A Levenberg–Marquardt step evaluates the cost and, once accepted, forms the normal
     equations: it never linearises the objective (optimistix's own step does, a second

@@ -21,7 +21,7 @@ from .fit_warnings import FitWarning
 from .losses import loss_residuals
 from .problem import Problem, model_values
 from .seeded_solve import flat_bounds, gauss_newton_decrease
-from .stationarity import active_set
+from .stationarity import active_set, stationary_decrease
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
@@ -356,11 +356,9 @@ def light_report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost, xp=j
     flat = ravel_pytree(u)[0] if xp is jnp else flat_host(u)
     lower, upper = flat_bounds(problem, u, xp)
     on_bound = active_set(flat, jtr, lower, upper)  # held on a bound: a result, not a failure
-    keep = ~on_bound
-    jtr = xp.where(keep, jtr, 0)
-    jtj = xp.where(keep[:, None] & keep[None, :], jtj, 0)
+    dec = stationary_decrease(flat, jtr, jtj, lower, upper, xp)  # a projected step's: one through a bound near by promises what it cannot take
     params = to_params(problem.spec, u, problem.fixed, xp)
     params = {k: getattr(params, k) for k in PARAM_FIELDS}  # plain containers: the executable's output is stored (_runtime/stored_programs.py)
     if problem.spec.structure.needs_fresnel_params and problem.spec.structure.fresnel == "f0":
         params["n"] = effective_index(params["f0"], xp)  # reported beside F0
-    return dict(on_bound=on_bound, gn_decrease=gauss_newton_decrease(jtj, jtr, cost, zero_cost, xp), params=params)
+    return dict(on_bound=on_bound, gn_decrease=gauss_newton_decrease(jtj, jtr, cost, zero_cost, xp, dec=dec), params=params)

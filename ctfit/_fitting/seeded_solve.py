@@ -241,7 +241,7 @@ def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int)
     return (*jax.vmap(one)(seeds), None)
 
 
-def gauss_newton_decrease(jtj, jtr, cost, scale, xp=jnp):
+def gauss_newton_decrease(jtj, jtr, cost, scale, xp=jnp, dec=None):
     """Relative decrease of ½‖r‖² that one Gauss–Newton step from here predicts,
     ½ gᵀ(JᵀJ)⁺g / max(cost, ε·scale), with ``scale`` the cost of a zero model (so that an exact
     fit, cost → 0, does not divide rounding by rounding).
@@ -249,8 +249,9 @@ def gauss_newton_decrease(jtj, jtr, cost, scale, xp=jnp):
     Zero at a minimum (g = Jᵀr = 0). Directions the data does not determine (tiny eigenvalues
     of JᵀJ, relative to the largest, below the dtype's rounding) are left out, so a degenerate
     but stationary point still reads as stationary. ``xp``: ``jax.numpy`` (traceable) or ``numpy``
-    (on the host).
+    (on the host). ``dec``: the decrease itself, computed by the caller (a projected step's,
+    :func:`~ctfit._fitting.stationarity.stationary_decrease`), made relative here.
     """
-    dec = predicted_decrease(jtj, jtr, xp=xp)
+    dec = predicted_decrease(jtj, jtr, xp=xp) if dec is None else dec
     eps = np.finfo(cost.dtype).eps
     return dec / xp.maximum(cost, xp.maximum(eps * scale, np.finfo(cost.dtype).tiny))

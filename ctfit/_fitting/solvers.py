@@ -33,7 +33,7 @@ import lineax as lx
 import optimistix as optx
 from jaxtyping import Array
 
-from .stationarity import active_set, predicted_decrease
+from .stationarity import active_set, predicted_decrease, stationary_decrease
 
 __all__ = ["StructuredLevenbergMarquardt", "ProjectedDampedNewtonDescent", "active_set", "predicted_decrease", "small_change"]
 
@@ -217,8 +217,8 @@ class StructuredLevenbergMarquardt(optx.AbstractMinimiser):
             return small
         lower = getattr(self.descent, "lower", None)
         upper = getattr(self.descent, "upper", None)
-        free = jnp.ones_like(y_eval, dtype=bool) if lower is None else ~active_set(y_eval, info.grad, lower, upper)
-        dec = predicted_decrease(info.hessian.as_matrix(), info.grad, free)
+        jtj = info.hessian.as_matrix()
+        dec = predicted_decrease(jtj, info.grad) if lower is None else stationary_decrease(y_eval, info.grad, jtj, lower, upper)
         scale = jnp.maximum(info.f, jnp.finfo(y_eval.dtype).tiny)
         return (small & (dec <= self.stol * scale)) | (dec <= self.gtol * scale)
 
