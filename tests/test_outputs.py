@@ -152,6 +152,23 @@ def test_an_existing_chain_needs_resume_or_overwrite(tmp_path):
     assert check_backend(tmp_path / "new.h5", resume=False, overwrite=False) == tmp_path / "new.h5"
 
 
+def test_a_truncated_chain_is_refused_naming_the_file(tmp_path):
+    """A chain file cut short (a copy that stopped, a full disk): --resume and --overwrite say
+    which file HDF5 cannot read and why in a few words, and keep it (HDF5's own message named
+    neither: "Unable to synchronously open file (truncated file: eof = 20000, …)")."""
+    import h5py
+
+    chain = tmp_path / "run.h5"
+    with h5py.File(chain, "w") as f:
+        f.create_group("ctfit")["x"] = [0.0] * 50_000
+    whole = chain.read_bytes()
+    chain.write_bytes(whole[:20_000])
+    for resume, so in ((True, "so it holds no chain to continue"), (False, "so what it holds cannot be checked before a new chain replaces it")):
+        with pytest.raises(OutputError, match=rf"^--backend .*run.h5: HDF5 cannot read the file \(truncated: 20,000 of {len(whole):,} bytes\), {so}; restore"):
+            check_backend(chain, resume=resume, overwrite=not resume)
+    assert chain.read_bytes() == whole[:20_000]
+
+
 def test_the_library_refuses_to_wipe_a_chain(tmp_path):
     import ctfit
 

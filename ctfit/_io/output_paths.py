@@ -13,6 +13,7 @@ import errno
 import functools
 import hashlib
 import os
+import re
 import stat
 from pathlib import Path
 
@@ -235,7 +236,33 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
 
     if not h5py.is_hdf5(path):
         raise OutputError(f"{_at(option, path)}: is not an HDF5 file, so it holds no chain to continue")
+    _check_readable(path, option, "it holds no chain to continue")
     return path
+
+
+def _check_readable(path: Path, option: str, so: str) -> None:
+    """Refuse (:class:`OutputError`, naming the file) an HDF5 file that HDF5 cannot open: a
+    truncated or damaged one (a copy cut short, a full disk). HDF5's own message named neither
+    the file nor the option ("Unable to synchronously open file (truncated file: eof = 20000, …)").
+    ``so``: what that means for the run."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            list(f.keys())
+    except OSError as e:
+        raise OutputError(f"{_at(option, path)}: HDF5 cannot read the file ({_hdf5_reason(e)}), so {so}; restore it from a copy, or move it "
+                          "away and start again") from None
+
+
+def _hdf5_reason(err: OSError) -> str:
+    """HDF5's reason in a few words: "truncated: 20,000 of 4,596,888 bytes", or what it says in brackets."""
+    text = str(err)
+    cut = re.search(r"truncated file: eof = (\d+).*stored_eof = (\d+)", text)
+    if cut:
+        return f"truncated: {int(cut[1]):,} of {int(cut[2]):,} bytes"
+    inner = re.search(r"\((.*)\)\s*$", text)
+    return inner[1] if inner else text
 
 
 def _lock_chain(path: Path, option: str, hold: contextlib.ExitStack | None) -> None:
@@ -258,6 +285,7 @@ def _check_only_chains(path: Path, option: str) -> None:
 
     if not h5py.is_hdf5(path):
         raise OutputError(f"{_at(option, path)}: is not an HDF5 file; a new chain replaces only a file of ctfit's chain: name another file")
+    _check_readable(path, option, "what it holds cannot be checked before a new chain replaces it")
     listed = groups_beside_chain(path)
     if listed:
         raise OutputError(f"{_at(option, path)}: the HDF5 file holds {listed} beside ctfit's chain, which a new chain would replace (the "
