@@ -139,7 +139,7 @@ def _reference_standard_errors(jtj, jt, scale2, order, free):
             var = np.sum((jk @ cov_u) * jk, axis=1)
         v = np.sqrt(np.maximum(var, 0))
         nonzero = jk != 0
-        v = np.where(nonzero[:, ~free].any(axis=1) & ~nonzero[:, free].any(axis=1), np.nan, v)
+        v = np.where(~nonzero[:, free].any(axis=1), np.nan, v)  # no free coordinate (held ones, or none at all): no error
         se[k] = v[order] if k in ("m", "weight") and order is not None else v
     return se
 
@@ -156,7 +156,7 @@ def test_standard_errors_are_the_per_quantity_ones_at_any_conditioning(log_cond)
     jtj = (q * np.logspace(0, -log_cond, p)) @ q.T
     jtj = (jtj + jtj.T) / 2
     jt = {"s": rng.normal(size=p), "m": rng.normal(size=(2, p)), "weight": rng.normal(size=(2, p)), "F0": rng.normal(size=(4, p))}
-    jt["F0"][1, :] = 0.0
+    jt["F0"][1, :] = 0.0  # depends on nothing (n held at its cap where F0 = 1): NaN, not 0
     jt["F0"][2, 3:] = 0.0  # depends only on coordinates held below
     jt["F0"][3, 0] = np.inf  # dn/dF0 at F0 = 0
     free = np.ones(p, bool)

@@ -94,3 +94,22 @@ def test_small_loss_choice_report(tmp_path):
     medians = [float(x) for x in re.findall(r"\| ([0-9.]+) % \(", row)]
     assert len(medians) == 2 and all(0 < m < 50 for m in medians)
     assert row.rstrip(" |").endswith(("`relative`", "`robust-relative`"))
+
+
+def test_the_index_held_at_its_cap_has_no_standard_error():
+    """F0 = 1 in one band: F0 is on its bound, and its effective index is held at its cap
+    (1.8·10¹⁶), which depends on no free coordinate. Neither has a standard error; the table
+    printed "1.80144e+16 ± 0", as if measured exactly."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import ctfit
+
+    st = ctfit.Structure(lobes=1, diffuse=None)
+    mat = ctfit.Material(st, ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([1.0, 0.9])), wavelength_nm=np.array([450.0, 650.0]))
+    res = ctfit.fit(ctfit.simulate(mat, 200, noise=0.01, seed=3), st, dtype=jnp.float64)
+    assert res.converged and res.material.params.f0[0] == 1.0
+    assert np.isnan(res.stderr["F0"][0]) and np.isnan(res.stderr["n"][0])
+    assert np.isfinite(res.stderr["F0"][1]) and np.isfinite(res.stderr["n"][1]) and res.stderr["n"][1] > 0
+    row = next(line for line in ctfit.format_fit_table(res, "x").splitlines() if line.strip().startswith("450 nm"))
+    assert "±" not in row, row

@@ -118,7 +118,8 @@ def standard_errors(jtj, jt: dict | None, scale2: float, order, free=None) -> di
 
     Only the ``free`` coordinates enter (not those held on a bound, nor those the data does not
     determine); a parameter that depends on no free coordinate gets NaN: it has no standard
-    error (a bound that holds is the result)."""
+    error (a bound that holds is the result; the effective index held at its cap where F0 = 1,
+    which printed "1.8e16 ± 0")."""
     jtj = np.asarray(jtj)
     if jtj.size == 0 or jt is None:
         return None
@@ -136,7 +137,7 @@ def standard_errors(jtj, jt: dict | None, scale2: float, order, free=None) -> di
         var = np.sum((jk @ cov_u) * jk, axis=1)  # diag(J C Jᵀ) (a matrix product: a third of einsum's time here)
     v = np.sqrt(np.maximum(var, 0))
     nonzero = jk != 0
-    v[nonzero[:, ~free].any(axis=1) & ~nonzero[:, free].any(axis=1)] = np.nan
+    v[~nonzero[:, free].any(axis=1)] = np.nan  # on a bound's coordinates alone, or on none (n held at its cap where F0 = 1): no error, not ± 0
     se, row = {}, 0
     for k, block in zip(jt, blocks):
         vk, row = v[row: row + len(block)], row + len(block)
