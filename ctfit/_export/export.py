@@ -50,8 +50,9 @@ class ExportResult:
         """The approximation error in one line, as ``ctfit export`` prints it (and ``note``, where there is one)."""
         e = self.error
         kind = "exact" if e["exact"] else "approximate (" + "; ".join(e["approximations"]) + ")"
+        counted = f", {e['compared']:,} of its {e['values']:,} values above that floor" if e.get("compared", 0) < e.get("values", 0) else ""
         return (f"{self.format}: {kind}: median {100 * e['median']:.3g} %, max {100 * e['max']:.3g} % relative "
-                f"difference of the BRDF over {e['grid']}" + (f"; {self.note}" if self.note else ""))
+                f"difference of the BRDF over {e['grid']}{counted}" + (f"; {self.note}" if self.note else ""))
 
     def write(self, path: str | os.PathLike[str]) -> None:
         """Write the export to ``path`` atomically."""
@@ -80,8 +81,18 @@ def _mitsuba_approximations(material: Material) -> list[str]:
     return notes
 
 
-def _error(fit: np.ndarray, target: np.ndarray, approximations: list[str]) -> dict:
-    return {**relative_difference(target, fit), "exact": not approximations, "approximations": approximations, "grid": ERROR_GRID}
+def _error(fit: np.ndarray, target: np.ndarray, approximations: list[str], material: Material) -> dict:
+    return {**relative_difference(target, fit, _diffuse_peak(material)), "exact": not approximations, "approximations": approximations, "grid": ERROR_GRID}
+
+
+def _diffuse_peak(material: Material) -> float:
+    """The largest value on the grid of the material's diffuse part, d·R_d (0 without one, or
+    where all of it is diffuse: the fit's own largest value then counts)."""
+    st, params = material.structure, material.params
+    if st.diffuse is None or not st.has_specular or params.s is None:
+        return 0.0
+    matte = dataclasses.replace(material, params=dataclasses.replace(params, s=np.zeros_like(np.asarray(params.s, float))))  # R_d alone
+    return (1 - float(params.s)) * float(np.max(_grid_values(matte)))
 
 
 def _export_mitsuba(material: Material, to: str, plastic: str, colour: str) -> ExportResult:
@@ -93,10 +104,10 @@ def _export_mitsuba(material: Material, to: str, plastic: str, colour: str) -> E
         if source.structure.diffuse in ("spectrum", "constant"):
             notes.append("the Lambertian R_d as roughplastic's transmitted diffuse term of the same albedo")
         notes += [n for n in _mitsuba_approximations(source) if "G1" in n or "Gaussian" in n]
-        error = _error(fit, mitsuba_values(tree, source, *error_grid_angles()), notes)
+        error = _error(fit, mitsuba_values(tree, source, *error_grid_angles()), notes, material)
     else:
         tree = mitsuba_bsdf(source)
-        error = _error(fit, _grid_values(mitsuba_target(source)), notes + _mitsuba_approximations(source))
+        error = _error(fit, _grid_values(mitsuba_target(source)), notes + _mitsuba_approximations(source), material)
     spectral = "" if source.is_rgb or len(source.wavelength_nm) == 1 else (
         "spectra: figures of Mitsuba's *_spectral variants; its RGB variants take the spectra as colours (for those, export the Mitsuba colours as rgb)")
     if to == "mitsuba-dict":
@@ -111,10 +122,10 @@ def _export_rgb(material: Material, to: str) -> ExportResult:
     if to == "merl":
         table, out_of_gamut = merl_model_table(material)
         notes = ["tabulated in 90 × 90 × 180 cells of linear sRGB"] + ([GAMUT_NOTE] if out_of_gamut else [])
-        return ExportResult(to, table, _error(fit, merl_lookup(table, *error_grid_angles()), notes))
+        return ExportResult(to, table, _error(fit, merl_lookup(table, *error_grid_angles()), notes, material))
     entry, notes = gltf_material(material)
     notes = ["glTF's GGX D, height-correlated Smith G, Schlick F and linear-sRGB colours"] + notes
-    error = _error(fit, gltf_brdf(entry, *error_grid_angles()), notes)
+    error = _error(fit, gltf_brdf(entry, *error_grid_angles()), notes, material)
     entry["extras"] = {"ctfit_export": error}
     doc = {"asset": {"version": "2.0", "generator": "ctfit export"},
            "extensionsUsed": sorted(entry["extensions"]), "materials": [entry]}
