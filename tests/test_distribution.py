@@ -122,6 +122,25 @@ def test_derivative_in_m_finite(dtype):
         assert np.all(np.isfinite(np.asarray(g)))
 
 
+def test_float32_beckmann_derivative_in_m_finite_where_it_is_zero():
+    """Far from a narrow lobe's peak (tan²α/m² beyond where exp underflows: m = 1e-4 with H near the
+    horizon) D̂ = 0 and dD̂/dm = 0, also under a large cotangent (the shadowing term at grazing
+    multiplies it by up to (2√π/m)² = 1.3e9 for m = 1e-4) and in forward mode. Caught in float32:
+    NaN in reverse mode, the cotangent (1 + tan²α)²/m² ≈ 1e32 of exp(…) = 0 times 1e9 overflowing."""
+    dtype = jnp.float32
+    tan2 = jnp.asarray([0.0, 1e-8, 1.0, 1e4, 1e8, 1e12, 1e14, np.inf], dtype)
+    big = jnp.asarray(1.3e9, dtype)
+    for m in (1e-4, 1e-3, 1e-2, 0.2):
+        m_ = jnp.asarray(m, dtype)
+        d = np.asarray(beckmann(tan2, m_))
+        assert np.all(np.isfinite(d))
+        if m < 0.1:
+            assert np.all(d[np.asarray(tan2) >= 1e8] == 0)
+        rev = jax.vmap(jax.grad(lambda t, m: big * ctfit.beckmann(t, m), argnums=1), in_axes=(0, None))(tan2, m_)
+        fwd = jax.vmap(jax.jacfwd(lambda t, m: big * ctfit.beckmann(t, m), argnums=1), in_axes=(0, None))(tan2, m_)
+        assert np.all(np.isfinite(np.asarray(rev))) and np.all(np.isfinite(np.asarray(fwd))), (m, rev, fwd)
+
+
 def test_beckmann_matches_gaussian_for_small_slopes():
     """Near the peak and for small m both shapes agree (the paper's remark in §2.2)."""
     m = 0.05

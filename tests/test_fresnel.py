@@ -245,6 +245,43 @@ def test_gradients_finite_over_the_range(dtype):
     assert np.all(np.isfinite(d)), (cc[~np.isfinite(d)], nn[~np.isfinite(d)])
 
 
+# cos 89.99999° as float32 computes it from the angle (the last float32 below 90°: 1.33e-7) and as float64 does (1.75e-7), then larger c.
+GRAZING_C = [1.3315805e-07, 1.7453292e-07, 1e-6, 1e-4, 0.01]
+
+
+def test_float32_grazing_derivatives_finite_in_both_modes():
+    """float32, c down to cos 89.99999°: F and its derivatives in F0 (F0 ∈ {0, 1e-12, 1 − 1e-7,
+    1}), n (n ∈ {1, 1 + 1e-7, 10⁶}) and n, k (k = 0) finite, by ``jax.grad`` and by
+    ``jax.jacfwd`` (the fit's Jacobian is forward mode). Caught: dF/dn = NaN at n = 1 in forward
+    mode (the factor a² = 0 of the formula times its bracket's overflowed derivative)."""
+    c = np.array([0.0, *GRAZING_C, 1.0])
+    cases = [(ctfit.fresnel_dielectric_f0, [0.0, 1e-12, 1 - 1e-7, 1.0]), (ctfit.fresnel_dielectric, [1.0, 1 + 1e-7, 1e6]),
+             (lambda c, n: ctfit.fresnel_conductor(c, n, 0.0), [1.0, 1 + 1e-7, 1e6])]
+    for fn, ps in cases:
+        cc, pp = (jnp.asarray(x.ravel(), jnp.float32) for x in np.meshgrid(c, ps, indexing="ij"))
+        value = np.asarray(jax.jit(jax.vmap(fn))(cc, pp))
+        for mode, diff in (("reverse", jax.grad), ("forward", jax.jacfwd)):
+            d = np.asarray(jax.jit(jax.vmap(diff(fn, argnums=1)))(cc, pp))
+            bad = ~(np.isfinite(value) & np.isfinite(d))
+            assert not bad.any(), (mode, list(zip(np.asarray(cc)[bad], np.asarray(pp)[bad], value[bad], d[bad])))
+
+
+def test_float32_derivative_in_f0_is_bounded_at_grazing():
+    """dF/dF0 at F0 → 0 grows as 1/c⁴ towards grazing; R_s multiplies it by G/((N·L)(N·V)) ~ 1/c²
+    (eq. 2), which overflowed float32 at F0 = 0, θ = 89.99999° (dR/dF0 = ∞, a float32 fit failed).
+    In float32 the bracket is evaluated with G + c u ≥ √ε (which changes F only for F0 < (ε/4)²,
+    an index float32 cannot tell from 1, within 0.02° of grazing), so dF/dF0 ≤ 16/ε² = 1.1e15."""
+    grad = jax.jit(jax.vmap(jax.grad(ctfit.fresnel_dielectric_f0, argnums=1)))
+    c = np.array([*GRAZING_C, 1e-9, 1e-12])
+    cc, f0 = (jnp.asarray(x.ravel(), jnp.float32) for x in np.meshgrid(c, [0.0, 1e-30, 1e-20, 1e-16, 1e-15, 1e-12], indexing="ij"))
+    d = np.asarray(grad(cc, f0))
+    assert np.all(np.isfinite(d))
+    assert np.abs(d).max() <= 1.01 * 16 / np.finfo(np.float32).eps ** 2, list(zip(np.asarray(cc), np.asarray(f0), d))
+    # …while F keeps its value: F0 = 0 gives 0, and c = 1 gives F0, whatever the floor.
+    assert np.all(np.asarray(ctfit.fresnel_dielectric_f0(cc, jnp.zeros_like(f0))) == 0)
+    np.testing.assert_allclose(np.asarray(ctfit.fresnel_dielectric_f0(jnp.ones_like(cc), f0)), np.asarray(f0), rtol=1e-6)
+
+
 @pytest.mark.parametrize("c", [1.0, 0.7, 0.3, 0.05])
 def test_derivative_in_f0_is_the_formula_s_up_to_f0_one(c):
     """dF/dF0 at F0 = 1 and F0 = 0 (bounds of the fit) is the one-sided limit of the formula:

@@ -105,6 +105,32 @@ def test_smith_derivative_in_m_finite(dtype):
     assert np.all(np.isfinite(v)) and np.all(v > 0)
 
 
+@pytest.mark.parametrize("geometry_form", ["smith", "smith-rational"])
+def test_float32_smith_lobe_at_grazing_has_finite_derivative_in_m(geometry_form):
+    """A lobe's D̂(α; m) G1(L) G1(V)/((N·L)(N·V)) in float32 for m ∈ {1e-4, 1e-3, 1e-2}, lit and seen at
+    up to 89.99999° (cos θ = 1.3e-7) in the retro and the 90° planes (tan²α at its clamp 1e12):
+    finite, with finite d/dm in reverse and forward mode. Caught: NaN in reverse mode at m = 1e-4,
+    where Smith's G1/cos θ ≈ 2√π/m = 3.5e4 per direction made the cotangent of Beckmann's
+    exp(−tan²α/m²) (= 0 there) overflow, ∞ · 0."""
+    from ctfit._model.shadowing import smith_rational_g1_reduced
+
+    g1 = ctfit.smith_g1_reduced if geometry_form == "smith" else smith_rational_g1_reduced
+    theta = np.array([0.0, 60.0, 89.0, 89.99, 89.9999, 90 - 1e-5])
+    ti, to, dphi = (x.ravel() for x in np.meshgrid(theta, theta, [0.0, 90.0, 180.0], indexing="ij"))
+    f32 = lambda x: jnp.asarray(x, jnp.float32)
+    g = ctfit.geometry_from_angles_deg(f32(ti), f32(20.0), f32(to), f32(20 + dphi))
+    assert g.cos_l.dtype == jnp.float32
+
+    def lobe(m):
+        return ctfit.beckmann(g.tan2_h, m) * g1(g.cos_l, g.sin_l, m) * g1(g.cos_v, g.sin_v, m)
+
+    for m in (1e-4, 1e-3, 1e-2):
+        m32 = jnp.float32(m)
+        assert np.all(np.isfinite(np.asarray(lobe(m32))))
+        for mode, d in (("reverse", jax.grad(lambda m: jnp.sum(lobe(m)))(m32)), ("forward", jax.jacfwd(lambda m: jnp.sum(lobe(m)))(m32))):
+            assert np.isfinite(float(d)), (geometry_form, m, mode, float(d))
+
+
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_rational_smith_is_finite_with_finite_derivatives_everywhere(dtype):
     """Walter et al.'s rational G1/cos θ: finite values and derivatives in m and θ from normal

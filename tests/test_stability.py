@@ -3,9 +3,9 @@
 Values finite and ≥ 0 (exactly 0 on or below the horizon), F in [0, 1], and the gradient with
 respect to every parameter (m, w, s, f0, n, k, rd) finite — on a fixed grid of hard cases
 (m from 1e-4 to 3, θ from 0 to 90° including 1e-6° and 89.9°, the exact mirror and
-retro-reflection directions, V = −L, F0 from 0 to 1, n up to 1e6, k up to 20) and on a
-hypothesis sweep of the same space. Each check is one compiled, vmapped evaluation of a whole
-batch.
+retro-reflection directions, V = −L, F0 from 0 to 1, n up to 1e6, k up to 20), on a float32
+grid up to θ = 90° − 1e-5° (derivatives in reverse and in forward mode) and on a hypothesis
+sweep of the same space. Each check is one compiled, vmapped evaluation of a whole batch.
 """
 
 import functools
@@ -67,19 +67,19 @@ def _band_params(st, dtype):
     return bands
 
 
-def _directions(dtype):
-    """All (θ_i, θ_o) in THETAS² at φ_o − φ_i ∈ {180 (mirror plane), 0 (retro plane), 90}, plus V = −L.
+def _directions(dtype, thetas=THETAS):
+    """All (θ_i, θ_o) in ``thetas``² at φ_o − φ_i ∈ {180 (mirror plane), 0 (retro plane), 90}, plus V = −L.
 
     θ_o = θ_i with φ_o = φ_i + 180 is the exact mirror direction, with φ_o = φ_i the exact
     retro-reflection (V = L).
     """
-    ti, to, dp = (x.ravel() for x in np.meshgrid(THETAS, THETAS, [180.0, 0.0, 90.0], indexing="ij"))
+    ti, to, dp = (x.ravel() for x in np.meshgrid(thetas, thetas, [180.0, 0.0, 90.0], indexing="ij"))
     pi = np.full_like(ti, 33.0)
     d = lambda t, p: ctfit.direction_from_angles_deg(jnp.asarray(t, dtype), jnp.asarray(p, dtype))
     l, v = d(ti, pi), d(to, pi + dp)
-    lm = d(np.asarray(THETAS), np.full(len(THETAS), 33.0))
+    lm = d(np.asarray(thetas), np.full(len(thetas), 33.0))
     horizon = (ti >= 90) | (to >= 90)
-    return jnp.concatenate([l, lm]), jnp.concatenate([v, -lm]), np.concatenate([horizon, np.ones(len(THETAS), bool)])
+    return jnp.concatenate([l, lm]), jnp.concatenate([v, -lm]), np.concatenate([horizon, np.ones(len(thetas), bool)])
 
 
 @functools.partial(jax.jit, static_argnums=0)
@@ -121,6 +121,68 @@ def test_hard_grid(st, dtype):
     for m in MS:
         vals, f, grads = _evaluate(st, jnp.asarray(m, dtype), bands, l, v)
         _check(vals, f, grads, horizon, f"{_sid(st)} {jnp.dtype(dtype).name} m={m}")
+
+
+# --------------------------------------------------------------------------- float32 at grazing
+
+# θ up to the last float32 below 90° (89.99999°: cos θ = 1.3e-7) and 90° itself, where an
+# intermediate of the model's derivative reaches float32's range.
+GRAZING_THETAS = [0.0, 45.0, 89.0, 89.99, 89.999, 89.9999, 90 - 1e-5, 90.0]
+GRAZING_MS = [1e-4, 1e-3, 1e-2, 0.2, 1.0]
+GRAZING_BANDS = {
+    "f0": dict(f0=[0.0, 1e-12, 1.0, 1 - 1e-7]),
+    "n": dict(n=[1.0, 1 + 1e-7, 1e6]),
+    "conductor": dict(n=[1.0, 1 + 1e-7, 1e6, 0.5], k=[0.0, 1e-7, 0.0, 0.0]),
+}
+GRAZING_STRUCTURES = [
+    Structure(lobes=1, geometry="v-cavity", fresnel="f0", diffuse="F0/pi"),
+    Structure(lobes=1, geometry="smith", fresnel="f0"),
+    Structure(lobes=1, distribution="gaussian", geometry="v-cavity", fresnel="n", diffuse="spectrum"),
+    Structure(lobes=1, geometry="smith-rational", fresnel="conductor"),
+    Structure(lobes=1, family="plastic", diffuse="transmitted", geometry="smith"),
+]
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _evaluate_both_modes(st, m1, bands, l, v):
+    """Values and the derivatives of their sum with respect to every parameter, in reverse mode
+    (``jax.grad``) and in forward mode (``jax.jacfwd``, as the fit's Jacobian is taken)."""
+    params = Params(m=m1[None], w=jnp.ones(1, m1.dtype), **bands)
+    geom = ctfit.geometry(l, v)
+    f = ctfit.fresnel(st, params, geom.cos_vh[:, None]) if st.has_specular else None
+
+    def total(p):
+        return jnp.sum(ctfit.brdf(st, p, geom))
+
+    return ctfit.brdf(st, params, geom), f, jax.grad(total)(params), jax.jacfwd(total)(params)
+
+
+@pytest.mark.parametrize("st", GRAZING_STRUCTURES, ids=_sid)
+def test_float32_grazing_values_and_derivatives_finite(st):
+    """float32, θ up to 90° − 1e-5° and 90°, m from 1e-4, F0 ∈ {0, 1e-12, 1 − 1e-7, 1}, n ∈ {1,
+    1 + 1e-7, 10⁶}: values, F and every derivative finite, in reverse and in forward mode.
+
+    Caught (float32): dR/dF0 = ∞ at F0 = 0 in the mirror direction at 89.99999° (m ≥ 0.2, V-cavity:
+    dF/dF0 ~ 1/cos⁴ times G/((N·L)(N·V)) ~ 1/cos²); dR/dm = NaN for m = 1e-4 with Smith's G at
+    89.9999° (Beckmann's exp(−tan²α/m²) = 0 met an overflowed cotangent); dR/dn = NaN at n = 1 in
+    forward mode (and in reverse mode with the V-cavity) at 89.99999°, for a plastic wherever
+    θ_i or θ_o is 89.99999°.
+    """
+    dtype = jnp.float32
+    l, v, horizon = _directions(dtype, GRAZING_THETAS)
+    a = lambda x: jnp.asarray(np.asarray(x, np.float64), dtype)
+    bands = {k: a(x) for k, x in GRAZING_BANDS[st.fresnel].items()}
+    if st.shared_index:
+        bands = dict(n=a([1.0]))  # a plastic's one index, at its limit 1
+    nb = len(next(iter(GRAZING_BANDS[st.fresnel].values())))
+    if st.diffuse in ("spectrum", "transmitted"):
+        bands["rd"] = a(np.full(nb, 0.1))
+    if st.has_s:
+        bands["s"] = a(0.7)
+    for m in GRAZING_MS:
+        vals, f, grads, forward = _evaluate_both_modes(st, a(m), bands, l, v)
+        _check(vals, f, grads, horizon, f"{_sid(st)} float32 m={m} reverse")
+        _check(vals, f, forward, horizon, f"{_sid(st)} float32 m={m} forward")
 
 
 # --------------------------------------------------------------------------- hypothesis sweep
@@ -175,8 +237,8 @@ def test_hypothesis_sweep(data, st_index, dtype):
     def arr(elements):
         return data.draw(hnp.arrays(np.float64, BATCH, elements=elements))
 
-    ti = arr(_angles(0, 90, [0.0, 1e-6, 89.9, 90.0]))
-    to = arr(_angles(0, 90, [0.0, 1e-6, 89.9, 90.0]))
+    ti = arr(_angles(0, 90, [0.0, 1e-6, 89.9, 90 - 1e-5, 90.0]))
+    to = arr(_angles(0, 90, [0.0, 1e-6, 89.9, 90 - 1e-5, 90.0]))
     pi = arr(hs.floats(0, 360, allow_nan=False))
     # Relative azimuth: exact mirror (180), exact retro (0), or anything.
     dphi = arr(_angles(-360, 360, [0.0, 180.0, -180.0]))

@@ -51,7 +51,20 @@ def beckmann(tan2: Float[ArrayLike, "*#batch"], m: Float[ArrayLike, "*#batch"], 
     """
     t = xp.minimum(xp.asarray(tan2), _TAN2_MAX)
     inv_m2 = 1 / xp.asarray(m) ** 2  # once per lobe, not per direction
-    return xp.exp(-t * inv_m2) * ((1 + t) * (1 + t)) * inv_m2
+    x = t * inv_m2
+    # Eq. 4's exponential is 0 in the dtype beyond x = tan²α/m² > _exp_zero (far from the peak
+    # of a narrow lobe: m = 1e-4 at grazing gives x ~ 1e20), and D̂ with it. Its derivative's
+    # cotangent (1 + t)²/m² times that of the product (~1e32 in float32 there, times G) overflowed
+    # to ∞ and met exp' = 0: NaN in dD̂/dm. Double-where: D̂ = 0 exactly there (the value it had),
+    # the formula evaluated at the stand-in t = 0 (finite, and its derivative masked).
+    far = x > _exp_zero(x.dtype)
+    t = xp.where(far, 0, t)
+    return xp.where(far, 0, xp.exp(-xp.where(far, 0, x)) * ((1 + t) * (1 + t)) * inv_m2)
+
+
+def _exp_zero(dtype: Any) -> float:
+    """An x beyond which exp(−x) rounds to 0 in ``dtype`` (e⁻ˣ below half its smallest subnormal)."""
+    return float(-np.log(np.finfo(dtype).smallest_subnormal)) + 1.0
 
 
 def gaussian_norm_integral(m: Float[ArrayLike, "*batch"], *, xp: Any = jnp) -> Float[Array, "*batch"]:

@@ -27,7 +27,10 @@ the F0 path 1/n = (1 − F0)/(1 + r)², exact as F0 → 1. Against the formula a
 within 16 ulps in float64 (median 2) for n in [1.0001, 10⁶] and c in [10⁻⁶, 1].
 
 This stays finite, with finite derivatives, for F0 in [0, 1] (n from 1 to ∞), at c = 0
-(grazing, where F = 1 is set exactly) and c = 1 (normal, F = F0), in float32 and float64.
+(grazing, where F = 1 is set exactly) and c = 1 (normal, F = F0), in float32 and float64, for
+every c a direction given in degrees yields (float32: c ≥ cos 89.99999° = 1.3·10⁻⁷). Smaller
+c > 0 can still overflow an intermediate: at F0 → 1 below ~10⁻¹⁵ (float32) or 10⁻¹⁵⁰ (float64),
+and in :func:`fresnel_conductor` at n = 1, k = 0 below ~10⁻¹⁰ or 10⁻¹⁰⁰.
 
 References
 ----------
@@ -141,7 +144,7 @@ def _unit_interval(f: Array, xp: Any = jnp) -> Array:
     return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)
 
 
-def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: bool = True, xp: Any = jnp) -> Array:
+def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: bool = True, gcu_min: float = 0.0, xp: Any = jnp) -> Array:
     """Unpolarised dielectric F from c = V·H, a = 1 − u², u = 1/n and ``scale`` = a².
 
     ``scale`` is passed separately so the F0 path can write it as 16 F0/(1 + r)⁴, exactly linear
@@ -154,6 +157,7 @@ def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: boo
     one division, by a quantity of degree 3 rather than the whole degree-6 denominator, whose
     square (which the derivative of a division needs) would underflow in float32 near grazing;
     written x · (1/y), so the small numerator multiplies the cotangent before 1/y² does.
+    ``gcu_min``: G + c u held at least this (see :func:`fresnel_dielectric_f0`).
     """
     c, s2 = _clip_cos(c, xp)
     # At grazing (c = 0) F = 1 for any interface (F0 > 0). It is set exactly; the formula is
@@ -169,6 +173,8 @@ def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: boo
     else:  # a ≥ 0 (n ≥ 1), c > 0 here: g² ≥ c² > 0
         g = xp.sqrt(g2)
     gcu = g + c * u
+    if gcu_min > 0:  # a select, not maximum (whose derivative's 0/1 mask meets the cotangent)
+        gcu = xp.where(gcu > gcu_min, gcu, gcu_min)
     p = c * g + s2 * u
     inv = 1 / (gcu * gcu * p)
     f = scale * (inv * inv) * (c2 * g2 + s2 * s2 * u * u)
@@ -195,6 +201,7 @@ def fresnel_dielectric_f0(c: Float[ArrayLike, "*#batch"], f0: Float[ArrayLike, "
     array([0.04, 1.  ])
     """
     f0_a: Any = xp.asarray(f0)
+    c_a: Any = xp.asarray(c)
     # A select, not jnp.maximum: maximum's derivative multiplies by a 0/1 mask, which turns an
     # infinite cotangent into NaN.
     r = xp.sqrt(xp.where(f0_a > _TINY_F0, f0_a, _TINY_F0))
@@ -202,7 +209,25 @@ def fresnel_dielectric_f0(c: Float[ArrayLike, "*#batch"], f0: Float[ArrayLike, "
     u = (1 - f0_a) / one_plus_r2
     a = 4 * r / one_plus_r2
     scale = 16 * f0_a / (one_plus_r2 * one_plus_r2)
-    return _dielectric(xp.asarray(c), a, u, scale, tir_possible=False, xp=xp)
+    return _dielectric(c_a, a, u, scale, tir_possible=False, gcu_min=_gcu_min(xp.result_type(c_a, f0_a, 1.0)), xp=xp)
+
+
+def _gcu_min(dtype: Any) -> float:
+    """The least G + c u that F's bracket is evaluated with on the F0 path: √ε of ``dtype`` in
+    float32, none (0) in float64.
+
+    Near F0 = 0 the appendix formula, F = 16 F0 (c²G² + (1 − c²)² u²)/((1 + r)⁴ (G + c u)⁴
+    (c G + (1 − c²) u)²), is linear in F0 with a slope that grows as 1/(G + c u)⁴ → 1/(2c)⁴ at
+    grazing (G → c as F0 → 0). R_s multiplies it by G/((N·L)(N·V)) ~ 1/c² (eq. 2), which
+    overflowed float32: dR/dF0 = ∞ at F0 = 0, θ = 89.99999° in the mirror direction (a float32
+    fit failed there). With G + c u ≥ √ε the slope is at most 16/ε² (1.1·10¹⁵ in float32). G² =
+    c² + (1 − c²) a ≥ a = 4r/(1 + r)², so G + c u ≥ √ε already for F0 ≥ (ε/4)²: only F0 below
+    that (8.9·10⁻¹⁶, an index n ≈ 1 + 2√F0 that float32 cannot tell from 1) within ~√ε of grazing
+    (c < 3.5·10⁻⁴, the last 0.02°) is evaluated otherwise. In float64 the floor r ≥ √_TINY_F0
+    already bounds the slope by ~1/_TINY_F0, which R_s's 1/c² (c ≥ 10⁻¹⁷ from angles) leaves
+    finite: nothing is held there."""
+    eps = float(np.finfo(dtype).eps)
+    return float(np.sqrt(eps)) if eps > 4 * np.sqrt(_TINY_F0) else 0.0
 
 
 def fresnel_dielectric(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"], *, xp: Any = jnp) -> Float[Array, "*batch"]:
@@ -219,7 +244,12 @@ def fresnel_dielectric(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#ba
     index: Any = _index_in_range(xp.asarray(n), xp, low=True)
     u = 1 / index
     a = (index - 1) * (index + 1) * (u * u)
-    return _dielectric(xp.asarray(c), a, u, a * a, xp=xp)
+    # n = 1 (no interface, a = 0): F = a² · (…) = 0 and dF/dn = 2a a′ (…) = 0 (appendix formula:
+    # (g − c)² = 0 with g = c). The bracket, evaluated at g = c, has a derivative ∝ 1/c⁶ near
+    # grazing that overflowed float32 and met the factor a² = 0 in forward mode: NaN in dF/dn at
+    # θ = 89.99999°. Double-where: the bracket takes the stand-in a = 1 there (finite with its
+    # derivative), and the factor a² = 0 selects F = 0 and dF/dn = 0, the values of n = 1.
+    return _dielectric(xp.asarray(c), xp.where(a == 0, 1, a), u, a * a, xp=xp)
 
 
 def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"], k: Float[ArrayLike, "*#batch"], *, xp: Any = jnp
