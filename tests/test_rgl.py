@@ -240,6 +240,10 @@ def test_negative_rgb_values_are_dropped_with_a_warning(tmp_path):
         (lambda raw, f: _rewritten(f, rgb=np.where(np.arange(6) == 3, np.nan, f["rgb"]).astype(np.float32)),
          r"field 'rgb', index \(0, 0, 0, 0, 3\): nan is not a finite number"),
         (lambda raw, f: _rewritten(f, vndf=-f["vndf"]), r"field 'vndf' has negative values: it is a density"),
+        (lambda raw, f: _rewritten(f, theta_i=np.concatenate([[-0.0174533], f["theta_i"][1:]]).astype(np.float32)),  # (an IndexError)
+         r"field 'theta_i', index 0: -0.0174533 rad \(-1°\) is not an incident direction above the surface \(0 to π/2 rad\)"),
+        (lambda raw, f: _with_shape(raw, "rgb", (1, 2, 3, 2**31, 2**31)),  # 24 · 2⁶⁴ bytes: 0 in NumPy's int64 (a reshape error, no file named)
+         r"truncated: field 'rgb' \(float32, shape \(1, 2, 3, 2147483648, 2147483648\)\) takes bytes \d+–110680464442257\d+, the file has"),
     ],
 )
 def test_bad_files_give_one_error(tmp_path, change, pattern):
@@ -251,6 +255,15 @@ def test_bad_files_give_one_error(tmp_path, change, pattern):
         ctfit.read_rgl(bad)
     r = CliRunner().invoke(app, ["fit", str(bad)])
     assert r.exit_code == 2 and r.output.count("error:") == 1 and "bad.bsdf" in r.output and "Traceback" not in r.output
+
+
+def _with_shape(raw: bytes, name: str, shape: tuple) -> bytes:
+    """``raw`` with field ``name``'s declared shape replaced (as many axes as it had)."""
+    at = raw.index(struct.pack("<H", len(name)) + name.encode()) + 2 + len(name)
+    ndim = struct.unpack_from("<H", raw, at)[0]
+    assert ndim == len(shape)
+    start = at + 11  # ndim, code, offset
+    return raw[:start] + struct.pack(f"<{ndim}Q", *shape) + raw[start + 8 * ndim:]
 
 
 def _rewritten(fields, **changes):

@@ -29,6 +29,7 @@ and Rendering", ACM TOG 37(6), 2018, doi:10.1145/3272127.3275059; https://rgl.ep
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from typing import Any
@@ -98,13 +99,14 @@ def read_tensor_file(path: str | os.PathLike[str]) -> dict[str, Any]:
         if name in fields:
             raise DataError(f"field {name!r} appears twice", path=path)
         dtype = np.dtype(_DTYPES[code])
-        end = offset + dtype.itemsize * int(np.prod(shape, dtype=np.int64))
+        count = math.prod(shape)  # Python's integers: NumPy's int64 product wrapped (2³¹ × 2³¹ × 24 bytes read as 0)
+        end = offset + dtype.itemsize * count
         if end > len(raw):
             raise DataError(
                 f"truncated: field {name!r} ({dtype.name}, shape {shape}) takes bytes {offset}–{end}, the file has {len(raw)} bytes",
                 path=path,
             )
-        fields[name] = np.frombuffer(raw, dtype, int(np.prod(shape, dtype=np.int64)), offset).reshape(shape)
+        fields[name] = np.frombuffer(raw, dtype, count, offset).reshape(shape)
     return fields
 
 
@@ -147,6 +149,11 @@ def _structure(fields: dict, path: str | os.PathLike[str]) -> dict:
     for name in ("ndf", "sigma", "vndf"):
         if np.any(f[name] < 0):
             raise DataError(f"field {name!r} has negative values: it is a density", path=path)
+    outside = np.flatnonzero((f["theta_i"] < 0) | (f["theta_i"] > np.pi / 2))
+    if outside.size:  # (a negative one crashed the reader's look-up with an IndexError)
+        v = float(f["theta_i"][outside[0]])
+        raise DataError(f"field 'theta_i', index {int(outside[0])}: {v:.6g} rad ({np.degrees(v):.6g}°) is not an incident direction above the "
+                        "surface (0 to π/2 rad)", path=path)
     if spectral and not (np.all(np.diff(f["wavelengths"]) > 0) and f["wavelengths"][0] > 0):
         raise DataError("field 'wavelengths' must be positive and increasing (nm)", path=path)
     return dict(f, values=data, spectral=spectral)
