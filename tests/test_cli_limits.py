@@ -61,10 +61,11 @@ def test_a_material_of_unknown_band_is_not_simulated_into_31_bands(tmp_path):
         ctfit.simulate(ctfit.load_material(COPPER), 4, wavelength_nm=[-5.0])
 
 
-@pytest.mark.parametrize("step, why", [(1000, "larger than the 380–780 nm range"), (0.5, "finer"), (0, "not a step")])
+@pytest.mark.parametrize("step, why", [(1000, "coarser steps misplace colours"), (400, "coarser steps misplace colours"), (0.5, "finer"), (0, "not a step")])
 def test_render_step_outside_its_range_says_what_is_allowed(tmp_path, step, why):
+    """Steps past 20 nm misplace colours (400 nm, 380 and 780 nm alone, drew gold red): refused."""
     r = run("render", ROOT / "configs" / "gold.toml", "-o", tmp_path / "r.png", "--size", 16, "--supersample", 1, "--step", step)
-    refused(r, "--step", "[1, 400] nm", why)
+    refused(r, "--step", "[1, 20] nm", why)
 
 
 @pytest.fixture(scope="module")

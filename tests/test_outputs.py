@@ -515,7 +515,7 @@ def test_a_home_that_cannot_hold_a_cache_gives_one_warning(tmp_path):
     (tmp_path / "home").write_text("a file, not a folder")
     out = tmp_path / "out.png"
     r = subprocess.run(
-        _ctfit("render", MATERIAL, "-o", out, "--size", 16, "--supersample", 1, "--step", 50),
+        _ctfit("render", MATERIAL, "-o", out, "--size", 16, "--supersample", 1, "--step", 20),
         env=_env(tmp_path), capture_output=True, text=True, timeout=300,
     )
     assert r.returncode == 0, r.stderr

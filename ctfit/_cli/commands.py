@@ -286,7 +286,7 @@ def render(
                                                                    "BRDF."),
     labels: bool = typer.Option(True, "--labels/--no-labels", help="Write each material's name under its tile."),
     columns: Optional[int] = typer.Option(None, "--columns", min=1, help="Tiles per row (default: up to 6)."),
-    step: float = typer.Option(5.0, "--step", help="Wavelength step of spectral rendering over 380–780 nm: 1 to 400 nm."),
+    step: float = typer.Option(5.0, "--step", help="Wavelength step of spectral rendering over 380–780 nm: 1 to 20 nm."),
     supersample: int = typer.Option(2, "--supersample", min=1, max=8, help="Samples per pixel along each axis (anti-aliasing)."),
     ambient: float = typer.Option(0.01, "--ambient", min=0.0, help="Ambient irradiance as a fraction of the two lights' (the paper's 1 %), at most 1e6."),
     exposure: str = typer.Option("reference", "--exposure", help="reference: the paper's scaling with a white reference object; tile: the tile alone."),
