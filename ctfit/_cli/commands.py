@@ -313,8 +313,10 @@ def render(
         echo(f"wrote {info['output']} ({w} × {h} pixels, {len(materials)} material(s))", err=True)
         if info["delta_e"] is not None:
             d = info["delta_e"]
+            from .._render import coverage_text
+
             echo(f"ΔE2000 over the sphere: median {d['median']:.2f}, 95th percentile {d['p95']:.2f} "
-                       f"({d['coverage']:.0%} of the lit sphere inside the measured domain)", err=True)
+                 f"({coverage_text(d['coverage'])} of the lit sphere inside the measured domain)", err=True)
 
     run_body(body)
 

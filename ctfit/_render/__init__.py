@@ -19,7 +19,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "tone": ['EXPOSURES', 'tone_map'],
         "sheet": ['render_material', 'render_materials'],
         "measured": ['render_compare'],
-        "comparison": ['MeasuredBRDF', 'render_comparison'],
+        "comparison": ['MeasuredBRDF', 'coverage_text', 'render_comparison'],
         "png": ['save_png'],
     },
 )

@@ -37,7 +37,21 @@ from .scene import LIGHT_DIRECTIONS, SOLID_ANGLES, Scene, Tile, render_bands, sc
 from .surfaces import VIEW_DIRECTION, surface_normals
 from .tone import tone_map
 
-__all__ = ["MeasuredBRDF", "Comparison", "half_diff_folded_deg", "render_comparison"]
+__all__ = ["MeasuredBRDF", "Comparison", "coverage_text", "half_diff_folded_deg", "render_comparison"]
+
+def coverage_text(fraction: float) -> str:
+    """A share as a percentage that reads 100 % only when it is all (0.99863 printed "100%" over a
+    sphere with grey, unmeasured pixels), and 0 % only when it is none.
+
+    >>> coverage_text(0.99863), coverage_text(1.0), coverage_text(0.5), coverage_text(0.0004)
+    ('99.9 %', '100 %', '50 %', '0.04 %')
+    """
+    for digits in range(0, 6):
+        text = f"{100 * fraction:.{digits}f}"
+        if (float(text) < 100 or fraction >= 1) and (float(text) > 0 or fraction <= 0):
+            return f"{text} %"
+    return f"{100 * fraction:.6g} %"
+
 
 MAX_POINTS = 100_000  # direction pairs interpolated from at most (a fixed random subset beyond)
 OUTSIDE_GREY = 140  # uint8 grey of sphere pixels outside the measured domain
@@ -387,7 +401,7 @@ def _comparison_figure(
     for ax in axes:
         ax.set_xticks([])
         ax.set_yticks([])
-    head = f"ΔE2000 over the sphere: median {median:.2f}, 95th percentile {p95:.2f} ({n} pixels, {coverage:.0%} of the lit sphere measured)"
+    head = f"ΔE2000 over the sphere: median {median:.2f}, 95th percentile {p95:.2f} ({n} pixels, {coverage_text(coverage)} of the lit sphere measured)"
     tail = f"Measured sphere interpolated {note}; two lights, no ambient light; same exposure for both spheres."
     fig.suptitle(head + "\n" + textwrap.fill(tail, 150), fontsize=9)
     return fig
