@@ -53,6 +53,11 @@ def coverage_text(fraction: float) -> str:
     return f"{100 * fraction:.6g} %"
 
 
+def _short(text: str, most: int = 48) -> str:
+    """``text`` cut to ``most`` characters, the cut marked "…"."""
+    return text if len(text) <= most else text[: most - 1] + "…"
+
+
 MAX_POINTS = 100_000  # direction pairs interpolated from at most (a fixed random subset beyond)
 OUTSIDE_GREY = 140  # uint8 grey of sphere pixels outside the measured domain
 _LOG_FLOOR = 1e-6  # values below this fraction of the band's 99th percentile are interpolated as this fraction
@@ -391,9 +396,10 @@ def _comparison_figure(
     axes = fig.subplots(1, 3)
     name = material.name or "fitted material"
     axes[0].imshow(measured, interpolation="nearest")
-    axes[0].set_title(f"measured: {data.source}\n(interpolated; grey: outside the measured domain)", fontsize=9)
+    axes[0].set_title(f"measured: {_short(os.path.basename(str(data.source)) or str(data.source))}\n(interpolated; grey: outside the measured domain)",
+                      fontsize=9)  # the file's name: a long path was cut at the figure's left edge
     axes[1].imshow(fitted, interpolation="nearest")
-    axes[1].set_title(f"fitted: {name}", fontsize=9)
+    axes[1].set_title(f"fitted: {_short(str(name))}", fontsize=9)
     axes[2].imshow(np.where(outside, 1.0, np.nan), cmap=ListedColormap([(OUTSIDE_GREY / 255,) * 3]), interpolation="nearest")
     shown = axes[2].imshow(de, cmap="viridis", vmin=0.0, vmax=max_delta_e, interpolation="nearest")
     axes[2].set_title("ΔE2000 (CIEDE2000), measured vs fitted", fontsize=9)
