@@ -105,3 +105,18 @@ def test_the_callers_values_are_never_written_and_a_read_only_map_is_fitted(texe
     np.save(tmp_path / "good.npy", values[:6])
     fits = ctfit.fit_texels(geometry, np.load(tmp_path / "good.npy", mmap_mode="r"), ST, chunk=4)
     assert fits.converged.all()
+
+
+def test_a_band_no_sample_has_is_refused(texels):
+    """A geometry of R, G, B whose samples are all R or G: B's F0 is not determined, and every
+    texel reported the start's F0 = 0.005 there, converged. Refused, naming the band (the single
+    fit warns that the data does not determine F0)."""
+    geometry, values, _ = texels
+    rg = geometry.band < 2
+    two = geometry.replace(theta_i=geometry.theta_i[rg], phi_i=geometry.phi_i[rg], theta_o=geometry.theta_o[rg], phi_o=geometry.phi_o[rg],
+                           band=geometry.band[rg], brdf=geometry.brdf[rg])
+    assert two.band_labels == ["R", "G", "B"]
+    with pytest.raises(ValueError, match=r"no sample has band B: its parameters cannot be fitted"):
+        ctfit.fit_texels(two, values[:4, rg], ST, dtype=jnp.float64)
+    with pytest.raises(ValueError, match=r"no sample has band B"):
+        ctfit.fit_batch(two, ST, values=values[:4, rg], dtype=jnp.float64)

@@ -102,6 +102,17 @@ class TexelFits:
         return fit(data, self.structure, **self.options)
 
 
+def _check_every_band_sampled(measurement: Measurement) -> None:
+    """``ValueError`` naming the bands of ``measurement`` that no sample has: their parameters
+    (F0, n, k, R_d of that band) are not determined, and every texel reported a converged value
+    there, the start's (F0 = 0.005)."""
+    missing = np.setdiff1d(np.arange(len(measurement.band_labels)), np.asarray(measurement.band))
+    if missing.size:
+        names = ", ".join(measurement.band_labels[int(b)] for b in missing[:5]) + (", …" if missing.size > 5 else "")
+        raise ValueError(f"{measurement.source}: no sample has band {names}: its parameters cannot be fitted; give the geometry "
+                         "only the bands it measures")
+
+
 @takes_fit_options(fit)
 def fit_texels(
     measurement: Measurement,
@@ -149,6 +160,7 @@ def fit_texels(
         raise ValueError(f"width must be ≥ 1, got {width}")
     if loss == "sigma":
         raise ValueError("loss 'sigma' needs per-sample uncertainties, which per-texel values do not have; choose another loss")
+    _check_every_band_sampled(measurement)
     n_texels = shape[0]
     chunk = min(chunk, n_texels)
     width = min(width, chunk)
