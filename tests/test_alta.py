@@ -75,7 +75,8 @@ def test_measured_file_survives_a_csv_round_trip(tmp_path):
     back = read_csv(tmp_path / "yellow.csv")
     for name in ("theta_i", "phi_i", "theta_o", "phi_o", "brdf", "band", "wavelength_nm"):
         np.testing.assert_array_equal(getattr(back, name), getattr(m, name))
-    assert back.meta == m.meta
+    assert m.band_unknown and back.band_unknown  # the '# band: unknown' line: the stand-in wavelength is not read as a real band
+    assert back.meta == {**m.meta, "band": "unknown (no known wavelength; 550 nm stands in)"}
 
 
 # --- synthetic files ----------------------------------------------------------------------------

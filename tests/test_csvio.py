@@ -613,3 +613,21 @@ def test_a_number_past_float64s_range_is_named_as_such(tmp_path):
     path.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,20,180,500,1e400\n")
     with pytest.raises(ctfit.DataError, match=r"big\.csv:2: column 'brdf' \(6\): inf is not allowed .*beyond ±1\.8e308, float64's range"):
         ctfit.read_csv(path)
+
+
+def test_a_band_of_unknown_wavelength_reads_back_unknown(tmp_path):
+    """Single-band data without a wavelength (an ALTA file's) written as CSV gets '# band: unknown
+    …' and reads back unknown: the stand-in 550 nm read as a real band, and a fit of it was given
+    a colour. The line with several bands is refused, naming it."""
+    m = Measurement(theta_i=np.array([10.0, 20.0]), phi_i=np.zeros(2), theta_o=np.array([30.0, 40.0]), phi_o=np.full(2, 180.0),
+                    band=np.zeros(2, int), wavelength_nm=np.array([550.0]), brdf=np.array([0.1, 0.2]), band_unknown=True)
+    write_csv(m, tmp_path / "u.csv")
+    assert "# band: unknown (no known wavelength; 550 nm stands in)" in (tmp_path / "u.csv").read_text()
+    back = read_csv(tmp_path / "u.csv")
+    assert back.band_unknown and back.band_labels == ["unknown band"] and np.array_equal(back.brdf, m.brdf)
+    known = m.replace(band_unknown=False)
+    write_csv(known, tmp_path / "k.csv")
+    assert not read_csv(tmp_path / "k.csv").band_unknown and "# band" not in (tmp_path / "k.csv").read_text()
+    (tmp_path / "two.csv").write_text("# band: unknown\ntheta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,30,180,450,0.1\n10,0,30,180,650,0.2\n")
+    with pytest.raises(DataError, match=r"two.csv:1: '# band: unknown' marks data of one band .* the file has 2 wavelengths"):
+        read_csv(tmp_path / "two.csv")

@@ -71,7 +71,7 @@ def eval_cmd(
         # The values are the model's: the data's own lines (its source, noise, instrument) would describe them wrongly.
         meta = {"source": "ctfit eval", "material": str(material), "directions": str(data)}
         if meas.band_unknown:
-            meta["band"] = f"unknown (the data's band has no wavelength; {float(meas.wavelength_nm[0]):g} nm stands in)"
+            meta["band"] = f"unknown (the data's band has no wavelength; {float(meas.wavelength_nm[0]):g} nm stands in)"  # read back as unknown
         write_csv(meas.replace(brdf=values, sigma=None, meta=meta), output)
         echo(f"wrote {len(values)} samples to {output}", err=True)
 

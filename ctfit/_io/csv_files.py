@@ -142,9 +142,22 @@ def _check_phi_units(values: dict, cols: Header, header_line: int, path: str | o
     )
 
 
+BAND_UNKNOWN = "unknown"
+"""The ``# band:`` line's first word for data whose one band has no known wavelength
+(``Measurement.band_unknown``: an ALTA file's values): the ``wavelength_nm`` column's single value
+only stands in. :func:`write_csv` writes it; :func:`read_csv` reads the band as unknown again (it
+read as a real band, and a colour was made of an ALTA fit's values evaluated and read back)."""
+
+
 def _measurement(table: CsvTable, path: str | os.PathLike[str]) -> Measurement:
     columns = table.columns if table.columns is not None else measurement_columns(table.values, table.channel)
-    m = Measurement(**columns, meta=table.meta, source=os.fspath(path))
+    unknown = str(table.meta.get("band", "")).split(" ", 1)[0] == BAND_UNKNOWN
+    bands = columns.get("wavelength_nm")
+    if unknown and (bands is None or len(bands) != 1):
+        kind = "RGB channels" if bands is None else f"{len(bands)} wavelengths"
+        raise DataError(f"'# band: {BAND_UNKNOWN}' marks data of one band whose wavelength is not known, but the file has {kind}",
+                        path=path, line=table.meta_lines["band"])
+    m = Measurement(**columns, meta=table.meta, source=os.fspath(path), band_unknown=unknown)
     return m if table.pairs is None else m.with_directions(*table.pairs)
 
 
@@ -203,6 +216,8 @@ def write_csv(
         if values.dtype.kind == "f" and not np.isfinite(values).all():
             raise ValueError(f"column {name!r} has non-finite values; the CSV cannot hold them")
     meta = {**m.meta, **(meta or {})}
+    if m.band_unknown and str(meta.get("band", "")).split(" ", 1)[0] != BAND_UNKNOWN:  # read back as unknown, not as a real band
+        meta["band"] = f"{BAND_UNKNOWN} (no known wavelength; {float(m.wavelength_nm[0]):g} nm stands in)"
     ti, to = columns[0][1], columns[2][1]  # ANGLES: theta_i, phi_i, theta_o, phi_o
     if "angle_unit" not in meta and (_theta_looks_radian(ti, to) or _phi_looks_radian(max(ti.max(), to.max()), np.stack([columns[1][1], columns[3][1]]))):
         meta["angle_unit"] = "degrees"  # what the reader would take for radians: the file says they are degrees, so it reads back
