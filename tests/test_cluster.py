@@ -215,3 +215,22 @@ def test_a_stored_result_is_kept_only_if_it_loads_as_a_material(tmp_path):
     assert _kept_result(target, "ab" * 32, {"lobes": "1"}) == "converged"
     target.write_text(json.dumps(dict(doc, s=2.0)))
     assert _kept_result(target, "ab" * 32, {"lobes": "1"}) is None
+
+
+def test_a_changed_optical_constants_table_is_a_changed_material(tmp_path):
+    """The rerun's record of --material holds the optical constants CSV it loads too: a table
+    edited since (every n halved) changed the fixed F0, and the rerun kept the old fits."""
+    from types import SimpleNamespace
+
+    from ctfit._cli.fit_cluster import _fit_options_record
+
+    (tmp_path / "oc.csv").write_text("wavelength_nm,n,k\n400,1.2,2.1\n700,0.3,4.0\n")
+    (tmp_path / "cu.toml").write_text('s = 1\nlobes = [{ m = 0.2 }]\noptical_constants = "oc.csv"\nfixed = ["f0"]\n')
+    o = SimpleNamespace(family="auto", lobes="1", geometry=None, fresnel=None, no_diffuse=True, diffuse=None, loss="auto", solver="lm", float32=False,
+                        starts=3, max_steps=256, param_out=None, material=tmp_path / "cu.toml")
+    before = _fit_options_record(o)
+    assert before["material"] == f"{input_sha256(tmp_path / 'cu.toml')}+{input_sha256(tmp_path / 'oc.csv')}"
+    (tmp_path / "oc.csv").write_text("wavelength_nm,n,k\n400,0.6,2.1\n700,0.15,4.0\n")
+    assert _fit_options_record(o)["material"] != before["material"]
+    (tmp_path / "plain.toml").write_text("s = 1\nlobes = [{ m = 0.2 }]\nF0 = 0.9\n")
+    assert _fit_options_record(SimpleNamespace(**{**vars(o), "material": tmp_path / "plain.toml"}))["material"] == input_sha256(tmp_path / "plain.toml")

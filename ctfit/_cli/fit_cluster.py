@@ -122,12 +122,15 @@ def _check_texel_outputs(o) -> None:
 
 
 def _fit_options_record(o) -> dict:
-    """The options a stored result was fitted with (a re-run keeps it only if they are equal)."""
+    """The options a stored result was fitted with (a re-run keeps it only if they are equal);
+    ``material``: the SHA-256 of the --material file, and of the optical constants CSV it loads
+    after a "+" (a changed table changes its fixed F0: a rerun kept the fits made with the old one)."""
     from .._fitting import input_sha256
+    from .inputs import material_inputs
 
+    material = "+".join(input_sha256(p) for p in material_inputs(o.material)) if o.material else None
     return dict(family=o.family, lobes=o.lobes, geometry=o.geometry, fresnel=o.fresnel, diffuse="none" if o.no_diffuse else o.diffuse, loss=o.loss,
-                solver=o.solver, float32=o.float32,
-                starts=o.starts, max_steps=o.max_steps, param_out=o.param_out, material=input_sha256(o.material) if o.material else None)
+                solver=o.solver, float32=o.float32, starts=o.starts, max_steps=o.max_steps, param_out=o.param_out, material=material)
 
 
 def _kept_result(target, sha: str, options: dict) -> str | None:
