@@ -234,3 +234,99 @@ def test_a_changed_optical_constants_table_is_a_changed_material(tmp_path):
     assert _fit_options_record(o)["material"] != before["material"]
     (tmp_path / "plain.toml").write_text("s = 1\nlobes = [{ m = 0.2 }]\nF0 = 0.9\n")
     assert _fit_options_record(SimpleNamespace(**{**vars(o), "material": tmp_path / "plain.toml"}))["material"] == input_sha256(tmp_path / "plain.toml")
+
+
+@pytest.fixture
+def in_process_cluster(monkeypatch):
+    """``--workers`` on a cluster of one worker thread in this process (no worker processes to start;
+    this process's patches reach the worker)."""
+    import contextlib
+
+    from distributed import Client
+
+    import ctfit._runtime as runtime
+    from ctfit._runtime import cluster
+
+    @contextlib.contextmanager
+    def in_process(client=None, **_):
+        if client is not None:
+            yield client
+            return
+        with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as made:
+            yield made
+
+    monkeypatch.setattr(runtime, "dask_client", in_process)
+    monkeypatch.setattr(cluster, "_prepared", {False, True})  # this process is the worker: leave its JAX set-up as it is
+
+
+def test_a_file_rewritten_after_it_was_hashed_carries_the_hash_of_the_bytes_fitted(in_process_cluster, tmp_path, monkeypatch):
+    """The run hashes every file before any worker reads it: a file rewritten in between is fitted
+    as it is then, and its result (and summary row) carries the hash of those bytes, not the old
+    one — else the old bytes put back would keep that fit of other data as this file's."""
+    import ctfit._fitting as fitting
+
+    st = ctfit.Structure(lobes=1)
+    old, new = tmp_path / "old.csv", tmp_path / "new.csv"
+    for m, path in ((0.2, old), (0.4, new)):
+        mat = ctfit.Material(st, ctfit.Params(m=np.array([m]), w=np.array([1.0]), f0=np.array([0.5, 0.8])), wavelength_nm=np.array([450.0, 650.0]))
+        ctfit.write_csv(ctfit.simulate(mat, 200, noise=0.01, seed=1), path)
+    (tmp_path / "db").mkdir()
+    target, out = tmp_path / "db" / "x.csv", tmp_path / "out"
+    target.write_bytes(old.read_bytes())
+    real, rewritten = fitting.input_sha256, []
+
+    def hash_then_rewrite(path):
+        sha = real(path)
+        if Path(path) == target and not rewritten:  # once, just after the run hashed the old bytes
+            target.write_bytes(new.read_bytes())
+            rewritten.append(sha)
+        return sha
+
+    monkeypatch.setattr(fitting, "input_sha256", hash_then_rewrite)
+    args = ["fit", str(tmp_path / "db"), "-o", str(out), "--workers", "1", "--family", "metal", "--lobes", "1", "--diffuse", "F0/pi", "-q"]
+    first = CliRunner().invoke(app, args)
+    assert first.exit_code == 0, first.output
+    assert rewritten == [input_sha256(old)]
+    doc = json.loads((out / "x.fit.json").read_text())
+    assert doc["lobes"][0]["m"] == pytest.approx(0.4, rel=0.05)  # the new bytes were fitted ...
+    assert doc["input_sha256"] == input_sha256(new)  # ... and the result says so
+    assert [r["input_sha256"] for r in json.loads((out / "summary.json").read_text())["results"]] == [input_sha256(new)]
+    monkeypatch.setattr(fitting, "input_sha256", real)
+    target.write_bytes(old.read_bytes())  # the old bytes back: fitted again, not "kept"
+    again = CliRunner().invoke(app, args[:-1])
+    assert again.exit_code == 0, again.output
+    assert "kept" not in again.output
+    doc = json.loads((out / "x.fit.json").read_text())
+    assert doc["lobes"][0]["m"] == pytest.approx(0.2, rel=0.05) and doc["input_sha256"] == input_sha256(old)
+
+
+def test_a_worker_reads_again_a_file_that_changed_while_it_read_it(tmp_path, monkeypatch):
+    """The hash a worker returns is of the bytes it parsed: a file that changed during the read is
+    read again; one that changes at every read fails, named as the user gave it."""
+    from ctfit._fitting import many
+
+    mat = ctfit.load_material(ROOT / "configs" / "gold.toml")
+    versions = [tmp_path / f"v{i}.csv" for i in range(many.READ_TRIES + 1)]
+    for i, path in enumerate(versions):
+        ctfit.write_csv(ctfit.simulate(mat, 20 + i, wavelength_nm=[500.0, 600.0], seed=i), path)
+    target = tmp_path / "x.csv"
+    target.write_bytes(versions[0].read_bytes())
+    real, reads = many.read_input, []
+
+    def read_then_rewrite(path, param_out=None, changes=1):
+        got = real(path, param_out)
+        reads.append(len(got))
+        if len(reads) <= changes:
+            target.write_bytes(versions[len(reads)].read_bytes())
+        return got
+
+    monkeypatch.setattr(many, "read_input", read_then_rewrite)
+    meas, sha = many._read_hashed(("x.csv", str(target)), None)
+    sizes = [len(ctfit.read_csv(v)) for v in versions]  # each version of its own size
+    assert reads == sizes[:2] and len(meas) == sizes[1] and sha == input_sha256(versions[1]) and meas.source == "x.csv"
+    target.write_bytes(versions[0].read_bytes())
+    reads.clear()
+    monkeypatch.setattr(many, "read_input", lambda path, param_out=None: read_then_rewrite(path, param_out, changes=many.READ_TRIES))
+    with pytest.raises(ValueError, match=r"^x\.csv: changed while it was read"):
+        many._read_hashed(("x.csv", str(target)), None)
+    assert len(reads) == many.READ_TRIES

@@ -15,8 +15,9 @@ __all__ = ["TEXEL_SUFFIXES", "fit_on_cluster", "fit_texel_command"]
 def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> tuple[list[tuple[str, str]], dict]:
     """--workers / --scheduler: files whose stored result was fitted from the same bytes with the
     same options are skipped; the others are fitted by ``fit_many`` on the cluster and each is
-    reported and written as its task completes. Returns the outcomes and the inputs' hashes
-    (for ``summary.json``, which the command writes beside the results)."""
+    reported and written as its task completes, with the hash of the bytes its worker parsed (a
+    file rewritten since it was hashed here is not labelled with its old hash). Returns the
+    outcomes and the inputs' hashes (for ``summary.json``, which the command writes beside the results)."""
     from .._fitting import fit_many, input_sha256
     from .._runtime import dask_client, echo
 
@@ -42,13 +43,15 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> tuple[
         try:
             if isinstance(got, Exception):
                 raise got
-            got.material.meta.update(input_sha256=hashes[path], fit_options=options)
+            hashes[path] = got.material.meta["input_sha256"]  # of the bytes the worker parsed, not those hashed here before
+            got.material.meta.update(fit_options=options)
             meas = read_data(path, o.param_out) if plan[path].plot is not None else None
             outcomes[path] = (report_file(path, meas, got, o, plan[path], show), str(path))
         except (UserError, ValueError, OSError, KeyError, RuntimeError) as e:
             line = failure_line(path, e)
             echo(f"error: {line}", err=True)
             outcomes[path] = ("failed", line)
+            hashes.pop(path, None)  # the summary hashes the file as it is then
 
     if pending:
         st = structure_from_options(base.structure if base else None, o)

@@ -12,7 +12,8 @@ cheap next to its fit, and no measurement travels between processes.
 Results come back as tasks complete; ``on_result(i, result)`` is called in the calling process
 for each (the ``ctfit fit --workers`` command writes each file's JSON there, atomically, so a
 run that is killed keeps every finished result). :func:`input_sha256` is the content hash that
-the command stores in each result to know, on a re-run, which files are done.
+the command stores in each result to know, on a re-run, which files are done: the worker that
+fits a file hashes it before and after its read, so the hash is of the bytes fitted.
 """
 
 from __future__ import annotations
@@ -71,7 +72,8 @@ def fit_many(
     or, with ``return_errors``, an exception); ``progress``: a bar over tasks on stderr.
     ``material``: a :class:`~ctfit.Material` whose values, on each item's bands, start its fit
     and whose ``meta["fixed"]`` names the fixed parameters (as ``ctfit fit --material``); the
-    other fitting options are those of :func:`~ctfit.fit`.
+    other fitting options are those of :func:`~ctfit.fit`. A file's result has in ``material.meta["input_sha256"]`` the SHA-256
+    of the bytes its worker fitted (hashed before and after that read; a file changed meanwhile is read again, :data:`READ_TRIES` times).
 
     >>> import numpy as np, ctfit
     >>> def gold(m):
@@ -199,8 +201,32 @@ def _read_item(item: Any, param_out: str | None) -> Measurement:
     if isinstance(item, Measurement):
         return item
     shown, where = item
+    return _as_shown(lambda: read_input(where, param_out).replace(source=shown), where, shown)
+
+
+READ_TRIES = 3
+"""How often a worker reads a file that changes while it reads it before that file fails (:func:`_read_hashed`)."""
+
+
+def _read_hashed(item: Any, param_out: str | None) -> tuple[Measurement, str | None]:
+    """The measurement of a :func:`_located` item and the SHA-256 of the bytes it was parsed from
+    (None: a Measurement): the file is hashed before and after it is read, and read again if the
+    two differ (it changed meanwhile); one still changing after :data:`READ_TRIES` reads fails."""
+    if isinstance(item, Measurement):
+        return item, None
+    shown, where = item
+    for _ in range(READ_TRIES):
+        before = _as_shown(lambda: input_sha256(where), where, shown)
+        meas = _read_item(item, param_out)
+        if _as_shown(lambda: input_sha256(where), where, shown) == before:
+            return meas, before
+    raise ValueError(f"{shown}: changed while it was read ({READ_TRIES} tries); fit it again once it is written")
+
+
+def _as_shown(call: Callable[[], Any], where: str, shown: str) -> Any:
+    """``call()``; an error it raises names the file as the user gave it (``shown``), not by its absolute path."""
     try:
-        return read_input(where, param_out).replace(source=shown)
+        return call()
     except _CAUGHT as e:
         text = str(e).replace(where, shown)
         if text == str(e):
@@ -240,9 +266,11 @@ def _fit_task(items: list, structure: Structure | None, options: dict, param_out
     prepare_worker(x64)
     outs: list = [None] * len(items)
     ready = []
+    hashes: dict[int, str | None] = {}
     for j, item in enumerate(items):
         try:
-            ready.append((j, _read_item(item, param_out)))
+            meas, hashes[j] = _read_hashed(item, param_out)
+            ready.append((j, meas))
         except _CAUGHT as e:
             outs[j] = _portable(e)
     options = dict(options)
@@ -271,4 +299,7 @@ def _fit_task(items: list, structure: Structure | None, options: dict, param_out
         fits = fit_batch([m for _, m in ready], structure, return_errors=True, **options)
         for (j, _), got in zip(ready, fits):
             outs[j] = _portable(got) if isinstance(got, Exception) else got
+    for j, sha in hashes.items():  # the hash of the bytes fitted, taken by the read that parsed them
+        if sha is not None and not isinstance(outs[j], Exception):
+            outs[j].material.meta["input_sha256"] = sha
     return outs
