@@ -116,6 +116,18 @@ def test_eval_of_data_without_a_wavelength_needs_a_material_of_one_band(tmp_path
     assert "# band: unknown" in (tmp_path / "e.csv").read_text()
 
 
+def test_eval_says_when_the_model_overflows_not_the_data(tmp_path):
+    """m = 1e-160: 1/m² overflows float64 (1e-20 overflows float32) and the model is NaN at the
+    mirror. The error named the data file and a 'brdf' it does not have ("Measurement geo.csv:
+    brdf[0]: NaN is not allowed"); it names the material, the row and the dtype."""
+    (tmp_path / "tiny.toml").write_text("s = 1\nlobes = [{ m = 1e-160 }]\nF0 = [0.9]\nwavelength_nm = [550]\n")
+    (tmp_path / "geo.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm\n10,0,20,180,550\n0,0,0,180,550\n")
+    r = run("eval", tmp_path / "tiny.toml", tmp_path / "geo.csv", "-o", tmp_path / "e.csv")
+    assert r.exit_code == 2 and not (tmp_path / "e.csv").exists()
+    assert "tiny.toml: the model is not finite at 1 of 2 rows of" in r.output and "θ_i 0°" in r.output, r.output
+    assert "overflow float64 there (m = 1e-160; ctfit fits m ≥ 1e-5)" in r.output and "Measurement" not in r.output
+
+
 def test_table_is_printed(simulated):
     d, csv = simulated
     r = run("fit", csv, "--lobes", 1, "--no-diffuse")

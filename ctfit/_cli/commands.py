@@ -67,7 +67,15 @@ def eval_cmd(
         if meas.band_unknown and not mat.band_unknown and bands > 1:
             raise UserError(f"{data}: its one band has no known wavelength, and the material's values differ from band to band "
                             f"({bands} bands): there is no telling which to evaluate; give the data a wavelength (a CSV)")
-        values = evaluate(mat, meas)
+        import numpy as np
+
+        values = np.asarray(evaluate(mat, meas))
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:  # the model's, not the data's: Measurement(brdf=values) named the data file and a 'brdf' it did not have
+            slope = f"m = {float(np.min(mat.params.m)):g}; ctfit fits m ≥ 1e-5" if mat.params.m is not None else "its parameters"
+            raise UserError(f"{material}: the model is not finite at {bad.size} of {len(values)} rows of {data} (the first: θ_i {meas.theta_i[bad[0]]:g}°, "
+                            f"θ_o {meas.theta_o[bad[0]]:g}°): its values overflow {'float32' if float32 else 'float64'} there ({slope})"
+                            + ("; evaluate it in float64" if float32 else ""))
         # The values are the model's: the data's own lines (its source, noise, instrument) would describe them wrongly.
         meta = {"source": "ctfit eval", "material": str(material), "directions": str(data)}
         if meas.band_unknown:
