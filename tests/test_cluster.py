@@ -252,7 +252,7 @@ def in_process_cluster(monkeypatch):
         if client is not None:
             yield client
             return
-        with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as made:
+        with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as made:
             yield made
 
     monkeypatch.setattr(runtime, "dask_client", in_process)
@@ -330,3 +330,30 @@ def test_a_worker_reads_again_a_file_that_changed_while_it_read_it(tmp_path, mon
     with pytest.raises(ValueError, match=r"^x\.csv: changed while it was read"):
         many._read_hashed(("x.csv", str(target)), None)
     assert len(reads) == many.READ_TRIES
+
+
+def test_ctrl_c_at_the_terminal_ends_a_local_cluster_run_with_one_line(tmp_path):
+    """Ctrl-C reaches the whole process group: each worker of ``--workers`` printed a traceback
+    (KeyboardInterrupt inside Dask's nanny) before the command's line. Workers start with SIGINT
+    ignored; the command shuts them down: status 130, one 'interrupted' line, no process left."""
+    st = ctfit.Structure(lobes=1)
+    (tmp_path / "data").mkdir()
+    for i in range(40):  # enough work that the workers are busy when the signal comes
+        mat = ctfit.Material(st, ctfit.Params(m=np.array([0.15 + 0.005 * i]), w=np.array([1.0]), f0=np.array([0.5, 0.8, 0.9])),
+                             wavelength_nm=np.array([450.0, 550.0, 650.0]))
+        ctfit.write_csv(ctfit.simulate(mat, 1500, noise=0.01, seed=i), tmp_path / "data" / f"f{i:02d}.csv")
+    out, log = tmp_path / "out", tmp_path / "run.log"
+    env = {**os.environ, "JAX_PLATFORMS": "cpu", "CTFIT_PROGRESS": "0"}
+    with open(log, "ab") as f:
+        run = subprocess.Popen([str(BIN / "ctfit"), "fit", str(tmp_path / "data"), "-o", f"{out}/", "--workers", "2", "-q"], stdout=f,
+                               stderr=subprocess.STDOUT, env=env, cwd=tmp_path, start_new_session=True)
+    wait_for_results(out, run)  # the workers are fitting
+    os.killpg(run.pid, signal.SIGINT)  # as a terminal does: the command and every process it started
+    assert run.wait(timeout=120) == 130
+    text = log.read_text()
+    assert "Traceback" not in text and "KeyboardInterrupt" not in text, text
+    assert sum(line.startswith("interrupted") for line in text.splitlines()) == 1, text
+    deadline = time.monotonic() + 30
+    while (left := subprocess.run(["ps", "-o", "pid=,stat=,args=", "-g", str(run.pid)], capture_output=True, text=True).stdout.strip()):
+        assert time.monotonic() < deadline, left
+        time.sleep(0.2)

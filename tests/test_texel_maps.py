@@ -190,7 +190,7 @@ def test_an_image_smaller_than_a_chunk_is_fitted_without_padding(texels, tmp_pat
     fitted, real = [], texels_module.fit_texels
     monkeypatch.setattr(texels_module, "fit_texels", lambda data, v, *a, **k: fitted.append(len(v)) or real(data, v, *a, **k))
     monkeypatch.setattr(cluster, "_prepared", {False, True})  # this process is the worker: leave its JAX set-up as it is
-    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=None) as c:
+    with Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as c:
         maps = ctfit.fit_texel_maps(tmp_path / "in.zarr", tmp_path / "maps.zarr", ST, c)
     assert fitted == [H * W]
     assert maps["m"].shape == (H, W, 1) and (maps["status"].values == 0).all()

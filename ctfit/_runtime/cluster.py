@@ -55,18 +55,43 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
         raise ValueError(f"workers must be ≥ 1, got {workers}")
     from .._io import on_interrupt
 
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      silence_logs=logging.ERROR) as cluster, Client(cluster) as made:
-        withdraw = on_interrupt(lambda: _shut_down(made, cluster))  # Ctrl-C: no process or semaphore left behind
-        try:
-            yield made
-        finally:
-            withdraw()
+    with _sigint_ignored():  # the worker processes inherit it: Ctrl-C is the command's alone
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=logging.ERROR)
+    clients: list = []
+    withdraw = on_interrupt(lambda: _shut_down(clients, cluster))  # Ctrl-C, also while the cluster closes: no process or semaphore left behind
+    try:
+        with cluster, Client(cluster) as client:
+            clients.append(client)
+            yield client
+    finally:
+        withdraw()
 
 
-def _shut_down(client, cluster) -> None:
-    """Close ``client`` and its local ``cluster`` (an interrupted command, before it exits)."""
-    client.close(timeout=10)
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while the block starts the local cluster's processes, which keep that (an
+    ignored signal stays ignored across ``exec``): a Ctrl-C at the terminal reaches the whole
+    process group, and each worker printed a traceback of its own (``KeyboardInterrupt`` inside
+    Dask's nanny) before the command's one line. The command shuts them down
+    (:func:`~ctfit._io.on_interrupt`). Only in the main thread (where a handler can be set)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _shut_down(clients: list, cluster) -> None:
+    """Close the ``clients`` (none yet, or one) and their local ``cluster`` (an interrupted
+    command, before it exits)."""
+    for client in clients:
+        client.close(timeout=10)
     cluster.close(timeout=10)
 
 
