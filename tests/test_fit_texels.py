@@ -120,3 +120,14 @@ def test_a_band_no_sample_has_is_refused(texels):
         ctfit.fit_texels(two, values[:4, rg], ST, dtype=jnp.float64)
     with pytest.raises(ValueError, match=r"no sample has band B"):
         ctfit.fit_batch(two, ST, values=values[:4, rg], dtype=jnp.float64)
+
+
+def test_values_that_are_not_real_numbers_are_refused_and_a_list_is_taken(texels):
+    """Complex values were fitted without their imaginary part, strings of numbers as numbers,
+    and a list of rows refused as 'shape None'."""
+    geometry, values, _ = texels
+    for bad, name in ((values[:2] + 1j, "complex128"), (values[:2].astype(str), "str")):
+        with pytest.raises(ValueError, match=f"values must be real numbers, got an array of {name}"):
+            ctfit.fit_texels(geometry, bad, ST, dtype=jnp.float64)
+    from_list = ctfit.fit_texels(geometry, values[:2].tolist(), ST, dtype=jnp.float64)
+    np.testing.assert_array_equal(from_list.params.m, ctfit.fit_texels(geometry, values[:2], ST, dtype=jnp.float64).params.m)

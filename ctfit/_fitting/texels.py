@@ -147,6 +147,11 @@ def fit_texels(
     """
     t0 = time.perf_counter()
     loss, solver, dtype, max_steps = options["loss"], options["solver"], options["dtype"], options["max_steps"]
+    if not hasattr(values, "shape"):  # a list of rows: an array (a memmap or an h5py dataset is sliced as it is)
+        values = np.asarray(values)
+    kind = np.dtype(getattr(values, "dtype", np.float64)).kind
+    if kind not in "fiu":  # complex values lost their imaginary part, strings were parsed as numbers
+        raise ValueError(f"values must be real numbers, got an array of {np.dtype(values.dtype).name}")
     shape = getattr(values, "shape", None)
     if shape is None or len(shape) != 2 or shape[1] != len(measurement):
         raise ValueError(f"values must have shape (texels, {len(measurement)}) (one row per texel, one column per sample of "
