@@ -140,7 +140,9 @@ def test_bad_files_raise(tmp_path, content, pattern):
 
 @pytest.mark.parametrize(
     "table, pattern",
-    [(np.zeros((3, 90, 90, 90)), r"shape \(3, 90, 90, 180\), got \(3, 90, 90, 90\)"), (np.full((3, 90, 90, 180), np.inf), "infinite")],
+    [(np.zeros((3, 90, 90, 90)), r"shape \(3, 90, 90, 180\), got \(3, 90, 90, 90\)"), (np.full((3, 90, 90, 180), np.inf), "infinite"),
+     (np.full((3, 90, 90, 180), 1e306), r"channel R, cell \(0, 0, 0\): 1e\+306 sr⁻¹ is too large for a MERL file"),  # (read_merl refused what it wrote)
+     (np.ones((3, 90, 90, 180)) + 1j, "real BRDF values, got complex ones")],
 )
 def test_write_merl_rejects_bad_tables(tmp_path, table, pattern):
     with pytest.raises(ValueError, match=pattern):

@@ -342,10 +342,17 @@ def write_merl(path: str | os.PathLike[str], rgb_table: Float[ArrayLike, "3 90 9
     >>> len(m), m.channels, m.meta["merl_cells_below_horizon"], bool(np.allclose(np.pi * m.brdf, 0.5))
     (3288648, ('R', 'G', 'B'), '361784', True)
     """
+    if np.iscomplexobj(rgb_table):  # (its imaginary part was dropped with a warning)
+        raise ValueError("a MERL table holds real BRDF values, got complex ones")
     table = np.asarray(rgb_table, dtype=np.float64)
     if table.shape != (3, *MERL_SHAPE):
         raise ValueError(f"a MERL table has shape {(3, *MERL_SHAPE)}, got {table.shape}")
     if np.isinf(table).any():
         raise ValueError("a MERL table cannot hold infinite values")
-    stored = np.where(np.isnan(table) | (table < 0), -1.0, table / MERL_SCALE[:, None, None, None])
+    with np.errstate(over="ignore"):
+        stored = np.where(np.isnan(table) | (table < 0), -1.0, table / MERL_SCALE[:, None, None, None])
+    if np.isinf(stored).any():  # a value above ~1.2e305 sr⁻¹ stored as MERL's scaled float: read_merl refused the file
+        channel, *cell = (int(i[0]) for i in np.nonzero(np.isinf(stored)))
+        raise ValueError(f"channel {'RGB'[channel]}, cell {tuple(cell)}: {table[(channel, *cell)]:g} sr⁻¹ is too large for a MERL file "
+                         f"(stored as value / {MERL_SCALE[channel]:g}, it overflows a double)")
     atomic_write(path, [np.array(MERL_SHAPE, "<i4").tobytes(), stored.astype("<f8").tobytes()])
