@@ -298,7 +298,7 @@ def _create(output: str | os.PathLike[str], first: dict, dims: tuple[str, ...], 
     if "band" in ds.dims and data.wavelength_nm is not None:
         ds = ds.assign_coords(wavelength_nm=("band", np.asarray(data.wavelength_nm)))
     elif "band" in ds.dims:
-        ds = ds.assign_coords(channel=("band", list(data.channels)))
+        ds = ds.assign_coords(channel=("band", np.array(list(data.channels), dtype=object)))  # variable-length: Zarr v3 has no fixed-width text
     ds.to_zarr(output, mode="w-", compute=True, consolidated=False)
 
 
