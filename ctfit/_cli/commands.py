@@ -77,9 +77,7 @@ def eval_cmd(
                             f"θ_o {meas.theta_o[bad[0]]:g}°): its values overflow {'float32' if float32 else 'float64'} there ({slope})"
                             + ("; evaluate it in float64" if float32 else ""))
         # The values are the model's: the data's own lines (its source, noise, instrument) would describe them wrongly.
-        meta = {"source": "ctfit eval", "material": str(material), "directions": str(data)}
-        if meas.band_unknown:
-            meta["band"] = f"unknown (the data's band has no wavelength; {float(meas.wavelength_nm[0]):g} nm stands in)"  # read back as unknown
+        meta = {"source": "ctfit eval", "material": str(material), "directions": str(data)}  # (write_csv adds '# band: unknown' where it is)
         write_csv(meas.replace(brdf=values, sigma=None, meta=meta), output)
         echo(f"wrote {len(values)} samples to {output}", err=True)
 

@@ -17,22 +17,27 @@ def fit_on_cluster(files: list[Path], o, base, plan: dict, show: bool) -> tuple[
     same options are skipped; the others are fitted by ``fit_many`` on the cluster and each is
     reported and written as its task completes, with the hash of the bytes its worker parsed (a
     file rewritten since it was hashed here is not labelled with its old hash). Returns the
-    outcomes and the inputs' hashes (for ``summary.json``, which the command writes beside the results)."""
+    outcomes and the inputs' hashes (for ``summary.json``, which the command writes beside the results).
+    A file is hashed here only where a result of it is stored: the others' hashes are their workers'."""
     from .._fitting import fit_many, input_sha256
+    from .._io import check_input_file
     from .._runtime import dask_client, echo
 
     options = _fit_options_record(o)
     hashes, outcomes, pending = {}, {}, []
     for path in files:
         try:
-            hashes[path] = input_sha256(path)
+            if plan[path].json is not None and Path(plan[path].json).is_file():  # a stored result: kept if of the same bytes
+                hashes[path] = input_sha256(path)
+            else:  # hashed by its worker, from the read it fits: here only checked to be a file to read
+                check_input_file(path, text=False)
         except OSError as e:
             outcomes[path] = ("failed", f"{path}: {e.strerror or e}")
             continue
         except ValueError as e:  # not a regular file (/dev/zero, a FIFO): never read
             outcomes[path] = ("failed", failure_line(path, e))
             continue
-        kept = _kept_result(plan[path].json, hashes[path], options)
+        kept = _kept_result(plan[path].json, hashes[path], options) if path in hashes else None
         if kept is None:
             pending.append(path)
         else:

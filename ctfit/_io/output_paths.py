@@ -240,16 +240,16 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
     return path
 
 
-def _check_readable(path: Path, option: str, so: str) -> None:
-    """Refuse (:class:`OutputError`, naming the file) an HDF5 file that HDF5 cannot open: a
-    truncated or damaged one (a copy cut short, a full disk). HDF5's own message named neither
-    the file nor the option ("Unable to synchronously open file (truncated file: eof = 20000, …)").
-    ``so``: what that means for the run."""
+def _check_readable(path: Path, option: str, so: str) -> list[str]:
+    """The names at the top of an HDF5 file; refused (:class:`OutputError`, naming the file) where
+    HDF5 cannot open it: a truncated or damaged one (a copy cut short, a full disk). HDF5's own
+    message named neither the file nor the option ("Unable to synchronously open file (truncated
+    file: eof = 20000, …)"). ``so``: what that means for the run."""
     import h5py
 
     try:
         with h5py.File(path, "r") as f:
-            list(f.keys())
+            return list(f.keys())
     except OSError as e:
         raise OutputError(f"{_at(option, path)}: HDF5 cannot read the file ({_hdf5_reason(e)}), so {so}; restore it from a copy, or move it "
                           "away and start again") from None
@@ -285,8 +285,7 @@ def _check_only_chains(path: Path, option: str) -> None:
 
     if not h5py.is_hdf5(path):
         raise OutputError(f"{_at(option, path)}: is not an HDF5 file; a new chain replaces only a file of ctfit's chain: name another file")
-    _check_readable(path, option, "what it holds cannot be checked before a new chain replaces it")
-    listed = groups_beside_chain(path)
+    listed = _beside_chain(_check_readable(path, option, "what it holds cannot be checked before a new chain replaces it"))
     if listed:
         raise OutputError(f"{_at(option, path)}: the HDF5 file holds {listed} beside ctfit's chain, which a new chain would replace (the "
                           "whole file is written anew): name another file")
@@ -298,7 +297,11 @@ def groups_beside_chain(path) -> str:
     import h5py
 
     with h5py.File(path, "r") as f:
-        others = [k for k in f.keys() if k != "ctfit"]
+        return _beside_chain(list(f.keys()))
+
+
+def _beside_chain(keys: list[str]) -> str:
+    others = [k for k in keys if k != "ctfit"]
     return ", ".join(repr(k) for k in others[:5]) + (", …" if len(others) > 5 else "")
 
 

@@ -30,7 +30,7 @@ import numpy.typing as npt
 from jaxtyping import ArrayLike, Float
 
 from .._colour import RGB_to_XYZ, XYZ_to_Lab, delta_E_CIE2000, rgb_conversion
-from .._io import angles_deg_to_half_diff_deg
+from .._io import angles_deg_to_half_diff_deg, shorten
 from .._model import Light, Material, Measurement, evaluate_at
 from .measured import check_colour_bands
 from .scene import LIGHT_DIRECTIONS, SOLID_ANGLES, Scene, Tile, render_bands, scene_lights, white_scale
@@ -51,11 +51,6 @@ def coverage_text(fraction: float) -> str:
         if (float(text) < 100 or fraction >= 1) and (float(text) > 0 or fraction <= 0):
             return f"{text} %"
     return f"{100 * fraction:.6g} %"
-
-
-def _short(text: str, most: int = 48) -> str:
-    """``text`` cut to ``most`` characters, the cut marked "…"."""
-    return text if len(text) <= most else text[: most - 1] + "…"
 
 
 MAX_POINTS = 100_000  # direction pairs interpolated from at most (a fixed random subset beyond)
@@ -396,10 +391,10 @@ def _comparison_figure(
     axes = fig.subplots(1, 3)
     name = material.name or "fitted material"
     axes[0].imshow(measured, interpolation="nearest")
-    axes[0].set_title(f"measured: {_short(os.path.basename(str(data.source)) or str(data.source))}\n(interpolated; grey: outside the measured domain)",
+    axes[0].set_title(f"measured: {shorten(os.path.basename(str(data.source)) or str(data.source), 47)}\n(interpolated; grey: outside the measured domain)",
                       fontsize=9)  # the file's name: a long path was cut at the figure's left edge
     axes[1].imshow(fitted, interpolation="nearest")
-    axes[1].set_title(f"fitted: {_short(str(name))}", fontsize=9)
+    axes[1].set_title(f"fitted: {shorten(name, 47)}", fontsize=9)
     axes[2].imshow(np.where(outside, 1.0, np.nan), cmap=ListedColormap([(OUTSIDE_GREY / 255,) * 3]), interpolation="nearest")
     shown = axes[2].imshow(de, cmap="viridis", vmin=0.0, vmax=max_delta_e, interpolation="nearest")
     axes[2].set_title("ΔE2000 (CIEDE2000), measured vs fitted", fontsize=9)

@@ -235,7 +235,7 @@ def steps_needed(steps: int, burn: int, tau_max: float, ess_min: float) -> int:
     wants = [TAU_RUNS * tau_max]
     if np.isfinite(ess_min) and ess_min > 0:
         wants.append(kept * ESS_LIMIT / ess_min)
-    need = max(wants) if wants else 2 * kept
+    need = max(wants)
     if need <= kept:
         need = 2 * kept
     total = max(need + 2 * tau_max, need / 0.9, steps + 1)
