@@ -168,3 +168,27 @@ def test_the_first_run_ends_whole_while_second_runs_are_refused(tmp_path, monkey
     assert alone.exit_code == first.exit_code
     np.testing.assert_array_equal(_chain(chain), _chain(tmp_path / "alone.h5"))
     assert _chain(chain).shape[:2] == (24, 24) and not lock_path(chain).exists()
+
+
+def test_a_chain_of_several_names_is_not_continued_in_place(tmp_path, no_work):
+    """A chain file with a second name (a hard link: a backup snapshot made with ``cp -al`` or
+    rsync's --link-dest) is not continued: the chain is written in place, so the snapshot would
+    change too, and the lock, taken by name, would not keep out a run through the other name. The
+    file is left as it was; starting again (a new file renamed over the name) stays allowed."""
+    import h5py
+
+    chain, snapshot = tmp_path / "run.h5", tmp_path / "snapshot" / "run.h5"
+    with h5py.File(chain, "w") as f:
+        f.create_dataset("ctfit/chain", data=np.arange(6.0))
+    assert check_backend(chain, resume=True, overwrite=False) == chain  # one name: continued
+    snapshot.parent.mkdir()
+    os.link(chain, snapshot)
+    before = chain.read_bytes()
+    with pytest.raises(ValueError, match=r"run\.h5: the file has 2 names \(hard links\); a continued chain is written in place"):
+        check_backend(chain, resume=True, overwrite=False)
+    data, mat = tmp_path / "data.csv", ROOT / "configs" / "copper-vase.toml"
+    data.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,500,1\n")
+    r = run("sample", mat, data, "-o", tmp_path / "x.json", "--backend", snapshot, "--resume")
+    assert r.exit_code == 2 and r.output.startswith(f"error: --backend {snapshot}: the file has 2 names (hard links)"), r.output
+    assert chain.read_bytes() == before and os.path.samefile(chain, snapshot)
+    assert check_backend(chain, resume=False, overwrite=True) == chain

@@ -13,7 +13,9 @@ own ``flock`` there, and a POSIX lock, ``fcntl.lockf``, is dropped by each close
 every step), and not a per-user folder (two users, or two hosts sharing the folder, would not
 see each other's locks). It is named after the chain's real path (links followed): every
 spelling of the file, and the temporary file a new chain is written to before it replaces the
-chain (:class:`~ctfit._sampling.backend.NewChain`), are under one lock.
+chain (:class:`~ctfit._sampling.backend.NewChain`), are under one lock. A hard link is another name of the
+same file with a lock of its own: a chain file of several names is not continued
+(:func:`~ctfit._io.output_paths.check_backend`).
 
 A killed run leaves no lock behind: the kernel drops a ``flock`` with the process (the file is
 opened close-on-exec: no program the run starts keeps it). The file is removed when the run

@@ -237,7 +237,19 @@ def check_backend(path, inputs=(), *, resume: bool, overwrite: bool, flags=("--r
     if not h5py.is_hdf5(path):
         raise OutputError(f"{_at(option, path)}: is not an HDF5 file, so it holds no chain to continue")
     _check_readable(path, option, "it holds no chain to continue")
+    _check_one_name(path, option)
     return path
+
+
+def _check_one_name(path: Path, option: str) -> None:
+    """Refuse (:class:`OutputError`) to continue a chain in a file of several names (hard links):
+    a continued chain is written in place, so the file would change under every name (a backup
+    snapshot made with hard links, say), and the lock is taken by name (:mod:`~ctfit._io.chain_lock`):
+    a run through another name would write the file at the same time."""
+    links = path.stat().st_nlink
+    if links > 1:
+        raise OutputError(f"{_at(option, path)}: the file has {links} names (hard links); a continued chain is written in place, which would change "
+                          "it under every name, and a run through another name would not be kept out: continue a copy of it (cp makes one)")
 
 
 def _check_readable(path: Path, option: str, so: str) -> list[str]:
