@@ -265,3 +265,33 @@ def test_the_fit_s_geometry_on_the_host_is_the_model_s(dtype):
             else:
                 np.testing.assert_allclose(g, w, rtol=1e-13 if dtype == np.float64 else 2e-5, atol=1e-15 if dtype == np.float64 else 1e-6, err_msg=f)
                 assert np.all(np.isfinite(g)), f
+
+
+@pytest.mark.parametrize("cols", [(), (3,)])
+def test_the_host_summary_is_the_same_whatever_the_cells_summarised_at_once(monkeypatch, cols):
+    """The chunked fit's residual summary (``chunked_fit._summary``, filled in place a group of
+    chunks at a time) gives the same numbers a few chunks at a time as all at once, in the
+    layout's order, a cell whose value is not finite counted."""
+    from types import SimpleNamespace
+
+    import ctfit._fitting.chunked_fit as chunked_fit
+
+    rng = np.random.default_rng(5)
+    rows, count = 8, 7
+    y = rng.uniform(0.1, 2.0, (rows * count, *cols))
+    values = [y[c * rows: (c + 1) * rows] * rng.uniform(0.9, 1.1, (rows, *cols)) for c in range(count)]
+    values[3][2] = np.inf
+    mask = np.ones(y.shape, bool)
+    mask[-5:] = False
+    problem = SimpleNamespace(y=y, mask=mask, floor=np.asarray(0.05))
+    monkeypatch.setattr(chunked_fit, "SUMMARY_CELLS", 10**9)
+    whole = chunked_fit._summary(problem, values)
+    monkeypatch.setattr(chunked_fit, "SUMMARY_CELLS", 2 * values[0].size)  # two chunks at a time, the last alone
+    parts = chunked_fit._summary(problem, values)
+    expect = (np.concatenate(values) - y) / np.maximum(np.abs(y), 0.05)
+    expect[~mask] = 0
+    np.testing.assert_array_equal(parts["rel"], whole["rel"])
+    np.testing.assert_allclose(parts["rel"][np.isfinite(expect)], expect[np.isfinite(expect)].astype(np.float32), rtol=1e-6)
+    assert parts["rel"].dtype == np.float32 and parts["rel"].shape == y.shape
+    assert parts["bad"] == whole["bad"] == (3 if cols else 1)
+    np.testing.assert_allclose([parts["rmse"], parts["rel_rmse"]], [whole["rmse"], whole["rel_rmse"]], rtol=1e-12)

@@ -718,15 +718,15 @@ def _summary(problem: Problem, values: list) -> dict:
     rows = values[0].shape[0]
     y, mask, floor = np.asarray(problem.y), np.asarray(problem.mask), np.asarray(problem.floor)
     step = max(1, SUMMARY_CELLS // values[0].size)
-    rel, stats, bad = [], [], 0
+    rel = np.empty((len(values) * rows, *values[0].shape[1:]), np.float32)  # filled in place: no second copy to join at the end
+    stats, bad = [], 0
     for c in range(0, len(values), step):
         cut = slice(c * rows, (c + step) * rows)
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):  # a value that is not finite gives NaN, as in a program
-            r, st, b = summary_of_values(np.concatenate(values[c: c + step]), y[cut], mask[cut], floor)
-        rel.append(r)
+            rel[cut], st, b = summary_of_values(np.concatenate(values[c: c + step]), y[cut], mask[cut], floor)
         stats.append(st)
         bad += int(b)
     n = max(int(np.sum(mask)), 1)
     with np.errstate(invalid="ignore", over="ignore"):
         rmse, rel_rmse = (combined_rms(np.array([s[i][0] for s in stats]), np.array([s[i][1] for s in stats]), n, xp=np) for i in (0, 1))
-    return dict(rel=np.concatenate(rel), rmse=rmse, rel_rmse=rel_rmse, bad=bad)
+    return dict(rel=rel, rmse=rmse, rel_rmse=rel_rmse, bad=bad)
