@@ -14,6 +14,12 @@ In each bin of at least ``min_count`` samples the mean residual and its standard
 computed. A bin is *systematic* when its mean departs from 0 by more than ``threshold``
 (default 10 %) and by more than 4 standard errors. Every systematic group yields one plain
 warning naming where the model is too high or too low.
+
+Samples whose value is exactly 0 are left out of the bins and judged on their own
+(:func:`zero_samples_warning`): where 0 stands for a value not measured, their relative
+residuals (the model over the floor) are not errors of the fit, and one sample in ten of them
+made every bin's mean read "the model is 1,000–15,000 % above the data" for a fit exact on
+every other sample.
 """
 
 from __future__ import annotations
@@ -27,7 +33,8 @@ from .._model import Measurement
 from .fit_warnings import FitWarning
 from .losses import loss_floor
 
-__all__ = ["angle_lv_deg", "half_angle_deg", "pair_half_angle_deg", "relative_residual_structure", "residual_structure"]
+__all__ = ["angle_lv_deg", "half_angle_deg", "pair_half_angle_deg", "relative_residual_structure", "residual_structure", "zero_samples_warning",
+           "ZERO_SAMPLES", "ZEROS_HINT"]
 
 
 def _angle_lv(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
@@ -123,7 +130,38 @@ def residual_structure(
     e = np.asarray(model, dtype=float) - y
     e /= np.maximum(np.abs(y), floor)
     pairs, index = data.directions()
-    return relative_residual_structure(pairs, e, index=index, threshold=threshold, min_count=min_count)
+    zero = y == 0
+    notes = relative_residual_structure(pairs, e[~zero], index=index[~zero], threshold=threshold, min_count=min_count)
+    note = zero_samples_warning(e[zero], float(floor), y.size, threshold=threshold)
+    return notes + ([note] if note else [])
+
+
+ZERO_SAMPLES = "samples exactly 0"
+"""The ``region`` of :func:`zero_samples_warning`'s warning."""
+
+ZEROS_HINT = 0.05
+"""Samples exactly 0, as a share of all, from which a fit says so: :func:`zero_samples_warning`
+and, in a fit that fails, :func:`~ctfit._fitting.quality.zeros_hint`."""
+
+
+def zero_samples_warning(rel: np.ndarray, floor: float, samples: int, *, threshold: float = 0.1) -> FitWarning | None:
+    """One warning where at least :data:`ZEROS_HINT` of the ``samples`` are exactly 0 and the model
+    is above them: ``rel`` the relative residuals of those samples (the model's value over the
+    ``floor``), their median above ``threshold``. They are left out of the other bins
+    (:func:`residual_structure`); this says how many, and what the model is there.
+
+    >>> print(zero_samples_warning(np.full(150, 40.0), 0.01, 1000))  # doctest: +ELLIPSIS
+    systematic residuals: 150 samples (15%) are exactly 0 where the model is not (median 0.4 sr⁻¹ there; left out of the other ...
+    """
+    rel = np.asarray(rel, dtype=float)
+    if not rel.size or rel.size < ZEROS_HINT * samples:
+        return None
+    median = float(np.median(rel))
+    if not median > threshold:
+        return None
+    return FitWarning(f"systematic residuals: {rel.size:,} samples ({rel.size / samples:.0%}) are exactly 0 where the model is not (median "
+                      f"{median * floor:.3g} sr⁻¹ there; left out of the other residual checks): if those are values that were not measured, "
+                      "leave them out of the file", "systematic_residuals", region=ZERO_SAMPLES)
 
 
 def relative_residual_structure(

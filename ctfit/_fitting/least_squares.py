@@ -42,7 +42,7 @@ from .._runtime import cached_call, release_free_pages
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch, race_rows
 from .chunks import sum_over_chunks
 from .coordinates import bounds, from_params, to_params
-from .diagnostics import relative_residual_structure
+from .diagnostics import ZERO_SAMPLES, relative_residual_structure, zero_samples_warning
 from .fit_report import (
     NO_STDERR_SINGULAR,
     PARAM_FIELDS,
@@ -426,6 +426,22 @@ def _fitted_material(prep: PreparedFit, params: Params) -> Material:
                     channels=data.channels, name=f"fit of {data.source}", band_unknown=data.band_unknown)
 
 
+def _structure_notes(problem: Problem, data: Measurement, rel: np.ndarray, mask: np.ndarray, floor: float, measured: int) -> list[FitWarning]:
+    """The systematic-residual warnings of a fit from its relative residuals ``rel`` (the problem's
+    layout): by angular bins over the samples not exactly 0, and one for those
+    (:func:`~ctfit._fitting.diagnostics.zero_samples_warning`)."""
+    pairs, index = data.directions()
+    if problem.spec.grid:
+        cells = rel[: len(pairs)]
+        zero = mask[: len(pairs)] & (np.asarray(problem.y)[: len(pairs)] == 0)
+        notes = relative_residual_structure(pairs, cells, mask=mask[: len(pairs)] & ~zero)
+    else:
+        cells, zero = rel[: len(data)], np.asarray(data.brdf) == 0
+        notes = relative_residual_structure(pairs, cells[~zero], index=index[~zero])
+    note = zero_samples_warning(cells[zero], floor, measured)
+    return notes + ([note] if note else [])
+
+
 def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None, max_steps: int | None = None) -> FitResult:
     """The :class:`FitResult` of a prepared fit from ``fit_core``'s output (host arrays); ``t0``:
     when it began; ``tolerance``: the stationarity it was solved to (:func:`fit_to_tolerance`);
@@ -446,10 +462,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     stderr = None if no_noise else _held_without_error(standard_errors(out["jtj"], out["jt"], scale2, order, ~on_bound & ~loose), prep.fixed)
     pairs, index = data.directions()
     rel = np.reshape(out["rel"], problem.y.shape)
-    if problem.spec.grid:
-        structure_notes = relative_residual_structure(pairs, rel[: len(pairs)], mask=mask[: len(pairs)])
-    else:
-        structure_notes = relative_residual_structure(pairs, rel[: len(data)], index=index)
+    structure_notes = _structure_notes(problem, data, rel, mask, floor, n)
     per_sample = rel[index, data.band] if problem.spec.grid else rel[: len(data)]
     quality = quality_from_residuals(data, per_sample, floor, structure, params)
     gn_decrease = float(out["gn_decrease"])
@@ -489,7 +502,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     not_determined = [names[i] for i in np.flatnonzero(loose)]
     why = f"{n} samples for {p} free parameters leave no residual to estimate the noise from (a sigma column gives them)" if no_noise else NO_STDERR_SINGULAR
     notes = ([FitWarning(not_finite, "non_finite")] if not_finite else []) + fit_warnings(params, stderr, not_determined, why)
-    worst = quality_warning(quality, data.brdf)
+    zeros_said = any(w.region == ZERO_SAMPLES for w in structure_notes)  # the share of zeros, said once
+    worst = quality_warning(quality, None if zeros_said else data.brdf)
     if status.converged and worst:  # "at the best fit its seeds found": only a fit that got there says so
         notes.append(worst)
     if not stationary:
@@ -499,7 +513,7 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
     if explains_nothing:
         notes.append(FitWarning(f"no fit: the model explains almost none of the data (its cost is {cost / zero_cost:.1%} of a model that is 0 everywhere); "
                                 "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another "
-                                f"loss={zeros_hint(data.brdf)}", "explains_nothing"))
+                                f"loss={'' if zeros_said else zeros_hint(data.brdf)}", "explains_nothing"))
     if not bool(np.asarray(ok)[best]):
         notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another "
                                 "start, "

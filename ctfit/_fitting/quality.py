@@ -27,7 +27,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from .._model import Material, Measurement, Params, Structure
-from .diagnostics import pair_half_angle_deg
+from .diagnostics import ZEROS_HINT, pair_half_angle_deg
 from .fit_warnings import FitWarning
 
 __all__ = ["MODEL_LIMIT", "TAIL_LIMIT", "ZEROS_HINT", "zeros_hint", "GRAZING_DEG", "fit_quality", "quality_from_residuals", "quality_in_regions",
@@ -159,10 +159,6 @@ def fit_quality(material: Material, data: Measurement, model: Float[ArrayLike, "
     err = np.where(y > 0, np.abs(f - y) / np.where(y > 0, y, 1.0), np.nan)
     peak_deg = peak_width_deg(material.structure, material.params)
     return quality_in_regions(err, *sample_regions(data, peak_deg), peak_deg)
-
-
-ZEROS_HINT = 0.05
-"""A fit that fails with at least this fraction of its samples exactly 0 says so (:func:`zeros_hint`)."""
 
 
 def zeros_hint(brdf: ArrayLike) -> str:
