@@ -278,6 +278,20 @@ def test_overwrite_replaces_the_stored_chain_only_when_the_new_one_has_run(metal
     assert res.diagnostics["backend"] == str(link)
 
 
+@short
+def test_a_chain_is_started_through_a_link_to_a_file_not_made_yet(metal, tmp_path):
+    """A backend that is a symbolic link to a file that does not exist yet gets the chain at its
+    target, as ``-o`` does; HDF5 refused it ("Unable to synchronously create file … File exists",
+    naming neither the file nor the option)."""
+    truth, data, _ = metal
+    link = tmp_path / "run.h5"
+    link.symlink_to("chains.h5")
+    res = sample(truth, data, steps=6, seed=4, backend=link, colour=False)
+    assert link.is_symlink() and _stored_steps(tmp_path / "chains.h5") == 6 and res.chain_u.shape[0] == 6
+    again = sample(truth, data, steps=8, seed=4, backend=link, resume=True, colour=False)
+    assert again.diagnostics["resumed_from"] == 6 and _stored_steps(tmp_path / "chains.h5") == 8
+
+
 def test_a_new_chain_interrupted_in_the_command_says_what_the_file_holds(tmp_path, monkeypatch):
     """The command's Ctrl-C (its cleanups, ``ctfit._io.interrupt``): a new chain with steps
     replaces the file and the line says so; one without keeps the file and says that."""

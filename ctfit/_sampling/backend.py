@@ -65,7 +65,7 @@ def open_run(backend, *, resume: bool, overwrite: bool, steps: int, shape: tuple
 
 
 def _opened(path: pathlib.Path, new, *, resume: bool, overwrite: bool, steps: int, shape: tuple[int, int], fingerprint: str, labels: list[str], seed: int):
-    write_to = path if new is None else new.temp
+    write_to = _through_link(path) if new is None else new.temp
     be = _open_backend(write_to, overwrite=overwrite and new is None)
     done = 0
     if resume and path.is_file() and path.stat().st_size and not be.initialized:  # another program's HDF5 file: never written into unasked
@@ -152,6 +152,12 @@ class NewChain:
             return f"{self.path} now holds the new chain ({n} steps)"
         self.abandon()
         return f"{self.path} keeps what it held (the new chain had no step)"
+
+
+def _through_link(path: pathlib.Path) -> pathlib.Path:
+    """The file ``path`` names: a symbolic link's target, which the chain is written to (HDF5's
+    create-or-open refused a link to a file not made yet: "unable to open file … File exists")."""
+    return pathlib.Path(os.path.realpath(path)) if path.is_symlink() else path
 
 
 def _h5py():
