@@ -547,6 +547,17 @@ def test_a_short_chain_runs_and_says_it_is_too_short(metal, tmp_path, steps):
     assert "τ_max" in table and "lobe 0: m =" in table
 
 
+@short
+def test_thin_near_steps_shortens_the_default_burn_in_and_keeps_the_run(metal):
+    """``thin`` up to ``steps`` is taken before the run, so the default burn-in leaves it a draw:
+    thin=19 of 20 steps ran the whole chain, then was refused ("thin must be at most steps − burn
+    = 18"), and the run was lost."""
+    truth, data, _ = metal
+    res = sample(truth, data, steps=20, thin=19, seed=3, colour=False)
+    d = res.diagnostics
+    assert d["burn"] == 1 and d["thin"] == 19 and d["draws"] == res.chain["m"].shape[0] == 32
+
+
 def test_resume_refuses_an_hdf5_file_without_a_chain(metal, tmp_path):
     """--resume on another program's HDF5 file neither starts a chain inside it nor changes it."""
     import h5py

@@ -193,7 +193,7 @@ def sample_cmd(
                                                             "is sampled with the relative likelihood); another than the fit's fits again first."),
     walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
     steps: int = typer.Option(2000, "--steps", min=1, help="Steps per walker in all (also with --resume)."),
-    burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2)."),
+    burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2 and steps − THIN)."),
     thin: int = typer.Option(1, "--thin", min=1, help="Keep every THIN-th step."),
     seed: int = typer.Option(0, "--seed", min=0),
     backend: Optional[str] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),

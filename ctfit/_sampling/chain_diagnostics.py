@@ -41,12 +41,14 @@ def autocorr_time(chain_u: np.ndarray) -> np.ndarray:
         return np.asarray(emcee.autocorr.integrated_time(chain_u, quiet=True), dtype=float)
 
 
-def default_burn(chain_u: np.ndarray) -> int:
-    """max(2 τ_max, steps/10), at most steps/2 (τ from the second half of the chain)."""
+def default_burn(chain_u: np.ndarray, thin: int = 1) -> int:
+    """max(2 τ_max, steps/10), at most steps/2 and steps − ``thin`` (τ from the second half of the
+    chain): every walker keeps a draw. (A ``thin`` above steps − steps/10 was refused once the
+    chain had run, and the run was lost.)"""
     n = chain_u.shape[0]
     tau = autocorr_time(chain_u[n // 2 :])
     tau_max = float(np.max(tau)) if np.all(np.isfinite(tau)) else float(n)
-    return int(min(n // 2, max(math.ceil(2 * tau_max), n // 10)))
+    return int(min(n // 2, n - thin, max(math.ceil(2 * tau_max), n // 10)))
 
 
 def run_notes(kept: int, tau: np.ndarray, labels: list[str], acceptance: np.ndarray) -> list[str]:

@@ -141,7 +141,7 @@ def sample(
     "relative"); ``fixed``: parameters held fixed (default: the material's ``fixed`` key);
     ``priors``: {name: (kind, *args)} (:mod:`ctfit._sampling.priors`). ``walkers`` (default
     :func:`~ctfit._sampling.posterior_density.default_walkers`), ``steps`` per walker (the total, also when resuming), ``burn``
-    (default max(2 τ_max, steps/10), at most steps/2), ``thin``; ``seed`` fixes the start and
+    (default max(2 τ_max, steps/10), at most steps/2 and steps − ``thin``), ``thin``; ``seed`` fixes the start and
     emcee's generator. ``backend``: HDF5 file of the chain; ``resume`` continues a stored run to
     ``steps`` (bit-identical to an uninterrupted run), ``overwrite`` starts it again (written beside
     the file, which it replaces when it ends: :mod:`ctfit._sampling.backend`). A backend that
@@ -183,7 +183,7 @@ def sample(
         x0, cov, laplace = laplace_start(s.engine, s.x_u)
         sampler, todo, done, run_s = _run(s, x0, cov, steps=steps, seed=seed, backend=backend, resume=resume, overwrite=overwrite, progress=progress)
         chain_u = np.asarray(sampler.get_chain())
-        burn = default_burn(chain_u) if burn is None else int(burn)
+        burn = default_burn(chain_u, thin) if burn is None else int(burn)
         if not 0 <= burn < chain_u.shape[0]:
             raise ValueError(f"burn must be in [0, steps), got {burn} with steps={chain_u.shape[0]}")
         if chain_u.shape[0] - burn < thin:
