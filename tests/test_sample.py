@@ -576,6 +576,36 @@ def test_resume_refuses_an_hdf5_file_without_a_chain(metal, tmp_path):
         sample(fitted, data, steps=5, backend=empty, resume=True, colour=False)
 
 
+@short
+def test_resume_names_the_file_of_a_damaged_chain_and_what_differs(metal, tmp_path):
+    """A group ``ctfit`` that is not a whole chain (another program's, a damaged file) is refused
+    naming the file: HDF5's "can't locate attribute: 'iteration'" named none. A run that samples
+    other coordinates (another loss) was told to "pass the same walkers", which it did."""
+    import shutil
+
+    import h5py
+
+    _, data, fitted = metal
+    good = tmp_path / "good.h5"
+    sample(fitted, data, steps=5, seed=0, backend=good, colour=False)
+    damage = {
+        "empty": lambda f: [f.pop("ctfit"), f.create_group("ctfit")],
+        "no_chain": lambda f: f["ctfit"].pop("chain"),
+        "past_end": lambda f: f["ctfit"].attrs.__setitem__("iteration", 999),
+    }
+    for name, harm in damage.items():
+        bad = tmp_path / f"{name}.h5"
+        shutil.copy(good, bad)
+        with h5py.File(bad, "a") as f:
+            harm(f)
+        with pytest.raises(ValueError, match=rf"^{bad}: the group 'ctfit' holds no chain that can be continued"):
+            sample(fitted, data, steps=1000, seed=0, backend=bad, resume=True, colour=False)
+    with pytest.raises(ValueError, match=r"samples 5 coordinates, this one 6: it was sampled for another structure, loss or parameters"):
+        sample(fitted, data, steps=10, seed=0, backend=good, resume=True, loss="absolute", colour=False)
+    with pytest.raises(ValueError, match=r"has 32 walkers, this one 40; pass walkers=32"):
+        sample(fitted, data, steps=10, seed=0, walkers=40, backend=good, resume=True, colour=False)
+
+
 def test_a_new_chain_never_replaces_a_file_with_more_than_ctfits_chain(metal, tmp_path):
     """A new chain is written beside the file and renamed over it: an HDF5 file of the user's (a
     calibration group beside, or instead of, a chain) lost everything else to overwrite=True, which

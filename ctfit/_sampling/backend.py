@@ -74,22 +74,8 @@ def _opened(path: pathlib.Path, new, *, resume: bool, overwrite: bool, steps: in
             f"{path}: the HDF5 file holds no chain of ctfit (no group 'ctfit') to continue; name another file"
             + (f" (it holds groups {others}, which a new chain would replace)" if others else ", or start a chain in this one (overwrite=True)")
         )
-    if resume and path.exists() and be.initialized and be.iteration > 0:
-        if be.shape != shape:
-            raise ValueError(
-                f"{path}: the stored run has (walkers, ndim) = {tuple(int(x) for x in be.shape)}, this one {tuple(int(x) for x in shape)}; "
-                "pass the same walkers, or start again (overwrite=True)"
-            )
-        stored = _read_attr(path, "ctfit_fingerprint")
-        if stored is not None and stored != fingerprint:
-            raise ValueError(f"{path}: the stored run was sampled for other data, loss or parameters; start again (overwrite=True)")
-        started = _read_attr(path, "ctfit_seed")
-        if started is not None and int(started) != int(seed):  # the chain goes on from its own random state: its seed is the one it began with
-            raise ValueError(f"{path}: the stored run was started with seed={int(started)}, this one asks for seed={int(seed)}; pass seed="
-                             f"{int(started)} to continue it, or start again (overwrite=True)")
-        done = int(be.iteration)
-        if done > steps:
-            raise ValueError(f"{path}: the stored run already has {done} steps, more than steps={steps}")
+    if resume and path.exists() and be.initialized and _stored_steps(path) > 0:
+        done = _continued(path, be, steps=steps, shape=shape, fingerprint=fingerprint, seed=seed)
     else:
         with deferred():  # a Ctrl-C in the ctfit command waits: no half-made file
             be.reset(*shape)
@@ -100,6 +86,55 @@ def _opened(path: pathlib.Path, new, *, resume: bool, overwrite: bool, steps: in
         new.started(be)
         note_resumable(lambda: path if new.committed or new.steps() else None)  # resumable once the new chain has a step (it then replaces the old)
     return be, done, new
+
+
+def _continued(path: pathlib.Path, be, *, steps: int, shape: tuple[int, int], fingerprint: str, seed: int) -> int:
+    """The steps of the stored run in ``path`` (checked by :func:`_stored_steps`), refused
+    (``ValueError`` naming the file) where this run cannot continue it: other walkers, another
+    set of sampled coordinates, data, loss or prior, another seed, or more steps than ``steps``."""
+    if be.shape[1] != shape[1]:  # other coordinates: another structure, loss or set of fixed parameters
+        raise ValueError(f"{path}: the stored run samples {int(be.shape[1])} coordinates, this one {int(shape[1])}: it was sampled for "
+                         "another structure, loss or parameters; start again (overwrite=True)")
+    if be.shape[0] != shape[0]:
+        raise ValueError(f"{path}: the stored run has {int(be.shape[0])} walkers, this one {int(shape[0])}; pass walkers={int(be.shape[0])}, "
+                         "or start again (overwrite=True)")
+    stored = _read_attr(path, "ctfit_fingerprint")
+    if stored is not None and stored != fingerprint:
+        raise ValueError(f"{path}: the stored run was sampled for other data, loss or parameters; start again (overwrite=True)")
+    started = _read_attr(path, "ctfit_seed")
+    if started is not None and int(started) != int(seed):  # the chain goes on from its own random state: its seed is the one it began with
+        raise ValueError(f"{path}: the stored run was started with seed={int(started)}, this one asks for seed={int(seed)}; pass seed="
+                         f"{int(started)} to continue it, or start again (overwrite=True)")
+    done = int(be.iteration)
+    if done > steps:
+        raise ValueError(f"{path}: the stored run already has {done} steps, more than steps={steps}")
+    return done
+
+
+_CHAIN_ATTRS = ("iteration", "nwalkers", "ndim", "has_blobs")  # emcee's HDFBackend.reset
+
+
+def _stored_steps(path: pathlib.Path) -> int:
+    """The steps stored in the group ``ctfit`` of ``path``; refused (``ValueError`` naming the file)
+    where the group is not a whole chain of emcee's (another program's group of that name, a
+    damaged file): HDF5's own message named no file ("can't locate attribute: 'iteration'")."""
+    h5py = _h5py()
+
+    with h5py.File(path, "r") as f:
+        g = f["ctfit"]
+        missing = [k for k in _CHAIN_ATTRS if not isinstance(g, h5py.Group) or k not in g.attrs]
+        missing += [k for k in ("chain", "log_prob", "accepted") if not isinstance(g, h5py.Group) or not isinstance(g.get(k), h5py.Dataset)]
+        steps = int(g.attrs["iteration"]) if not missing else 0
+        if not missing and steps > 0:
+            walkers, ndim = int(g.attrs["nwalkers"]), int(g.attrs["ndim"])
+            if g["chain"].shape[:1] < (steps,) or g["chain"].shape[1:] != (walkers, ndim) or g["log_prob"].shape[:1] < (steps,):
+                missing.append(f"{steps} steps of {walkers} walkers in 'chain' and 'log_prob'")
+            if not any(k.startswith("random_state_") for k in g.attrs):
+                missing.append("the random state")
+    if missing:
+        raise ValueError(f"{path}: the group 'ctfit' holds no chain that can be continued (no {', '.join(missing)}); restore the file from "
+                         "a copy, or start again (overwrite=True)")
+    return steps
 
 
 class NewChain:
