@@ -89,6 +89,32 @@ def test_a_run_on_a_chain_that_another_process_writes_is_refused_at_its_start(tm
     assert not lock_path(chain).exists()  # removed by the run that held it last
 
 
+_INTERRUPTED_HOLDER = """
+import sys
+from ctfit._cli.interrupt import install
+from ctfit._io import hold_chain
+install(lambda: "interrupted")
+with hold_chain(sys.argv[1]):
+    print("holding", flush=True)
+    sys.stdin.read()
+"""
+
+
+def test_an_interrupted_command_leaves_no_lock_file(tmp_path):
+    """The command's Ctrl-C exits at once (``os._exit``, no ``finally``): the chain's lock file
+    ``.run.h5.lock`` stayed beside it after every interrupted run; it is removed as the run ends."""
+    import signal
+
+    chain = tmp_path / "run.h5"
+    proc = subprocess.Popen([sys.executable, "-c", _INTERRUPTED_HOLDER, str(chain)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    assert proc.stdout.readline() == "holding\n" and lock_path(chain).exists()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert (proc.returncode, err) == (130, "interrupted\n")
+    assert not lock_path(chain).exists() and list(tmp_path.iterdir()) == []
+
+
 def test_the_lock_is_one_per_file_per_thread_and_goes_unlocked_where_it_cannot_be_made(tmp_path, monkeypatch):
     chain = tmp_path / "run.h5"
     refused = []

@@ -19,10 +19,10 @@ same file with a lock of its own: a chain file of several names is not continued
 
 A killed run leaves no lock behind: the kernel drops a ``flock`` with the process (the file is
 opened close-on-exec: no program the run starts keeps it). The file is removed when the run
-ends, while it is still locked; a run that got the lock of a file removed meanwhile sees its
-inode gone from the name and tries again. Where the file cannot be made or locked (a read-only
-folder, a link there, a file system without locks, no ``fcntl``) the run goes on unlocked, as
-before.
+ends, while it is still locked (an interrupted command too: :func:`~ctfit._io.interrupt.on_interrupt`);
+a run that got the lock of a file removed meanwhile sees its inode gone from the name and tries
+again. Where the file cannot be made or locked (a read-only folder, a link there, a file system
+without locks, no ``fcntl``) the run goes on unlocked, as before.
 """
 
 from __future__ import annotations
@@ -32,10 +32,12 @@ import errno
 import hashlib
 import os
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from .files import writes_in_place
+from .interrupt import on_interrupt
 
 try:
     import fcntl
@@ -52,6 +54,7 @@ class _Held:
     fd: int
     depth: int  # the holder's nested hold_chain blocks
     thread: int
+    withdraw: Callable[[], None]  # of the removal on an interrupted exit (on_interrupt)
 
 
 _held: dict[str, _Held] = {}  # lock file → this process's hold of it
@@ -101,7 +104,7 @@ def _take(path) -> str | None:
         fd = _locked(key)
         if fd is None:
             return None
-        _held[key] = _Held(fd, 1, threading.get_ident())
+        _held[key] = _Held(fd, 1, threading.get_ident(), on_interrupt(lambda: _remove(fd, key)))
     return key
 
 
@@ -144,7 +147,15 @@ def _give_back(key: str) -> None:
         if held.depth:
             return
         del _held[key]
-        if _names(held.fd, key):
-            with contextlib.suppress(OSError):  # a folder made read-only meanwhile: the file stays, unlocked
-                os.unlink(key)
+        held.withdraw()
+        _remove(held.fd, key)
         os.close(held.fd)
+
+
+def _remove(fd: int, key: str) -> None:
+    """Remove the lock file ``key`` where it is still the one open at ``fd`` (held: no other run
+    has it). Also the cleanup of an interrupted command, which exits at once (``os._exit``): a
+    Ctrl-C left ``.NAME.lock`` beside the chain."""
+    if _names(fd, key):
+        with contextlib.suppress(OSError):  # a folder made read-only meanwhile: the file stays, unlocked
+            os.unlink(key)
