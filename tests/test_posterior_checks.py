@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ctfit._sampling.checks import check_posterior, fit_distance
+from ctfit._sampling.checks import check_posterior, fit_distance, steps_needed
 from ctfit._sampling.plots import _central_ranges
 from ctfit._sampling.priors import describe_priors, log_prior, normalise_priors, support
 
@@ -47,6 +47,14 @@ def test_checks_on_known_draws():
     res = check_posterior(bad, prior, "f0", lp, -1e3, {"F0": [0.5], "s": 0.5})
     assert not res["usable"] and len(res["problems"]) == 3
     assert res["problems"][0].startswith("left the fit") and "s runs to 0" in res["problems"][1] and "F0[0]" in res["problems"][2]
+
+
+@pytest.mark.parametrize(("steps", "burn", "tau"), [(400, 399, float("nan")), (2000, 1000, 60.0), (2000, 1500, 20.0), (300, 30, 5.0)])
+def test_steps_needed_keeps_fifty_tau_after_the_runs_own_burn_in(steps, burn, tau):
+    """The steps the mixing line asks for keep 50 τ after the burn-in that run used: with
+    ``--burn 399`` of 400 steps it asked for 410 (11 kept, so the next run failed again)."""
+    need = steps_needed(steps, burn, tau, float("nan"))
+    assert need - burn >= 50 * (tau if np.isfinite(tau) else 1.0) and need > steps
 
 
 def test_fit_distance_counts_the_fits_own_noise():

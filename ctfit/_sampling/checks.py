@@ -220,8 +220,8 @@ def steps_needed(steps: int, burn: int, tau_max: float, ess_min: float) -> int:
     as this chain tells (τ read on a short chain tends to grow with it: a lower bound): the
     steps kept after burn-in grow to :data:`TAU_RUNS` τ_max and to what brings the smallest ESS
     to :data:`ESS_LIMIT` (ESS grows in proportion to them), twice the steps kept where neither
-    falls short (only R̂ does); the default burn-in, max(2 τ_max, steps/10), on top. Rounded up
-    to two significant digits. τ is at least 1 (a draw is worth one step at most): where it
+    falls short (only R̂ does); the default burn-in, max(2 τ_max, steps/10), or this run's
+    ``burn`` where it is longer (a ``--burn`` given), on top. Rounded up to two significant digits. τ is at least 1 (a draw is worth one step at most): where it
     cannot be read (a chain of a few steps), or reads below 1, the steps kept grow to
     :data:`TAU_RUNS` at least.
 
@@ -229,6 +229,8 @@ def steps_needed(steps: int, burn: int, tau_max: float, ess_min: float) -> int:
     8000
     >>> steps_needed(5, 1, float("nan"), float("nan"))  # no τ read: 50 steps kept at least, not twice the 4 kept
     56
+    >>> steps_needed(400, 399, float("nan"), float("nan"))  # a burn-in of 399 asked for: 50 steps kept after it
+    450
     """
     kept = max(steps - burn, 1)
     tau_max = max(tau_max, 1.0) if np.isfinite(tau_max) else 1.0
@@ -238,7 +240,7 @@ def steps_needed(steps: int, burn: int, tau_max: float, ess_min: float) -> int:
     need = max(wants)
     if need <= kept:
         need = 2 * kept
-    total = max(need + 2 * tau_max, need / 0.9, steps + 1)
+    total = max(need + 2 * tau_max, need / 0.9, need + burn, steps + 1)
     digits = 10 ** max(int(np.floor(np.log10(total))) - 1, 0)
     return int(np.ceil(total / digits) * digits)
 
