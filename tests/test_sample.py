@@ -558,6 +558,28 @@ def test_thin_near_steps_shortens_the_default_burn_in_and_keeps_the_run(metal):
     assert d["burn"] == 1 and d["thin"] == 19 and d["draws"] == res.chain["m"].shape[0] == 32
 
 
+def test_a_fit_file_with_an_unknown_loss_is_refused_naming_its_key(metal, tmp_path):
+    """A fit JSON whose ``fit.loss`` is no loss of ctfit was refused as the argument's: "loss must
+    be one of …", which the command showed as "--loss must be one of …" with no --loss given and
+    no file named."""
+    from ctfit._cli.messages import cli_message
+    from ctfit._cli.sample_command import sample_command_body
+    from ctfit._fitting.results import fit_result_to_dict
+    from ctfit._io.csv_files import write_csv
+    from ctfit._io.material_files import load_material, save_material_json
+
+    _, data, fitted = metal
+    csv, fit_json = tmp_path / "metal.csv", tmp_path / "metal.fit.json"
+    write_csv(data, csv)
+    extra = fit_result_to_dict(fitted, material_keys=False)
+    save_material_json(fitted.material, fit_json, extra={**extra, "fit": {**extra["fit"], "loss": "banana"}})
+    with pytest.raises(ValueError, match=r"^key 'fit.loss': 'banana' is not a loss of ctfit \(absolute, .*\); choose the likelihood with loss="):
+        sample(load_material(fit_json), data, steps=5, colour=False)
+    with pytest.raises(ValueError, match=rf"^{fit_json}: key 'fit.loss': 'banana'") as e:
+        sample_command_body(fit_json, csv, steps=5, output=tmp_path / "out.json")
+    assert cli_message(str(e.value)).endswith("choose the likelihood with --loss") and not (tmp_path / "out.json").exists()
+
+
 def test_resume_refuses_an_hdf5_file_without_a_chain(metal, tmp_path):
     """--resume on another program's HDF5 file neither starts a chain inside it nor changes it."""
     import h5py

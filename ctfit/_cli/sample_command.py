@@ -55,6 +55,16 @@ def _plots(result, plot_dir, stem: str) -> list[str]:
     return out
 
 
+def _check_fitted_loss(material, fit_json: pathlib.Path) -> None:
+    """The file's ``fit.loss``, checked before any work (:func:`~ctfit._sampling.start.check_fitted_loss`), the file named."""
+    from .._sampling import check_fitted_loss
+
+    try:
+        check_fitted_loss(material)
+    except ValueError as e:
+        raise ValueError(f"{fit_json}: {e}") from None
+
+
 def result_stem(path: pathlib.Path) -> str:
     """The file name without ``.json`` or ``.toml`` (the plots' names start with it)."""
     name = path.name
@@ -153,6 +163,8 @@ def sample_command_body(
 
     fit_json = pathlib.Path(fit_json)
     material = load_material(fit_json)
+    if loss is None:
+        _check_fitted_loss(material, fit_json)
     target = pathlib.Path(output) if output is not None else default_output(fit_json)
     inputs = ([data] if isinstance(data, (str, os.PathLike)) else []) + ([] if output is not None else [fit_json])
     check_output(target, inputs, option="-o" if output is not None else "")

@@ -13,6 +13,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "plots": ['plot_corner', 'plot_spectra'],
         "posterior_density": ['log_probability'],
         "result": ['SampleResult'],
+        "start": ['check_fitted_loss'],
         "table": ['format_uncertainty_table'],
     },
 )

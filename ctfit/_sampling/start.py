@@ -17,10 +17,10 @@ import dataclasses
 import jax
 import numpy as np
 
-from .._fitting import FitResult, standard_errors, undetermined
+from .._fitting import LOSSES, FitResult, standard_errors, undetermined
 from .._model import Material, Params, x64_enabled
 
-__all__ = ["start_params", "on_data_bands", "resolve_fit", "optimum_point", "laplace_start", "fit_covariance", "start_walkers"]
+__all__ = ["check_fitted_loss", "start_params", "on_data_bands", "resolve_fit", "optimum_point", "laplace_start", "fit_covariance", "start_walkers"]
 
 BALL_SD = 1e-2
 """Spread (in u) of a coordinate without a usable Laplace variance."""
@@ -31,6 +31,15 @@ def _fitted_loss(target) -> str | None:
         return target.loss
     fit = target.meta.get("fit") if isinstance(target, Material) else None
     return fit.get("loss") if isinstance(fit, dict) else None
+
+
+def check_fitted_loss(target) -> None:
+    """Refuse (``ValueError``, naming the key) a material whose ``fit.loss`` is no loss of ctfit:
+    it was refused as if given as the argument ("loss must be one of …, got 'banana'"), which
+    the command showed as its ``--loss`` though none was given."""
+    fitted = _fitted_loss(target)
+    if fitted is not None and fitted not in LOSSES:
+        raise ValueError(f"key 'fit.loss': {fitted!r} is not a loss of ctfit ({', '.join(LOSSES)}); choose the likelihood with loss=")
 
 
 def start_params(material: Material, data) -> Params:
@@ -73,6 +82,8 @@ def resolve_fit(target, data, loss: str | None, fixed: tuple[str, ...] | None):
     material = getattr(target, "material", target)
     if not isinstance(material, Material):
         raise TypeError(f"sample() takes a FitResult or a Material, got {type(target).__name__}")
+    if loss is None:
+        check_fitted_loss(target)
     fitted = _fitted_loss(target)
     loss = loss or fitted or ("sigma" if data.sigma is not None else "relative")
     if loss == "robust-relative":
