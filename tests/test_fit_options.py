@@ -135,3 +135,17 @@ def test_starts_and_fixed_names_that_do_not_fit_the_structure_are_refused():
         ctfit.fit(data, st, fixed="F0")
     held = ctfit.fit(data, st, fixed=("F0",), start=ctfit.Params(f0=np.array([0.5, 0.5])))
     assert held.material.params.f0.tolist() == [0.5, 0.5] and held.stats["n_params"] == 1
+
+
+@pytest.mark.parametrize(("start", "fixed", "message"), [
+    (ctfit.Params(f0=np.array([2.0, 0.5])), ("F0",), r"start\.F0\[0\] = 2\.0 is outside \[0, 1\]"),
+    (ctfit.Params(m=np.array([-0.2])), ("m",), r"start\.m\[0\] = -0\.2 is outside \(0, inf\)"),
+    (ctfit.Params(m=np.array([np.nan])), (), r"start\.m\[0\] = nan is not a finite number"),
+])
+def test_starts_and_fixed_values_outside_their_domain_are_refused(start, fixed, message):
+    """A fixed F0 = 2 was fitted and reported as converged (its n 1.8e16), a fixed m = −0.2
+    too, and a NaN start ended in NumPy's 'Eigenvalues did not converge': each is now a
+    ``ValueError`` naming the value, before any work."""
+    truth, data = one_lobe(n_pairs=40)
+    with pytest.raises(ValueError, match=message):
+        ctfit.fit(data, truth.structure, start=start, fixed=fixed, starts=0 if not fixed else 3)

@@ -84,11 +84,36 @@ def checked_start(structure: Structure, n_bands: int, start) -> Params | None:
         raise TypeError(f"start must be a ctfit.Params (a material's: material.params), got {type(start).__name__}")
     bad = wrong_size(structure, start, n_bands)  # (a plastic's one index may come listed per band)
     if bad is None:
-        return start
+        return _in_domain(structure, start)
     name, got = bad
     what, size = {"m": ("one per lobe", structure.lobes), "w": ("one per lobe", structure.lobes), "s": ("one", 1)}.get(
         name, (f"one per band ({n_bands}) or one for all", n_bands))
     raise ValueError(f"start.{name} has {got} values; this fit takes {what}: {size} ({_describe(structure) or 'its structure'})")
+
+
+_DOMAINS = {"s": (0.0, 1.0, False), "m": (0.0, math.inf, True), "w": (0.0, 1.0, False), "f0": (0.0, 1.0, False), "k": (0.0, math.inf, False),
+            "rd": (0.0, math.inf, False)}
+"""(lower, upper, lower bound open) of each start value, as a material file takes them; n below (:func:`_in_domain`)."""
+
+
+def _in_domain(structure: Structure, start: Params) -> Params:
+    """``start`` when each value it gives is a finite number in the parameter's domain (that of a
+    material file: s, w, F0 in [0, 1], m > 0, n > 0 (≥ 0 for a conductor), k, R_d ≥ 0), else a
+    ``ValueError`` naming it: a fixed F0 = 2 was reported as a converged fit (n = 1.8e16), a fixed
+    m = −0.2 too, and a NaN start failed in NumPy's eigenvalue routine."""
+    for name in ("s", "m", "w", "f0", "n", "k", "rd"):
+        value = getattr(start, name)
+        if value is None:
+            continue
+        lo, hi, lo_open = _DOMAINS.get(name, (0.0, math.inf, structure.fresnel != "conductor"))
+        v = np.atleast_1d(np.asarray(value, dtype=float))
+        out = ~np.isfinite(v) | (v < lo) | (v > hi) | ((v == lo) & lo_open)
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
+            where = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{']' if hi < math.inf else ')'}"
+            why = f"is outside {where}" if np.isfinite(v[i]) else "is not a finite number"
+            raise ValueError(f"start.{PUBLIC_NAMES[name]}[{i}] = {float(v[i])!r} {why}: a start (and a fixed value) must be in the parameter's domain")
+    return start
 
 
 def _describe(structure: Structure) -> str:
