@@ -43,6 +43,15 @@ def test_unknown_solver_and_loss_are_rejected():
         ctfit.fit(data, ctfit.Structure(lobes=1), loss="huber")
 
 
+@pytest.mark.parametrize("dtype", [jnp.float16, jnp.bfloat16, jnp.int32])
+def test_a_fit_in_another_dtype_than_float32_or_float64_is_refused(dtype):
+    """float16 was refused with data "in [3.9e+10, 0.026] sr⁻¹" (an empty range), int32 with
+    NumPy's "data type not inexact": the fit is made in float32 or float64, and says so."""
+    _, data = one_lobe(n_pairs=20)
+    with pytest.raises(ValueError, match=rf"dtype must be float32 or float64, got {np.dtype(dtype).name}$"):
+        ctfit.fit(data, ctfit.Structure(lobes=1), dtype=dtype)
+
+
 def test_bic_keeps_the_structure_the_data_needs():
     st2 = ctfit.Structure(lobes=2)
     mat = ctfit.Material(st2, ctfit.Params(m=np.array([0.08, 0.4]), w=np.array([0.5, 0.5]), f0=np.array([0.6, 0.9])), wavelength_nm=WL)

@@ -65,7 +65,7 @@ from .quality import quality_from_residuals, quality_warning, zeros_hint
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds
 from .starts import default_start, m_points, seed_points
 from .status import FitStatus, fit_status
-from .validate import check_fittable, check_solve_options, checked_start, fixed_names, nonfinite_reason
+from .validate import check_dtype, check_fittable, check_solve_options, checked_start, fixed_names, nonfinite_reason
 
 __all__ = ["fit", "fit_to_tolerance", "prefetch_fit", "seed_params", "fit_core", "FitResult", "PreparedFit", "prepare_fit", "finish_fit", "finish_light",
            "solve_prepared"]
@@ -196,6 +196,7 @@ def prepare_fit(data: Measurement, structure: Structure | None, *, start: Params
     """The checks, start, problem (padded to its size bucket, or to ``pad_to`` (direction pairs,
     samples), or with ``chunk`` to a multiple of the chunks' rows), free start ``u0`` and m grid of a fit."""
     check_fit_arguments(data, structure)
+    check_dtype(dtype)
     if dtype == jnp.float64 and not x64_enabled():
         raise RuntimeError("float64 fitting needs jax_enable_x64 (jax.config.update('jax_enable_x64', True)); or pass dtype=jnp.float32")
     structure = structure or Structure()

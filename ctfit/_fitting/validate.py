@@ -16,11 +16,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from jax.typing import DTypeLike
 
 from .._model import PUBLIC_NAMES, Measurement, Params, Structure, wrong_size
 from .coordinates import free_names
 
-__all__ = ["check_fittable", "check_solve_options", "checked_start", "fixed_names", "n_free_parameters", "nonfinite_reason", "representable_range"]
+__all__ = ["check_dtype", "check_fittable", "check_solve_options", "checked_start", "fixed_names", "n_free_parameters", "nonfinite_reason",
+           "representable_range"]
 
 _HEADROOM = 1e4
 """Squares of values up to max/1e4 summed over 1e8 samples stay finite."""
@@ -71,6 +73,18 @@ def check_solve_options(starts, max_steps) -> None:
         raise ValueError(f"starts must be a whole number ≥ 0 (0: from the start alone), got {starts!r}")
     if not whole(max_steps) or max_steps < 1:
         raise ValueError(f"max_steps must be a whole number ≥ 1, got {max_steps!r}")
+
+
+def check_dtype(dtype: DTypeLike) -> None:
+    """A ``ValueError`` unless ``dtype`` is float32 or float64, the two a fit is made in: float16 was
+    refused with data "in [3.9e+10, 0.026] sr⁻¹" (an empty range), an integer type with NumPy's
+    "data type not inexact"."""
+    try:
+        name = np.dtype(dtype).name
+    except TypeError:
+        name = repr(dtype)
+    if name not in ("float32", "float64"):
+        raise ValueError(f"dtype must be float32 or float64, got {name}")
 
 
 def checked_start(structure: Structure, n_bands: int, start) -> Params | None:
