@@ -66,3 +66,24 @@ def test_lobes_a_larger_candidate_leaves_unused_are_not_chosen():
     assert (st.family, st.lobes, st.diffuse) == ("metal", 1, "spectrum"), [(s.family, s.lobes, s.diffuse) for s, _ in tried]
     assert best.converged and float(best.material.params.m[0]) == pytest.approx(0.2, rel=1e-6)
     assert sum(s == st for s, _ in tried) == 1  # its row in the table is the fit solved on, not a second one
+
+
+@pytest.mark.parametrize(("kwargs", "error", "message"), [
+    ({"lobes": 0}, TypeError, r"lobes must be a non-empty sequence, e\.g\. \(1,\), got 0"),
+    ({"lobes": (9,)}, ValueError, r"lobes must be taken from 1\.\.8, got 9"),
+    ({"lobes": (2, 1)}, ValueError, r"lobes must increase .*got \[2, 1\]"),
+    ({"families": ("glass",)}, ValueError, r"families must be taken from \['metal', 'plastic'\], got 'glass'"),
+    ({"families": "metal"}, TypeError, r"families must be a non-empty sequence"),
+    ({"geometry": "x"}, ValueError, r"geometry must be one of \['v-cavity', 'smith', 'smith-rational'\], got 'x'"),
+    ({"fresnel": "x"}, ValueError, r"fresnel must be one of \[None, 'f0', 'conductor'\], got 'x'"),
+    ({"data": "s.csv"}, TypeError, r"data must be a ctfit\.Measurement, got str"),
+])
+def test_choose_structure_names_a_wrong_argument(kwargs, error, message):
+    """Data that is not a Measurement raised AttributeError, ``lobes=0`` "'int' object is not
+    subscriptable", ``families=("glass",)`` KeyError 'glass', ``geometry="x"`` an error about the
+    diffuse part, and ``fresnel="x"`` was ignored (a fit came back); each names its argument now."""
+    truth = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.5, 0.9])),
+                           wavelength_nm=np.array([450.0, 650.0]))
+    kwargs = {"data": simulate(truth, 30, seed=1), **kwargs}
+    with pytest.raises(error, match=message):
+        ctfit.choose_structure(kwargs.pop("data"), **kwargs)

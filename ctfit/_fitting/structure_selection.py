@@ -12,8 +12,8 @@ from typing import Any
 import jax
 import numpy as np
 
-from .._model import Measurement, Params, Structure, brdf, x64_enabled
-from .least_squares import FitResult, fit, fit_to_tolerance, prefetch_fit
+from .._model import FAMILIES, GEOMETRIES, MAX_LOBES, Measurement, Params, Structure, brdf, x64_enabled
+from .least_squares import FitResult, check_fit_arguments, fit, fit_to_tolerance, prefetch_fit
 from .problem import geometry_deg
 from .validate import n_free_parameters
 
@@ -189,7 +189,7 @@ def choose_structure(
     >>> best.material.structure.family, best.material.structure.lobes
     ('plastic', 1)
     """
-    combos = _first_combos(data, families, lobes[0], diffuse, geometry, fresnel, kwargs.get("fixed", ()))
+    combos = _first_combos(data, families, lobes, diffuse, geometry, fresnel, kwargs.get("fixed", ()))
     screen, held, n_full = screening_sample(data), heldout_sample(data), len(data)
     tolerance = SCREEN_TOLERANCE if screen is not data else None
     user_start = kwargs.pop("start", None)
@@ -254,18 +254,39 @@ def _other_diffuse_parts(
     return best_st, best
 
 
+def _check_choice_arguments(data: Any, families: Any, lobes: Any, diffuse: Any, geometry: Any, fresnel: Any) -> None:
+    """A ``TypeError`` or ``ValueError`` naming the argument of :func:`choose_structure` that is
+    wrong: data that is not a Measurement raised AttributeError, ``lobes=0`` "'int' object is not
+    subscriptable", ``families=("glass",)`` KeyError, ``geometry="x"`` blamed the diffuse part and
+    ``fresnel="x"`` was ignored."""
+    check_fit_arguments(data, None)
+    for name, given, allowed in (("families", families, FAMILIES), ("lobes", lobes, range(1, MAX_LOBES + 1))):
+        if isinstance(given, (str, bytes)) or np.ndim(given) != 1 or not len(given):
+            raise TypeError(f"{name} must be a non-empty sequence, e.g. {(allowed[0],)!r}, got {given!r}")
+        bad = [v for v in given if isinstance(v, bool) or v not in allowed]
+        if bad:
+            raise ValueError(f"{name} must be taken from {list(allowed) if name == 'families' else f'1..{MAX_LOBES}'}, got {bad[0]!r}")
+    if list(lobes) != sorted(set(lobes)):
+        raise ValueError(f"lobes must increase (the counts are tried in turn while each improves the fit), got {list(lobes)}")
+    forms = (None, "auto", "none", "F0/pi", "spectrum", "constant", "transmitted")
+    for name, value, allowed in (("diffuse", diffuse, forms), ("geometry", geometry, GEOMETRIES), ("fresnel", fresnel, (None, "f0", "conductor"))):
+        if not isinstance(value, (str, type(None))) or value not in allowed:
+            raise ValueError(f"{name} must be one of {list(allowed)}, got {value!r}")
+
+
 def _first_combos(
-    data: Measurement, families: Sequence[str], lobes: int, diffuse: Sequence[str | None] | None, geometry: str, fresnel: str | None,
+    data: Measurement, families: Sequence[str], lobes: Sequence[int], diffuse: Sequence[str | None] | None, geometry: str, fresnel: str | None,
     fixed: tuple[str, ...],
 ) -> list[Structure]:
     """Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse``
-    given) with ``lobes`` lobes, those with more free parameters than ``data`` has samples left out
-    (all of them too many: the first, whose fit's error says so)."""
+    given) with the first of ``lobes`` lobes, those with more free parameters than ``data`` has samples left out
+    (all of them too many: the first, whose fit's error says so); the arguments checked first."""
+    _check_choice_arguments(data, families, lobes, diffuse, geometry, fresnel)
     combos = []
     for family in families:
         for form in DIFFUSE_FORMS[family] if diffuse in (None, "auto") else (diffuse,):
             try:
-                combos.append(Structure(lobes=lobes, geometry=geometry, fresnel=(fresnel or "f0") if family == "metal" else "n",
+                combos.append(Structure(lobes=lobes[0], geometry=geometry, fresnel=(fresnel or "f0") if family == "metal" else "n",
                                         diffuse=None if form == "none" else form, family=family))
             except ValueError:
                 continue  # a diffuse part this family has not (e.g. "F0/pi" for a plastic)
