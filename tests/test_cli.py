@@ -162,6 +162,20 @@ def test_an_input_link_that_leads_nowhere_is_named_so(tmp_path):
     assert "gone.csv: is a symbolic link to " in dangling.output and "deleted.csv, which does not exist" in dangling.output
 
 
+def test_one_file_named_in_several_spellings_is_fitted_once(simulated, tmp_path, monkeypatch):
+    """``s.csv``, its absolute path and a link to it were fitted as two or three files (results
+    ``s.fit.json`` and ``s-2.fit.json``, a summary of three): the inputs are one file each,
+    by resolved path, under the name first given."""
+    d, csv = simulated
+    (tmp_path / "link.csv").symlink_to(csv)
+    monkeypatch.chdir(d)
+    r = run("fit", csv.name, csv, tmp_path / "link.csv", "--lobes", 1, "--family", "metal", "--no-diffuse", "-q", "-o", f"{tmp_path / 'out'}/")
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["copper.fit.json", "summary.json"]
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["files"] == 1 and [row["data"] for row in summary["results"]] == ["copper.csv"]
+
+
 def test_bad_csv_names_file_line_and_column(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,500,0.5\n10,0,95,180,500,0.5\n")

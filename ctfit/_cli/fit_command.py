@@ -713,21 +713,23 @@ def echo_wrote(target, note: str | None = None) -> None:
 
 
 def _expand(paths) -> list[Path]:
-    """The measurement files named, folders expanded (sorted); each file once."""
-    files: dict[Path, None] = {}
+    """The measurement files named, folders expanded (sorted); each file once, however it is
+    spelled (``s.csv``, ``/abs/s.csv``, a link to it: by its resolved path), as first named."""
+    files: dict[Path, Path] = {}
     for p in paths:
         if p.is_dir():
             found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".csv", ".binary", ".alta", ".dat", ".bsdf"))
             if not found:
                 raise UserError(f"{p}: folder has no measurement files (.csv, .binary, .alta, .dat, .bsdf)")
-            files.update(dict.fromkeys(found))
+            for q in found:
+                files.setdefault(Path(os.path.realpath(q)), q)  # (no error for a link loop: it is reported when read)
         elif not p.exists():
             from .._io import broken_link
 
             raise UserError(f"{p}: {broken_link(p) or 'no such file'}")
         else:
-            files[p] = None
-    return list(files)
+            files.setdefault(Path(os.path.realpath(p)), p)
+    return list(files.values())
 
 
 def _choice_table(res) -> str:
