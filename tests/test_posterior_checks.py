@@ -65,3 +65,19 @@ def test_fit_distance_counts_the_fits_own_noise():
     assert abs(d2 - 16) < 1 and abs(limit - 6.635) < 0.01
     d2_both, _ = fit_distance(draws, np.array([4.0]), np.eye(1))
     assert abs(d2_both - 8) < 0.5
+
+
+def test_arviz_diagnostics_of_a_short_chain_print_nothing(capfd):
+    """Fewer than four draws per walker: ArviZ's ESS and R̂ are NaN (reported as not computed),
+    and its "Shape validation failed" lines no longer reach stderr above the table; its log
+    level is as it was after."""
+    from ctfit._sampling.arviz_export import arviz, diagnostics, inference_data
+
+    log = arviz()._log
+    before = log.level
+    rng = np.random.default_rng(1)
+    idata = inference_data({"m": rng.random((3 * 32, 1)), "s": rng.random(3 * 32)}, rng.random(3 * 32), 32, [550.0])
+    got = diagnostics(idata)
+    assert set(got) == {"m[0]", "s"} and all(np.isnan(v["r_hat"]) for v in got.values())
+    assert "Shape validation" not in capfd.readouterr().err
+    assert log.level == before
