@@ -15,13 +15,13 @@ References
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import warnings
 
 import numpy as np
 
 from .._model import PARAMETER_AXES
+from .chain_diagnostics import quiet_log
 
 __all__ = ["arviz", "inference_data", "diagnostics"]
 
@@ -64,7 +64,8 @@ def diagnostics(idata) -> dict:
     """{label: {"ess_bulk", "ess_tail", "r_hat"}} per entry of every posterior quantity that varies."""
     az = arviz()
     post = idata.posterior
-    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"), _arviz_log_quiet(az):
+    # (ArviZ logs through a ``Logger("arviz")`` of its own, not the one ``logging.getLogger`` names.)
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"), quiet_log(getattr(az, "_log", None) or logging.getLogger("arviz")):
         warnings.simplefilter("ignore", RuntimeWarning)
         bulk, tail, rhat = az.ess(post, method="bulk"), az.ess(post, method="tail"), az.rhat(post)
     out = {}
@@ -78,18 +79,3 @@ def diagnostics(idata) -> dict:
             label = name if values.ndim == 2 else f"{name}[{i}]"
             out[label] = {"ess_bulk": float(b[i]), "ess_tail": float(t[i]), "r_hat": float(r[i])}
     return out
-
-
-@contextlib.contextmanager
-def _arviz_log_quiet(az):
-    """ArviZ's log below errors for the block: on a chain of fewer than four draws per walker its
-    ESS and R̂ print "arviz - WARNING - Shape validation failed: …" on stderr, above the table,
-    though they only give NaN there, which the table and the JSON report as not computed. (ArviZ's
-    logger is its own ``Logger("arviz")``, not the one ``logging.getLogger`` names.)"""
-    log = getattr(az, "_log", None) or logging.getLogger("arviz")
-    level = log.level
-    log.setLevel(logging.ERROR)
-    try:
-        yield
-    finally:
-        log.setLevel(level)

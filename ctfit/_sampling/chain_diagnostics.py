@@ -14,7 +14,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-__all__ = ["ChainTooShortWarning", "default_burn", "run_notes", "residual_spread", "likelihood_description"]
+__all__ = ["ChainTooShortWarning", "default_burn", "quiet_log", "run_notes", "residual_spread", "likelihood_description"]
 
 
 class ChainTooShortWarning(UserWarning):
@@ -22,9 +22,11 @@ class ChainTooShortWarning(UserWarning):
 
 
 @contextlib.contextmanager
-def _quiet_emcee_log() -> Iterator[None]:
-    """emcee logs its own "chain too short" message; ctfit raises ChainTooShortWarning instead."""
-    logger = logging.getLogger("emcee")
+def quiet_log(logger: logging.Logger) -> Iterator[None]:
+    """``logger`` below errors for the block, its level as it was after: emcee logs its own "chain
+    too short" message, where ctfit raises :class:`ChainTooShortWarning`; ArviZ its "Shape
+    validation failed" on a chain of fewer than four draws per walker, where its ESS and R̂ are NaN
+    (reported as not computed)."""
     old = logger.level
     logger.setLevel(logging.ERROR)
     try:
@@ -37,7 +39,7 @@ def autocorr_time(chain_u: np.ndarray) -> np.ndarray:
     """emcee's τ per sampled coordinate of a (steps, walkers, ndim) chain (quiet when short)."""
     import emcee
 
-    with _quiet_emcee_log(), np.errstate(invalid="ignore", divide="ignore"):  # a coordinate no walker moved: τ is NaN
+    with quiet_log(logging.getLogger("emcee")), np.errstate(invalid="ignore", divide="ignore"):  # a coordinate no walker moved: τ is NaN
         return np.asarray(emcee.autocorr.integrated_time(chain_u, quiet=True), dtype=float)
 
 
