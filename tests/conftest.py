@@ -4,6 +4,7 @@ XLA's cheapest compile for every program of the suite and of the processes it st
 import importlib.util
 import os
 import pathlib
+import signal
 
 CHEAP_XLA_FLAGS = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
 """The suite's programs are compiled without XLA's backend optimisation and fusion emitters:
@@ -23,6 +24,12 @@ import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_platforms", "cpu")
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    # A suite started in the background (``nohup``, ``&`` in a script) inherits Ctrl-C ignored, and
+    # so would every process it starts: the tests that send one (status 130, "interrupted") saw the
+    # command finish its work instead. A handled signal is reset to the default in a child.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 MEASURED = ROOT / "measurements" / "brdf"  # real BRDF measurements (measurements/brdf/README.md)
