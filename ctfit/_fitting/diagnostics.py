@@ -33,8 +33,8 @@ from .._model import Measurement
 from .fit_warnings import FitWarning
 from .losses import loss_floor
 
-__all__ = ["angle_lv_deg", "half_angle_deg", "pair_half_angle_deg", "relative_residual_structure", "residual_structure", "zero_samples_warning",
-           "ZERO_SAMPLES", "ZEROS_HINT"]
+__all__ = ["angle_lv_deg", "half_angle_deg", "pair_half_angle_deg", "relative_residual_structure", "residual_notes", "residual_structure",
+           "zero_samples_warning", "ZERO_SAMPLES", "ZEROS_HINT"]
 
 
 def _angle_lv(ti: np.ndarray, pi: np.ndarray, to: np.ndarray, po: np.ndarray) -> np.ndarray:
@@ -130,9 +130,19 @@ def residual_structure(
     e = np.asarray(model, dtype=float) - y
     e /= np.maximum(np.abs(y), floor)
     pairs, index = data.directions()
-    zero = y == 0
-    notes = relative_residual_structure(pairs, e[~zero], index=index[~zero], threshold=threshold, min_count=min_count)
-    note = zero_samples_warning(e[zero], float(floor), y.size, threshold=threshold)
+    return residual_notes(pairs, e, y == 0, float(floor), y.size, index=index, threshold=threshold, min_count=min_count)
+
+
+def residual_notes(pairs: np.ndarray, rel: np.ndarray, zero: np.ndarray, floor: float, samples: int, *, index: Any = None, mask: Any = None,
+                   threshold: float = 0.1, min_count: int = 20) -> list[FitWarning]:
+    """:func:`relative_residual_structure` over the samples (or measured cells, ``mask``) whose value
+    is not exactly 0, and :func:`zero_samples_warning` of those that are (``zero``, in ``rel``'s
+    shape; ``samples`` measured in all)."""
+    if mask is None:
+        notes = relative_residual_structure(pairs, rel[~zero], index=index[~zero], threshold=threshold, min_count=min_count)
+    else:
+        notes = relative_residual_structure(pairs, rel, mask=mask & ~zero, threshold=threshold, min_count=min_count)
+    note = zero_samples_warning(rel[zero], floor, samples, threshold=threshold)
     return notes + ([note] if note else [])
 
 

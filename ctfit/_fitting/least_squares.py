@@ -42,7 +42,7 @@ from .._runtime import cached_call, release_free_pages
 from .chunked_fit import ROWS, chunk_problems, chunked_core, prefetch, race_rows
 from .chunks import sum_over_chunks
 from .coordinates import bounds, from_params, to_params
-from .diagnostics import ZERO_SAMPLES, relative_residual_structure, zero_samples_warning
+from .diagnostics import ZERO_SAMPLES, residual_notes
 from .fit_report import (
     NO_STDERR_SINGULAR,
     PARAM_FIELDS,
@@ -429,18 +429,12 @@ def _fitted_material(prep: PreparedFit, params: Params) -> Material:
 
 def _structure_notes(problem: Problem, data: Measurement, rel: np.ndarray, mask: np.ndarray, floor: float, measured: int) -> list[FitWarning]:
     """The systematic-residual warnings of a fit from its relative residuals ``rel`` (the problem's
-    layout): by angular bins over the samples not exactly 0, and one for those
-    (:func:`~ctfit._fitting.diagnostics.zero_samples_warning`)."""
+    layout), on the grid's measured cells or the samples (:func:`~ctfit._fitting.diagnostics.residual_notes`)."""
     pairs, index = data.directions()
     if problem.spec.grid:
-        cells = rel[: len(pairs)]
-        zero = mask[: len(pairs)] & (np.asarray(problem.y)[: len(pairs)] == 0)
-        notes = relative_residual_structure(pairs, cells, mask=mask[: len(pairs)] & ~zero)
-    else:
-        cells, zero = rel[: len(data)], np.asarray(data.brdf) == 0
-        notes = relative_residual_structure(pairs, cells[~zero], index=index[~zero])
-    note = zero_samples_warning(cells[zero], floor, measured)
-    return notes + ([note] if note else [])
+        cells = mask[: len(pairs)]
+        return residual_notes(pairs, rel[: len(pairs)], cells & (np.asarray(problem.y)[: len(pairs)] == 0), floor, measured, mask=cells)
+    return residual_notes(pairs, rel[: len(data)], np.asarray(data.brdf) == 0, floor, measured, index=index)
 
 
 def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: float | None = None, max_steps: int | None = None) -> FitResult:

@@ -18,7 +18,7 @@ import math
 import numpy as np
 from jax.typing import DTypeLike
 
-from .._model import PUBLIC_NAMES, Measurement, Params, Structure, wrong_size
+from .._model import PUBLIC_NAMES, Measurement, Params, Structure, value_domain, wrong_size
 from .coordinates import free_names
 
 __all__ = ["check_dtype", "check_fittable", "check_solve_options", "checked_start", "fixed_names", "n_free_parameters", "nonfinite_reason",
@@ -105,21 +105,16 @@ def checked_start(structure: Structure, n_bands: int, start) -> Params | None:
     raise ValueError(f"start.{name} has {got} values; this fit takes {what}: {size} ({_describe(structure) or 'its structure'})")
 
 
-_DOMAINS = {"s": (0.0, 1.0, False), "m": (0.0, math.inf, True), "w": (0.0, 1.0, False), "f0": (0.0, 1.0, False), "k": (0.0, math.inf, False),
-            "rd": (0.0, math.inf, False)}
-"""(lower, upper, lower bound open) of each start value, as a material file takes them; n below (:func:`_in_domain`)."""
-
-
 def _in_domain(structure: Structure, start: Params) -> Params:
     """``start`` when each value it gives is a finite number in the parameter's domain (that of a
-    material file: s, w, F0 in [0, 1], m > 0, n > 0 (≥ 0 for a conductor), k, R_d ≥ 0), else a
+    material file, :func:`~ctfit._model.parameters.value_domain`), else a
     ``ValueError`` naming it: a fixed F0 = 2 was reported as a converged fit (n = 1.8e16), a fixed
     m = −0.2 too, and a NaN start failed in NumPy's eigenvalue routine."""
     for name in ("s", "m", "w", "f0", "n", "k", "rd"):
         value = getattr(start, name)
         if value is None:
             continue
-        lo, hi, lo_open = _DOMAINS.get(name, (0.0, math.inf, structure.fresnel != "conductor"))
+        lo, hi, lo_open = value_domain(name, structure.fresnel)
         v = np.atleast_1d(np.asarray(value, dtype=float))
         out = ~np.isfinite(v) | (v < lo) | (v > hi) | ((v == lo) & lo_open)
         if out.any():

@@ -52,6 +52,7 @@ from .._model import (
     f0_from_n,
     f0_from_nk,
     n_from_f0,
+    value_domain,
 )
 from .errors import MaterialError
 from .files import atomic_write
@@ -251,8 +252,8 @@ class _Parser:
         has_s, has_d = "s" in self.data, "d" in self.data
         if not (has_s or has_d):
             raise self.error("s", "missing: give the specular and diffuse fractions s and d (s + d = 1)")
-        s = self.number(self.data["s"], "s", 0, 1) if has_s else None
-        d = self.number(self.data["d"], "d", 0, 1) if has_d else None
+        s = self.number(self.data["s"], "s", *value_domain("s")) if has_s else None
+        d = self.number(self.data["d"], "d", *value_domain("s")) if has_d else None  # d = 1 − s
         if s is not None and d is not None and abs(s + d - 1) > _TOL:
             raise self.error("d", f"s + d = {s + d:.12g}, must be 1")
         if s is not None:
@@ -281,10 +282,10 @@ class _Parser:
                 raise self.error(f"{key}.{extra}", "unknown key; a lobe has 'm' and 'weight'")
             if "m" not in lobe:
                 raise self.error(f"{key}.m", "missing: the rms slope m of the lobe")
-            ms.append(self.number(lobe["m"], f"{key}.m", 0, math.inf, lo_open=True))
+            ms.append(self.number(lobe["m"], f"{key}.m", *value_domain("m")))
             if "weight" not in lobe and len(raw) > 1:
                 raise self.error(f"{key}.weight", "missing: every lobe of several needs a weight")
-            ws.append(self.number(lobe.get("weight", 1.0), f"{key}.weight", 0, 1))
+            ws.append(self.number(lobe.get("weight", 1.0), f"{key}.weight", *value_domain("w")))
         total = math.fsum(ws)
         if abs(total - 1) > _TOL:
             raise self.error(f"lobes[{len(ws) - 1}].weight", f"weights sum to {total:.12g}, must sum to 1")
@@ -405,9 +406,9 @@ def material_from_dict(data: dict, *, source: str = "<material>", base_dir: str 
                 raise p.error("Rd", f'must be "F0/pi", a number or a list over {band_key}, got {quote(value)}')
             diffuse = "F0/pi"
         elif _is_number(value):
-            diffuse, rd = "constant", np.asarray(p.number(value, "Rd", 0))
+            diffuse, rd = "constant", np.asarray(p.number(value, "Rd", *value_domain("rd")))
         else:
-            diffuse, rd = "spectrum", p.spectrum("Rd", nbands, band_key, 0, math.inf)
+            diffuse, rd = "spectrum", p.spectrum("Rd", nbands, band_key, *value_domain("rd"))
 
     family, diffuse, rd = _family(p, diffuse, rd, nbands)
     needed = s > 0 or diffuse in ("F0/pi", "transmitted")  # a Fresnel term in the model
@@ -477,12 +478,10 @@ def _fresnel(p: _Parser, table: dict | None, needed: bool, nbands: int, band_key
                 raise p.error(key, f'missing: fresnel = "{mode}" needs {" and ".join(_FRESNEL_KEYS[mode])}')
         if "k" in data and mode != "conductor":
             raise p.error("k", f'only with fresnel = "conductor", not "{mode}"')
-        # a conductor's n may be 0 (a fit on its bound, F0 = 1); a real index must be > 0
-        bounds = {"F0": (0, 1, False), "n": (0, math.inf, mode != "conductor"), "k": (0, math.inf, False)}
-        values = {
-            key: p.spectrum(key, nbands, band_key, *bounds[key], allow_null=key not in _FRESNEL_KEYS[mode])
-            for key in keys
-        }
+        values = {}
+        for key in keys:  # a conductor's n may be 0 (a fit on its bound, F0 = 1)
+            lo, hi, lo_open = value_domain(key.lower(), mode)
+            values[key] = p.spectrum(key, nbands, band_key, lo, hi, lo_open, allow_null=key not in _FRESNEL_KEYS[mode])
         derived = {
             "f0": ("n", lambda: n_from_f0(values["F0"])),
             "n": ("F0", lambda: f0_from_n(values["n"])),

@@ -23,6 +23,7 @@ that a prior stated in θ is a density in u), and a line describing both.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 
 import jax
@@ -32,7 +33,7 @@ import numpy as np
 from .numerics import array_module
 
 __all__ = ["Parameter", "PARAMETERS", "PUBLIC_NAMES", "PARAMETER_AXES", "M_MIN", "M_MAX", "PLASTIC_INDEX_RANGE", "parameter", "box_bounds", "clip_box",
-           "value_range"]
+           "value_range", "value_domain"]
 
 
 M_MIN, M_MAX = 1e-5, 4.0
@@ -150,6 +151,16 @@ PARAMETER_AXES = {p.public: p.axis for p in PARAMETERS.values()}
 def parameter(name: str) -> Parameter:
     """The row of :data:`PARAMETERS` for a :class:`~ctfit.Params` field name."""
     return PARAMETERS[name]
+
+
+def value_domain(name: str, fresnel: str = "f0") -> tuple[float, float, bool]:
+    """(lower, upper, whether the lower bound is open) of a parameter's value as a material file and
+    a fit's start or fixed value take it: s, w, F0 in [0, 1]; m > 0; n > 0, a conductor's n ≥ 0
+    (a fit on its bound, F0 = 1); k, R_d ≥ 0. Wider than :func:`value_range` (what a fit or the
+    sampler reaches): a material may hold any value that evaluates."""
+    if name in ("s", "w", "f0"):
+        return 0.0, 1.0, False
+    return 0.0, math.inf, name == "m" or (name == "n" and fresnel != "conductor")
 
 
 def n_lower(fresnel: str, family: str = "metal") -> float:
