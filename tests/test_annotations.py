@@ -23,7 +23,8 @@ SHAPED_PACKAGES = ("ctfit._model.", "ctfit._colour.")
 
 NO_ARRAYS = {"specular_constant", "Structure.__init__", "Structure.has_specular", "Structure.has_diffuse", "Structure.has_s", "Structure.needs_fresnel_params",
              "Structure.has_rd", "Structure.shared_index", "Material.is_rgb", "Material.band_labels", "Material.check_shapes", "Measurement.n_bands",
-             "Measurement.band_labels", "Measurement.repeats", "Measurement.replace", "colour_report", "rgb_conversion", "spectral_weights",
+             "Measurement.band_labels", "Measurement.repeats", "Measurement.replace", "Measurement.with_lines", "Measurement.file_place",
+             "colour_report", "rgb_conversion", "spectral_weights",
              "SpectralWeights.cmfs", "RGBConversion.white_xy"}
 """Public callables of those packages that take and return no array."""
 

@@ -124,7 +124,7 @@ def test_eval_says_when_the_model_overflows_not_the_data(tmp_path):
     (tmp_path / "geo.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm\n10,0,20,180,550\n0,0,0,180,550\n")
     r = run("eval", tmp_path / "tiny.toml", tmp_path / "geo.csv", "-o", tmp_path / "e.csv")
     assert r.exit_code == 2 and not (tmp_path / "e.csv").exists()
-    assert "tiny.toml: the model is not finite at 1 of 2 rows of" in r.output and "θ_i 0°" in r.output, r.output
+    assert "tiny.toml: the model is not finite at 1 of 2 rows of" in r.output and "(the first: line 3, θ_i 0°" in r.output, r.output
     assert "overflow float64 there (m = 1e-160; ctfit fits m ≥ 1e-5)" in r.output and "Measurement" not in r.output
 
 

@@ -148,20 +148,63 @@ def test_cli_fit_of_too_few_samples_exits_2(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "value, pattern",
+    "value, pattern, where",
     [
-        (1e300, r"data row 1: brdf = 1e\+300 is too large: a fit in float64 takes data whose largest brdf is in \[7\.5e-142, 1\.3e\+150\]"),
-        (1e-300, r"every brdf is at most 1e-300 \(data row 1\): a fit in float64 takes data whose largest brdf is in \[7\.5e-142"),
-        (0.0, "every brdf is 0: there is nothing to fit"),
+        (1e300, r"row 1 of the data: brdf = 1e\+300 is too large: a fit in float64 takes data whose largest brdf is in \[7\.5e-142, 1\.3e\+150\]",
+         "d.csv:2: column 'brdf' (6): 1e+300 is too large: "),
+        (1e-300, r"row 1 of the data: brdf = 1e-300, the largest brdf, is too small: a fit in float64 takes data whose largest brdf is in \[7\.5e-142",
+         "d.csv:2: column 'brdf' (6): 1e-300, the largest brdf, is too small: "),
+        (0.0, "every brdf is 0: there is nothing to fit", "d.csv: every brdf is 0"),
     ],
 )
-def test_out_of_range_data_is_refused(data, tmp_path, value, pattern):
+def test_out_of_range_data_is_refused(data, tmp_path, value, pattern, where):
     # brdf = 1e300 was "converged: True, rmse: inf"; 1e-300 wrote a JSON that could not be read back
     with pytest.raises(ValueError, match=pattern):
         ctfit.fit(data.replace(brdf=np.full(len(data), value)), Structure(lobes=1))
     out = tmp_path / "fit.json"
     r = cli("fit", write_rows(tmp_path / "d.csv", [value] * 20), "-o", out)
     assert r.exit_code == 2 and len(error_lines(r)) == 1 and not out.exists()
+    assert where in error_lines(r)[0], error_lines(r)  # a file's value by its line and column, as the reader names one ("data row 1" before)
+
+
+def test_a_value_a_fit_refuses_is_named_by_its_line_and_column_in_the_file(tmp_path):
+    """The checks of the data's scale named "data row N" (the Nth sample), not the file's line:
+    comment lines and the header came before it, and the columns may come in any order."""
+    rows = [f"0.5,{10 + 5 * (i % 12)},0,{15 + 5 * (i % 11)},180,550,{('1e-09', '2e-09', '3e-09')[i % 3]}" for i in range(20)]
+    rows[13] = rows[13].rsplit(",", 1)[0] + ",1e-300"
+    path = tmp_path / "s.csv"
+    path.write_text("# sample: x\n#\n# note\nsigma,theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n" + "\n".join(rows) + "\n\n\n")
+    data = ctfit.read_csv(path)
+    assert data.file_place(0, "brdf") == (5, 7) and data.file_place(13, "sigma") == (18, 1) and data.file_place(20, "brdf") is None
+    rows = [r.replace("0.5,", "1e-300,", 1) if i == 7 else r for i, r in enumerate(rows)]
+    path.write_text("# sample: x\n#\n# note\nsigma,theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n" + "\n".join(rows) + "\n")
+    with pytest.raises(DataError) as caught:
+        check_fittable(ctfit.read_csv(path), Structure(lobes=1), loss="sigma")
+    e = caught.value
+    assert (e.path, e.line, e.column, e.index) == (str(path), 12, "sigma", 1), str(e)
+    assert str(e).startswith(f"{path}:12: column 'sigma' (1): 1e-300 is too small for brdf values up to 3e-09: (brdf − model)/sigma overflows float64")
+    with pytest.raises(DataError, match=r"^s\.csv:7: column 'brdf' \(7\): 3e-09, the largest brdf, is too small: a fit in float32"):
+        check_fittable(ctfit.read_csv(path).replace(source="s.csv"), Structure(lobes=1), dtype=jnp.float32)  # a name as shown: the lines stay
+    changed = ctfit.read_csv(path)
+    changed = changed.replace(brdf=changed.brdf * 1e-300)  # values of its own: no line of the file holds them
+    assert changed.file_place(1, "brdf") is None
+    with pytest.raises(ValueError, match=r"s\.csv: row 3 of the data: brdf = 3e-309, the largest brdf, is too small") as caught:
+        check_fittable(changed, Structure(lobes=1))
+    assert not isinstance(caught.value, DataError)
+
+
+def test_the_data_chosen_structure_names_the_line_of_a_large_file_not_of_its_screening_sample(tmp_path):
+    """Above 4,096 samples the candidates are fitted to a sample of the direction pairs, and the
+    first candidate's checks named the value's row in that sample ("data row 3397" for line 5003)."""
+    rows = [f"{(7 * i) % 800 / 10},0,{(13 * i) % 800 / 10},{(29 * i) % 3600 / 10},550,0.3" for i in range(6000)]
+    rows[5000] = rows[5000].rsplit(",", 1)[0] + ",1e200"
+    path = write_rows(tmp_path / "large.csv", [])
+    path.write_text("# c\ntheta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n" + "\n".join(rows) + "\n")
+    with pytest.raises(DataError, match=r"large\.csv:5003: column 'brdf' \(6\): 1e\+200 is too large"):
+        ctfit.fit(ctfit.read_csv(path))
+    r = cli("fit", path)
+    assert r.exit_code == 2 and error_lines(r) == [f"error: {path}:5003: column 'brdf' (6): 1e+200 is too large: a fit in float64 takes data whose "
+                                                   "largest brdf is in [7.5e-142, 1.3e+150] sr⁻¹ (squares of larger values overflow); is the unit sr⁻¹?"]
 
 
 def test_representable_range_depends_on_the_dtype(data):
@@ -172,7 +215,7 @@ def test_representable_range_depends_on_the_dtype(data):
     check_fittable(small, Structure(lobes=1), dtype=jnp.float64)
     with pytest.raises(ValueError, match=r"a fit in float32 takes .* \(or fit in float64\)"):
         check_fittable(small, Structure(lobes=1), dtype=jnp.float32)
-    with pytest.raises(ValueError, match=r"data row 2: sigma = 1e-200 is too small"):
+    with pytest.raises(ValueError, match=r"<simulated>: row 2 of the data: sigma = 1e-200 is too small"):
         check_fittable(data.replace(sigma=np.r_[1.0, 1e-200, np.ones(len(data) - 2)]), Structure(lobes=1), loss="sigma")
 
 

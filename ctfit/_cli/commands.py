@@ -73,8 +73,11 @@ def eval_cmd(
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:  # the model's, not the data's: Measurement(brdf=values) named the data file and a 'brdf' it did not have
             slope = f"m = {float(np.min(mat.params.m)):g}; ctfit fits m ≥ 1e-5" if mat.params.m is not None else "its parameters"
-            raise UserError(f"{material}: the model is not finite at {bad.size} of {len(values)} rows of {data} (the first: θ_i {meas.theta_i[bad[0]]:g}°, "
-                            f"θ_o {meas.theta_o[bad[0]]:g}°): its values overflow {'float32' if float32 else 'float64'} there ({slope})"
+            place = meas.file_place(int(bad[0]), "theta_i")  # a CSV's line
+            first = f"line {place[0]}, " if place is not None else ""
+            raise UserError(f"{material}: the model is not finite at {bad.size} of {len(values)} rows of {data} "
+                            f"(the first: {first}θ_i {meas.theta_i[bad[0]]:g}°, θ_o {meas.theta_o[bad[0]]:g}°): its values overflow "
+                            f"{'float32' if float32 else 'float64'} there ({slope})"
                             + ("; evaluate it in float64" if float32 else ""))
         # The values are the model's: the data's own lines (its source, noise, instrument) would describe them wrongly.
         meta = {"source": "ctfit eval", "material": str(material), "directions": str(data)}  # (write_csv adds '# band: unknown' where it is)

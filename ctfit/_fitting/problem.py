@@ -17,10 +17,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._model import STATIC, Geometry, Measurement, Params, Structure, combine_parts, geometry_from_angles_deg, pytree, specular_geometric
+from .._model import STATIC, Geometry, Measurement, Params, Structure, combine_parts, format_value, geometry_from_angles_deg, pytree, specular_geometric
 from .chunks import bucket, chunk_padding
 from .coordinates import free_names, to_params
 from .losses import LOSSES, loss_floor
+from .validate import sample_error
 
 __all__ = ["Spec", "Problem", "SHAPE_PARAMETERS", "at_samples", "band_sum", "geometry_deg", "make_problem", "model_parts", "model_values", "per_direction",
            "shape_and_rest", "values_from_s"]
@@ -209,9 +210,9 @@ def _check_fittable_by(data: Measurement, loss: str) -> None:
         raise ValueError(f"{data.source}: loss 'sigma' needs a 'sigma' column")
     if loss == "sigma":
         bad = np.flatnonzero(~(np.asarray(data.sigma) > 0) | ~np.isfinite(data.sigma))
-        if bad.size:
-            raise ValueError(f"{data.source}: loss 'sigma' needs every sigma finite and > 0; {bad.size} of {len(data)} samples are not "
-                             f"(the first is sample {bad[0]}, sigma = {data.sigma[bad[0]]!r}); drop them or choose another loss")
+        if bad.size:  # (a Measurement refuses them when made: these were changed in place since)
+            raise sample_error(data, int(bad[0]), "sigma", f"{format_value(data.sigma[bad[0]])}: loss 'sigma' needs every sigma finite and > 0; "
+                               f"{bad.size} of {len(data)} samples are not; drop them or choose another loss")
 
 
 def _gather_bands(params: Params, band) -> Params:

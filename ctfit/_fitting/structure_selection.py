@@ -10,12 +10,14 @@ from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._model import FAMILIES, GEOMETRIES, MAX_LOBES, Measurement, Params, Structure, brdf, x64_enabled
 from .least_squares import FitResult, check_fit_arguments, fit, fit_to_tolerance, prefetch_fit
+from .losses import default_loss
 from .problem import geometry_deg
-from .validate import n_free_parameters
+from .validate import check_data_scale, check_dtype, n_free_parameters
 
 __all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error",
            "DIFFUSE_FORMS",
@@ -189,7 +191,7 @@ def choose_structure(
     >>> best.material.structure.family, best.material.structure.lobes
     ('plastic', 1)
     """
-    combos = _first_combos(data, families, lobes, diffuse, geometry, fresnel, kwargs.get("fixed", ()))
+    combos = _first_combos(data, families, lobes, diffuse, geometry, fresnel, kwargs)
     screen, held, n_full = screening_sample(data), heldout_sample(data), len(data)
     tolerance = SCREEN_TOLERANCE if screen is not data else None
     user_start = kwargs.pop("start", None)
@@ -276,12 +278,19 @@ def _check_choice_arguments(data: Any, families: Any, lobes: Any, diffuse: Any, 
 
 def _first_combos(
     data: Measurement, families: Sequence[str], lobes: Sequence[int], diffuse: Sequence[str | None] | None, geometry: str, fresnel: str | None,
-    fixed: tuple[str, ...],
+    options: dict,
 ) -> list[Structure]:
     """Every (family, diffuse part) of ``families`` (:data:`DIFFUSE_FORMS`, or the one ``diffuse``
     given) with the first of ``lobes`` lobes, those with more free parameters than ``data`` has samples left out
-    (all of them too many: the first, whose fit's error says so); the arguments checked first."""
+    (all of them too many: the first, whose fit's error says so); the arguments checked first, and the data's
+    scale in the fits' ``options`` (loss, dtype) on all of it: a value refused by a screening sample's fit
+    was named by its row of that sample, not of the data (row 3397 for line 5003 of the file)."""
     _check_choice_arguments(data, families, lobes, diffuse, geometry, fresnel)
+    fixed = options.get("fixed", ())
+    if data.brdf is not None:
+        dtype, loss = options.get("dtype", jnp.float64), options.get("loss", "auto")
+        check_dtype(dtype)
+        check_data_scale(data, loss=default_loss(data) if loss == "auto" else loss, dtype=dtype)
     combos = []
     for family in families:
         for form in DIFFUSE_FORMS[family] if diffuse in (None, "auto") else (diffuse,):

@@ -5,7 +5,10 @@ samples as free parameters; every BRDF value finite; the data's scale, max(brdf)
 range the fit's dtype can square and sum (:func:`representable_range`) — the residuals are
 (model − data), or that over the relative loss's floor (at least 10⁻⁶ max(data)), squared and summed over the samples,
 so data at 1e300 sr⁻¹ overflows and data at 1e-300 sr⁻¹ everywhere makes every relative
-residual overflow. With the sigma loss, max(brdf)/min(sigma) must be in range too.
+residual overflow. With the sigma loss, max(brdf)/min(sigma) must be in range too. A value
+refused is named as a reader names one (:func:`sample_error`): data read from a measurement CSV
+by its line and column (a :class:`~ctfit.DataError`, ``data.csv:17: column 'brdf' (6): ...``),
+data made in memory by its row (``row 17 of the data``).
 
 After the fit (:func:`nonfinite_reason`): a cost, rmse or model value that is not finite means
 the fit did not converge, whatever the solver said; the reason becomes one of its warnings.
@@ -18,11 +21,12 @@ import math
 import numpy as np
 from jax.typing import DTypeLike
 
-from .._model import PUBLIC_NAMES, Measurement, Params, Structure, value_domain, wrong_size
+from .._io import DataError
+from .._model import PUBLIC_NAMES, Measurement, Params, Structure, format_value, value_domain, wrong_size
 from .coordinates import free_names
 
-__all__ = ["check_dtype", "check_fittable", "check_solve_options", "checked_start", "fixed_names", "n_free_parameters", "nonfinite_reason",
-           "representable_range"]
+__all__ = ["check_data_scale", "check_dtype", "check_fittable", "check_solve_options", "checked_start", "fixed_names", "n_free_parameters",
+           "nonfinite_reason", "representable_range", "sample_error"]
 
 _HEADROOM = 1e4
 """Squares of values up to max/1e4 summed over 1e8 samples stay finite."""
@@ -136,11 +140,11 @@ def _describe(structure: Structure) -> str:
 
 
 def check_fittable(data: Measurement, structure: Structure, *, fixed: tuple[str, ...] = (), loss: str = "relative", dtype=np.float64) -> None:
-    """Raise ``ValueError`` (naming ``data.source``) when ``data`` cannot be fitted with ``structure``."""
+    """Raise ``ValueError`` (naming ``data.source``) when ``data`` cannot be fitted with ``structure``:
+    too few samples for its free parameters, or the data's scale (:func:`check_data_scale`)."""
     if data.brdf is None:
         raise ValueError(f"{data.source}: the data has no 'brdf' column to fit")
-    y = np.asarray(data.brdf, dtype=float)
-    n, p = len(y), n_free_parameters(structure, data.n_bands, fixed)
+    n, p = len(data), n_free_parameters(structure, data.n_bands, fixed)
     if p == 0:
         raise ValueError(f"{data.source}: nothing to fit: every parameter of the structure is fixed (fixed = {list(fixed)}); "
                          "ctfit eval evaluates the material as it is")
@@ -149,35 +153,59 @@ def check_fittable(data: Measurement, structure: Structure, *, fixed: tuple[str,
             f"{data.source}: {n} sample{'s' if n != 1 else ''}, {p} free parameters ({_describe(structure)}): "
             "measure more or fit fewer (structure=: fewer lobes, no diffuse part)"
         )
+    check_data_scale(data, loss=loss, dtype=dtype)
+
+
+def check_data_scale(data: Measurement, *, loss: str = "relative", dtype=np.float64) -> None:
+    """Raise ``ValueError`` when a fit in ``dtype`` cannot take ``data``'s values: a brdf that is not
+    finite, the largest brdf outside :func:`representable_range`, or (``loss`` "sigma") a sigma so
+    small that brdf/sigma overflows. The value is named by :func:`sample_error`: its line and
+    column in the CSV it was read from, else its row of the data. Data without brdf passes."""
+    if data.brdf is None:
+        return
+    y = np.asarray(data.brdf, dtype=float)
     bad = np.flatnonzero(~np.isfinite(y))
     if bad.size:
-        raise ValueError(f"{data.source}: data row {bad[0] + 1}: brdf = {float(y[bad[0]])!r} is not a finite number ({bad.size} such rows)")
+        raise sample_error(data, int(bad[0]), "brdf", f"{format_value(y[bad[0]])} is not a finite number ({bad.size} such rows)")
     lo, hi = representable_range(dtype)
     name = np.dtype(dtype).name
     what = f"a fit in {name} takes data whose largest brdf is in [{lo:.2g}, {hi:.2g}] sr⁻¹"
     over = np.flatnonzero(y > hi)
     if over.size:
-        raise ValueError(
-            f"{data.source}: data row {over[0] + 1}: brdf = {float(y[over[0]])!r} is too large: {what} (squares of larger "
-            "values overflow); is the unit sr⁻¹?"
-        )
-    top = int(np.argmax(y))
-    if y[top] == 0:
+        raise sample_error(data, int(over[0]), "brdf", f"{float(y[over[0]])!r} is too large: {what} (squares of larger values overflow); is the unit sr⁻¹?")
+    top = int(np.argmax(y)) if len(y) else 0
+    if not len(y) or y[top] == 0:
         raise ValueError(f"{data.source}: every brdf is 0: there is nothing to fit")
     if y[top] < lo:
         hint = " (or fit in float64)" if name == "float32" else ""
-        raise ValueError(
-            f"{data.source}: every brdf is at most {float(y[top])!r} (data row {top + 1}): {what} (relative residuals of "
-            f"smaller data overflow); is the unit sr⁻¹?{hint}"
-        )
+        raise sample_error(data, top, "brdf", f"{float(y[top])!r}, the largest brdf, is too small: {what} (relative residuals of smaller data "
+                           f"overflow); is the unit sr⁻¹?{hint}")
     if loss == "sigma" and data.sigma is not None:
         sigma = np.asarray(data.sigma, dtype=float)
         low = int(np.argmin(sigma))
         if sigma[low] > 0 and y[top] / sigma[low] > hi:
-            raise ValueError(
-                f"{data.source}: data row {low + 1}: sigma = {float(sigma[low])!r} is too small for brdf values up to {float(y[top])!r}: "
-                f"(brdf − model)/sigma overflows {name}"
-            )
+            raise sample_error(data, low, "sigma", f"{float(sigma[low])!r} is too small for brdf values up to {float(y[top])!r}: "
+                               f"(brdf − model)/sigma overflows {name}")
+
+
+def sample_error(data: Measurement, row: int, column: str, reason: str) -> ValueError:
+    """The error refusing the value of sample ``row`` (0-based) in ``column``, ``reason`` saying why
+    (it starts with the value): a :class:`~ctfit.DataError` at the value's line and column where
+    ``data`` was read from a measurement CSV (:meth:`~ctfit.Measurement.file_place`), as a reader
+    reports one, else a ``ValueError`` naming the row of the data (1-based).
+
+    >>> import numpy as np, ctfit
+    >>> m = ctfit.Measurement(theta_i=np.array([30.0, 45.0]), phi_i=np.zeros(2), theta_o=np.array([30.0, 45.0]),
+    ...                       phi_o=np.full(2, 180.0), band=np.zeros(2, int), wavelength_nm=np.array([550.0]), brdf=np.array([0.8, 0.5]))
+    >>> print(sample_error(m, 1, "brdf", "0.5 is wrong"))
+    <memory>: row 2 of the data: brdf = 0.5 is wrong
+    >>> print(sample_error(m.replace(source="d.csv").with_lines(3, {"brdf": 6}), 1, "brdf", "0.5 is wrong"))
+    d.csv:4: column 'brdf' (6): 0.5 is wrong
+    """
+    place = data.file_place(row, column)
+    if place is None:
+        return ValueError(f"{data.source}: row {row + 1} of the data: {column} = {reason}")
+    return DataError(reason, path=data.source, line=place[0], column=column, index=place[1])
 
 
 def nonfinite_reason(cost: float, rmse: float, bad: int, values: int, dtype) -> str | None:

@@ -158,6 +158,9 @@ def _measurement(table: CsvTable, path: str | os.PathLike[str]) -> Measurement:
         raise DataError(f"'# band: {BAND_UNKNOWN}' marks data of one band whose wavelength is not known, but the file has {kind}",
                         path=path, line=table.meta_lines["band"])
     m = Measurement(**columns, meta=table.meta, source=os.fspath(path), band_unknown=unknown)
+    # Its rows are the file's lines after the header, one a sample (no blank or # line among them): a
+    # value refused later (a fit's checks of the data's scale) is named by its line and column.
+    m = m.with_lines(table.header_line + 1, {name: i + 1 for name, i in table.cols.index.items() if name in KNOWN_COLUMNS})
     return m if table.pairs is None else m.with_directions(*table.pairs)
 
 

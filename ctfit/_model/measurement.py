@@ -14,7 +14,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -243,9 +243,39 @@ class Measurement:
         order = np.argsort(flat, kind="stable")
         return pairs, order
 
+    def with_lines(self, first_line: int, columns: Mapping[str, int]) -> Measurement:
+        """This measurement with the place of its samples in the text file they were read from (a
+        measurement CSV, one line a sample with no line between): sample ``i`` on line
+        ``first_line + i``, column ``name`` the ``columns[name]``-th (both 1-based). A value refused
+        later (a fit's checks of the data's scale, :func:`~ctfit._fitting.validate.sample_error`) is
+        then named by its line and column, as a reader names one. :meth:`replace` keeps it while the
+        samples stay (another ``source`` or ``meta``), and drops it when they change.
+
+        >>> import numpy as np, ctfit
+        >>> m = ctfit.Measurement(theta_i=np.array([30.0, 45.0]), phi_i=np.zeros(2), theta_o=np.array([30.0, 45.0]),
+        ...                       phi_o=np.full(2, 180.0), band=np.zeros(2, int), wavelength_nm=np.array([550.0]), brdf=np.array([0.8, 0.5]))
+        >>> m.file_place(1, "brdf"), m.with_lines(3, {"brdf": 6}).file_place(1, "brdf")
+        (None, (4, 6))
+        """
+        new = copy.copy(self)  # the same samples, checked already
+        new.__dict__["_lines"] = (int(first_line), {str(k): int(v) for k, v in columns.items()})
+        return new
+
+    def file_place(self, row: int, column: str) -> tuple[int, int] | None:
+        """(line, column index), both 1-based, of sample ``row``'s (0-based) ``column`` in the file
+        the samples were read from (:meth:`with_lines`); None for samples made in memory, read
+        from a file of other lines (ALTA, RGL) or a binary table (MERL), or changed since."""
+        lines = self.__dict__.get("_lines")
+        if lines is None or column not in lines[1] or not 0 <= row < len(self):
+            return None
+        return lines[0] + int(row), lines[1][column]
+
     def replace(self, **changes: Any) -> Measurement:
-        """A copy with ``changes``; it keeps the direction pairs found already when the angles stay."""
+        """A copy with ``changes``; it keeps the direction pairs found already when the angles stay,
+        and the samples' lines in their file (:meth:`with_lines`) when no sample's value changes."""
         new = dataclasses.replace(self, **changes)
         if "_directions" in self.__dict__ and not changes.keys() & {"theta_i", "phi_i", "theta_o", "phi_o"}:
             new.__dict__["_directions"] = self.__dict__["_directions"]
+        if "_lines" in self.__dict__ and not changes.keys() & {"theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf", "sigma"}:
+            new.__dict__["_lines"] = self.__dict__["_lines"]
         return new
