@@ -92,6 +92,40 @@ def test_extreme_options_are_one_error_line_naming_the_option(fitted, args, word
     refused(run(*(str(a).format(d=fitted) for a in args)), words)
 
 
+@pytest.mark.parametrize("args, option, allowed", [
+    (("sample", "{d}/cu.json", "{d}/cu.csv", "-o", "{d}/s.json", "--steps", 10**20), "--steps", "1<=x<=1000000000"),
+    (("sample", "{d}/cu.json", "{d}/cu.csv", "-o", "{d}/s.json", "--walkers", 10**20), "--walkers", "2<=x<=1000000"),
+    (("fit", "{d}/cu.csv", "--sample", "--steps", 10**20), "--steps", "1<=x<=1000000000"),
+    (("fit", "{d}/cu.csv", "--sample", "--walkers", 10**12), "--walkers", "2<=x<=1000000"),
+    (("sample", "{d}/cu.json", "{d}/cu.csv", "-o", "{d}/s.json", "--seed", 2**32), "--seed", "0<=x<=4294967295"),
+    (("fit", "{d}/cu.csv", "--sample", "--seed", 10**23), "--seed", "0<=x<=4294967295"),
+])
+def test_chain_lengths_past_any_run_are_refused_by_name_with_the_range(fitted, args, option, allowed):
+    """``--steps 1e20`` (and ``--walkers``) stopped in emcee with NumPy's "Maximum allowed dimension
+    exceeded", after the data was read and the posterior set up (``fit --sample``: after the fit);
+    ``--seed 2**32`` with NumPy's "Seed must be between 0 and 2**32 - 1", naming no option."""
+    r = run(*(str(a).format(d=fitted) for a in args))
+    assert r.exit_code == 2 and f"Invalid value for '{option}'" in r.output and allowed in r.output, r.output
+    assert "dimension" not in r.output and "Traceback" not in r.output and not (fitted / "s.json").exists()
+
+
+def test_the_command_and_the_library_take_the_same_chain_lengths(fitted):
+    from ctfit._cli import commands
+    from ctfit._sampling import MAX_SEED, MAX_STEPS, MAX_WALKERS
+
+    assert (commands.MAX_STEPS, commands.MAX_WALKERS, commands.MAX_SEED) == (MAX_STEPS, MAX_WALKERS, MAX_SEED) == (10**9, 10**6, 2**32 - 1)
+    mat, data = ctfit.load_material(fitted / "cu.json"), ctfit.read_csv(fitted / "cu.csv")
+    for options, words in [(dict(steps=10**20), "steps must be in [1, 1,000,000,000], got steps=100000000000000000000"),
+                           (dict(walkers=10**20), "walkers must be in [2, 1,000,000] (and even), got walkers=100000000000000000000"),
+                           (dict(steps=0), "steps must be in [1, 1,000,000,000], got steps=0"),
+                           (dict(thin=0), "thin must be ≥ 1, got thin=0"),
+                           (dict(seed=2**32), "seed must be in [0, 2**32 − 1 = 4294967295] (emcee's generator, NumPy's RandomState, takes no other), "
+                                              "got seed=4294967296")]:
+        with pytest.raises(ValueError) as caught:
+            ctfit.sample(mat, data, **options)
+        assert str(caught.value) == words
+
+
 def test_negative_seeds_are_refused_by_name():
     mat = ctfit.load_material(COPPER)
     with pytest.raises(ValueError, match="seed must be ≥ 0"):

@@ -23,6 +23,11 @@ import typer
 from .inputs import PARAM_OUT_HELP, WAVELENGTHS_HELP, load_material_file, material_inputs, output_file, parse_wavelengths, read_data, setup_jax
 from .messages import UserError, cli_message, echo, run_body
 
+MAX_STEPS, MAX_WALKERS, MAX_SEED = 10**9, 10**6, 2**32 - 1
+"""The ranges' ends of ``--steps``, ``--walkers`` and (sampling) ``--seed``: :func:`ctfit.sample`'s
+(``ctfit._sampling.emcee_run``, not imported here: it loads JAX; tests/test_cli_limits.py holds them equal).
+``--steps 1e20`` stopped in emcee with NumPy's "Maximum allowed dimension exceeded"."""
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
 
 
@@ -146,11 +151,11 @@ def fit(
     plot: Optional[str] = typer.Option(None, "--plot", help="Write a PNG (or PDF, SVG, …: the suffix) of data vs fit, polar plots per incidence angle and the "
                                                             "residual map over (θ_h, θ_d) (one file: this path; several or a folder: a folder, as -o)."),
     sample_: bool = typer.Option(False, "--sample", help="Also sample the posterior (emcee) and add an 'uncertainty' section."),
-    walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
-    steps: int = typer.Option(2000, "--steps", min=1, help="With --sample: steps per walker."),
+    walkers: Optional[int] = typer.Option(None, "--walkers", min=2, max=MAX_WALKERS, help="With --sample: walkers, even (default max(2·ndim + 2, 32))."),
+    steps: int = typer.Option(2000, "--steps", min=1, max=MAX_STEPS, help="With --sample: steps per walker."),
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="With --sample: steps discarded (fewer than --steps)."),
     thin: int = typer.Option(1, "--thin", min=1, help="With --sample: keep every THIN-th step."),
-    seed: int = typer.Option(0, "--seed", min=0, help="With --sample: random seed."),
+    seed: int = typer.Option(0, "--seed", min=0, max=MAX_SEED, help="With --sample: random seed."),
     backend: Optional[str] = typer.Option(None, "--backend", help="With --sample: HDF5 chain file (several data files: a folder, as -o)."),
     resume: bool = typer.Option(False, "--resume", help="With --sample: continue the run stored in --backend."),
     overwrite: bool = typer.Option(False, "--overwrite", help="With --sample: start the chain in --backend again (a stored chain is kept otherwise)."),
@@ -194,11 +199,11 @@ def sample_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print the resulting JSON instead of the table."),
     loss: Optional[str] = typer.Option(None, "--loss", help="absolute, relative, sigma, cosine, log or log-ratio (default: the fit's; a robust-relative fit "
                                                             "is sampled with the relative likelihood); another than the fit's fits again first."),
-    walkers: Optional[int] = typer.Option(None, "--walkers", min=2, help="Walkers (default max(2·ndim + 2, 32), even)."),
-    steps: int = typer.Option(2000, "--steps", min=1, help="Steps per walker in all (also with --resume)."),
+    walkers: Optional[int] = typer.Option(None, "--walkers", min=2, max=MAX_WALKERS, help="Walkers (default max(2·ndim + 2, 32), even)."),
+    steps: int = typer.Option(2000, "--steps", min=1, max=MAX_STEPS, help="Steps per walker in all (also with --resume)."),
     burn: Optional[int] = typer.Option(None, "--burn", min=0, help="Steps discarded (default max(2 τ, steps/10), at most steps/2 and steps − THIN)."),
     thin: int = typer.Option(1, "--thin", min=1, help="Keep every THIN-th step."),
-    seed: int = typer.Option(0, "--seed", min=0),
+    seed: int = typer.Option(0, "--seed", min=0, max=MAX_SEED),
     backend: Optional[str] = typer.Option(None, "--backend", help="HDF5 file keeping the chain (emcee HDFBackend)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run stored in --backend up to --steps."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Start a new chain in an existing --backend file "

@@ -9,7 +9,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
         "chain_diagnostics": ['ChainTooShortWarning'],
-        "emcee_run": ['sample'],
+        "emcee_run": ['MAX_SEED', 'MAX_STEPS', 'MAX_WALKERS', 'sample'],
         "plots": ['plot_corner', 'plot_spectra'],
         "posterior_density": ['log_probability'],
         "result": ['SampleResult'],
