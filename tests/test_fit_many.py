@@ -170,3 +170,24 @@ def test_a_data_chosen_structure_keeps_the_candidates_asked_for(client, tmp_path
     doc = json.loads((tmp_path / "out" / "a.fit.json").read_text())
     assert r.exit_code in (0, 1), r.output
     assert doc["family"] == "plastic" and all(row["structure"].startswith("plastic, 1 lobe,") for row in doc["fit"]["structure_choice"])
+
+
+def test_a_local_cluster_larger_than_the_machine_is_refused_by_name(tmp_path):
+    """``--workers 10**20`` started worker processes until it was killed; now it is refused
+    before any work, naming the limit (4 per usable core), and the library says the same."""
+    from ctfit._io import usable_cores
+    from ctfit._runtime import LOCAL_WORKERS_PER_CORE, check_local_workers
+
+    limit = LOCAL_WORKERS_PER_CORE * usable_cores()
+    check_local_workers(limit)
+    with pytest.raises(ValueError, match=f"at most {limit} worker processes"):
+        check_local_workers(limit + 1)
+    with pytest.raises(ValueError, match=f"at most {limit} worker processes"), dask_client(workers=10**20):
+        pass
+    data = tmp_path / "data"
+    data.mkdir()
+    (data / "a.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,10,180,550,1.0\n")
+    r = CliRunner().invoke(app, ["fit", str(data), "-o", str(tmp_path / "out"), "--workers", str(10**20)])
+    assert r.exit_code == 2, r.output
+    assert "--workers 100000000000000000000" in r.output and f"at most {limit} worker processes" in r.output, r.output
+    assert not (tmp_path / "out").exists()

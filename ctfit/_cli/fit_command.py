@@ -248,7 +248,10 @@ def _check_extras(o) -> None:
 
 
 def _check_cluster_options(o) -> None:
-    """--workers / --scheduler: one structure for all files, results kept in -o."""
+    """--workers / --scheduler: one structure for all files, results kept in -o; a local
+    cluster of a size the machine can run."""
+    from .._runtime import check_local_workers
+
     which = "--workers" if o.workers is not None else "--scheduler"
     if o.workers is not None and o.scheduler is not None:
         raise UserError("--workers makes a local cluster and --scheduler uses an existing one: give one of them")
@@ -258,6 +261,10 @@ def _check_cluster_options(o) -> None:
         raise UserError(f"{which} fits only; leave out --sample (or sample the files afterwards)")
     if o.as_json:
         raise UserError(f"{which} writes each result to -o; leave out --json")
+    try:
+        check_local_workers(o.workers)
+    except ValueError as e:
+        raise UserError(str(e).replace("workers = ", "--workers ", 1)) from None
 
 
 def check_fit_choices(o) -> None:

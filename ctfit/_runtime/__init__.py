@@ -8,7 +8,7 @@ import lazy_loader
 __getattr__, __dir__, __all__ = lazy_loader.attach(
     __name__,
     submod_attrs={
-        "cluster": ['dask_client', 'prepare_worker', 'worker_count'],
+        "cluster": ['LOCAL_WORKERS_PER_CORE', 'check_local_workers', 'dask_client', 'prepare_worker', 'worker_count'],
         "compile_cache": ['enable_compilation_cache', 'matplotlib_config_fallback'],
         "extras": ['EXTRAS', 'MissingExtraError', 'need'],
         "garbage": ['collect_seldom'],

@@ -18,12 +18,40 @@ from __future__ import annotations
 import contextlib
 import logging
 
-__all__ = ["CONNECT_TIMEOUT", "dask_client", "prepare_worker", "scheduler_address", "worker_count"]
+__all__ = ["CONNECT_TIMEOUT", "LOCAL_WORKERS_PER_CORE", "check_local_workers", "dask_client", "prepare_worker", "scheduler_address", "worker_count"]
 
 _LOGGERS = ("distributed", "tornado", "bokeh")
 CONNECT_TIMEOUT = "30s"
 """How long ``dask_client`` tries to reach a scheduler before it gives up (an ``OSError``)."""
 _prepared: set[bool] = set()
+
+LOCAL_WORKERS_PER_CORE = 4
+"""A local cluster has at most this many worker processes per core this process may use: each
+imports JAX and holds its own compiled programs (some 0.3 GB), and the fits are CPU-bound.
+(``--workers 10**20`` started processes until it was killed.)"""
+
+
+def check_local_workers(workers: int | None) -> None:
+    """``ValueError`` naming the limit where a local cluster of ``workers`` processes is not
+    started (below 1, or above :data:`LOCAL_WORKERS_PER_CORE` per usable core); None: one per core.
+
+    >>> check_local_workers(1)
+    >>> check_local_workers(10**20)  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    ValueError: workers = 100000000000000000000: a local cluster has at most ... worker processes ...
+    """
+    from .._io import usable_cores
+
+    if workers is None:
+        return
+    if workers < 1:
+        raise ValueError(f"workers must be ≥ 1, got {workers}")
+    cores = usable_cores()
+    if workers > LOCAL_WORKERS_PER_CORE * cores:
+        raise ValueError(f"workers = {workers}: a local cluster has at most {LOCAL_WORKERS_PER_CORE * cores} worker processes here "
+                         f"({LOCAL_WORKERS_PER_CORE} per core, {cores} core{'s' if cores != 1 else ''}; each process imports JAX and "
+                         "compiles its own programs); for more, start a cluster across machines and give its scheduler")
 
 
 def _quiet_logs():
@@ -51,8 +79,7 @@ def dask_client(client=None, *, workers: int | None = None, scheduler: str | Non
         with Client(address=scheduler_address(scheduler), timeout=CONNECT_TIMEOUT) as made:
             yield made
         return
-    if workers is not None and workers < 1:
-        raise ValueError(f"workers must be ≥ 1, got {workers}")
+    check_local_workers(workers)
     from .._io import on_interrupt
 
     with _sigint_ignored():  # the worker processes inherit it: Ctrl-C is the command's alone
