@@ -242,6 +242,10 @@ def test_negative_rgb_values_are_dropped_with_a_warning(tmp_path):
         (lambda raw, f: _rewritten(f, vndf=-f["vndf"]), r"field 'vndf' has negative values: it is a density"),
         (lambda raw, f: _rewritten(f, theta_i=np.concatenate([[-0.0174533], f["theta_i"][1:]]).astype(np.float32)),  # (an IndexError)
          r"field 'theta_i', index 0: -0.0174533 rad \(-1°\) is not an incident direction above the surface \(0 to π/2 rad\)"),
+        (lambda raw, f: _rewritten(f, vndf=np.concatenate([f["vndf"][:, :1], 0 * f["vndf"][:, 1:2], f["vndf"][:, 2:]], axis=1)),  # (an IndexError)
+         r"field 'vndf', slice \(phi_i 0, theta_i 1\) is 0 everywhere: a density that places no measured point"),
+        (lambda raw, f: _rewritten(f, sigma=0 * f["sigma"]),  # (values of inf, and NumPy's divide-by-zero warning)
+         r"field 'sigma' is 0 at the light of slice \(phi_i 0, theta_i 0\): a projected area that divides the values"),
         (lambda raw, f: _with_shape(raw, "rgb", (1, 2, 3, 2**31, 2**31)),  # 24 · 2⁶⁴ bytes: 0 in NumPy's int64 (a reshape error, no file named)
          r"truncated: field 'rgb' \(float32, shape \(1, 2, 3, 2147483648, 2147483648\)\) takes bytes \d+–110680464442257\d+, the file has"),
     ],

@@ -149,6 +149,10 @@ def _structure(fields: dict, path: str | os.PathLike[str]) -> dict:
     for name in ("ndf", "sigma", "vndf"):
         if np.any(f[name] < 0):
             raise DataError(f"field {name!r} has negative values: it is a density", path=path)
+    empty = np.argwhere(~np.any(f["vndf"] > 0, axis=(2, 3)))
+    if empty.size:  # (its normalisation divided by 0: an IndexError from a NaN index)
+        raise DataError(f"field 'vndf', slice (phi_i {empty[0][0]}, theta_i {empty[0][1]}) is 0 everywhere: a density that places no "
+                        "measured point", path=path)
     outside = np.flatnonzero((f["theta_i"] < 0) | (f["theta_i"] > np.pi / 2))
     if outside.size:  # (a negative one crashed the reader's look-up with an IndexError)
         v = float(f["theta_i"][outside[0]])
@@ -239,7 +243,7 @@ def _azimuth_seen(theta_i: float, phi_i: float) -> float:
     return 0.0 if theta_i == 0 else float(np.arctan2(np.sin(phi_i), np.cos(phi_i)))
 
 
-def _slice_points(f: dict, p: int, t: int, nodes: np.ndarray, isotropic: bool) -> tuple[Any, Any, np.ndarray, Any]:
+def _slice_points(f: dict, p: int, t: int, nodes: np.ndarray, isotropic: bool, path: str | os.PathLike[str]) -> tuple[Any, Any, np.ndarray, Any]:
     """The light (θ_i, φ_i), the viewers (N, 3) and the factor D/(4σ) (or 1) of one slice's nodes."""
     theta_i = float(f["theta_i"][t])
     phi_i = _azimuth_seen(theta_i, float(f["phi_i"][p]))
@@ -252,7 +256,11 @@ def _slice_points(f: dict, p: int, t: int, nodes: np.ndarray, isotropic: bool) -
     factor = np.ones(len(nodes))
     if f["jacobian"][0]:
         u_wi = np.array([[np.sqrt(theta_i * 2 / np.pi), (phi_i + np.pi) / (2 * np.pi)]])
-        factor = bilinear(f["ndf"], u_m) / (4 * bilinear(f["sigma"], u_wi))
+        area = float(bilinear(f["sigma"], u_wi)[0])
+        if area == 0:  # (the values came out infinite, with NumPy's divide-by-zero warning)
+            raise DataError(f"field 'sigma' is 0 at the light of slice (phi_i {p}, theta_i {t}): a projected area that divides the values",
+                            path=path)
+        factor = bilinear(f["ndf"], u_m) / (4 * area)
     return theta_i, phi_i, wo, factor
 
 
@@ -266,7 +274,7 @@ def _anisotropy_error(f: dict, path: str | os.PathLike[str]) -> DataError:
     )
 
 
-def _points(f: dict, isotropic: bool) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+def _points(f: dict, isotropic: bool, path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
     """Every kept node's angles (N, 4) in degrees, values (N, bands) in sr⁻¹, and the drop counts."""
     n_phi, n_theta, n_bands, n = f["values"].shape[:4]
     g = np.linspace(0.0, 1.0, n)
@@ -279,7 +287,7 @@ def _points(f: dict, isotropic: bool) -> tuple[np.ndarray, np.ndarray, dict[str,
             if f["theta_i"][t] == 0 and n_phi > 1 and abs(_azimuth_seen(1.0, float(f["phi_i"][p]))) > 1e-6:
                 counts["normal"] += 1  # the same light as the φ_i = 0 slice, where Mitsuba reads it
                 continue
-            theta_i, phi_i, wo, factor = _slice_points(f, p, t, nodes, isotropic)
+            theta_i, phi_i, wo, factor = _slice_points(f, p, t, nodes, isotropic, path)
             seen = valid[p, t].reshape(-1) & (wo[:, 2] >= MIN_COS) & (np.cos(theta_i) >= MIN_COS)
             counts["horizon"] += int(np.count_nonzero(valid[p, t].reshape(-1) & ~seen))
             wo = wo[seen]
@@ -319,7 +327,7 @@ def read_rgl(path: str | os.PathLike[str], *, anisotropic: bool = False) -> Meas
     isotropic = len(f["phi_i"]) <= 2
     if not isotropic and not anisotropic:
         raise _anisotropy_error(f, path)
-    angles, values, counts = _points(f, isotropic)
+    angles, values, counts = _points(f, isotropic, path)
     n_bands = values.shape[1]
     keep = values >= 0
     negative = int(np.count_nonzero(~keep))
