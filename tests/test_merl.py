@@ -130,6 +130,8 @@ def _header(dims):
         (_header((90, 90, 180)) + b"\0" * (3 * 90 * 90 * 180 * 8 + 1), r"too long: 34992013 bytes"),
         (_header((90, 90, 180)) + np.r_[np.zeros(1458000 + 7), np.inf, np.zeros(2 * 1458000 - 8)].tobytes(),
          r"G table, cell \(0, 0, 7\) \(byte offset 11664068\): inf is not a finite number"),
+        (_header((90, 90, 180)) + np.full(3 * 1458000, -1.0).tobytes(),
+         r"no measured value: every cell is unmeasured \(negative\) or has the light or the viewer below the horizon"),
     ],
 )  # fmt: skip
 def test_bad_files_raise(tmp_path, content, pattern):

@@ -302,6 +302,8 @@ def read_merl(path: str | os.PathLike[str]) -> Measurement:
     measured = table.T >= 0  # (cells, 3)
     keep = measured & above[:, None]
     cells = np.flatnonzero(keep.any(axis=1))  # the direction pairs, in file order
+    if cells.size == 0:  # (read as 0 samples: 'no samples to write', '0 samples, 4 free parameters', the file unnamed or unexplained)
+        raise DataError("no measured value: every cell is unmeasured (negative) or has the light or the viewer below the horizon", path=path)
     pairs = angles[cells]
     del angles
     keep = keep[cells]
