@@ -101,6 +101,18 @@ def test_cli_writes_maps_and_pngs(texels, tmp_path):
     assert map_picture_files(tmp_path / "png") == sorted((tmp_path / "png").iterdir())  # every picture named: a rerun checks (and replaces) them
 
 
+def test_plot_of_a_texel_list_is_refused_before_any_work(texels, tmp_path):
+    """--plot of a store without an image layout: one error before any fit (the maps were fitted and
+    written, then the pictures refused with exit status 2)."""
+    geometry, values = texels
+    dataset(geometry, values.reshape(H * W, -1), ("texel",)).to_zarr(tmp_path / "in.zarr", consolidated=False)
+    got = CliRunner().invoke(app, ["fit", str(tmp_path / "in.zarr"), "-o", str(tmp_path / "maps.zarr"), "--workers", "1", "-q", "--no-diffuse",
+                                   "--lobes", "1", "--plot", str(tmp_path / "png")])
+    assert got.exit_code == 2 and got.output.count("error:") == 1, got.output
+    assert "is not an image (values dims ('texel', 'sample')); pictures of the maps need values dims (y, x, sample)" in got.output
+    assert not (tmp_path / "maps.zarr").exists() and not (tmp_path / "png").exists()
+
+
 @pytest.mark.slow
 def test_bad_texels_are_recorded_in_the_maps_and_the_rest_fitted(client, texels, tmp_path):
     """NaN, inf, all-zero, 1e300 and negative texels: status says why, their maps are NaN, the

@@ -121,9 +121,13 @@ def _check_texel_outputs(o) -> None:
     if inside or os.path.normpath(os.path.abspath(out)).startswith(os.path.normpath(os.path.abspath(data)) + os.sep):
         raise UserError(f"-o {out}: is inside the input {data}; write the maps to another store")
     if o.plot is not None:
-        from .._fitting import map_picture_files
+        from .._fitting import map_picture_files, read_texel_geometry
         from .._io import check_rerun_plot
 
+        dims = read_texel_geometry(data)[1]
+        if dims != ("y", "x"):  # (refused by the pictures, after every texel was fitted and the maps written)
+            raise UserError(f"--plot {o.plot}: {data} is not an image (values dims {(*dims, 'sample')}); pictures of the maps need values dims "
+                            "(y, x, sample): leave out --plot")
         check_output_folder(o.plot, "--plot")
         for png in map_picture_files(o.plot):  # names ctfit chooses: only its own pictures are replaced
             check_rerun_plot(png)
