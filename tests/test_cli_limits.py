@@ -47,12 +47,19 @@ def test_a_wavelength_range_never_passes_stop(tmp_path, text, last, count):
     assert data.n_bands == count and data.wavelength_nm.max() == pytest.approx(last)
 
 
-def test_a_material_of_unknown_band_is_not_simulated_into_31_bands(tmp_path):
+def test_a_material_of_unknown_band_is_simulated_in_its_one_band_not_31(tmp_path):
+    """The CSV says '# band: unknown' (as eval's does) and reads back so; it was refused ('a measurement
+    CSV gives every sample a wavelength or a channel'), and before that simulated into 31 bands."""
     mat = ctfit.Material(ctfit.Structure(lobes=1, diffuse=None), ctfit.Params(m=np.array([0.3]), w=np.ones(1), f0=np.array([0.5])),
                          wavelength_nm=np.array([550.0]), band_unknown=True, name="alta fit")
     ctfit.save_material_json(mat, tmp_path / "u.json")
-    refused(run("simulate", tmp_path / "u.json", "-o", tmp_path / "u.csv", "--samples", 3), "unknown wavelength")
-    assert not (tmp_path / "u.csv").exists()
+    r = run("simulate", tmp_path / "u.json", "-o", tmp_path / "u.csv", "--samples", 3)
+    assert r.exit_code == 0, r.output
+    back = ctfit.read_csv(tmp_path / "u.csv")
+    assert back.band_unknown and back.band_labels == ["unknown band"] and len(back) == 3
+    np.testing.assert_allclose(back.brdf, ctfit.evaluate(mat, back), rtol=1e-12)
+    refused(run("simulate", tmp_path / "u.json", "-o", tmp_path / "w.csv", "--samples", 3, "--wavelengths", "500"), "unknown wavelength", "--wavelengths")
+    assert not (tmp_path / "w.csv").exists()
     data = ctfit.simulate(mat, 4)  # in memory: the one band, still unknown
     assert data.band_unknown and data.band_labels == ["unknown band"] and len(data) == 4
     with pytest.raises(ValueError, match="wavelength_nm"):

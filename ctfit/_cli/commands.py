@@ -114,9 +114,9 @@ def simulate(
         from .._model import simulate as sim
 
         mat = load_material_file(material)
-        if mat.band_unknown:
-            raise UserError(f"{material}: the material has one band of unknown wavelength (band_unknown: a fit of single-band data "
-                            "such as an ALTA file); a measurement CSV gives every sample a wavelength or a channel, so it cannot be simulated")
+        if mat.band_unknown and wavelengths is not None:
+            raise UserError(f"{material}: the material has one band of unknown wavelength (band_unknown: a fit of single-band data such as "
+                            "an ALTA file); it has no values at --wavelengths: leave the option out (the CSV then says '# band: unknown')")
         meas = sim(mat, samples, wavelength_nm=parse_wavelengths(wavelengths), noise=noise, seed=seed, max_theta=max_theta)
         meta = dict(meas.meta, material=str(material))
         write_csv(meas.replace(meta=meta), output)
