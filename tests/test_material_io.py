@@ -223,10 +223,17 @@ def test_read_optical_constants(tmp_path):
     [
         ("wavelength_nm,n\n500,1\n", r"t\.csv:1: header lacks column\(s\) \['k'\]"),
         ("wavelength_nm,n,k\n500,1\n", r"t\.csv:2: 2 values, header has 3"),
-        ("wavelength_nm,n,k\n500,1,x\n", r"t\.csv:2: not a number"),
+        ("wavelength_nm,n,k\n500,1,x\n", r"t\.csv:2: column 'k' \(3\): 'x' is not a number"),
         ("wavelength_nm,n,k\n", r"t\.csv: no data rows"),
-        ("wavelength_nm,n,k\n600,1,2\n500,1,2\n", "strictly increasing"),
-        ("wavelength_nm,n,k\n600,nan,2\n", "finite"),
+        ("wavelength_nm,n,k\n600,1,2\n# note\n500,1,2\n", r"t\.csv:4: column 'wavelength_nm' \(1\): 500 is not above the row before's: wavelengths must be "
+                                                          "strictly increasing"),
+        ("wavelength_nm,n,k\n600,nan,2\n", r"t\.csv:2: column 'n' \(2\): nan is not a finite number"),
+        # Values a material file refuses were read here (F0 = 2.08 of n = −1.2, k = 2.1):
+        ("wavelength_nm,n,k\n500,1,2\n600,-1.2,2.1\n", r"t\.csv:3: column 'n' \(2\): -1.2 is negative \(a refractive index is ≥ 0\)"),
+        ("wavelength_nm,n,k\n500,1,-2\n", r"t\.csv:2: column 'k' \(3\): -2 is negative \(an extinction coefficient is ≥ 0\)"),
+        ("wavelength_nm,n,k\n0,1,2\n600,1,2\n", r"t\.csv:2: column 'wavelength_nm' \(1\): 0 is not a wavelength \(a positive number of nm\)"),
+        ("wavelength_nm,n,k,F0\n500,1.2,2.1,0.9\n",
+         r"t\.csv:2: column 'F0' \(4\): 0.9 is not \(\(n − 1\)² \+ k²\)/\(\(n \+ 1\)² \+ k²\) of its n and k \(0.481081\)"),
     ],
 )
 def test_read_optical_constants_errors(tmp_path, text, match):

@@ -76,11 +76,12 @@ def _bundled_table(name: str) -> Any:
     return resource
 
 
-def _parse(path: str | os.PathLike[str], lines: list[str]) -> tuple[dict, list[str], list[list[float]]]:
-    """``(meta, header, rows)`` of the table's lines."""
+def _parse(path: str | os.PathLike[str], lines: list[str]) -> tuple[dict, list[str], list[list[float]], list[int]]:
+    """``(meta, header, rows, row_lines)`` of the table's lines (``row_lines``: each row's 1-based line)."""
     meta: dict[str, str] = {}
     header: list[str] | None = None
     rows: list[list[float]] = []
+    row_lines: list[int] = []
     for lineno, line in enumerate(lines, 1):
         if not line.strip():
             continue
@@ -103,10 +104,47 @@ def _parse(path: str | os.PathLike[str], lines: list[str]) -> tuple[dict, list[s
         try:
             rows.append([float(c) for c in cells])
         except ValueError:
-            raise MaterialError(f"{path}:{lineno}: not a number in {quote(line)}") from None
+            j = next(j for j, c in enumerate(cells) if not _is_float(c))
+            raise MaterialError(f"{path}:{lineno}: column {quote(header[j])} ({j + 1}): {quote(cells[j])} is not a number") from None
+        row_lines.append(lineno)
     if header is None or not rows:  # (no header: no rows either)
         raise MaterialError(f"{path}: no data rows")
-    return meta, header, rows
+    return meta, header, rows, row_lines
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+_F0_TOLERANCE = 1e-4
+"""How far a table's F0 column may be from ((n − 1)² + k²)/((n + 1)² + k²) (the tables that ship
+with ctfit round each column to 6 decimals)."""
+
+
+def _check_values(path: Any, header: list[str], table: np.ndarray, row_lines: list[int]) -> None:
+    """The first value that breaks the table's rules, named by line and column: every number finite,
+    wavelengths positive and strictly increasing, n and k ≥ 0, F0 the normal reflectance of n + i k.
+    (A negative n, a negative k or a wavelength of 0 nm were read, and F0 = 2.1 from n = −1.2.)"""
+    with np.errstate(invalid="ignore", over="ignore"):
+        computed = f0_from_nk(table[:, header.index("n")], table[:, header.index("k")])
+    rules = [(name, "is not a finite number", lambda v: ~np.isfinite(v)) for name in header]
+    rules += [("wavelength_nm", "is not a wavelength (a positive number of nm)", lambda v: v <= 0),
+              ("wavelength_nm", "is not above the row before's: wavelengths must be strictly increasing",
+               lambda v: np.r_[False, np.diff(v) <= 0]),
+              ("n", "is negative (a refractive index is ≥ 0)", lambda v: v < 0), ("k", "is negative (an extinction coefficient is ≥ 0)", lambda v: v < 0)]
+    if "F0" in header:
+        rules.append(("F0", "is not ((n − 1)² + k²)/((n + 1)² + k²) of its n and k", lambda v: ~(np.abs(v - computed) <= _F0_TOLERANCE)))
+    for name, why, bad in rules:
+        j = header.index(name)
+        rows = np.flatnonzero(bad(table[:, j]))
+        if rows.size:
+            i = int(rows[0])
+            extra = f" ({computed[i]:.6g})" if name == "F0" else ""
+            raise MaterialError(f"{path}:{row_lines[i]}: column {quote(name)} ({j + 1}): {table[i, j]:g} {why}{extra}")
 
 
 def read_optical_constants(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -128,13 +166,10 @@ def read_optical_constants(path: str | os.PathLike[str]) -> dict[str, Any]:
     'Gold (Au)'
     """
     path = _bundled_table(str(path)) if is_table_name(path) else pathlib.Path(path)
-    meta, header, rows = _parse(path, read_material_text(path).splitlines())
+    meta, header, rows, row_lines = _parse(path, read_material_text(path).splitlines())
     table = np.asarray(rows, dtype=float)
+    _check_values(path, header, table, row_lines)
     out: dict = {name: table[:, header.index(name)] for name in ("wavelength_nm", "n", "k")}
     out["F0"] = table[:, header.index("F0")] if "F0" in header else f0_from_nk(out["n"], out["k"])
-    if not np.all(np.isfinite(table)):
-        raise MaterialError(f"{path}: values must be finite")
-    if np.any(np.diff(out["wavelength_nm"]) <= 0):
-        raise MaterialError(f"{path}: wavelength_nm must be strictly increasing")
     out["meta"] = meta
     return out
