@@ -77,6 +77,15 @@ def test_flags_show_as_flags_in_help(command):
     assert not re.search(r"<bool>|BOOLEAN", r.stdout, flags=re.I), r.stdout
 
 
+@pytest.mark.parametrize("command", ["eval", "fit", "sample"])
+def test_param_out_help_names_every_unit_it_takes(command):
+    """RGB_COLOR was taken (a #DIM 1 3 file without #PARAM_OUT) but not named in the help."""
+    from ctfit._cli.inputs import PARAM_OUT_UNITS
+
+    text = " ".join(CliRunner().invoke(app, [command, "--help"], terminal_width=200).stdout.split())
+    assert all(unit in text.split("--param-out", 1)[1] for unit in PARAM_OUT_UNITS), text
+
+
 def test_fit_help_lists_each_flag_without_a_value():
     text = CliRunner().invoke(app, ["fit", "--help"]).stdout
     for flag in ("--json", "--float32", "--sample", "--resume", "--quiet", "--no-diffuse"):

@@ -74,7 +74,8 @@ def check_param_out(param_out: str | None) -> None:
 PARAM_OUT_UNITS = ("INV_STERADIAN", "INV_STERADIAN_COSINE_FACTOR", "RGB_COLOR")  # the ALTA reader's (ctfit._io.alta.PARAM_OUT)
 
 
-PARAM_OUT_HELP = "ALTA files without a #PARAM_OUT line: the unit of their values (INV_STERADIAN or INV_STERADIAN_COSINE_FACTOR)."
+PARAM_OUT_HELP = ("ALTA files without a #PARAM_OUT line: the unit of their values (INV_STERADIAN or INV_STERADIAN_COSINE_FACTOR; "
+                  "RGB_COLOR for three values a line, R, G, B in sr⁻¹).")
 
 
 WAVELENGTHS_HELP = ("START:STOP:STEP (START, START+STEP, … up to STOP, never past it: 400:700:7 ends at 694) or a "
