@@ -58,3 +58,44 @@ def test_sample_names_data_that_is_not_a_measurement():
                           wavelength_nm=np.array([450.0, 650.0]))
     with pytest.raises(TypeError, match="data must be a ctfit.Measurement"):
         ctfit.sample(gold, "data.csv", steps=2)
+
+
+def per_pair(**changes):
+    """Three samples, their angles held per direction pair: the first pair in two bands, the second in one."""
+    base = dict(band=np.array([0, 1, 0]), wavelength_nm=np.array([450.0, 650.0]), brdf=np.array([1.0, 2.0, 3.0]))
+    pairs = changes.pop("pairs", np.array([[30.0, 0, 30, 180], [40, 0, 40, 180]]))
+    return ctfit.Measurement.from_direction_pairs(pairs, changes.pop("index", np.array([0, 0, 1])), **{**base, **changes})
+
+
+@pytest.mark.parametrize("changes, words", [
+    (dict(pairs=np.array([[30.0, 0, 30, 180], [40, 0, 120, 180]])), "theta_o[2]: 120.0 is outside [0, 90] degrees"),  # the first sample of that pair
+    (dict(pairs=np.array([[30.0, 0, 30, 180], [40, np.nan, 40, 180]])), "phi_i[2]: NaN is not allowed"),
+    (dict(index=np.array([0, 2, 1])), "index must point into the 2 direction pairs"),
+    (dict(index=np.array([0, 1])), "theta_i has 2"),
+    (dict(brdf=np.array([1.0, -2.0, 3.0])), "brdf[1]: -2.0 is negative"),
+])
+def test_a_measurement_held_per_pair_refuses_the_same(changes, words):
+    with pytest.raises(ValueError) as caught:
+        per_pair(**changes)
+    assert words in str(caught.value)
+
+
+def test_angles_held_per_pair_are_gathered_only_when_read():
+    """``from_direction_pairs`` (a MERL table's reader): the samples' angles are not held until a
+    field is read, through ``replace``, a copy, a pickle and a fit; read, they are what the
+    constructor holds."""
+    import copy
+    import pickle
+
+    m = per_pair()
+    held = [m, m.replace(source="other"), copy.copy(m), pickle.loads(pickle.dumps(m))]
+    ctfit.fit(m, ctfit.Structure(lobes=1, diffuse=None), starts=1)
+    assert len(m) == 3 and not m.repeats
+    for each in held:
+        assert not {"theta_i", "phi_i", "theta_o", "phi_o"} & vars(each).keys()
+        np.testing.assert_array_equal(each.directions()[0], [[30.0, 0, 30, 180], [40, 0, 40, 180]])
+    expected = measurement(theta_i=np.array([30.0, 30.0, 40.0]), theta_o=np.array([30.0, 30.0, 40.0]))
+    for name in ("theta_i", "phi_i", "theta_o", "phi_o"):
+        np.testing.assert_array_equal(getattr(m, name), getattr(expected, name))
+        assert getattr(m, name) is getattr(m, name)  # kept once read
+    assert m.replace(theta_i=np.array([50.0, 40.0, 30.0])).directions()[0].tolist()[-1] == [50.0, 0.0, 30.0, 180.0]  # new angles: found by search

@@ -77,8 +77,21 @@ def invalid_value(name: str, values: ArrayLike) -> tuple[int, str] | None:
     return found
 
 
-def _real_column(m: Measurement, name: str) -> np.ndarray:
-    a = getattr(m, name)
+ANGLES = ("theta_i", "phi_i", "theta_o", "phi_o")
+"""The per-sample angle fields of a :class:`Measurement`, in the column order of its direction pairs."""
+
+
+def _held(m: Measurement, name: str) -> tuple[Any, np.ndarray | None]:
+    """A field of ``m`` as it is held: ``(value, None)``, or for an angle held per direction pair
+    (:meth:`Measurement.from_direction_pairs`, not read yet) the pairs' column and each sample's
+    pair index, so that a check does not gather it per sample."""
+    if name in ANGLES and name not in m.__dict__:
+        pairs, index = m.__dict__["_directions"]
+        return pairs[:, ANGLES.index(name)], index
+    return getattr(m, name), None
+
+
+def _real_column(m: Measurement, name: str, a: Any) -> np.ndarray:
     kind = np.asarray(a).dtype.kind
     if kind not in "biuf" or np.ndim(a) != 1:
         raise TypeError(f"Measurement {m.source}: {name} must be a 1-D array of real numbers, got {np.asarray(a).dtype} of shape {np.shape(a)}")
@@ -89,9 +102,12 @@ def check_samples(m: Measurement) -> None:
     """Raise (naming the field and the row) unless ``m``'s samples are what every reader
     returns: real numbers of the right domain (:func:`invalid_value`), band indices into its
     bands, positive increasing wavelengths. ``TypeError`` for a wrong kind, ``ValueError`` for a value."""
-    for name in ("theta_i", "phi_i", "theta_o", "phi_o", "brdf", "sigma"):
-        if getattr(m, name) is not None:
-            found = invalid_value(name, _real_column(m, name))
+    for name in (*ANGLES, "brdf", "sigma"):
+        values, index = _held(m, name)
+        if values is not None:
+            found = invalid_value(name, _real_column(m, name, values))
+            if found is not None and index is not None:  # a direction pair's value: the first sample of such a pair
+                found = invalid_value(name, values[index])
             if found is not None:
                 raise ValueError(f"Measurement {m.source}: {name}[{found[0]}]: {found[1]}")
     band = np.asarray(m.band)
@@ -103,7 +119,7 @@ def check_samples(m: Measurement) -> None:
         raise ValueError(f"Measurement {m.source}: band[{row}] = {int(band[row])} is not a band index: the data has {m.n_bands} "
                          f"band{'s' if m.n_bands != 1 else ''} (0..{m.n_bands - 1})")
     if m.wavelength_nm is not None:
-        wl = _real_column(m, "wavelength_nm")
+        wl = _real_column(m, "wavelength_nm", m.wavelength_nm)
         found = invalid_value("wavelength_nm", wl)
         if found is None and np.any(np.diff(np.asarray(wl, dtype=float)) <= 0):
             found = (int(np.argmax(np.diff(np.asarray(wl, dtype=float)) <= 0)) + 1, "the wavelengths must be strictly increasing")
@@ -125,7 +141,8 @@ def band_labels(wavelength_nm: Sequence[float] | np.ndarray | None, channels: Se
 class Measurement:
     """BRDF samples.
 
-    - ``theta_i, phi_i, theta_o, phi_o``: float arrays (N,), degrees (φ already taken modulo 360).
+    - ``theta_i, phi_i, theta_o, phi_o``: float arrays (N,), degrees (φ already taken modulo 360);
+      held per direction pair, and gathered when first read, by :meth:`from_direction_pairs`.
     - ``band``: int array (N,), index into ``wavelength_nm`` (spectral) or ``channels`` (RGB).
     - ``wavelength_nm``: float array (W,), ascending, or None; ``channels``: e.g. ("R", "G", "B")
       or None. Exactly one of the two is set.
@@ -169,15 +186,46 @@ class Measurement:
             raise ValueError("a Measurement has either wavelength_nm or channels, not both or neither")
         if self.band_unknown and self.n_bands != 1:
             raise ValueError(f"band_unknown is for single-band data; this one has {self.n_bands} bands")
-        n = len(self.theta_i)
-        for name in ("phi_i", "theta_o", "phi_o", "band", "brdf", "sigma"):
-            a = getattr(self, name)
-            if a is not None and len(a) != n:
-                raise ValueError(f"{name} has {len(a)} entries, theta_i has {n}")
+        lengths = {name: (None if a is None else len(a if index is None else index))
+                   for name in (*ANGLES, "band", "brdf", "sigma") for a, index in [_held(self, name)]}
+        n = lengths["theta_i"]
+        for name, size in lengths.items():
+            if size is not None and size != n:
+                raise ValueError(f"{name} has {size} entries, theta_i has {n}")
         check_samples(self)
 
     def __len__(self) -> int:
-        return len(self.theta_i)
+        return len(self.band)  # (as long as every column: __post_init__), and held even where the angles are not
+
+    @classmethod
+    def from_direction_pairs(cls, pairs: Float[ArrayLike, "pairs 4"], index: Int[ArrayLike, " samples"], **fields: Any) -> Measurement:
+        """A measurement whose samples' angles are ``pairs[index]``, held per direction pair: for
+        readers that know their pairs (a MERL table's cells). ``pairs`` (D, 4) as (θ_i, φ_i, θ_o,
+        φ_o) in degrees, unique; ``index`` (N,) integers (int32 halves its memory); ``fields``
+        the other fields, as :class:`Measurement` takes them (``band`` and the bands at least).
+
+        :meth:`directions` returns ``pairs`` and ``index`` with no search, and each of ``theta_i``,
+        ``phi_i``, ``theta_o``, ``phi_o`` is gathered per sample when first read (and then kept):
+        a fit, which works per pair, reads none of them, so a MERL table's fit does not hold their
+        105 MB. Otherwise the measurement is what the constructor with those angles gives.
+
+        Examples
+        --------
+        >>> import numpy as np, ctfit
+        >>> m = ctfit.Measurement.from_direction_pairs(np.array([[30.0, 0, 30, 180], [45, 0, 45, 180]]), np.array([0, 0, 1, 1]),
+        ...                                            band=np.array([0, 1, 0, 1]), channels=("R", "G"), brdf=np.array([0.8, 0.9, 0.5, 0.6]))
+        >>> len(m), m.directions()[1].tolist(), m.theta_i.tolist()
+        (4, [0, 0, 1, 1], [30.0, 30.0, 45.0, 45.0])
+        """
+        pairs, index = np.asarray(pairs, dtype=np.float64), np.asarray(index)
+        if pairs.ndim != 2 or pairs.shape[1] != 4 or index.ndim != 1 or not np.issubdtype(index.dtype, np.integer):
+            raise ValueError(f"pairs must have shape (D, 4) and index (N,) integers; got {pairs.shape} and {index.shape} {index.dtype}")
+        if len(index) and (int(index.min()) < 0 or int(index.max()) >= len(pairs)):
+            raise ValueError(f"index must point into the {len(pairs)} direction pairs; its values are {int(index.min())}..{int(index.max())}")
+        pairs.setflags(write=False)
+        index.setflags(write=False)
+        held = _PerPair(pairs, index)
+        return cls(theta_i=held, phi_i=held, theta_o=held, phi_o=held, **fields)  # type: ignore[arg-type]
 
     @property
     def n_bands(self) -> int:
@@ -271,11 +319,54 @@ class Measurement:
         return lines[0] + int(row), lines[1][column]
 
     def replace(self, **changes: Any) -> Measurement:
-        """A copy with ``changes``; it keeps the direction pairs found already when the angles stay,
-        and the samples' lines in their file (:meth:`with_lines`) when no sample's value changes."""
-        new = dataclasses.replace(self, **changes)
-        if "_directions" in self.__dict__ and not changes.keys() & {"theta_i", "phi_i", "theta_o", "phi_o"}:
+        """A copy with ``changes``; it keeps the direction pairs found already when the angles stay
+        (and angles held per pair, :meth:`from_direction_pairs`, held so), and the samples' lines in
+        their file (:meth:`with_lines`) when no sample's value changes."""
+        if not changes.keys() & set(ANGLES) and any(name not in self.__dict__ for name in ANGLES):
+            fields = {f.name: self.__dict__[f.name] for f in dataclasses.fields(self) if f.name not in ANGLES}
+            new = type(self).from_direction_pairs(*self._directions, **{**fields, **changes})
+        else:
+            new = dataclasses.replace(self, **changes)
+        if "_directions" in self.__dict__ and not changes.keys() & set(ANGLES):
             new.__dict__["_directions"] = self.__dict__["_directions"]
         if "_lines" in self.__dict__ and not changes.keys() & {"theta_i", "phi_i", "theta_o", "phi_o", "band", "brdf", "sigma"}:
             new.__dict__["_lines"] = self.__dict__["_lines"]
         return new
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class _PerPair:
+    """What :meth:`Measurement.from_direction_pairs` gives the constructor for each angle: the
+    direction pairs and each sample's pair, which the measurement holds instead of the angle."""
+
+    pairs: np.ndarray
+    index: np.ndarray
+
+
+class _Angle:
+    """The descriptor of a per-sample angle of :class:`Measurement` (``theta_i`` ...): the array
+    it was given, or, held per direction pair (:class:`_PerPair`), that pair column gathered per
+    sample on first read and kept."""
+
+    def __init__(self, name: str) -> None:
+        self.name, self.column = name, ANGLES.index(name)
+
+    def __get__(self, obj: Measurement | None, owner: type | None = None) -> Any:
+        if obj is None:
+            return self
+        held = obj.__dict__
+        if self.name not in held:
+            pairs, index = held["_directions"]
+            held[self.name] = pairs[index, self.column]  # (another thread reading it at once gathers the same values)
+        return held[self.name]
+
+    def __set__(self, obj: Measurement, value: Any) -> None:
+        if isinstance(value, _PerPair):
+            obj.__dict__["_directions"] = (value.pairs, value.index)
+        else:
+            obj.__dict__[self.name] = value
+
+
+for _name in ANGLES:  # set after the dataclass is made: a class attribute there would be the field's default
+    setattr(Measurement, _name, _Angle(_name))
+del _name
