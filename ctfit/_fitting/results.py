@@ -121,7 +121,9 @@ def quality_line(quality: dict) -> str:
         return "–" if x is None else f"{x:.1%}"
 
     regions = ", ".join(f"{name.replace('_', '-')} {pct(r['median_relative_error'])}" for name, r in quality["regions"].items() if r["samples"])
-    return (f"relative error |f − y|/y: median {pct(quality['median_relative_error'])}, 90th percentile "
+    below = quality.get("below_sigma")
+    what = f"|f − y|/y (leaving out {below:,} values below their σ, met within σ)" if below else "|f − y|/y"
+    return (f"relative error {what}: median {pct(quality['median_relative_error'])}, 90th percentile "
             f"{pct(quality['p90_relative_error'])} (medians: {regions})")
 
 
