@@ -28,7 +28,8 @@ limit, parameters at a bound, singular JᵀJ), and those reported as converged b
 (relative RMS) from the truth.
 
 The model itself is also evaluated at the extremes (m from 1e-4 to 3, θ up to 90°, F0 from 0
-to 1, both dtypes), values and gradients with respect to every parameter; that is tested in
+to 1, a conductor's n or k up to the dtype's largest value, both dtypes), values and gradients
+with respect to every parameter; that is tested in
 ``tests/test_stability.py`` and only counted here (not with ``--small``).
 
 ``--small`` runs the cases that share one compiled fit per dtype (one lobe, effective index:
@@ -332,14 +333,20 @@ def model_extremes(dtype_name: str) -> dict:
     thetas = np.array([0.0, 1e-6, 30.0, 60.0, 85.0, 89.9, 90.0])
     ti, to, dp = (x.ravel() for x in np.meshgrid(thetas, thetas, [180.0, 0.0, 90.0], indexing="ij"))
     geom = ctfit.geometry_from_angles_deg(*(jnp.asarray(a, dtype) for a in (ti, np.zeros_like(ti), to, dp)))
-    f0 = jnp.asarray([0.0, 1e-8, 1e-6, 0.04, 0.5, 0.98, 1 - 1e-6, 1.0], dtype)
+    fresnel = dict(f0=jnp.asarray([0.0, 1e-8, 1e-6, 0.04, 0.5, 0.98, 1 - 1e-6, 1.0], dtype))
+    # A conductor's n or k far beyond any material's, up to the dtype's largest value.
+    huge = [1e7, 1e9, 1e20, 3.4e38] if dtype_name == "float32" else [1e20, 1e80, 1e155, 1e300]
+    conductor = dict(n=jnp.asarray(huge + [1.0] * len(huge), dtype), k=jnp.asarray([0.0] * len(huge) + huge, dtype))
     ms = jnp.asarray([1e-4, 1e-3, 0.00935, 0.1, 1.0, 3.0], dtype)
     counts = dict(values=0, gradients=0, nonfinite_values=0, nonfinite_gradients=0)
-    for structure in (ctfit.Structure(lobes=1, diffuse="spectrum"), ctfit.Structure(lobes=1, geometry="smith", distribution="gaussian", diffuse="spectrum")):
+    for structure, bands in ((ctfit.Structure(lobes=1, diffuse="spectrum"), fresnel),
+                             (ctfit.Structure(lobes=1, geometry="smith", distribution="gaussian", diffuse="spectrum"), fresnel),
+                             (ctfit.Structure(lobes=1, geometry="smith", fresnel="conductor", diffuse="spectrum"), conductor)):
+        nb = len(next(iter(bands.values())))
 
         @jax.jit
-        def one(m, st=structure):
-            p = ctfit.Params(s=jnp.asarray(0.7, dtype), m=m[None], w=jnp.ones(1, dtype), f0=f0, rd=jnp.full(f0.shape, 0.05, dtype))
+        def one(m, st=structure, bands=bands, nb=nb):
+            p = ctfit.Params(s=jnp.asarray(0.7, dtype), m=m[None], w=jnp.ones(1, dtype), rd=jnp.full(nb, 0.05, dtype), **bands)
             (_, vals), grads = jax.value_and_grad(lambda q: (jnp.sum(ctfit.brdf(st, q, geom)), ctfit.brdf(st, q, geom)), has_aux=True)(p)
             return vals, grads
 
@@ -465,7 +472,8 @@ def report(rows: list[dict], extremes: dict, *, small: bool, elapsed: float) -> 
         lines += [
             "",
             "The model itself at the extremes (m from 1e-4 to 3, θ_i, θ_o up to 90° in the mirror, retro and 90° planes, "
-            "F0 from 0 to 1; Beckmann/V-cavity and Gaussian/Smith with a diffuse spectrum), values and gradients with respect "
+            "F0 from 0 to 1; Beckmann/V-cavity and Gaussian/Smith with a diffuse spectrum; and a conductor, Beckmann/Smith, "
+            "with n or k up to 3.4e38 in float32 and 1e300 in float64), values and gradients with respect "
             "to every parameter: "
             + "; ".join(f"{d}: {e['values']} values, {e['gradients']} gradient entries, {e['nonfinite_values'] + e['nonfinite_gradients']} "
                         "non-finite" for d, e in extremes.items())

@@ -9,6 +9,7 @@ unpolarised 0.0502; at Brewster's angle θ_B = arctan 1.5 = 56.31° R_p = 0, R_s
 
 import jax
 import jax.numpy as jnp
+import mpmath
 import numpy as np
 import pytest
 from helpers import mp_fresnel_conductor, mp_fresnel_dielectric, mp_fresnel_dielectric_f0
@@ -289,6 +290,45 @@ def test_derivative_in_f0_is_the_formula_s_up_to_f0_one(c):
     grad = jax.grad(lambda f0: ctfit.fresnel_dielectric_f0(jnp.asarray(c), f0))
     for at, inside in ((1.0, 1.0 - 1e-9), (0.0, 1e-20)):
         assert float(grad(jnp.asarray(at))) == pytest.approx(float(grad(jnp.asarray(inside))), rel=1e-5), at
+
+
+def _mp_log_derivatives(c, n, k, dps=160):
+    """(n ∂F/∂n, k ∂F/∂k) of the complex-amplitude formula (as :func:`helpers.mp_fresnel_conductor`)
+    by central differences at ``dps`` digits, for n, k up to ~10⁶⁰."""
+    with mpmath.workdps(dps):
+        c_ = mpmath.mpf(float(c))
+        s2 = 1 - c_ * c_
+
+        def f(n_, k_):
+            eta = mpmath.mpc(n_, k_)
+            eta_ct = mpmath.sqrt(eta * eta - s2)
+            ct = eta_ct / eta
+            return (abs((c_ - eta_ct) / (c_ + eta_ct)) ** 2 + abs((eta * c_ - ct) / (eta * c_ + ct)) ** 2) / 2
+
+        n_, k_ = mpmath.mpf(float(n)), mpmath.mpf(float(k))
+        h = mpmath.mpf(10) ** -40 * max(n_, k_, 1)
+        return float(n_ * (f(n_ + h, k_) - f(n_ - h, k_)) / (2 * h)), float(k_ * (f(n_, k_ + h) - f(n_, k_ - h)) / (2 * h))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_derivatives_at_huge_indices_are_the_formula_s(dtype):
+    """n ∂F/∂n and k ∂F/∂k of a conductor, in reverse and in forward mode, within 16 ε of the
+    formula's for n, k from 10³ to 10⁸ (float32) or 10⁶⁰ (float64), c from 10⁻³ to 1. F is
+    evaluated there with n, k scaled down by a power of two; before, float32 gave n ∂F/∂n ≈ 2
+    at n = 10⁸ (the formula's: 4·10⁻⁸), its unscaled sums of n⁴-sized terms rounding it away, and
+    a large cotangent (R's, for a narrow lobe) overflowed the derivative to NaN in both dtypes."""
+    big = [1e3, 1e5, 1e7, 1e8] if dtype is np.float32 else [1e3, 1e5, 1e10, 1e20, 1e60]
+    c = [1.0, 0.5, 0.1, 1e-3]
+    n_big = np.meshgrid(c, big, [0.0, 1.0, 20.0, *big], indexing="ij")
+    k_big = np.meshgrid(c, [0.05, 1.0, 3.0], big, indexing="ij")
+    cc, nn, kk = (np.concatenate([a.ravel(), b.ravel()]).astype(dtype) for a, b in zip(n_big, k_big))
+    ref = np.array([_mp_log_derivatives(*p) for p in zip(cc, nn, kk)])
+    grad = {"reverse": jax.grad, "forward": jax.jacfwd}
+    for mode, diff in grad.items():
+        dn, dk = (np.asarray(x, np.float64) for x in jax.jit(jax.vmap(diff(ctfit.fresnel_conductor, argnums=(1, 2))))(cc, nn, kk))
+        err = np.abs(np.stack([nn * dn, np.where(kk > 0, kk, 1) * dk], 1) - ref) / np.finfo(dtype).eps
+        i = err.max(1).argmax()
+        assert err.max() <= 16, (mode, err.max(), cc[i], nn[i], kk[i])
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

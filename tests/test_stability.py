@@ -185,6 +185,49 @@ def test_float32_grazing_values_and_derivatives_finite(st):
         _check(vals, f, forward, horizon, f"{_sid(st)} float32 m={m} forward")
 
 
+# --------------------------------------------------------------------------- huge indices
+
+# A conductor's n or k far beyond any material's (up to the dtype's largest), and a dielectric's n
+# far below 1: per band, with every one of the other (0.05, 1, 3) in the other index.
+HUGE = {"float32": [1e7, 1e9, 1e20, 3.4e38], "float64": [1e80, 1e155, 1e300, 1.7e308]}
+TINY_N = {"float32": [1e-5, 1e-8, 1e-20, 1e-38], "float64": [1e-5, 1e-100, 1e-200, 1e-300]}
+HUGE_THETAS = [0.0, 1e-6, 45.0, 89.9, 89.9999, 90 - 1e-5, 90.0]
+HUGE_STRUCTURES = [
+    Structure(lobes=1, geometry="smith", fresnel="conductor", diffuse="spectrum"),
+    Structure(lobes=1, distribution="gaussian", geometry="v-cavity", fresnel="conductor"),
+    Structure(lobes=1, geometry="smith", fresnel="n", diffuse="spectrum"),
+]
+
+
+@pytest.mark.parametrize("dtype", DTYPES, ids=["float32", "float64"])
+@pytest.mark.parametrize("st", HUGE_STRUCTURES, ids=_sid)
+def test_huge_indices_values_and_derivatives_finite(st, dtype):
+    """n or k of a conductor up to the dtype's largest value, n of a dielectric down to its least,
+    m down to 1e-6: values, F and every derivative finite, in reverse and in forward mode.
+
+    Caught: dR/dn and dR/dk = NaN in reverse mode for a conductor's n or k ≥ 1e7 (float32, m =
+    1e-6; ≥ 1e9 for m ≤ 1e-2) or ≥ 1e76 (float64, m ≤ 1e-3); dR/dn = NaN for a dielectric's n ≤
+    1e-8 (float32, both modes) or ≤ 1e-100 (float64): F's intermediates grew as n⁴ (the squares of
+    n² + k² in R's derivative overflowed), fixed by evaluating F with n, k scaled down."""
+    name = jnp.dtype(dtype).name
+    l, v, horizon = _directions(dtype, HUGE_THETAS)
+    a = lambda x: jnp.asarray(np.asarray(x, np.float64), dtype)
+    if st.fresnel == "conductor":
+        pairs = [(h, o) for h in HUGE[name] for o in (0.0, 1.0, 3.0)] + [(o, h) for h in HUGE[name] for o in (0.05, 1.0, 3.0)]
+        bands = dict(n=a([p[0] for p in pairs]), k=a([p[1] for p in pairs]))
+    else:
+        bands = dict(n=a(TINY_N[name] + HUGE[name]))
+    nb = len(bands["n"])
+    if st.diffuse == "spectrum":
+        bands["rd"] = a(np.full(nb, 0.1))
+    if st.has_s:
+        bands["s"] = a(0.7)
+    for m in [1e-2, 1e-4, 1e-6]:
+        vals, f, grads, forward = _evaluate_both_modes(st, a(m), bands, l, v)
+        _check(vals, f, grads, horizon, f"{_sid(st)} {name} m={m} reverse")
+        _check(vals, f, forward, horizon, f"{_sid(st)} {name} m={m} forward")
+
+
 # --------------------------------------------------------------------------- hypothesis sweep
 
 HYP_STRUCTURES = [
@@ -253,5 +296,40 @@ def test_hypothesis_sweep(data, st_index, dtype):
     rd = arr(hs.floats(0, 1 / np.pi))
     a = lambda x: jnp.asarray(x, dtype)
     vals, f, grads = _evaluate_batch(st, a(ti), a(pi), a(to), a(pi + dphi), a(m), a(f0), a(n), a(k), a(s), a(rd))
+    horizon = (np.asarray(a(ti)) >= 90) | (np.asarray(a(to)) >= 90)
+    _check(np.asarray(vals)[:, None], np.asarray(f), grads, horizon, f"{_sid(st)} {jnp.dtype(dtype).name}")
+
+
+@settings(
+    max_examples=int(os.environ.get("CTFIT_HYPOTHESIS_EXAMPLES", "10")),
+    deadline=None,
+    database=None,
+    derandomize=os.environ.get("CTFIT_HYPOTHESIS_EXAMPLES") is None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+@given(data=hs.data(), fresnel=hs.sampled_from(["conductor", "n"]), dtype=hs.sampled_from(DTYPES))
+def test_hypothesis_huge_indices(data, fresnel, dtype):
+    """The hypothesis sweep's space with a conductor's n and k up to the dtype's largest value (10³
+    to 10³⁸ in float32, 10³⁰⁸ in float64) and a dielectric's n as far below 1, m down to 1e-6:
+    reverse-mode derivatives finite (they were NaN from n = 1e7 in float32, 1e76 in float64)."""
+    st = HYP_STRUCTURES[0] if fresnel == "conductor" else HUGE_STRUCTURES[2]
+    top = 38.5 if dtype == jnp.float32 else 308.2
+
+    def arr(elements):
+        return data.draw(hnp.arrays(np.float64, BATCH, elements=elements))
+
+    ti = arr(_angles(0, 90, [0.0, 1e-6, 89.9, 90 - 1e-5, 90.0]))
+    to = np.where(data.draw(hnp.arrays(np.bool_, BATCH)), ti, arr(_angles(0, 90, [0.0, 89.9, 90 - 1e-5])))
+    pi = arr(hs.floats(0, 360, allow_nan=False))
+    dphi = arr(_angles(-360, 360, [0.0, 180.0]))
+    m = 10 ** arr(hs.floats(-6, np.log10(3.0)))
+    if fresnel == "conductor":
+        n = 10 ** arr(hs.one_of(hs.floats(3, top), hs.floats(-1.3, 1)))
+        k = 10 ** arr(hs.one_of(hs.floats(3, top), hs.floats(-3, 1.3)))
+    else:
+        n, k = 10 ** -arr(hs.floats(3, top)), np.zeros(BATCH)
+    zero = np.zeros(BATCH)
+    a = lambda x: jnp.asarray(x, dtype)
+    vals, f, grads = _evaluate_batch(st, a(ti), a(pi), a(to), a(pi + dphi), a(m), a(zero), a(n), a(k), a(zero + 0.5), a(zero + 0.1))
     horizon = (np.asarray(a(ti)) >= 90) | (np.asarray(a(to)) >= 90)
     _check(np.asarray(vals)[:, None], np.asarray(f), grads, horizon, f"{_sid(st)} {jnp.dtype(dtype).name}")

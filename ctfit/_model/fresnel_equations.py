@@ -123,9 +123,22 @@ def _index_in_range(x: Any, xp: Any = jnp, *, low: bool = False) -> Any:
     3.4·10⁸ in float32), and with ``low``, at least its inverse. F of a larger index is then that
     of the bound, which is 1 (a perfect reflector) to within about 2/(n cos θ): in float64 never
     visible, in float32 below its rounding for cos θ > 0.05 and 0.6 % below 1 at cos θ = 10⁻⁶ (no
-    material has such an index). Without the clip n = 10²⁰⁰ squared to ∞ and F was NaN."""
+    material has such an index). Without the bound n = 10²⁰⁰ squared to ∞ and F was NaN. A
+    select, not a clip: a clip's derivative multiplies the cotangent by a 0/1 mask (0 · ∞ = NaN)."""
     big = float(np.finfo(xp.result_type(x, 1.0)).max) ** 0.25 / 4
-    return xp.clip(x, 1 / big if low else -big, big)
+    lower = 1 / big if low else -big
+    return xp.where(x > big, big, xp.where(x < lower, lower, x))
+
+
+def _inverse_scale(x: Any, xp: Any = jnp) -> Any:
+    """1/S for the size ``x`` of an index: S = 1 for x < 2¹⁰ (every material: the formulas as
+    written), else the power of two S = 2^e > x (frexp: x = μ 2^e, ½ ≤ μ < 1); a constant for
+    the derivative. Dividing by S is exact, so a formula of degree 0 in the quantities divided
+    gives the same value bit for bit, while none of its intermediates (or their derivatives)
+    grows with x."""
+    if xp is jnp:
+        x = jax.lax.stop_gradient(x)
+    return xp.where(x < 2.0**10, 1, xp.ldexp(xp.ones_like(x), -xp.frexp(x)[1]))
 
 
 def _clip_cos(c: ArrayLike, xp: Any = jnp) -> tuple[Array, Array]:
@@ -144,8 +157,11 @@ def _unit_interval(f: Array, xp: Any = jnp) -> Array:
     return f + jax.lax.stop_gradient(jnp.clip(f, 0, 1) - f)
 
 
-def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: bool = True, gcu_min: float = 0.0, xp: Any = jnp) -> Array:
-    """Unpolarised dielectric F from c = V·H, a = 1 − u², u = 1/n and ``scale`` = a².
+def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: bool = True, gcu_min: float = 0.0, inv_s: Any = 1.0,
+                xp: Any = jnp) -> Array:
+    """Unpolarised dielectric F from c = V·H, a = 1 − u², u = 1/n and ``scale`` = a², or from
+    u/S, a/S², scale/S⁴ with ``inv_s`` = 1/S (then G² = c²/S² + (1 − c²) a/S²: F's factors are
+    of degree 0 in (u, G) and unchanged; :func:`fresnel_dielectric` takes S ~ 1/n for n < 1).
 
     ``scale`` is passed separately so the F0 path can write it as 16 F0/(1 + r)⁴, exactly linear
     in F0. ``a`` may be negative (n < 1): then total internal reflection gives F = 1 where
@@ -166,7 +182,7 @@ def _dielectric(c: Array, a: Array, u: Array, scale: Array, *, tir_possible: boo
     c = xp.where(grazing, 1, c)
     s2 = xp.where(grazing, 0, s2)
     c2 = c * c
-    g2 = c2 + s2 * a
+    g2 = c2 * (inv_s * inv_s) + s2 * a
     if tir_possible:
         tir = g2 <= 0
         g = xp.sqrt(xp.where(tir, 1, g2))
@@ -242,14 +258,18 @@ def fresnel_dielectric(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#ba
     [0.04, 0.0502, 1.0]
     """
     index: Any = _index_in_range(xp.asarray(n), xp, low=True)
-    u = 1 / index
+    # For n < 2⁻¹⁰, u = 1/n and a = 1 − u² are taken divided by S > u and S² (exact: S a power
+    # of two); unscaled, a² ~ n⁻⁴ and its derivative overflowed (NaN in dR/dn: float32 n = 10⁻⁸,
+    # float64 n = 10⁻¹⁰⁰, held at 3·10⁻⁷⁷).
+    inv_s = _inverse_scale(1 / index, xp)
+    u = inv_s / index
     a = (index - 1) * (index + 1) * (u * u)
     # n = 1 (no interface, a = 0): F = a² · (…) = 0 and dF/dn = 2a a′ (…) = 0 (appendix formula:
     # (g − c)² = 0 with g = c). The bracket, evaluated at g = c, has a derivative ∝ 1/c⁶ near
     # grazing that overflowed float32 and met the factor a² = 0 in forward mode: NaN in dF/dn at
     # θ = 89.99999°. Double-where: the bracket takes the stand-in a = 1 there (finite with its
     # derivative), and the factor a² = 0 selects F = 0 and dF/dn = 0, the values of n = 1.
-    return _dielectric(xp.asarray(c), xp.where(a == 0, 1, a), u, a * a, xp=xp)
+    return _dielectric(xp.asarray(c), xp.where(a == 0, 1, a), u, a * a, inv_s=inv_s, xp=xp)
 
 
 def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#batch"], k: Float[ArrayLike, "*#batch"], *, xp: Any = jnp
@@ -270,6 +290,12 @@ def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#bat
     float32 near grazing with n ≈ 1, k ≈ 0). With k = 0 and n ≥ 1 this equals
     :func:`fresnel_dielectric`; at grazing (cos θ = 0) F = 1 unless n = 1, k = 0.
 
+    R_s and R_p are ratios of forms of equal degree in (a, b, cos θ) and in (a cos θ, b cos θ,
+    sin²θ): from max(|n| + 1, |k|) = 2¹⁰ on they are evaluated with n, k, a, b divided by a
+    power of two S above it (see :func:`_conductor_scaled`), exact, so F is unchanged bit for
+    bit while no intermediate of F or of its derivative grows with n or k (before, n = 10⁷ in
+    float32 or 10⁷⁶ in float64 overflowed R's reverse-mode derivative: NaN in dR/dn, dR/dk).
+
     >>> import numpy as np
     >>> c = np.cos(np.radians([0.0, 60.0, 90.0]))
     >>> [round(float(v), 4) for v in fresnel_conductor(c, 0.49366, 2.962441)]  # copper at 600 nm: F0 = 0.8206
@@ -282,13 +308,29 @@ def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#bat
     grazing = c == 0
     c = xp.where(grazing, 1, c)
     s2 = xp.where(grazing, 0, s2)
+    inv_s = _inverse_scale(xp.maximum(xp.abs(n_a) + 1, xp.abs(k_a)), xp)
+    f = _conductor_scaled(c, s2, n_a * inv_s, k_a * inv_s, inv_s, xp)
+    interface = (n_a != 1) | (k_a != 0)
+    f = xp.where(grazing, interface.astype(f.dtype), f)
+    return _unit_interval(f, xp)
+
+
+def _conductor_scaled(c: Any, s2: Any, n: Any, k: Any, inv_s: Any, xp: Any) -> Any:
+    """F of :func:`fresnel_conductor` (0 < c ≤ 1, s2 = 1 − c²) from n/S, k/S and ``inv_s`` = 1/S.
+
+    With (a + i b)/S the root of ((n² − k² − sin²θ) + 2 i n k)/S², every term below is that of
+    the unscaled formula times 1/S² (R_s: ((a − c)² + b²)/S², with c/S; R_p: ((a c − s²)² + b²
+    c²)/S², with s²/S), so the ratios are those of the formula; S a power of two makes each
+    scaling exact. n, k here are at most 1 in size where S > 1 (below 2¹⁰ where S = 1).
+    """
     c2 = c * c
-    nk = xp.abs(n_a * k_a)
+    cs = c * inv_s
+    nk = xp.abs(n * k)
     # t1 = n² − k² − sin²θ. Near n = 1 as (n − 1)(n + 1) + cos²θ ((n − 1) is exact there); for
     # n < cos θ ≤ 1 as n² − sin²θ, whose rounding error (∝ n² + sin²θ) is then the smaller one.
-    n2m1 = (n_a - 1) * (n_a + 1)
-    k2 = k_a * k_a
-    t1 = xp.where(c < n_a, n2m1 + c2, n_a * n_a - s2) - k2
+    n2m1 = (n - inv_s) * (n + inv_s)
+    k2 = k * k
+    t1 = xp.where(cs < n, n2m1 + cs * cs, n * n - s2 * (inv_s * inv_s)) - k2
     q = t1 * t1 + 4 * (nk * nk)
     q_ok = q > 0
     a2b2 = xp.where(q_ok, xp.sqrt(xp.where(q_ok, q, 1)), 0)
@@ -301,23 +343,21 @@ def fresnel_conductor(c: Float[ArrayLike, "*#batch"], n: Float[ArrayLike, "*#bat
     a = xp.where(pos, big, small)
     b = xp.where(pos, small, big)
     b2 = b * b
-    apc = a + c  # > 0 (c > 0)
+    apc = a + cs  # > 0 (c > 0)
     inv_apc = 1 / apc
-    near = (a < 2 * c) & (c < 2 * a)
-    amc = xp.where(near, (n2m1 - k2 + b2) * inv_apc, a - c)
+    near = (a < 2 * cs) & (cs < 2 * a)
+    amc = xp.where(near, (n2m1 - k2 + b2) * inv_apc, a - cs)
     num_s = amc * amc + b2
     den_s = apc * apc + b2  # > 0
     ac = a * c
+    sig = s2 * inv_s
     b2c2 = b2 * c2
-    num_p = (ac - s2) ** 2 + b2c2
-    den_p = (ac + s2) ** 2 + b2c2  # 0 only for n = k = 0 at normal incidence, where R_p = R_s (its limit): ratio 1
+    num_p = (ac - sig) ** 2 + b2c2
+    den_p = (ac + sig) ** 2 + b2c2  # 0 only for n = k = 0 at normal incidence, where R_p = R_s (its limit): ratio 1
     num_p = xp.where(den_p > 0, num_p, 1)
     den_p = xp.where(den_p > 0, den_p, 1)
     # ½ R_s (1 + R_p/R_s) = ½ num_s (den_p + num_p)/(den_s den_p), with one division.
-    f = 0.5 * num_s * (den_p + num_p) * (1 / (den_s * den_p))
-    interface = (n_a != 1) | (k_a != 0)
-    f = xp.where(grazing, interface.astype(f.dtype), f)
-    return _unit_interval(f, xp)
+    return 0.5 * num_s * (den_p + num_p) * (1 / (den_s * den_p))
 
 
 def fresnel_diffuse_reflectance(eta: Float[ArrayLike, "*batch"]) -> Float[Array | np.ndarray, "*batch"]:
