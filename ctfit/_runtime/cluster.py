@@ -28,7 +28,7 @@ _prepared: set[bool] = set()
 LOCAL_WORKERS_PER_CORE = 4
 """A local cluster has at most this many worker processes per core this process may use: each
 imports JAX and holds its own compiled programs (some 0.3 GB), and the fits are CPU-bound.
-(``--workers 10**20`` started processes until it was killed.)"""
+(a request for 10**20 of them started processes until it was killed.)"""
 
 
 def check_local_workers(workers: int | None) -> None:
