@@ -43,3 +43,13 @@ def test_exit_status_is_pythons(code, status):
     assert exit_status(code) == status
     r = subprocess.run([sys.executable, "-c", f"import sys; sys.exit({code!r})"], capture_output=True)
     assert r.returncode == status
+
+
+def test_python_m_ctfit_is_the_command(tmp_path):
+    """``python -m ctfit`` (no ``ctfit`` on PATH: an environment not activated, a notebook) runs the
+    command, its help named so, with the command's exit status (it was "No module named ctfit.__main__")."""
+    run = lambda *a: subprocess.run([sys.executable, "-m", "ctfit", *map(str, a)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    r = run("--help")
+    assert r.returncode == 0 and r.stdout.startswith("Usage: python -m ctfit"), r.stdout + r.stderr
+    r = run("fit", tmp_path / "missing.csv")
+    assert r.returncode == 2 and "no such file" in r.stderr

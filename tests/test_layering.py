@@ -32,7 +32,7 @@ def _table(package: str) -> dict[str, str]:
 
 def test_the_concerns_have_their_folders():
     assert SUBPACKAGES == ["_cli", "_colour", "_export", "_fitting", "_io", "_model", "_render", "_runtime", "_sampling"]
-    assert sorted(p.name for p in PACKAGE.glob("*.py")) == ["__init__.py", "cli.py", "internal.py"]
+    assert sorted(p.name for p in PACKAGE.glob("*.py")) == ["__init__.py", "__main__.py", "cli.py", "internal.py"]  # __main__: python -m ctfit
 
 
 def test_no_private_name_is_imported_from_another_module():
