@@ -22,7 +22,8 @@ SHAPED_PACKAGES = ("ctfit._model.", "ctfit._colour.")
 """Where every array in a public signature must carry a jaxtyping shape."""
 
 NO_ARRAYS = {"specular_constant", "Structure.__init__", "Structure.has_specular", "Structure.has_diffuse", "Structure.has_s", "Structure.needs_fresnel_params",
-             "Structure.has_rd", "Structure.shared_index", "Material.is_rgb", "Material.band_labels", "Material.check_shapes", "Measurement.n_bands",
+             "Structure.has_rd", "Structure.shared_index", "Material.is_rgb", "Material.band_labels", "Material.check_shapes", "Material.check_colour_channels",
+             "Measurement.n_bands",
              "Measurement.band_labels", "Measurement.repeats", "Measurement.replace", "Measurement.with_lines", "Measurement.file_place",
              "colour_report", "rgb_conversion", "spectral_weights",
              "SpectralWeights.cmfs", "RGBConversion.white_xy"}

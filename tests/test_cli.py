@@ -116,6 +116,33 @@ def test_eval_of_data_without_a_wavelength_needs_a_material_of_one_band(tmp_path
     assert "# band: unknown" in (tmp_path / "e.csv").read_text()
 
 
+def test_eval_of_data_in_other_bands_than_the_materials_names_the_data_file(tmp_path):
+    """A spectral material and RGB data said "material 'copper' is spectral; data asks for
+    channels ['R', 'G', 'B']", naming no file; the data file is named, and what to give."""
+    alta = ROOT / "measurements" / "brdf" / "pink-felt-1d.alta"
+    r = run("eval", ROOT / "configs" / "copper.toml", alta, "-o", tmp_path / "e.csv")
+    assert r.exit_code == 2 and not (tmp_path / "e.csv").exists()
+    assert f"error: {alta}: its bands are the channels ['R', 'G', 'B'] and the material " in r.output, r.output
+    assert "copper.toml is spectral" in r.output and "evaluate a material with those channels" in r.output
+    rgb = tmp_path / "rgb.toml"
+    rgb.write_text('s = 1\nlobes = [{ m = 0.3 }]\nchannels = ["R", "G", "B"]\nF0 = [0.5, 0.6, 0.7]\n')
+    (tmp_path / "geo.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm\n10,0,20,180,550\n")
+    r = run("eval", rgb, tmp_path / "geo.csv", "-o", tmp_path / "e.csv")
+    assert r.exit_code == 2 and f"error: {tmp_path / 'geo.csv'}: its bands are not channels (550 nm)" in r.output, r.output
+
+
+def test_a_material_of_other_channels_than_r_g_b_has_no_colour_anywhere(tmp_path):
+    """channels = ["X"]: color and render said "material 'x' has no channel(s) ['R', 'G', 'B']"
+    and export --to gltf or merl wrote it as grey. Every one refuses it, naming the file."""
+    x = tmp_path / "x.toml"
+    x.write_text('name = "x"\ns = 1\nlobes = [{ m = 0.3 }]\nchannels = ["X"]\nF0 = [0.5]\n')
+    said = f"error: {x}: material 'x' has channels ['X'], not R, G, B: it has no colour to report, render or export"
+    for args in (["color"], ["render", "-o", tmp_path / "r.png"], *(["export", "--to", to, "-o", tmp_path / f"e.{to}"] for to in ("gltf", "merl", "mitsuba"))):
+        r = run(args[0], x, *args[1:])
+        assert r.exit_code == 2 and said in r.output, (args, r.output)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.toml"]
+
+
 def test_eval_says_when_the_model_overflows_not_the_data(tmp_path):
     """m = 1e-160: 1/m² overflows float64 (1e-20 overflows float32) and the model is NaN at the
     mirror. The error named the data file and a 'brdf' it does not have ("Measurement geo.csv:

@@ -256,7 +256,7 @@ def test_gltf_roughness_is_the_least_squares_ggx_fit_and_a_lambertian_surface_is
 
     rough = [fit_ggx_roughness(_one_lobe(m)) for m in (0.05, 0.2, 0.5)]
     assert rough == sorted(rough) and abs(rough[1] - np.sqrt(0.2)) < 0.1  # α_GGX ≈ m for narrow lobes
-    matte = ctfit.Material(ctfit.Structure(lobes=0, diffuse="constant"), ctfit.Params(rd=np.array(0.2)), channels=("G",))
+    matte = ctfit.Material(ctfit.Structure(lobes=0, diffuse="constant"), ctfit.Params(rd=np.array(0.2)), wavelength_nm=np.array([550.0]))
     result = ctfit.export_material(matte, to="gltf")
     assert result.error["max"] < 1e-12
 

@@ -20,7 +20,18 @@ from typing import Optional
 
 import typer
 
-from .inputs import PARAM_OUT_HELP, WAVELENGTHS_HELP, load_material_file, material_inputs, output_file, parse_wavelengths, read_data, setup_jax
+from .inputs import (
+    PARAM_OUT_HELP,
+    WAVELENGTHS_HELP,
+    data_bands_check,
+    load_coloured_material,
+    load_material_file,
+    material_inputs,
+    output_file,
+    parse_wavelengths,
+    read_data,
+    setup_jax,
+)
 from .messages import UserError, cli_message, echo, run_body
 
 MAX_STEPS, MAX_WALKERS, MAX_SEED = 10**9, 10**6, 2**32 - 1
@@ -68,6 +79,7 @@ def eval_cmd(
 
         mat = load_material_file(material)
         meas = read_data(data, param_out)
+        data_bands_check(mat, material, meas, data)
         bands = len(mat.band_labels)
         if meas.band_unknown and not mat.band_unknown and bands > 1:
             raise UserError(f"{data}: its one band has no known wavelength, and the material's values differ from band to band "
@@ -352,7 +364,7 @@ def color(
         setup_jax()
         from .._colour import colour_report
 
-        mat = load_material_file(material)
+        mat = load_coloured_material(material)
         rep = colour_report(mat, angle_deg=angle, illuminant=illuminant, colourspace=colourspace)
         echo(json.dumps(rep, indent=2, default=float) if as_json else _colour_table(rep))
 
@@ -411,7 +423,7 @@ def export_cmd(
         setup_jax()
         from .._export import export_material
 
-        line = export_material(load_material_file(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic,
+        line = export_material(load_coloured_material(material), to=to, path=output, mitsuba_plastic=mitsuba_plastic,
                                mitsuba_colour=mitsuba_colour).line()
         echo(line, err=writes_in_place(output))  # -o /dev/stdout (or a pipe): the file alone on the stream
 

@@ -7,8 +7,8 @@ from typing import overload
 
 from .messages import UserError
 
-__all__ = ["PARAM_OUT_HELP", "WAVELENGTHS_HELP", "check_param_out", "load_material_file", "material_inputs", "output_file", "parse_wavelengths",
-           "read_data", "setup_jax"]
+__all__ = ["PARAM_OUT_HELP", "WAVELENGTHS_HELP", "check_param_out", "data_bands_check", "load_coloured_material", "load_material_file",
+           "material_inputs", "output_file", "parse_wavelengths", "read_data", "setup_jax"]
 
 
 def setup_jax(float32: bool = False):
@@ -52,6 +52,32 @@ def load_material_file(path: Path):
     from .._io import load_material
 
     return load_material(path)
+
+
+def load_coloured_material(path: Path):
+    """Load a material that ``color``, ``render`` and ``export`` need a colour of: one whose channels
+    are not R, G, B is refused naming the file (:meth:`~ctfit.Material.check_colour_channels`)."""
+    mat = load_material_file(path)
+    try:
+        return mat.check_colour_channels()
+    except ValueError as e:
+        raise UserError(f"{path}: {e}") from None
+
+
+def data_bands_check(mat, material: Path, meas, data: Path) -> None:
+    """Refuse data whose bands the material has no values in — RGB data and a spectral material,
+    spectral data and an RGB one, channels it lacks — naming the data file and what to give."""
+    if meas.channels is not None:
+        if mat.channels is None:
+            raise UserError(f"{data}: its bands are the channels {list(meas.channels)} and the material {material} is spectral (wavelengths): "
+                            "it has no values in them; evaluate a material with those channels (a fit of RGB data), or data with wavelengths")
+        missing = [c for c in meas.channels if c not in mat.channels]
+        if missing:
+            raise UserError(f"{data}: its channels {missing} are not the material's ({material}: {list(mat.channels)}); "
+                            "give a material with every channel of the data")
+    elif mat.channels is not None:
+        raise UserError(f"{data}: its bands are not channels ({', '.join(meas.band_labels[:3])}{', …' if meas.n_bands > 3 else ''}) and the material "
+                        f"{material} has the channels {list(mat.channels)}: it has no values there; evaluate a spectral material, or data with those channels")
 
 
 def read_data(path: Path, param_out: str | None = None, ahead=None):

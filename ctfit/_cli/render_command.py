@@ -46,9 +46,9 @@ def render_command_body(
     ``delta_e`` is None, or ``{"median", "p95", "coverage"}`` (ΔE2000 over the sphere, the
     fraction of the lit sphere inside the measured domain).
     """
-    from .._io import check_output, load_material
+    from .._io import check_output
     from .._render import EXPOSURES, SHAPES, check_wavelength_step, render_compare, render_materials, save_png
-    from .inputs import material_inputs
+    from .inputs import load_coloured_material, material_inputs
 
     if not materials:
         raise ValueError("give at least one material file")
@@ -70,7 +70,7 @@ def render_command_body(
     if Path(output).suffix.lower() != ".png":
         raise ValueError(f"{output}: the output is a PNG file; give a name ending in .png")
     check_output(output, [*material_inputs(*materials), compare])
-    mats = [load_material(p) for p in materials]
+    mats = [load_coloured_material(p) for p in materials]
     options = {"supersample": supersample, "ambient": ambient}
     if compare is not None:
         if len(mats) != 1:

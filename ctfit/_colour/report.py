@@ -180,6 +180,7 @@ def colour_report(
     >>> report["hex"], round(report["dominant_wavelength_nm"])  # at normal incidence: yellow
     ('#ffdeae', 579)
     """
+    material.check_colour_channels()
     if material.band_unknown:
         raise ValueError(
             f"material {material.name!r}: its band's wavelength is unknown (single-band data), so there is no colour to report"

@@ -35,7 +35,7 @@ class ExportResult:
     Examples
     --------
     >>> import numpy as np, ctfit
-    >>> matte = ctfit.Material(ctfit.Structure(lobes=0, diffuse="constant"), ctfit.Params(rd=np.array(0.1)), channels=("G",))
+    >>> matte = ctfit.Material(ctfit.Structure(lobes=0, diffuse="constant"), ctfit.Params(rd=np.array(0.1)), wavelength_nm=np.array([550.0]))
     >>> result = ctfit.export_material(matte, to="mitsuba")
     >>> result.error["exact"], result.line().split(":")[0]
     (True, 'mitsuba')
@@ -173,7 +173,7 @@ def export_material(
         raise ValueError(f"mitsuba_plastic must be 'exact' or 'roughplastic', got {mitsuba_plastic!r}")
     if mitsuba_colour not in MITSUBA_COLOURS:
         raise ValueError(f"mitsuba_colour must be one of {', '.join(MITSUBA_COLOURS)}, got {mitsuba_colour!r}")
-    material = in_rgb_order(material.check_shapes())  # channels B, G, R are written as R, G, B
+    material = in_rgb_order(material.check_shapes().check_colour_channels())  # channels B, G, R are written as R, G, B
     result = _export_mitsuba(material, to, mitsuba_plastic, mitsuba_colour) if to.startswith("mitsuba") else _export_rgb(material, to)
     if path is not None:
         result.write(path)

@@ -241,6 +241,23 @@ class Material:
     def is_rgb(self) -> bool:
         return self.channels is not None
 
+    def check_colour_channels(self) -> Material:
+        """The material itself where it has a colour's bands — wavelengths, or the channels R, G, B
+        in any order — else a ``ValueError`` naming its channels: a colour, a rendering and an
+        export (glTF, MERL, Mitsuba) need them, and a channel ``"X"`` is no colour's.
+
+        >>> import numpy as np, ctfit
+        >>> ctfit.Material(ctfit.Structure(), ctfit.Params(m=np.array([0.2]), w=np.ones(1), f0=np.array([0.5])), channels=("X",),
+        ...                name="x").check_colour_channels()
+        Traceback (most recent call last):
+        ...
+        ValueError: material 'x' has channels ['X'], not R, G, B: it has no colour to report, render or export (give it R, G, B or wavelengths)
+        """
+        if self.channels is None or sorted(self.channels) == ["B", "G", "R"]:
+            return self
+        raise ValueError(f"material {self.name!r} has channels {list(self.channels)}, not R, G, B: it has no colour to report, render or export "
+                         "(give it R, G, B or wavelengths)")
+
     @property
     def band_labels(self) -> list[str]:
         """One label per band: "450 nm", a channel name, or "unknown band" (``band_unknown``)."""

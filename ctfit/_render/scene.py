@@ -106,7 +106,7 @@ def render_bands(
     if material.band_unknown:
         return material.params, np.ones(1), np.ones((1, 3))
     if material.is_rgb:
-        return material.params_at(channels=("R", "G", "B")), np.ones(3), np.eye(3)
+        return material.check_colour_channels().params_at(channels=("R", "G", "B")), np.ones(3), np.eye(3)
     if wavelength_nm is None:
         check_wavelength_step(wavelength_step)
         lo, hi = SPECTRAL_RANGE_NM
