@@ -262,6 +262,20 @@ def test_a_missing_param_out_names_the_option(tmp_path):
     assert "--param-out" in r.stderr and "param_out=" not in r.stderr
 
 
+def test_a_param_out_of_other_outputs_than_the_files_dim_is_the_options_fault(tmp_path):
+    """--param-out RGB_COLOR on a file of one output (no #PARAM_OUT line) said "DIM says 1
+    outputs, RGB_COLOR has 3", blaming the file; the option is named, with the units that fit."""
+    from conftest import MEASURED, ROOT
+
+    tape = MEASURED / "retro-gray-tape.dat"
+    for command in (("fit", tape), ("eval", ROOT / "configs" / "copper.toml", tape, "-o", tmp_path / "e.csv")):
+        r = run(*command, "--param-out", "RGB_COLOR")
+        assert r.exit_code == 2, r.output
+        assert (f"{tape}:4: #DIM says 1 outputs, and --param-out='RGB_COLOR' (the file has no #PARAM_OUT line) has 3: "
+                "give one of INV_STERADIAN, INV_STERADIAN_COSINE_FACTOR") in r.stderr, r.stderr
+    assert not (tmp_path / "e.csv").exists()
+
+
 @pytest.mark.parametrize(
     "args, option",
     [

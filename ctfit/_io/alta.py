@@ -187,11 +187,25 @@ def _interpret(header: dict, param_out: str | None, path: str | os.PathLike[str]
     if pout not in PARAM_OUT:
         raise DataError(f"output {shorten(pout)}: not supported (supported: {', '.join(PARAM_OUT)})", path=path, line=line_out)
     if dim_out != PARAM_OUT[pout]:
-        raise DataError(f"#DIM says {dim_out} outputs, {pout} has {PARAM_OUT[pout]}", path=path, line=line)
+        raise DataError(_outputs_mismatch(dim_out, pout, given=line_out is None), path=path, line=line)
     vs, line_vs = header.get("VS", ("0", None))
     if vs not in ("0", "1", "2"):
         raise DataError(f"#VS {shorten(vs)}: expected 0, 1 or 2", path=path, line=line_vs)
     return dim_in, dim_out, pin, pout, int(vs)
+
+
+def _outputs_mismatch(dim_out: int, pout: str, given: bool) -> str:
+    """Why #DIM's outputs and the unit ``pout`` disagree; ``given``: the unit is the ``param_out``
+    argument's (the file has no #PARAM_OUT line), so the argument is at fault, not the file.
+
+    >>> _outputs_mismatch(1, "RGB_COLOR", given=True)
+    "#DIM says 1 outputs, and param_out='RGB_COLOR' (the file has no #PARAM_OUT line) has 3: give one of INV_STERADIAN, INV_STERADIAN_COSINE_FACTOR"
+    """
+    if not given:
+        return f"#DIM says {dim_out} outputs, {pout} has {PARAM_OUT[pout]}"
+    fits = [name for name, n in PARAM_OUT.items() if n == dim_out]
+    hint = f"give one of {', '.join(fits)}" if fits else f"no unit has {dim_out} outputs"
+    return f"#DIM says {dim_out} outputs, and param_out={pout!r} (the file has no #PARAM_OUT line) has {PARAM_OUT[pout]}: {hint}"
 
 
 def _column_names(pin: str, pout: str, vs: int) -> list[str]:
