@@ -34,6 +34,14 @@ def test_simulate_refuses_wavelengths_that_are_not_wavelengths(tmp_path, text):
     assert not (tmp_path / "x.csv").exists()
 
 
+@pytest.mark.parametrize("text, item", [("500,,600", "item 2 of 3"), ("500,600,", "item 3 of 3"), (",500", "item 1 of 2"), ("500, ,600", "item 2 of 3")])
+def test_an_empty_wavelength_item_is_refused_not_skipped(tmp_path, text, item):
+    """--wavelengths "500,,600" simulated at 500 and 600 nm without a word about the empty item."""
+    r = run("simulate", COPPER, "-o", tmp_path / "x.csv", "--samples", 3, f"--wavelengths={text}")
+    refused(r, "--wavelengths", f"{item} is empty")
+    assert not (tmp_path / "x.csv").exists()
+
+
 @pytest.mark.parametrize("text, last, count", [("400:700:7", 694.0, 43), ("380:779.9:1", 779.0, 400), ("400:700:50", 700.0, 7), ("400:700:0.1", 700.0, 3001)])
 def test_a_wavelength_range_never_passes_stop(tmp_path, text, last, count):
     from ctfit._cli.inputs import parse_wavelengths

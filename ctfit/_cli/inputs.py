@@ -132,7 +132,11 @@ def parse_wavelengths(text: str | None):
                 raise UserError(f"--wavelengths {text!r}: {q + 1:.3g} wavelengths; at most {_MOST_WAVELENGTHS:,} (a larger STEP)")
             values = start + step * np.arange(int(np.floor(q + 1e-9 * max(q, 1.0))) + 1)  # never past STOP (rounding aside)
         else:
-            values = np.array([float(x) for x in text.split(",") if x.strip()])
+            items = text.split(",")
+            empty = [i for i, x in enumerate(items, 1) if not x.strip()]
+            if empty and len(items) > 1:
+                raise UserError(f"--wavelengths {text!r}: item {empty[0]} of {len(items)} is empty; give a wavelength between every two commas")
+            values = np.array([float(x) for x in items if x.strip()])
     except ValueError:
         raise UserError(f"--wavelengths: expected START:STOP:STEP or a comma-separated list, got {text!r}") from None
     bad = values[~(np.isfinite(values) & (values > 0))]
