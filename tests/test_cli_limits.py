@@ -42,6 +42,17 @@ def test_an_empty_wavelength_item_is_refused_not_skipped(tmp_path, text, item):
     assert not (tmp_path / "x.csv").exists()
 
 
+def test_simulate_counts_one_band_in_the_singular(tmp_path):
+    """'wrote 10 samples (10 direction pairs × 1 bands)': one band (pair, sample, lobe) is singular."""
+    r = run("simulate", COPPER, "-o", tmp_path / "x.csv", "--samples", 1, "--wavelengths", "500")
+    assert r.exit_code == 0 and "wrote 1 sample (1 direction pair × 1 band) to" in r.output, r.output
+    r = run("simulate", COPPER, "-o", tmp_path / "y.csv", "--samples", 3, "--wavelengths", "500,600")
+    assert "wrote 6 samples (3 direction pairs × 2 bands) to" in r.output, r.output
+    two = ctfit.Material(ctfit.Structure(lobes=1), ctfit.Params(m=np.array([0.2, 0.3]), w=np.ones(2), f0=np.ones(2) / 2), wavelength_nm=np.array([550.0]))
+    with pytest.raises(ValueError, match=r"m has 2 values; its structure has 1 lobe$"):
+        two.check_shapes()
+
+
 @pytest.mark.parametrize("text, last, count", [("400:700:7", 694.0, 43), ("380:779.9:1", 779.0, 400), ("400:700:50", 700.0, 7), ("400:700:0.1", 700.0, 3001)])
 def test_a_wavelength_range_never_passes_stop(tmp_path, text, last, count):
     from ctfit._cli.inputs import parse_wavelengths

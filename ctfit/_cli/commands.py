@@ -132,7 +132,8 @@ def simulate(
         meas = sim(mat, samples, wavelength_nm=parse_wavelengths(wavelengths), noise=noise, seed=seed, max_theta=max_theta)
         meta = dict(meas.meta, material=str(material))
         write_csv(meas.replace(meta=meta), output)
-        echo(f"wrote {len(meas)} samples ({samples} direction pairs × {meas.n_bands} bands) to {output}", err=True)
+        pairs, bands = f"{samples} direction pair{'s' * (samples != 1)}", f"{meas.n_bands} band{'s' * (meas.n_bands != 1)}"
+        echo(f"wrote {len(meas)} sample{'s' * (len(meas) != 1)} ({pairs} × {bands}) to {output}", err=True)
 
     run_body(body)
 

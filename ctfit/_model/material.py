@@ -233,8 +233,9 @@ class Material:
         if bad is None:
             return self
         name, got = bad
-        takes = {"m": f"; its structure has {self.structure.lobes} lobes", "w": f"; its structure has {self.structure.lobes} lobes",
-                 "s": "; s is one number"}.get(name, f" for its {bands} bands")
+        lobes = f"; its structure has {self.structure.lobes} lobe{'s' * (self.structure.lobes != 1)}"
+        takes = {"m": lobes, "w": lobes,
+                 "s": "; s is one number"}.get(name, f" for its {bands} band{'s' * (bands != 1)}")
         raise ValueError(f"material {self.name!r}: {name} has {got} values{takes}")
 
     @property

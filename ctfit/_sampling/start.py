@@ -66,7 +66,7 @@ def on_data_bands(material: Material, data) -> tuple[Material, str | None]:
     bands = ", ".join(data.band_labels)
     resampled = dataclasses.replace(material, params=start_params(material, data), wavelength_nm=data.wavelength_nm, channels=data.channels,
                                     band_unknown=data.band_unknown)
-    return resampled, f"sampled on the data's {len(data.band_labels)} bands ({bands}), the material's values taken there"
+    return resampled, f"sampled on the data's {len(data.band_labels)} band{'s' * (len(data.band_labels) != 1)} ({bands}), the material's values taken there"
 
 
 def resolve_fit(target, data, loss: str | None, fixed: tuple[str, ...] | None):
