@@ -53,6 +53,28 @@ def test_simulate_counts_one_band_in_the_singular(tmp_path):
         two.check_shapes()
 
 
+@pytest.mark.parametrize("args, option", [
+    (("simulate", "{copper}", "-o", "-"), "-o"),
+    (("eval", "{copper}", "{csv}", "-o", "-"), "-o"),
+    (("fit", "{csv}", "-o", "-"), "-o"),
+    (("fit", "{csv}", "--plot", "-"), "--plot"),
+    (("fit", "{csv}", "--sample", "--backend", "-"), "--backend"),
+    (("export", "{copper}", "--to", "gltf", "-o", "-"), "-o"),
+    (("render", "{copper}", "-o", "-"), "-o"),
+    (("sample", "{copper}", "{csv}", "-o", "-"), "-o"),
+    (("sample", "{copper}", "{csv}", "--idata", "-"), "--idata"),
+    (("sample", "{copper}", "{csv}", "--plot", "-"), "--plot"),
+])
+def test_a_dash_output_is_refused_not_written_as_a_file_named_dash(tmp_path, monkeypatch, args, option):
+    """-o - wrote a file named '-'; the docs name /dev/stdout for standard output (docs/formats.md)."""
+    csv = tmp_path / "d.csv"
+    csv.write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm,brdf\n10,0,20,180,550,0.5\n")
+    monkeypatch.chdir(tmp_path)
+    r = run(*(str(a).format(copper=COPPER, csv=csv) for a in args))
+    refused(r, f"{option} -: '-' is not standard output", f"give {option} /dev/stdout")
+    assert not (tmp_path / "-").exists()
+
+
 @pytest.mark.parametrize("text, last, count", [("400:700:7", 694.0, 43), ("380:779.9:1", 779.0, 400), ("400:700:50", 700.0, 7), ("400:700:0.1", 700.0, 3001)])
 def test_a_wavelength_range_never_passes_stop(tmp_path, text, last, count):
     from ctfit._cli.inputs import parse_wavelengths

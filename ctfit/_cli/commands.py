@@ -30,6 +30,7 @@ from .inputs import (
     output_file,
     parse_wavelengths,
     read_data,
+    refuse_dash,
     setup_jax,
 )
 from .messages import UserError, cli_message, echo, run_body
@@ -249,6 +250,7 @@ def _check_sample_options(o, hold: contextlib.ExitStack) -> Path:
     need("posterior", "ctfit sample")
     if o.plot is not None:
         need("plots", "--plot")
+        refuse_dash(str(o.plot), "--plot")
     if (o.resume or o.overwrite) and o.backend is None:
         raise UserError(f"{'--resume' if o.resume else '--overwrite'} needs --backend")
     if o.loss is not None and o.loss not in LOSSES:

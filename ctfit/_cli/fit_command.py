@@ -11,7 +11,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from .inputs import check_param_out, load_material_file, material_inputs, read_data, setup_jax
+from .inputs import check_param_out, load_material_file, material_inputs, read_data, refuse_dash, setup_jax
 from .messages import UserError, cli_message, failure_line
 
 __all__ = [
@@ -203,6 +203,8 @@ def write_summary(target: Path, files: list[Path], outcomes: list[tuple[str, str
 
 def _check_fit_options(o) -> None:
     """Refuse bad option values before any work (typer's ``min=`` checks the counts)."""
+    for value, option in ((o.output, "-o"), (o.plot, "--plot"), (o.backend, "--backend")):
+        refuse_dash(value, option)
     if o.geometry not in (None, "v-cavity", "smith", "smith-rational"):
         raise UserError(f"--geometry must be v-cavity, smith or smith-rational, got {o.geometry!r}")
     if o.fresnel not in (None, "effective-n", "conductor"):

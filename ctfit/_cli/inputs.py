@@ -8,7 +8,7 @@ from typing import overload
 from .messages import UserError
 
 __all__ = ["PARAM_OUT_HELP", "WAVELENGTHS_HELP", "check_param_out", "data_bands_check", "load_coloured_material", "load_material_file",
-           "material_inputs", "output_file", "parse_wavelengths", "read_data", "setup_jax"]
+           "material_inputs", "output_file", "parse_wavelengths", "read_data", "refuse_dash", "setup_jax"]
 
 
 def setup_jax(float32: bool = False):
@@ -35,9 +35,18 @@ def output_file(value: str | None, option: str = "-o") -> Path | None:
 
     if value is None:
         return None
+    refuse_dash(value, option)
     if value.endswith(("/", os.sep)):
         raise UserError(f"{option} {value}: ends with '/', so it names a folder; give a file name")
     return Path(value)
+
+
+def refuse_dash(value: str | None, option: str) -> None:
+    """Refuse ``-`` as an output: ctfit does not read it as standard output (a file named ``-``
+    was written); ``/dev/stdout`` writes there (``docs/formats.md``)."""
+    if value is not None and value.strip() == "-":
+        raise UserError(f"{option} -: '-' is not standard output to ctfit (a file named '-' would be written); "
+                        f"give {option} /dev/stdout to write there, or a file name")
 
 
 def material_inputs(*paths) -> list:
