@@ -303,3 +303,17 @@ def test_structure_options_that_differ_from_the_materials_are_refused(simulated,
     assert not (tmp_path / "x.json").exists()
     r = run("fit", csv, "--material", mat, "--lobes", 2, "--family", "metal", "--no-diffuse", "-q", "-o", tmp_path / "x.json")
     assert r.exit_code == 0, r.output
+
+
+def test_every_option_of_every_command_is_documented():
+    """simulate --max-theta and render --labels were in --help and nowhere in the docs (the README
+    is the site's front page). ``--output`` is written ``-o`` throughout."""
+    import re
+
+    import typer.main
+
+    text = "\n".join(p.read_text() for p in [*(ROOT / "docs").glob("*.md"), ROOT / "README.md"] if p.name != "changelog.md")
+    missing = [(name, opt) for name, command in typer.main.get_command(app).commands.items() for param in command.params
+               for opt in (*param.opts, *param.secondary_opts)
+               if opt.startswith("--") and opt != "--output" and not re.search(re.escape(opt) + r"(?![\w-])", text)]
+    assert missing == []
