@@ -123,7 +123,7 @@ def test_eval_of_data_in_other_bands_than_the_materials_names_the_data_file(tmp_
     r = run("eval", ROOT / "configs" / "copper.toml", alta, "-o", tmp_path / "e.csv")
     assert r.exit_code == 2 and not (tmp_path / "e.csv").exists()
     assert f"error: {alta}: its bands are the channels ['R', 'G', 'B'] and the material " in r.output, r.output
-    assert "copper.toml is spectral" in r.output and "evaluate a material with those channels" in r.output
+    assert "copper.toml is spectral" in r.output and "give a material with those channels" in r.output
     rgb = tmp_path / "rgb.toml"
     rgb.write_text('s = 1\nlobes = [{ m = 0.3 }]\nchannels = ["R", "G", "B"]\nF0 = [0.5, 0.6, 0.7]\n')
     (tmp_path / "geo.csv").write_text("theta_i,phi_i,theta_o,phi_o,wavelength_nm\n10,0,20,180,550\n")
@@ -317,3 +317,12 @@ def test_every_option_of_every_command_is_documented():
                for opt in (*param.opts, *param.secondary_opts)
                if opt.startswith("--") and opt != "--output" and not re.search(re.escape(opt) + r"(?![\w-])", text)]
     assert missing == []
+
+
+def test_sample_of_data_in_other_bands_than_the_materials_names_the_data_file(tmp_path):
+    """``ctfit sample`` of a spectral fit and RGB data gave the library's message, naming no file;
+    it names the data file, as ``eval`` does, before any sampling."""
+    alta = ROOT / "measurements" / "brdf" / "pink-felt-1d.alta"
+    r = run("sample", ROOT / "configs" / "copper.toml", alta, "-o", tmp_path / "s.json", "--steps", 50)
+    assert r.exit_code == 2 and not (tmp_path / "s.json").exists(), r.output
+    assert f"error: {alta}: its bands are the channels ['R', 'G', 'B'] and the material " in r.output, r.output

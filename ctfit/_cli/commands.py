@@ -286,11 +286,13 @@ def _sampled(o, target: Path) -> int:
     setup_jax()
     import warnings
 
+    from .._io import load_material
     from .._runtime import progress_mode
     from .._sampling import ChainTooShortWarning, format_uncertainty_table
     from .sample_command import run_longer, sample_command_body
 
     meas = read_data(o.data, o.param_out)
+    data_bands_check(load_material(o.fit_json), o.fit_json, meas, o.data)  # the data file named, before any sampling
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ChainTooShortWarning)  # listed in the table and the JSON
         doc = sample_command_body(

@@ -79,14 +79,14 @@ def data_bands_check(mat, material: Path, meas, data: Path) -> None:
     if meas.channels is not None:
         if mat.channels is None:
             raise UserError(f"{data}: its bands are the channels {list(meas.channels)} and the material {material} is spectral (wavelengths): "
-                            "it has no values in them; evaluate a material with those channels (a fit of RGB data), or data with wavelengths")
+                            "it has no values in them; give a material with those channels (a fit of RGB data), or data with wavelengths")
         missing = [c for c in meas.channels if c not in mat.channels]
         if missing:
             raise UserError(f"{data}: its channels {missing} are not the material's ({material}: {list(mat.channels)}); "
                             "give a material with every channel of the data")
     elif mat.channels is not None:
         raise UserError(f"{data}: its bands are not channels ({', '.join(meas.band_labels[:3])}{', …' if meas.n_bands > 3 else ''}) and the material "
-                        f"{material} has the channels {list(mat.channels)}: it has no values there; evaluate a spectral material, or data with those channels")
+                        f"{material} has the channels {list(mat.channels)}: it has no values there; give a spectral material, or data with those channels")
 
 
 def read_data(path: Path, param_out: str | None = None, ahead=None):
