@@ -4,7 +4,7 @@ sample, overall and per region (near the specular peak, off the peak, grazing).
 The figure is |f − y| / y over the samples with y > 0 — the error of one sample as a fraction of
 its own value, whatever the loss the fit minimised. Where the data gives a sample's uncertainty σ
 and its value is below it (known only as 0 ± σ), the sample is left out if the model is within σ
-of it, and counts as |f − y|/σ if not (:func:`floor_at_uncertainty`). Its median says how far off the typical sample
+of it, and counts as |f − y|/σ if not (:func:`errors_below_uncertainty`). Its median says how far off the typical sample
 is; the 90th percentile, how far off the worst tenth is. A norm ratio ‖f − y‖/‖y‖ would be set by
 the few samples of the peak (a fit that misses the diffuse part by 45 % can read 3 %).
 
@@ -32,7 +32,7 @@ from .._model import Material, Measurement, Params, Structure
 from .diagnostics import ZEROS_HINT, pair_half_angle_deg
 from .fit_warnings import FitWarning
 
-__all__ = ["floor_at_uncertainty", "MODEL_LIMIT", "TAIL_LIMIT", "ZEROS_HINT", "zeros_hint", "GRAZING_DEG", "fit_quality", "quality_from_residuals",
+__all__ = ["errors_below_uncertainty", "MODEL_LIMIT", "TAIL_LIMIT", "ZEROS_HINT", "zeros_hint", "GRAZING_DEG", "fit_quality", "quality_from_residuals",
            "quality_in_regions",
            "quality_warning", "sample_regions"]
 
@@ -102,7 +102,7 @@ def quality_in_regions(err: np.ndarray, grazing: np.ndarray, peak: np.ndarray, p
     return out
 
 
-def floor_at_uncertainty(err: np.ndarray, y: np.ndarray, sigma: ArrayLike | None) -> int:
+def errors_below_uncertainty(err: np.ndarray, y: np.ndarray, sigma: ArrayLike | None) -> int:
     """``err`` (|f − y|/y per sample, changed in place) where the sample's value ``y`` is below its
     uncertainty ``sigma`` (None: no change): such a value is known only as 0 ± σ, and says nothing
     of a relative error. It is left out (NaN) where the model is within σ of it, and counts as
@@ -114,7 +114,7 @@ def floor_at_uncertainty(err: np.ndarray, y: np.ndarray, sigma: ArrayLike | None
     would read as exact: a third of a 5 %-noise gold's, and its median 1.6 %.)
 
     >>> err = np.array([0.02, 1e6, 5e9])
-    >>> floor_at_uncertainty(err, np.array([1.0, 1e-12, 1e-12]), np.array([0.02, 1e-3, 1e-3])), err
+    >>> errors_below_uncertainty(err, np.array([1.0, 1e-12, 1e-12]), np.array([0.02, 1e-3, 1e-3])), err
     (1, array([0.02, nan, 5.  ]))
     """
     if sigma is None:
@@ -146,14 +146,14 @@ def quality_from_residuals(data: Measurement, rel: np.ndarray, floor: float, str
     err[~positive] = np.nan
     if lost.size:
         err[lost] = _lost_errors(data, lost, structure, params)
-    below = floor_at_uncertainty(err, y, data.sigma)
+    below = errors_below_uncertainty(err, y, data.sigma)
     peak_deg = peak_width_deg(structure, params)
     return _with_below(quality_in_regions(err, *sample_regions(data, peak_deg), peak_deg), below)
 
 
 def _with_below(quality: dict, below: int) -> dict:
     """``quality`` with ``below_sigma``: the samples left out, a value below its σ that the model
-    meets within σ (:func:`floor_at_uncertainty`), where some are."""
+    meets within σ (:func:`errors_below_uncertainty`), where some are."""
     if below:
         quality["below_sigma"] = below
     return quality
@@ -193,7 +193,7 @@ def fit_quality(material: Material, data: Measurement, model: Float[ArrayLike, "
     y = np.asarray(data.brdf, dtype=float)
     f = np.asarray(evaluate(material, data) if model is None else model, dtype=float)
     err = np.where(y > 0, np.abs(f - y) / np.where(y > 0, y, 1.0), np.nan)
-    below = floor_at_uncertainty(err, y, data.sigma)
+    below = errors_below_uncertainty(err, y, data.sigma)
     peak_deg = peak_width_deg(material.structure, material.params)
     return _with_below(quality_in_regions(err, *sample_regions(data, peak_deg), peak_deg), below)
 

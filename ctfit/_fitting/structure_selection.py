@@ -17,7 +17,7 @@ from .._model import FAMILIES, GEOMETRIES, MAX_LOBES, Measurement, Params, Struc
 from .least_squares import FitResult, check_fit_arguments, fit, fit_to_tolerance, prefetch_fit
 from .losses import default_loss
 from .problem import geometry_deg
-from .quality import floor_at_uncertainty
+from .quality import errors_below_uncertainty
 from .validate import check_data_scale, check_dtype, n_free_parameters
 
 __all__ = ["select_structure", "choose_structure", "structure_label", "screening_sample", "heldout_sample", "heldout_error", "model_median_error",
@@ -525,7 +525,7 @@ def heldout_error(res: FitResult, held: Measurement) -> float:
 
 def model_median_error(res: FitResult, data: Measurement) -> float:
     """The median over the samples of ``data`` with y > 0 of |f − y| / y (a value below its
-    uncertainty σ: left out, or |f − y|/σ, :func:`~ctfit._fitting.quality.floor_at_uncertainty`), f the model of ``res`` (∞
+    uncertainty σ: left out, or |f − y|/σ, :func:`~ctfit._fitting.quality.errors_below_uncertainty`), f the model of ``res`` (∞
     where f is not finite somewhere),
     evaluated on the host (``brdf(..., xp=numpy)``: no program per structure) in the dtype of the
     fit's programs (float64 with ``jax_enable_x64``, else float32), at the geometry the fits lay
@@ -542,7 +542,7 @@ def model_median_error(res: FitResult, data: Measurement) -> float:
         return np.inf
     with np.errstate(over="ignore"):  # a finite model over a y near 0 (1e-310) is an infinite error: one sample, not the median
         err = np.abs(f[ok] - y[ok]) / y[ok]
-    floor_at_uncertainty(err, y[ok], None if data.sigma is None else np.asarray(data.sigma)[ok])
+    errors_below_uncertainty(err, y[ok], None if data.sigma is None else np.asarray(data.sigma)[ok])
     err = err[~np.isnan(err)]
     return float(np.median(err)) if err.size else np.inf
 
