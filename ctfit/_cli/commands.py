@@ -20,6 +20,7 @@ from typing import Optional
 
 import typer
 
+from .._sampling import MAX_SEED, MAX_STEPS, MAX_WALKERS  # (no JAX: ctfit._sampling.run_limits)
 from .inputs import (
     PARAM_OUT_HELP,
     WAVELENGTHS_HELP,
@@ -34,11 +35,6 @@ from .inputs import (
     setup_jax,
 )
 from .messages import UserError, cli_message, echo, run_body
-
-MAX_STEPS, MAX_WALKERS, MAX_SEED = 10**9, 10**6, 2**32 - 1
-"""The ranges' ends of ``--steps``, ``--walkers`` and (sampling) ``--seed``: :func:`ctfit.sample`'s
-(``ctfit._sampling.emcee_run``, not imported here: it loads JAX; tests/test_cli_limits.py holds them equal).
-``--steps 1e20`` stopped in emcee with NumPy's "Maximum allowed dimension exceeded"."""
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, rich_markup_mode=None, help="Fit the Cook–Torrance reflectance model to BRDF samples.")
 

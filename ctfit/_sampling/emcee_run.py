@@ -45,9 +45,10 @@ from .draw_colours import colour_summary
 from .posterior_density import PosteriorSetup, set_up_posterior
 from .priors import describe_priors
 from .result import SampleResult, summarise
+from .run_limits import check_lengths
 from .start import fit_covariance, laplace_start, start_walkers
 
-__all__ = ["MAX_SEED", "MAX_STEPS", "MAX_WALKERS", "sample"]
+__all__ = ["sample"]
 
 
 def _run(
@@ -140,10 +141,10 @@ def sample(
     ``loss``: one of the fit's losses (default: the fit's, else "sigma" with a sigma column, else
     "relative"); ``fixed``: parameters held fixed (default: the material's ``fixed`` key);
     ``priors``: {name: (kind, *args)} (:mod:`ctfit._sampling.priors`). ``walkers`` (default
-    :func:`~ctfit._sampling.posterior_density.default_walkers`; at most :data:`MAX_WALKERS`), ``steps`` per walker (the total, also when
-    resuming; at most :data:`MAX_STEPS`), ``burn``
-    (default max(2 τ_max, steps/10), at most steps/2 and steps − ``thin``), ``thin``; ``seed`` (at most :data:`MAX_SEED`) fixes the start and
-    emcee's generator. ``backend``: HDF5 file of the chain; ``resume`` continues a stored run to
+    :func:`~ctfit._sampling.posterior_density.default_walkers`), ``steps`` per walker (the total,
+    also when resuming), ``burn`` (default max(2 τ_max, steps/10), at most steps/2 and
+    steps − ``thin``), ``thin``; ``seed`` fixes the start and emcee's generator (each within
+    :mod:`~ctfit._sampling.run_limits`' ranges). ``backend``: HDF5 file of the chain; ``resume`` continues a stored run to
     ``steps`` (bit-identical to an uninterrupted run), ``overwrite`` starts it again (written beside
     the file, which it replaces when it ends: :mod:`ctfit._sampling.backend`). A backend that
     another run is writing is refused (a ``ValueError`` naming it) before anything is read from it.
@@ -174,7 +175,7 @@ def sample(
 
     need("posterior", "posterior sampling")  # ArviZ's ESS and R̂ end every run: checked before it starts
     t0 = time.perf_counter()
-    _check_lengths(steps=steps, burn=burn, thin=thin, seed=seed, resume=resume, backend=backend, walkers=walkers)
+    check_lengths(steps=steps, burn=burn, thin=thin, seed=seed, resume=resume, backend=backend, walkers=walkers)
     with contextlib.ExitStack() as hold:  # the backend's lock (check_backend), held until the chain is read back: one run writes it at a time
         if backend is not None:
             from .._io import check_backend
@@ -197,39 +198,6 @@ def sample(
         d["residual_scale_ratio"] = _residual_spread(s, flat, draw_lp)
         checks = _checks(s, x0, flat, draw_lp, chain, optimum, d["residual_scale_ratio"])
         return _result(s, sampler, chain, flat, draw_lp, optimum, laplace, checks, d, colour, t0)  # (it reads the chain file too)
-
-
-MAX_STEPS = 10**9
-"""The most ``steps`` (per walker) :func:`sample` takes: a billion steps of 32 walkers would run for
-weeks (18,000 walker-steps/s), their chain (8 bytes a value) fit in no machine's memory; ``steps=10**20``
-stopped in emcee with NumPy's "Maximum allowed dimension exceeded"."""
-MAX_WALKERS = 10**6
-"""The most ``walkers`` :func:`sample` takes (the default is max(2·ndim + 2, 32)); ``walkers=10**20``
-stopped in emcee as ``steps`` did."""
-MAX_SEED = 2**32 - 1
-"""The largest ``seed`` :func:`sample` takes, NumPy's ``RandomState``'s (emcee's generator): ``seed=2**32``
-stopped after the posterior was set up with its "Seed must be between 0 and 2**32 - 1"."""
-
-
-def _check_lengths(*, steps: int, burn: int | None, thin: int, seed: int, resume: bool, backend: Any, walkers: int | None = None) -> None:
-    """Refuse (``ValueError``) a chain length, walker count, burn-in, thinning or seed that keeps
-    no draw or cannot be, before the backend is touched or a step is run."""
-    if not 1 <= steps <= MAX_STEPS:
-        raise ValueError(f"steps must be in [1, {MAX_STEPS:,}], got steps={steps}")
-    if walkers is not None and not 2 <= walkers <= MAX_WALKERS:
-        raise ValueError(f"walkers must be in [2, {MAX_WALKERS:,}] (and even), got walkers={walkers}")
-    if thin < 1:
-        raise ValueError(f"thin must be ≥ 1, got thin={thin}")
-    if thin > steps:
-        raise ValueError(f"thin must be at most steps ({steps}) to keep a draw, got thin={thin}")
-    if burn is not None and not 0 <= burn < steps:
-        raise ValueError(f"burn must be in [0, steps), got {burn} with steps={steps}")
-    if burn is not None and steps - burn < thin:
-        raise ValueError(f"thin must be at most steps − burn = {steps - burn} to keep a draw, got thin={thin} (burn={burn})")
-    if not 0 <= seed <= MAX_SEED:
-        raise ValueError(f"seed must be in [0, 2**32 − 1 = {MAX_SEED}] (emcee's generator, NumPy's RandomState, takes no other), got seed={seed}")
-    if resume and backend is None:
-        raise ValueError("resume=True needs a backend (the HDF5 file of the run to continue)")
 
 
 def _residual_spread(s: PosteriorSetup, flat: np.ndarray, draw_lp: np.ndarray) -> float | None:
