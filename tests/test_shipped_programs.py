@@ -86,7 +86,7 @@ def _shipped_and_traced_agree(dtype):
     (init_name, init_fn, init_args), (step_name, step_fn, step_args) = shipped_solver_arguments(p, dtype)
     lower, upper = np.full(p, -1.0, dtype), np.full(p, 2.0, dtype)
     y = rng.uniform(0, 1, p).astype(dtype)
-    tol = np.array([1e-8, 1e-8], dtype)
+    tol = np.array([1e-8, 1e-8, 1e-3], dtype)  # stol, gtol, the cost of a zero model
     a = rng.normal(size=(3 * p, p))
     grad, hess = (a.T @ rng.normal(size=3 * p)).astype(dtype), (a.T @ a).astype(dtype)
     runs = {}

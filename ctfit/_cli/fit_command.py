@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import re
 from pathlib import Path
@@ -741,21 +742,30 @@ def _expand(paths) -> list[Path]:
     return list(files.values())
 
 
+def _percent(x: float | None) -> str:
+    """A relative error in the choice table: "4.3%", "5.2e+05%" past 1,000 %, "–" where not known."""
+    if x is None or not math.isfinite(x):
+        return "–" if x is None else f"{x}"
+    return f"{x * 100:.2g}%" if x >= 10 else f"{x:.1%}"
+
+
 def _choice_table(res) -> str:
     """The structures the data chose among (``res.stats["structure_choice"]``): each one's
     parameters, median relative error, BIC; where they were compared on a screening sample, its
-    size and each one's median relative error on the held-out pairs, which chose."""
+    size and each one's median relative error on the held-out pairs, which chose; and the 90th
+    percentile (held-out where screened), which chose where one is far off and far worse."""
     screening = res.stats.get("structure_screening") or {}
     screened = screening.get("samples", 0) < screening.get("of", 0)
     held = screened and bool(screening.get("heldout_samples"))
-    how = (f"lowest median |f−y|/y on {screening.get('heldout_samples', 0):,} held-out samples" if held else "lowest BIC")
+    how = (f"lowest median |f−y|/y on {screening.get('heldout_samples', 0):,} held-out samples" if held else "lowest BIC") + ", unless its p90 is far worse"
     on = f"; fitted to {screening['samples']:,} of its {screening['of']:,} samples, the choice then fitted to all" if screened else ""
     lines = [f"structure chosen by the data ({how}{on}):",
-             f"  {'structure':<42} {'params':>6} {'median |f−y|/y':>15}" + (f" {'held-out':>9}" if held else "") + f" {'BIC':>14} {'converged':>10}"]
+             f"  {'structure':<42} {'params':>6} {'median |f−y|/y':>15}" + (f" {'held-out':>9}" if held else "") + f" {'p90':>9} {'BIC':>14} {'converged':>10}"]
     for row in res.stats["structure_choice"]:
         median, out = row.get("median_relative_error"), row.get("heldout_median_relative_error")
-        med = "–" if median is None else f"{median:.1%}"
-        ho = (f" {'–' if out is None else f'{out:.1%}':>9}") if held else ""
+        tail = row.get("heldout_p90_relative_error") if held else row.get("p90_relative_error")
+        ho = f" {_percent(out):>9}" if held else ""
         mark = "  <- chosen" if row["chosen"] else ""
-        lines.append(f"  {row['structure']:<42} {row['params']:>6} {med:>15}{ho} {row['bic']:>14.6g} {str(row['converged']):>10}{mark}")
+        lines.append(f"  {row['structure']:<42} {row['params']:>6} {_percent(median):>15}{ho} {_percent(tail):>9} {row['bic']:>14.6g}"
+                     f" {str(row['converged']):>10}{mark}")
     return "\n".join(lines)

@@ -48,8 +48,9 @@ from jax.flatten_util import ravel_pytree
 from .._model import Params, Structure, array_leaves, is_array, split_arrays
 from .._runtime import shipped, stored_program
 from .coordinates import bounds, flat_host, fraction_weights
-from .fit_report import combined_rms, light_report_core, report_core, summary_of_values, zero_model_cost
+from .fit_report import combined_rms, light_report_core, report_core, summary_of_values
 from .jacobian import normal_equations_and_values
+from .losses import zero_model_cost
 from .problem import Problem, Spec
 from .seeded_solve import RACE_MARGIN, RACE_STEPS, lm_solver, stop_tolerances
 from .starts import best_splits, grid_sums, grid_sums_shape, seeds_from_scores
@@ -360,13 +361,14 @@ def _cost_given(flat, f):
 
 
 def _lm(y, lower, upper, grad, hess, tol):
-    solver = lm_solver(y.dtype, lower, upper, (grad, hess), _given, stol=tol[0], gtol=tol[1])
+    solver = lm_solver(y.dtype, lower, upper, (grad, hess), _given, stol=tol[0], gtol=tol[1], zero_cost=tol[2])
     template = solver.init(_cost_given, y, jnp.zeros((), y.dtype), {}, jax.ShapeDtypeStruct((), y.dtype), None, frozenset())
     return solver, template
 
 
 def _lm_init(y, lower, upper, tol):
-    """optimistix's ``init`` and first ``terminate`` (``_run_solver``'s); ``tol``: (stol, gtol)."""
+    """optimistix's ``init`` and first ``terminate`` (``_run_solver``'s); ``tol``: (stol, gtol, the
+    cost of a zero model)."""
     import optimistix as optx
 
     p = y.shape[0]
@@ -411,7 +413,7 @@ class _Kernels:
         ``last`` the point the solver last evaluated, (½‖r‖², Jᵀr, JᵀJ) and the chunks' model
         values there (:meth:`normal_equations`), or None;
         ``paused`` what ``resume`` takes to go on with this solve (its state), or None where it
-        took no step. ``tol``: the solver's (stol, gtol) (:func:`~ctfit._fitting.seeded_solve.lm_solver`),
+        took no step. ``tol``: the solver's (stol, gtol, zero_cost) (:func:`~ctfit._fitting.seeded_solve.lm_solver`),
         a device array. ``alone``: no other seed runs meanwhile (the sums' chains then run side
         by side). ``resume``: a ``paused`` of a solve on the same data, going on from ``y0``."""
         if resume is None:
@@ -461,7 +463,7 @@ def shipped_solver_arguments(p: int, dtype) -> list[tuple[str, Callable, tuple]]
     """(name, function, arguments like its own) of ``lm_init`` and ``lm_step`` for ``p`` padded
     parameters of ``dtype``: what ``scripts/ship_programs.py`` exports (:func:`_solver_programs`
     asks for them with arguments of these shapes). ``lm_step``'s state is the shape of ``lm_init``'s."""
-    flat, tol, zeros = np.zeros(p, dtype), np.zeros(2, dtype), [np.zeros(s, dtype) for s in ((), (p,), (p, p))]
+    flat, tol, zeros = np.zeros(p, dtype), np.zeros(3, dtype), [np.zeros(s, dtype) for s in ((), (p,), (p, p))]
     init_args = (flat, flat, flat, tol)
     state = [np.zeros(x.shape, x.dtype) for x in jax.eval_shape(_lm_init, *init_args)["state"]]
     return [("lm_init", _lm_init, init_args), ("lm_step", _lm_step, _step_arguments(flat, state, zeros, tol))]
@@ -483,7 +485,7 @@ def _solver_programs(u0: dict) -> tuple:
     p = _padded_size(size)
     flat = jax.device_put(np.zeros(p, dtype))
     zeros = [jax.device_put(np.zeros(s, dtype)) for s in ((), (p,), (p, p))]
-    tol = jax.device_put(np.zeros(2, dtype))
+    tol = jax.device_put(np.zeros(3, dtype))
     init_args = (flat, flat, flat, tol)
     init = _program("lm_init", _solver_function("lm_init", _lm_init, init_args), *init_args)
     step_args = _step_arguments(flat, init(*init_args)["state"], zeros, tol)
@@ -543,12 +545,14 @@ def prefetch(problem: Problem, u0: dict, grid, starts: int, keep_start: bool = F
     return [run for run in made if run is not None]
 
 
-def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None, sample: _Kernels | None = None):
+def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None = None, sample: _Kernels | None = None, zero_cost: float = 0.0):
     """``_structured_lm``'s race on the host: every seed ``RACE_STEPS`` steps, then those within
     ``RACE_MARGIN`` of the lowest cost go on with their solves (the solver's state, its damping
     included, carried over). Returns flat values, sound, steps, costs.
     ``tolerance``: stop where one more Gauss–Newton step promises less than this relative
-    decrease of the cost (None: ``lm_solver``'s tests). The seeds of a phase run side by side,
+    decrease of the cost (None: ``lm_solver``'s tests); ``zero_cost``: the cost of a zero model over
+    all the data, the scale below which the solver's stopping tests take a cost as rounding
+    (``lm_solver``'s; that of the race's sample is the same fraction of it). The seeds of a phase run side by side,
     one thread each, beyond the machine's cores too (the programs run without the GIL: three
     seeds on two cores end in 1.5 rounds, not two; every seed's steps are those it would take
     alone). Also returns each seed's :meth:`_Kernels.run` ``last`` (over all the data).
@@ -558,7 +562,10 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     lowest cost go on over all the data (``kern``), each with ``max_steps`` steps. The steps returned are those on all the data; a
     seed that did not go on keeps cost ∞."""
     n, p = seeds["flat"].shape
-    tol = jax.device_put(np.array(stop_tolerances(seeds["flat"].dtype, tolerance), seeds["flat"].dtype))
+    dtype = seeds["flat"].dtype
+    tol = jax.device_put(np.array([*stop_tolerances(dtype, tolerance), zero_cost], dtype))
+    share = 1.0 if sample is None else len(sample.parts) / len(kern.parts)  # of the zero model's cost: about the sample's share of the chunks
+    tol_first = tol if sample is None else jax.device_put(np.array([*stop_tolerances(dtype, tolerance), zero_cost * share], dtype))
     extra = _padded_size(p) - p
     flat = np.pad(seeds["flat"], ((0, 0), (0, extra)))
     lower, upper = (jax.device_put(np.pad(seeds[k], (0, extra))) for k in ("lower", "upper"))
@@ -570,7 +577,8 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
 
     def phase(budgets: list[int], on: _Kernels) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
-        run = lambda j: on.run(values[j], lower, upper, budgets[j], tol, len(go) <= 1, paused[j] if sound[j] else None)
+        tolerances = tol if on is kern else tol_first
+        run = lambda j: on.run(values[j], lower, upper, budgets[j], tolerances, len(go) <= 1, paused[j] if sound[j] else None)
         if len(go) <= 1:  # one seed (a fit from its start alone): no thread
             runs = [run(j) for j in go]
         else:
@@ -635,10 +643,10 @@ def _made_in_threads(parts: list[Problem], u0: dict, seeds: Callable[[], dict]):
     """(seeds, kernels, rest), the fit's programs made (compiled, or loaded from the store) in
     four threads at once, as XLA compiles and loads without the GIL: ``fit_ne`` (the largest),
     the solver's, ``fit_zero`` (and ``chunk_put``), and the seeds' (``seeds()``) in this one.
-    ``fit_zero`` is needed only after the race: it may still be being made while it runs (a
-    failure there is met again, and raised, where the report takes it). ``rest``: the
-    future of ``fit_zero``'s; the fit waits for it before it returns, so that nothing it started
-    outlives it."""
+    ``fit_zero`` is needed once the seeds are chosen (its cost is the solver's scale): it may
+    still be being made while they are (a failure there is met again, and raised, where the race
+    takes it). ``rest``: the future of ``fit_zero``'s; the fit waits for it before it returns, so
+    that nothing it started outlives it."""
     template = parts[0]
     pool = concurrent.futures.ThreadPoolExecutor(3, thread_name_prefix="ctfit-programs")
     try:
@@ -681,7 +689,8 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     if race_parts is not None and seeds["flat"].shape[0] > 1:  # one seed alone is not raced: it is solved on all the data
         sample = dataclasses.replace(kern, parts=[array_leaves(pt) for pt in race_parts])
         race_samples = int(sum(np.sum(np.asarray(pt.mask)) for pt in race_parts))
-    values, sound, steps, costs, last = _race(kern, seeds, max_steps, tolerance, sample)
+    zero = _zero_cost(kern, seeds["flat"].dtype)
+    values, sound, steps, costs, last = _race(kern, seeds, max_steps, tolerance, sample, float(zero))
     best = int(np.argmin(costs))
     p = _flat_shape(u0)[0]
     (cost, jtr, jtj), at_best = kern.normal_equations_at(values[best], last[best])
@@ -691,16 +700,22 @@ def _race_and_report(problem: Problem, u0: dict, seeds: dict, kern: _Kernels, ra
     if sample is not None:
         solved["race_samples"] = race_samples
     del last  # the other seeds' values
-    zero_program = _zero_program(kern.template)
-    zero = jax.device_put(np.zeros((), costs.dtype))
-    rebuild = split_arrays(kern.template)[1]
-    for leaves in kern.parts:  # each chunk with no structure in it (``fit_zero`` is shared)
-        zero = zero_program(zero, *array_leaves(_data_only(rebuild(leaves))))
-    zero = np.asarray(jax.device_get(zero))
     host = dataclasses.replace(kern.template, fixed=jax.device_get(kern.template.fixed))  # on the host: no program per structure
     if not report:
         return dict(light_report_core(host, solved["u"], cost, jtr, jtj, zero, np), **solved, zero_cost=zero)
     return dict(report_core(host, solved["u"], cost, jtr, jtj, zero, np), **_summary(problem, at_best), **solved)
+
+
+def _zero_cost(kern: _Kernels, dtype) -> np.ndarray:
+    """The cost of a zero model over ``kern``'s chunks (``fit_zero``, shared by every structure:
+    each chunk with no structure in it), on the host: the report's scale, and the solver's
+    (a cost below ε times it is rounding, :func:`~ctfit._fitting.seeded_solve.lm_solver`)."""
+    zero_program = _zero_program(kern.template)
+    zero = jax.device_put(np.zeros((), dtype))
+    rebuild = split_arrays(kern.template)[1]
+    for leaves in kern.parts:
+        zero = zero_program(zero, *array_leaves(_data_only(rebuild(leaves))))
+    return np.asarray(jax.device_get(zero))
 
 
 SUMMARY_CELLS = 1 << 17

@@ -18,14 +18,13 @@ from .._model import PUBLIC_NAMES, Params, array_module, box_bounds, clip_box, n
 from .chunks import map_over_chunks
 from .coordinates import flat_host, lobe_weights, to_params
 from .fit_warnings import FitWarning
-from .losses import loss_residuals
 from .problem import Problem, model_values
 from .seeded_solve import flat_bounds, gauss_newton_decrease
 from .stationarity import active_set, stationary_decrease
 
 __all__ = [
     "effective_index", "constrained_quantities", "residual_summary", "sorted_lobes", "standard_errors",
-    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "quantity_jacobian", "zero_model_cost",
+    "undetermined", "labelled", "coordinate_names", "fit_warnings", "report_core", "light_report_core", "quantity_jacobian",
     "summary_of_part", "summary_of_values", "combined_rms", "PARAM_FIELDS", "NO_STDERR_SINGULAR",
 ]
 
@@ -263,11 +262,6 @@ def _near_one(s: float, rd) -> FitWarning:
         return FitWarning(f"s = {s:.6g} is near its upper bound: the data shows almost no diffuse part", "on_bound", "s")
     return FitWarning(f"degenerate: s = {s:.6g} is near its upper bound, but R_d grew to {np.max(rd):.3g} sr⁻¹: the diffuse part, (1 − s) π R_d up to "
                       f"{np.max(albedo):.3g}, is there, and s and R_d are not determined apart (only (1 − s) R_d is)", "degenerate", "s")
-
-
-def zero_model_cost(part: Problem):
-    """½‖r‖² of a model that is 0 everywhere, over ``part`` (summable over chunks)."""
-    return 0.5 * jnp.sum(loss_residuals(part, jnp.zeros_like(part.y), part.y) ** 2)
 
 
 def report_core(problem: Problem, u: dict, cost, jtr, jtj, zero_cost, xp=jnp) -> dict:

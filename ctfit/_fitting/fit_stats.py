@@ -14,9 +14,9 @@ class FitStats(TypedDict, total=False):
 
     Every fit has ``converged`` … ``on_bound``; a fit with the report (the default) also
     ``rmse``, ``rel_rmse``, ``no_stderr`` and ``quality``; one without (a candidate of the
-    data-chosen structure, ``report`` False) ``quality`` holds the median relative error alone,
-    and a screened candidate also ``heldout_median_relative_error``; a fit whose structure the
-    data chose, ``structure_choice`` and ``structure_screening``.
+    data-chosen structure, ``report`` False) ``quality`` holds the median relative error and its
+    90th percentile alone, and a screened candidate also ``heldout_median_relative_error`` and
+    ``heldout_p90_relative_error``; a fit whose structure the data chose, ``structure_choice`` and ``structure_screening``.
 
     >>> import typing, ctfit
     >>> hints = typing.get_type_hints(ctfit.FitStats)
@@ -63,6 +63,7 @@ class FitStats(TypedDict, total=False):
     quality: dict
     """``{"median_relative_error", "p90_relative_error", "samples", "peak_width_deg", "regions"}`` (:func:`~ctfit.fit_quality`)."""
     heldout_median_relative_error: float
+    heldout_p90_relative_error: float
     structure_choice: list[dict]
     """Every candidate of the data-chosen structure (``docs/formats.md``)."""
     structure_screening: dict

@@ -54,12 +54,11 @@ from .fit_report import (
     sorted_lobes,
     standard_errors,
     undetermined,
-    zero_model_cost,
 )
 from .fit_stats import FitStats
 from .fit_warnings import FitWarning
 from .jacobian import normal_equations
-from .losses import LOSSES, default_loss
+from .losses import LOSSES, default_loss, zero_model_cost
 from .problem import Problem, make_problem
 from .quality import quality_from_residuals, quality_warning, zeros_hint
 from .seeded_solve import STATIONARY_TOLERANCE, explains_none, solve_seeds

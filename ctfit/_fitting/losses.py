@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from .problem import Problem
 
 __all__ = ["LOSSES", "RESIDUALS", "LOG_RATIO_FLOOR", "RELATIVE_FLOOR", "FLOOR_OF_PEAK", "SEED_FLOOR", "ROBUST_CAP", "ROBUST_SCALE", "loss_floor",
-           "default_loss", "row_floors", "loss_residuals"]
+           "default_loss", "row_floors", "loss_residuals", "zero_model_cost"]
 
 LOSSES = ("absolute", "relative", "robust-relative", "sigma", "cosine", "log", "log-ratio")
 RELATIVE_FLOOR = 0.1
@@ -129,6 +129,12 @@ RESIDUALS = {"absolute": _absolute, "relative": _relative, "robust-relative": _r
              "log": _log, "log-ratio": _log_ratio}
 """Each loss's residual ``(problem, values, y) -> r`` in the problem's layout (before the mask);
 its keys are :data:`LOSSES`."""
+
+
+def zero_model_cost(part: Problem):
+    """½‖r‖² of a model that is 0 everywhere, over ``part`` (summable over chunks): the scale of a
+    fit's cost (a cost below the dtype's ε times it is rounding: an exact fit)."""
+    return 0.5 * jnp.sum(loss_residuals(part, jnp.zeros_like(part.y), part.y) ** 2)
 
 
 def loss_residuals(problem: Problem, values, y, flat: bool = True):

@@ -15,8 +15,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
+from .chunks import sum_over_chunks
 from .coordinates import bounds, flat_host
 from .jacobian import half_squared_norm, normal_equations, residual
+from .losses import zero_model_cost
 from .problem import Problem
 from .stationarity import predicted_decrease
 
@@ -149,17 +151,20 @@ def stop_tolerances(dtype, tolerance: float | None = None) -> tuple[float, float
     return tol, tol * 1e-3
 
 
-def lm_solver(dtype, lower, upper, data, gauss_newton, stol=None, gtol=None) -> StructuredLevenbergMarquardt:
+def lm_solver(dtype, lower, upper, data, gauss_newton, stol=None, gtol=None, zero_cost=0.0) -> StructuredLevenbergMarquardt:
     """The fit's projected Levenberg–Marquardt (tolerances of ``dtype``) in the box [lower, upper];
     ``gauss_newton(flat, data)`` gives Jᵀr and JᵀJ. ``stol``, ``gtol`` (scalars, may be traced):
-    by default :func:`stop_tolerances`'."""
+    by default :func:`stop_tolerances`'. ``zero_cost`` (may be traced): the cost of a model that is
+    0 everywhere, below ε times which a cost is rounding (the stopping tests' scale, as
+    :func:`gauss_newton_decrease`'s): an exact fit stops, where it ran to the step limit."""
     from .solvers import ProjectedDampedNewtonDescent, StructuredLevenbergMarquardt
 
     rtol, atol = (1e-8, 1e-12) if dtype == jnp.float64 else (1e-5, 1e-8)
     descent = ProjectedDampedNewtonDescent(lower=lower, upper=upper)
     if stol is None or gtol is None:
         stol, gtol = stop_tolerances(dtype)
-    return StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=gauss_newton, descent=descent, gtol=gtol, stol=stol)
+    return StructuredLevenbergMarquardt(rtol=rtol, atol=atol, data=data, gauss_newton=gauss_newton, descent=descent, gtol=gtol, stol=stol,
+                                        zero_cost=zero_cost)
 
 
 def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
@@ -178,7 +183,7 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
     data = (problem, jax.tree_util.Partial(unravel))
     lower, upper = flat_bounds(problem, jax.tree.map(lambda a: a[0], seeds))
-    solver = lm_solver(flat_seeds.dtype, lower, upper, data, _gauss_newton)
+    solver = lm_solver(flat_seeds.dtype, lower, upper, data, _gauss_newton, zero_cost=sum_over_chunks(problem, zero_model_cost))
     n = flat_seeds.shape[0]
     race = n > 1 and max_steps > RACE_STEPS
     tasks = jnp.arange(2 * n if race else n)
