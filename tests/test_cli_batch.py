@@ -321,7 +321,7 @@ def test_lobes_auto_shows_convergence_and_keeps_the_library_choice(tmp_path):
     r = run("fit", csv, "--lobes", "auto", "--family", "metal", "-o", out)
     assert r.exit_code == 0, r.output
     header, *rows = [line for line in r.stdout.splitlines() if line.startswith("  ")][:7]
-    assert header.split() == ["structure", "params", "median", "|f−y|/y", "BIC", "converged"]
+    assert header.split() == ["structure", "params", "median", "|f−y|/y", "p90", "BIC", "converged"]
     rows = [row for row in rows if row.strip().startswith("metal")]
     assert all(row.split()[-1] in ("True", "False") or row.endswith("<- chosen") for row in rows)
     kept = [row for row in rows if row.endswith("<- chosen")]

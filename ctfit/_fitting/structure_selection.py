@@ -260,15 +260,22 @@ def choose_structure(
             best_st, best = _other_diffuse_parts(combos, best_st, best, fit_tried, ahead, better)
         if diffuse in (None, "auto"):  # a diffuse part at d = 0: the structure without it
             best_st, best = _without_unused_diffuse(best, tried, fit_screen, better) or (best_st, best)
-    table = choice_table(tried, best, n_full)
+    return _fitted_to_all(data, best_st, best, tried, screen, held, user_start, kwargs), tried
+
+
+def _fitted_to_all(data: Measurement, best_st: Structure, best: FitResult, tried: list, screen: Measurement, held: Measurement | None,
+                   user_start: Params | None, kwargs: dict) -> FitResult:
+    """The structure chosen, ``best_st``, fitted to all of ``data`` (with the report) from its
+    candidate's fit ``best`` (from ``user_start`` where that found nothing), with the choice's
+    table and screening sizes in its stats."""
+    table = choice_table(tried, best, len(data))
     criterion = "held-out median relative error" if held is not None else "BIC"
-    # The structure chosen, fitted to all the data (with the report) from its candidate's fit
     found = np.isfinite(best.stats["cost"])
-    best = fit_to_tolerance(data, best_st, start=best.material.params if found else user_start, **_seeding(kwargs, bool(found)))
-    best.stats["structure_choice"] = table
-    best.stats["structure_screening"] = {"samples": len(screen), "of": n_full, "criterion": criterion,
-                                         "heldout_samples": 0 if held is None else len(held)}
-    return best, tried
+    res = fit_to_tolerance(data, best_st, start=best.material.params if found else user_start, **_seeding(kwargs, bool(found)))
+    res.stats["structure_choice"] = table
+    res.stats["structure_screening"] = {"samples": len(screen), "of": len(data), "criterion": criterion,
+                                        "heldout_samples": 0 if held is None else len(held)}
+    return res
 
 
 def _other_diffuse_parts(
