@@ -102,6 +102,14 @@ def _fewer_lobes(res: FitResult, tried: list, fit_screen: Callable, better: Call
     smaller = Structure(**{**st.__dict__, "lobes": int(keep.sum())})
     w = np.asarray(p.w, dtype=float)[keep]
     start = dataclasses.replace(p, m=np.asarray(p.m, dtype=float)[keep], w=w / w.sum())
+    return _smaller_unless_worse(res, smaller, start, tried, fit_screen, better)
+
+
+def _smaller_unless_worse(res: FitResult, smaller: Structure, start: Params, tried: list, fit_screen: Callable,
+                          better: Callable) -> tuple[Structure, FitResult] | None:
+    """``smaller`` (a structure without a part ``res`` does not use) solved from ``start`` alone,
+    and its fit, in place of ``res`` unless ``res`` is better; its entry in ``tried`` replaced (or
+    added). Else None."""
     again = fit_screen(smaller, start, False)
     if better(res, again):
         return None
@@ -128,16 +136,7 @@ def _without_unused_diffuse(res: FitResult, tried: list, fit_screen: Callable, b
     if not st.has_s or p.s is None or None not in DIFFUSE_FORMS.get(st.family, ()) or 1.0 - float(p.s) >= UNUSED_WEIGHT:
         return None
     smaller = Structure(**{**st.__dict__, "diffuse": None})
-    again = fit_screen(smaller, _lobes_start(res, smaller), False)
-    if better(res, again):
-        return None
-    for i, (st_tried, _) in enumerate(tried):
-        if st_tried == smaller:
-            tried[i] = (smaller, again)
-            break
-    else:
-        tried.append((smaller, again))
-    return smaller, again
+    return _smaller_unless_worse(res, smaller, _lobes_start(res, smaller), tried, fit_screen, better)
 
 
 def _lobes_start(res: FitResult, other: Structure) -> Params:
