@@ -625,8 +625,9 @@ def structure_choice(o) -> dict:
     """The candidates of :func:`~ctfit.choose_structure` that the options leave open (where
     :func:`structure_from_options` gives None): families, lobes, diffuse part, geometry, Fresnel."""
     family, diffuse = _family(o), _diffuse(o)
+    fresnel = {"conductor": "conductor", "effective-n": "f0"}.get(o.fresnel)  # not given: both forms for a metal
     return dict(families=("metal", "plastic") if family == "auto" else (family,), lobes=(1, 2, 3) if o.lobes == "auto" else (int(o.lobes),),
-                diffuse=None if diffuse == "auto" else diffuse, geometry=o.geometry or "v-cavity", fresnel={"conductor": "conductor"}.get(o.fresnel))
+                diffuse=None if diffuse == "auto" else diffuse, geometry=o.geometry or "v-cavity", fresnel=fresnel)
 
 
 def fit_kwargs(o) -> dict:
