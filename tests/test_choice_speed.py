@@ -213,7 +213,8 @@ def test_a_candidate_that_cannot_describe_the_data_stops_at_its_step_budget_and_
     data = _metal(500, 1)
     best, tried = ctfit.choose_structure(data, lobes=(1,))
     stopped = [r for st, r in tried if r.stats["fit_status"] == "max_steps"]
-    assert stopped and all(r.material.structure.family == "plastic" and r.stats["steps"] == structure_selection.CANDIDATE_STEPS for r in stopped)
+    assert all(r.stats["steps"] == structure_selection.CANDIDATE_STEPS for r in stopped)
+    assert any(r.material.structure.family == "plastic" for r in stopped)  # (and a conductor on effective-index data: k crawls to 0)
     chosen = next(r for st, r in tried if st == best.material.structure)
     for r in stopped:
         reach = structure_selection._reach(r)

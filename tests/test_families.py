@@ -399,7 +399,7 @@ def test_screened_candidates_are_compared_by_their_error_on_held_out_pairs(monke
     import ctfit._fitting.structure_selection as selection
 
     data = dataclasses.replace(ctfit.simulate(plastic("spectrum"), n_pairs=1500, noise=0.01, seed=4), sigma=None)
-    favour = "metal, 1 lobe, no diffuse"
+    favour = "metal, 1 lobe, conductor, no diffuse"
     errors = lambda res, held: (0.01, 0.02) if selection.structure_label(res.material.structure) == favour else (0.5, 0.6)
     monkeypatch.setattr(selection, "heldout_errors", errors)
     res = ctfit.fit(data)
