@@ -563,9 +563,9 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
     seed that did not go on keeps cost ∞."""
     n, p = seeds["flat"].shape
     dtype = seeds["flat"].dtype
-    tol = jax.device_put(np.array([*stop_tolerances(dtype, tolerance), zero_cost], dtype))
-    share = 1.0 if sample is None else len(sample.parts) / len(kern.parts)  # of the zero model's cost: about the sample's share of the chunks
-    tol_first = tol if sample is None else jax.device_put(np.array([*stop_tolerances(dtype, tolerance), zero_cost * share], dtype))
+    tolerances = lambda zero: jax.device_put(np.array([*stop_tolerances(dtype, tolerance), zero], dtype))
+    tol = tolerances(zero_cost)
+    tol_first = tol if sample is None else tolerances(zero_cost * len(sample.parts) / len(kern.parts))  # about the sample's share of the zero cost
     extra = _padded_size(p) - p
     flat = np.pad(seeds["flat"], ((0, 0), (0, extra)))
     lower, upper = (jax.device_put(np.pad(seeds[k], (0, extra))) for k in ("lower", "upper"))
@@ -577,8 +577,8 @@ def _race(kern: _Kernels, seeds: dict, max_steps: int, tolerance: float | None =
 
     def phase(budgets: list[int], on: _Kernels) -> None:
         go = [j for j in range(n) if budgets[j] > 0]
-        tolerances = tol if on is kern else tol_first
-        run = lambda j: on.run(values[j], lower, upper, budgets[j], tolerances, len(go) <= 1, paused[j] if sound[j] else None)
+        tol_on = tol if on is kern else tol_first
+        run = lambda j: on.run(values[j], lower, upper, budgets[j], tol_on, len(go) <= 1, paused[j] if sound[j] else None)
         if len(go) <= 1:  # one seed (a fit from its start alone): no thread
             runs = [run(j) for j in go]
         else:

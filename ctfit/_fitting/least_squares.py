@@ -133,7 +133,8 @@ def fit_core(problem: Problem, u0: dict, grid: Any, starts: int, solver_name: st
     """Seeds, solve, pick the best, and everything the report needs, in one compiled program.
     ``keep_start``: the start ``u0`` is a seed too (a start the caller chose)."""
     seeds = seed_points(problem, u0, starts, grid, keep_start)
-    values, ok, steps, costs, normal = solve_seeds(problem, seeds, solver_name, max_steps)
+    zero_cost = sum_over_chunks(problem, zero_model_cost)  # the solver's stopping scale and the report's
+    values, ok, steps, costs, normal = solve_seeds(problem, seeds, solver_name, max_steps, zero_cost)
     costs = jnp.where(jnp.isfinite(costs), costs, jnp.inf)
     best = jnp.argmin(costs)
     u = jax.tree.map(lambda a: a[best], values)
@@ -148,7 +149,6 @@ def fit_core(problem: Problem, u0: dict, grid: Any, starts: int, solver_name: st
     else:  # the solver's, at the seed's last accepted point (a pass of its own where it took no step or failed)
         cost, jtr, jtj = jax.lax.cond((steps[best] > 0) & jnp.isfinite(costs[best]), lambda: (costs[best], normal[0][best], normal[1][best]),
                                       lambda: normal_equations(problem, u))
-    zero_cost = sum_over_chunks(problem, zero_model_cost)
     return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, **report_core(problem, u, cost, jtr, jtj, zero_cost), **residual_summary(problem, u))
 
 

@@ -15,12 +15,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from .chunks import sum_over_chunks
 from .coordinates import bounds, flat_host
 from .jacobian import half_squared_norm, normal_equations, residual
-from .losses import zero_model_cost
 from .problem import Problem
-from .stationarity import predicted_decrease
+from .stationarity import cost_scale, predicted_decrease
 
 if TYPE_CHECKING:
     from .solvers import StructuredLevenbergMarquardt
@@ -167,7 +165,7 @@ def lm_solver(dtype, lower, upper, data, gauss_newton, stol=None, gtol=None, zer
                                         zero_cost=zero_cost)
 
 
-def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
+def _structured_lm(problem: Problem, seeds: dict, max_steps: int, zero_cost=0.0):
     """optimistix Levenberg–Marquardt on the structured normal equations, the seeds raced.
 
     Every seed gets ``RACE_STEPS`` steps; the seeds whose cost is then within ``RACE_MARGIN``
@@ -183,7 +181,7 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     unravel = ravel_pytree(jax.tree.map(lambda a: a[0], seeds))[1]
     data = (problem, jax.tree_util.Partial(unravel))
     lower, upper = flat_bounds(problem, jax.tree.map(lambda a: a[0], seeds))
-    solver = lm_solver(flat_seeds.dtype, lower, upper, data, _gauss_newton, zero_cost=sum_over_chunks(problem, zero_model_cost))
+    solver = lm_solver(flat_seeds.dtype, lower, upper, data, _gauss_newton, zero_cost=zero_cost)
     n = flat_seeds.shape[0]
     race = n > 1 and max_steps > RACE_STEPS
     tasks = jnp.arange(2 * n if race else n)
@@ -222,14 +220,15 @@ def _structured_lm(problem: Problem, seeds: dict, max_steps: int):
     return jax.vmap(unravel)(values), sound, steps, costs, normal
 
 
-def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int):
+def solve_seeds(problem: Problem, seeds: dict, solver_name: str, max_steps: int, zero_cost=0.0):
     """Every seed; values, success flags, steps and final costs per seed, and (Levenberg–Marquardt)
     the flat Jᵀr and JᵀJ there per seed ((seeds, P), (seeds, P, P); valid where a seed took a
-    step), else None."""
+    step), else None. ``zero_cost``: the cost of a zero model over ``problem``, Levenberg–Marquardt's
+    stopping scale (:func:`lm_solver`)."""
     import optimistix as optx
 
     if solver_name == "lm":
-        return _structured_lm(problem, seeds, max_steps)
+        return _structured_lm(problem, seeds, max_steps, zero_cost)
     solver = _solver(solver_name, problem.y.dtype)
 
     def one(u0):
@@ -258,5 +257,4 @@ def gauss_newton_decrease(jtj, jtr, cost, scale, xp=jnp, dec=None):
     :func:`~ctfit._fitting.stationarity.stationary_decrease`), made relative here.
     """
     dec = predicted_decrease(jtj, jtr, xp=xp) if dec is None else dec
-    eps = np.finfo(cost.dtype).eps
-    return dec / xp.maximum(cost, xp.maximum(eps * scale, np.finfo(cost.dtype).tiny))
+    return dec / cost_scale(cost, scale, xp)

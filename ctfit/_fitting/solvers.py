@@ -33,7 +33,7 @@ import lineax as lx
 import optimistix as optx
 from jaxtyping import Array
 
-from .stationarity import active_set, predicted_decrease, stationary_decrease
+from .stationarity import active_set, cost_scale, predicted_decrease, stationary_decrease
 
 __all__ = ["StructuredLevenbergMarquardt", "ProjectedDampedNewtonDescent", "active_set", "predicted_decrease", "small_change"]
 
@@ -226,7 +226,6 @@ class StructuredLevenbergMarquardt(optx.AbstractMinimiser):
         upper = getattr(self.descent, "upper", None)
         jtj = info.hessian.as_matrix()
         dec = predicted_decrease(jtj, info.grad) if lower is None else stationary_decrease(y_eval, info.grad, jtj, lower, upper)
-        finfo = jnp.finfo(y_eval.dtype)
-        scale = jnp.maximum(info.f, jnp.maximum(finfo.eps * self.zero_cost, finfo.tiny))
+        scale = cost_scale(info.f, self.zero_cost)
         return (small & (dec <= self.stol * scale)) | (dec <= self.gtol * scale)
 

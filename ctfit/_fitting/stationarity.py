@@ -15,7 +15,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import solve_triangular
 
-__all__ = ["active_set", "held_by_bound", "predicted_decrease", "stationary_decrease"]
+__all__ = ["active_set", "cost_scale", "held_by_bound", "predicted_decrease", "stationary_decrease"]
+
+
+def cost_scale(cost, zero_cost, xp: Any = jnp):
+    """What a predicted decrease of the cost is relative to: the cost, or ε times ``zero_cost`` (the
+    cost of a model that is 0 everywhere) where that is larger, so that at an exact fit (cost → 0)
+    rounding is not divided by rounding; never below the dtype's smallest normal number."""
+    finfo = np.finfo(cost.dtype)
+    return xp.maximum(cost, xp.maximum(finfo.eps * zero_cost, finfo.tiny))
 
 
 def active_set(y, grad, lower, upper):

@@ -306,11 +306,11 @@ def _other_diffuse_parts(
     best_st, best = chosen_st, chosen
     others = [Structure(**{**st.__dict__, "lobes": chosen_st.lobes}) for st in combos
               if st.family == chosen_st.family and (st.diffuse, st.fresnel) != (chosen_st.diffuse, chosen_st.fresnel)]
-    first = {st: res for st, res in tried}
+    first = {st: res for st, res in tried if st.lobes == tried[0][0].lobes}  # the first stage's fits
     for other in others[1:]:
         ahead(other, seeded=False)
     for other in others:
-        own = first.get(Structure(**{**other.__dict__, "lobes": min(st.lobes for st, _ in tried)})) if other.fresnel != chosen_st.fresnel else None
+        own = first.get(Structure(**{**other.__dict__, "lobes": tried[0][0].lobes})) if other.fresnel != chosen_st.fresnel else None
         res = fit_screen(other, _lobes_start(chosen, other, own), seeded=False)
         if better(res, best):
             best_st, best = other, res
