@@ -44,7 +44,7 @@ SCRIPTS = ROOT / "scripts"
 sys.path.insert(0, str(SCRIPTS))
 
 from _numpy_model import NumpyProblem, read_csv_numpy  # noqa: E402
-from _whole_process import run  # noqa: E402
+from _whole_process import byte_compile, run  # noqa: E402
 from bench_fit import CTFIT, PY, cpu_name, llvm_path  # noqa: E402  (the same interpreter and ctfit command)
 
 import ctfit  # noqa: E402
@@ -293,6 +293,7 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    byte_compile()  # as an installed ctfit is (_whole_process.byte_compile)
     started, load0 = time.perf_counter(), os.getloadavg()[0]
     print(" | ".join(COLUMNS), flush=True)
     env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}

@@ -42,7 +42,7 @@ SCRIPTS = ROOT / "scripts"
 sys.path.insert(0, str(SCRIPTS))
 
 import _bench_fit_data as data  # noqa: E402
-from _whole_process import median, run  # noqa: E402
+from _whole_process import byte_compile, median, run  # noqa: E402
 
 PY = sys.executable
 CTFIT = str(Path(sys.executable).with_name("ctfit"))
@@ -225,6 +225,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.small:
         args.files, args.samples, args.texels, args.loop_texels, args.scipy_texels = 4, 300, 256, 4, 16
+    byte_compile()  # as an installed ctfit is (_whole_process.byte_compile)
     started = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="bench-scale-") as tmp:
         b = Bench(Path(tmp), args.repeat, args.warm, args.fixed)
