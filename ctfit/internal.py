@@ -3,6 +3,9 @@ own: they may change between versions. Everything meant for users is in :mod:`ct
 
 - :func:`prepare_fit`: a measurement made ready for the compiled fit (checked, started, laid
   out, padded to its size bucket): ``.problem``, ``.u0`` (the start in the fit's coordinates).
+- :func:`fit_core`: the compiled fit's whole computation for one prepared measurement (seeds,
+  solve, the report's numbers), to jit and time alone (the solves of ``scripts/bench_fit.py``'s
+  many files).
 - :func:`normal_equations`: ``(½‖r‖², Jᵀr, JᵀJ)`` of a prepared problem at free values ``u``,
   the one evaluation a Levenberg–Marquardt step of the fit is built on.
 - :func:`start_read_ahead`: a large CSV parsed in a helper process (its ``.measurement()``), as
@@ -22,15 +25,15 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from ._fitting import LOSSES, PARAMETER_STEP, normal_equations, prepare_fit, shipped_solver_arguments
+    from ._fitting import LOSSES, PARAMETER_STEP, fit_core, normal_equations, prepare_fit, shipped_solver_arguments
     from ._io import start_read_ahead
     from ._runtime import COMPILE_EFFORT, ship_programs
 
-__all__ = ["COMPILE_EFFORT", "LOSSES", "PARAMETER_STEP", "normal_equations", "prepare_fit", "ship_programs", "shipped_solver_arguments",
+__all__ = ["COMPILE_EFFORT", "LOSSES", "PARAMETER_STEP", "fit_core", "normal_equations", "prepare_fit", "ship_programs", "shipped_solver_arguments",
            "start_read_ahead"]
 
-_HOME = {"COMPILE_EFFORT": "_runtime", "LOSSES": "_fitting", "PARAMETER_STEP": "_fitting", "normal_equations": "_fitting", "prepare_fit": "_fitting",
-         "ship_programs": "_runtime", "shipped_solver_arguments": "_fitting", "start_read_ahead": "_io"}
+_HOME = {"COMPILE_EFFORT": "_runtime", "LOSSES": "_fitting", "PARAMETER_STEP": "_fitting", "fit_core": "_fitting", "normal_equations": "_fitting",
+         "prepare_fit": "_fitting", "ship_programs": "_runtime", "shipped_solver_arguments": "_fitting", "start_read_ahead": "_io"}
 
 
 def __getattr__(name: str) -> Any:

@@ -88,6 +88,39 @@ READ_SOLVE_DIR = ("import os, jax; jax.config.update('jax_enable_x64', True); ja
 JAX process reads the files one after another and fits them with ``ctfit.fit_batch``, 64 at a
 call (the command's window), from the same warm cache; it prints and writes nothing. Not a floor
 (the solves are ctfit's own), but the measure of what the command adds around its solves."""
+SOLVES_ALONE = r"""
+import json, pathlib, sys, time
+import jax
+jax.config.update("jax_enable_x64", True)
+import ctfit
+from ctfit.internal import fit_core, prepare_fit
+paths = sorted(pathlib.Path(sys.argv[1]).glob("*.csv"))
+t = time.process_time()
+ms = [ctfit.read_measurement(p) for p in paths]
+out = {"read_cpu_s": time.process_time() - t}
+st = ctfit.Structure(lobes=2, diffuse="F0/pi", family="metal")
+core = jax.jit(fit_core, static_argnums=(3, 4, 5, 6))
+for k in (3, 1):
+    preps = [prepare_fit(m, st, start=None, fixed=(), loss="relative", dtype=jax.numpy.float64, starts=k) for m in ms[:int(sys.argv[2])]]
+    args = lambda p: (p.problem, p.u0, p.grid, *p.options("lm", 256))
+    jax.block_until_ready(core(*args(preps[0])))  # compiled here (the command loads it from its store)
+    best = []
+    for p in preps:
+        times = []
+        for _ in range(3):
+            t = time.process_time()
+            jax.block_until_ready(core(*args(p)))
+            times.append(time.process_time() - t)
+        best.append(min(times))
+    out[f"solve_cpu_s_{k}"] = sum(best) / len(best) * len(ms)
+print(json.dumps(out))
+"""
+"""The CPU time (every thread of the process) of what no run of the many files can do without:
+reading the files with ctfit's reader, and solving each (``fit_core`` jitted: seeds, solve and
+the report's numbers, one file a call, best of 3), with 3 seeds and with 1, measured on the first
+``argv[2]`` files and scaled to all of them. Two cores can at best share it out: the floor
+of ``ctfit fit DIR`` is then the bare JAX process (it runs on one core before anything else can)
+plus this CPU time over the cores."""
 IN_PROCESS = r"""
 import json, sys, time
 import jax
@@ -292,6 +325,7 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     one = lambda: [*args, "--starts", "1", "-o", str(b.folder("batch-out-one"))]  # one start, as the SciPy loop; a new output folder each run
     b.ctfit([*args, "-o", str(b.folder("batch-out"))], cache, "ctfit fit DIR (priming)")
     b.ctfit(one(), cache, "ctfit fit DIR --starts 1 (priming)")
+    alone = json.loads(run([PY, "-c", SOLVES_ALONE, str(folder / "files"), "32"], env=b.env).check("the solves alone").stdout.strip().splitlines()[-1])
     t_scipy, t_ctfit, t_floor, t_one, t_solve = [], [], [], [], []
     for _ in range(b.repeat):
         r, sp = scipy_run(b, start, files)
@@ -312,7 +346,7 @@ def batch(b: Bench, n_files: int, n_samples: int, seed: int) -> dict:
     rel = np.array([(ct_cost[k] - sp_cost[k]) / sp_cost[k] for k in sp_cost if k in ct_cost])
     conv = sum(bool(d["fit"]["converged"]) for d in docs.values())
     res = dict(files=n_files, samples=n_samples, scipy=median(t_scipy), ctfit=median(t_ctfit), one_start=median(t_one), read_floor=median(t_floor),
-               read_and_solve=median(t_solve),
+               read_and_solve=median(t_solve), solves_alone=alone,
                peak_mb=peak, results=len(docs), converged=conv,
                fit_s=sum(d["fit"]["time_s"] for d in docs.values()),
                same=int(np.sum(np.abs(rel) <= 1e-6)), ctfit_lower=int(np.sum(rel < -1e-6)), scipy_lower=int(np.sum(rel > 1e-6)),
@@ -587,8 +621,24 @@ def targets_21(fl: dict, cases: list[dict], bat: dict | None) -> list[tuple[str,
                   f"{_s(bat['read_and_solve'])}: ctfit fit DIR is {bat['ctfit'] - bat['read_and_solve']:+.2f} s from it, and the SciPy loop / that "
                   f"process is {bat['scipy'] / bat['read_and_solve']:.1f}×") if "read_and_solve" in bat else ""
         ratio_row(f"{bat['files']} files × {bat['samples']:,} samples, one process: ≥ 20× the SciPy loop", bat["ctfit"], bat["scipy"], 20.0,
-                  floor_at, what, solves)
+                  floor_at, what, solves + _solves_floor(fl, bat))
     return rows
+
+
+def _solves_floor(fl: dict, bat: dict) -> str:
+    """What the many files cost with their solves as they are (``SOLVES_ALONE``; the solves are
+    ctfit's own, no floor): the bare JAX process, then reading and solving shared out over every
+    core at once, with 3 seeds (the default) and with 1."""
+    if "solves_alone" not in bat:
+        return ""
+    a, cores = bat["solves_alone"], os.cpu_count() or 1
+    at = {k: fl["jax"] + (a["read_cpu_s"] + a[f"solve_cpu_s_{k}"]) / cores for k in (3, 1)}
+    need = bat["scipy"] / 20.0
+    side = lambda k: "above" if at[k] > need else "below"
+    return (f". Reading the files takes {a['read_cpu_s']:.2f} CPU-s, their compiled solves alone (`fit_core`, one file a call) "
+            f"{a['solve_cpu_s_3']:.2f} CPU-s with 3 seeds and {a['solve_cpu_s_1']:.2f} with 1: with the solves as they are, shared out over "
+            f"the {cores} cores after the bare JAX process, no run goes below {_s(at[3])} with 3 seeds ({side(3)} the {_s(need)} that 20× needs) "
+            f"or {_s(at[1])} with 1 ({side(1)} it; `--starts 1` took {_s(bat['one_start'])})")
 
 
 def section(args, fl, cases, bat, mer, tex, mit, started: float, changed: bool) -> str:

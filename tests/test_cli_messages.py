@@ -57,6 +57,8 @@ def test_every_option_named_in_a_message_exists():
         ("walkers must be even and ≥ 2·ndim = 14, got 8", "--walkers must be even and ≥ 2·ndim = 14, got 8"),
         ("run.h5: the stored run already has 30 steps, more than steps=20", "run.h5: the stored run already has 30 steps, more than --steps=20"),
         ("run.h5: the stored run was sampled for other data; pass resume=False", "run.h5: the stored run was sampled for other data; leave out --resume"),
+        ('undamped steps: fit with the damped solver (solver="lm", the default) or from more starts (starts=3)',
+         "undamped steps: fit with the damped solver (--solver lm, the default) or from more starts (--starts 3)"),
     ],
 )
 def test_library_argument_names_become_options(library, cli):

@@ -126,3 +126,15 @@ def test_a_metal_kept_to_one_fresnel_form_tries_no_other():
     for fresnel in ("f0", "conductor"):
         _, tried = ctfit.choose_structure(data, families=("metal",), lobes=(1,), fresnel=fresnel)
         assert {st.fresnel for st, _ in tried} == {fresnel}
+
+
+def test_a_numerical_failure_of_gauss_newton_points_to_the_damped_solver():
+    """Gauss–Newton from one start on a conductor: its first, undamped step leaves the region
+    where the model is finite (2 steps, then a failure). The warning says what helps there — the
+    damped solver or more starts — not float64, which the fit already uses."""
+    data = ctfit.simulate(copper(), n_pairs=300, seed=1, noise=0.01)
+    res = ctfit.fit(data, copper().structure, solver="gauss-newton", starts=1)
+    failure = [str(w) for w in res.warnings if w.kind == "numerical_failure"]
+    assert not res.converged and failure, res.stats
+    assert 'the damped solver (solver="lm", the default)' in failure[0] and "float64" not in failure[0]
+    assert ctfit.fit(data, copper().structure, solver="lm", starts=1).converged

@@ -27,6 +27,8 @@ _CLI_PHRASES = {  # library phrases → the command line's (longest first where 
     "(structure=)": "(--lobes)",
     "(start=)": "(--material)",
     "(dtype=float64)": "(without --float32)",
+    '(solver="lm", the default)': "(--solver lm, the default)",
+    "(starts=3)": "(--starts 3)",
 }
 
 

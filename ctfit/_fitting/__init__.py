@@ -13,7 +13,7 @@ __getattr__, __dir__, __all__ = lazy_loader.attach(
         "diagnostics": ['residual_structure'],
         "quality": ['fit_quality'],
         "fit_report": ['constrained_quantities', 'standard_errors', 'undetermined'],
-        "least_squares": ['FitResult', 'fit', 'prepare_fit', 'seed_params'],
+        "least_squares": ['FitResult', 'fit', 'fit_core', 'prepare_fit', 'seed_params'],
         "many": ['fit_many', 'input_sha256', 'read_input'],
         "plots": ['plot_fit'],
         "quality_plots": ['draw_polar', 'draw_residual_map', 'plot_polar', 'plot_residual_map', 'residual_cells'],

@@ -152,6 +152,17 @@ def fit_core(problem: Problem, u0: dict, grid: Any, starts: int, solver_name: st
     return dict(u=u, ok=ok, steps=steps, costs=costs, best=best, **report_core(problem, u, cost, jtr, jtj, zero_cost), **residual_summary(problem, u))
 
 
+def _failure_hint(dtype: DTypeLike, solver: str) -> str:
+    """What to try after a numerical failure: float64 where the fit ran in float32; the damped
+    solver where Gauss–Newton's undamped step left the region where the model is finite (a
+    conductor's n, k from one start, say); else another start or fewer lobes."""
+    if jnp.dtype(dtype).name == "float32":
+        return "fit in float64 (dtype=float64), from another start, or with fewer lobes"
+    if solver == "gauss-newton":
+        return 'Gauss–Newton takes undamped steps: fit with the damped solver (solver="lm", the default) or from more starts (starts=3)'
+    return "fit from another start, or with fewer lobes"
+
+
 @dataclasses.dataclass
 class PreparedFit:
     """One measurement made ready for ``fit_core`` (checked, started, laid out): what :func:`fit`
@@ -509,9 +520,8 @@ def finish_fit(prep: PreparedFit, out: dict, solver: str, t0: float, tolerance: 
                                 "the solver stalled where the lobe misses the data — try other lobes (structure=), starting values (start=) or another "
                                 f"loss={'' if zeros_said else zeros_hint(data.brdf)}", "explains_nothing"))
     if not bool(np.asarray(ok)[best]):
-        notes.append(FitWarning("the solver stopped on a numerical failure (a singular or non-finite step); fit in float64 (dtype=float64), from another "
-                                "start, "
-                                "or with fewer lobes", "numerical_failure"))
+        why = "the solver stopped on a numerical failure (a singular or non-finite step)"
+        notes.append(FitWarning(f"{why}; {_failure_hint(dtype, solver)}", "numerical_failure"))
     return FitResult(material=material, stats=stats, stderr=stderr, warnings=notes + structure_notes, loss=loss, solver=solver)
 
 
