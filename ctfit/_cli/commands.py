@@ -147,7 +147,8 @@ def fit(
     lobes: str = typer.Option("auto", "--lobes", help="Number of lobes, or auto (1–3, chosen by the data: by BIC, or above 4,096 samples by the error on "
                                                       "held-out direction pairs)."),
     geometry: Optional[str] = typer.Option(None, "--geometry", help="v-cavity (default), smith or smith-rational (Smith with the rational G1 of Mitsuba 3)."),
-    fresnel: Optional[str] = typer.Option(None, "--fresnel", help="effective-n (default: k = 0, n from F0) or conductor (n, k)."),
+    fresnel: Optional[str] = typer.Option(None, "--fresnel", help="effective-n (k = 0, n from F0) or conductor (n, k); not given: effective-n, "
+                                                              "and a metal the data chooses tries both."),
     diffuse: str = typer.Option("auto", "--diffuse", help="The diffuse part: none, F0/pi (metal), spectrum, constant, transmitted (plastic) or auto (chosen "
                                                           "by the data)."),
     no_diffuse: bool = typer.Option(False, "--no-diffuse", help="No diffuse part (the same as --diffuse none)."),

@@ -36,12 +36,17 @@ DIFFUSE_CHOICES = ("auto", "none", "F0/pi", "spectrum", "constant", "transmitted
 FAMILY_CHOICES = ("auto", "metal", "plastic")
 
 
+FRESNEL_FORMS = {"effective-n": "f0", "conductor": "conductor"}
+"""``--fresnel``'s values → the library's ``Structure.fresnel``; not given: a structure the options
+name takes the effective index, a data-chosen one tries both for a metal."""
+
+
 def structure_from_options(base, o):
     """The one structure the options (or --material) name, or None when the data is to choose
     (--family, --diffuse or --lobes auto; :func:`~ctfit.choose_structure`)."""
     from .._model import Structure
 
-    fres = {"effective-n": "f0", "conductor": "conductor", None: None}[o.fresnel]
+    fres = FRESNEL_FORMS.get(o.fresnel)
     if base is not None:
         kw = {}
         if o.geometry:
@@ -208,8 +213,8 @@ def _check_fit_options(o) -> None:
         refuse_dash(value, option)
     if o.geometry not in (None, "v-cavity", "smith", "smith-rational"):
         raise UserError(f"--geometry must be v-cavity, smith or smith-rational, got {o.geometry!r}")
-    if o.fresnel not in (None, "effective-n", "conductor"):
-        raise UserError(f"--fresnel must be effective-n or conductor, got {o.fresnel!r}")
+    if o.fresnel is not None and o.fresnel not in FRESNEL_FORMS:
+        raise UserError(f"--fresnel must be {' or '.join(FRESNEL_FORMS)}, got {o.fresnel!r}")
     from .._model import MAX_LOBES
 
     if o.lobes != "auto" and not (o.lobes.isdigit() and 1 <= int(o.lobes) <= MAX_LOBES):
@@ -625,9 +630,9 @@ def structure_choice(o) -> dict:
     """The candidates of :func:`~ctfit.choose_structure` that the options leave open (where
     :func:`structure_from_options` gives None): families, lobes, diffuse part, geometry, Fresnel."""
     family, diffuse = _family(o), _diffuse(o)
-    fresnel = {"conductor": "conductor", "effective-n": "f0"}.get(o.fresnel)  # not given: both forms for a metal
     return dict(families=("metal", "plastic") if family == "auto" else (family,), lobes=(1, 2, 3) if o.lobes == "auto" else (int(o.lobes),),
-                diffuse=None if diffuse == "auto" else diffuse, geometry=o.geometry or "v-cavity", fresnel=fresnel)
+                diffuse=None if diffuse == "auto" else diffuse, geometry=o.geometry or "v-cavity",
+                fresnel=FRESNEL_FORMS.get(o.fresnel))  # not given: both forms for a metal
 
 
 def fit_kwargs(o) -> dict:
